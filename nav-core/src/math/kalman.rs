@@ -1,0 +1,276 @@
+//! Kalman measurement update by sequential scalar fusion, and covariance helpers.
+//!
+//! A vector measurement with diagonal noise covariance `R = diag(r_1 … r_m)` is fused as m
+//! scalar updates, which is algebraically identical to the batch update
+//! `K = P Hᵀ (H P Hᵀ + R)⁻¹` and needs one division per scalar instead of a matrix inverse.
+//!
+//! Each scalar update uses the Joseph form, expanded for a scalar measurement so that it costs
+//! O(N²):
+//!
+//! ```text
+//! b = P h,  s = hᵀ P h + r,  k = b / s
+//! P⁺ = (I − k hᵀ) P (I − k hᵀ)ᵀ + r k kᵀ = P − k bᵀ − b kᵀ + s k kᵀ
+//! ```
+//!
+//! The element formula `P⁺_ij = P_ij − (k_i b_j + b_i k_j) + s (k_i k_j)` is symmetric in i, j
+//! term by term, so a symmetric P stays exactly symmetric in floating point. The new diagonal is
+//! checked before anything is written: an update that would produce a negative or non-finite
+//! variance is refused with [`NavError::CovarianceNotPositiveSemiDefinite`] and leaves x and P
+//! untouched.
+
+use crate::{NavError, Real};
+use nalgebra::{SMatrix, SVector};
+
+/// Innovation gate of a scalar update.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Gate<T> {
+    /// Fuse every finite measurement.
+    Off,
+    /// Reject when the normalised innovation squared `ν²/s` exceeds this χ² (1 degree of
+    /// freedom) threshold; e.g. 9.0 is a 3σ gate (rejects 0.27 % of consistent measurements).
+    Nis(T),
+}
+
+/// What happened to a measurement.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum FusionOutcome {
+    /// The measurement was fused into the state and covariance.
+    Fused,
+    /// The innovation failed the gate; state and covariance are unchanged.
+    Rejected,
+}
+
+/// Report of one scalar fusion (as PX4 EKF2 reports per sensor).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct FusionReport<T> {
+    /// Innovation ν = z − ẑ, in the measurement's unit.
+    pub innovation: T,
+    /// Innovation variance s = hᵀ P h + r, in the measurement's unit squared.
+    pub innovation_variance: T,
+    /// Normalised innovation squared ν² / s (χ² with 1 degree of freedom when consistent).
+    pub nis: T,
+    /// NIS divided by the gate threshold (> 1 means rejected); 0 when the gate is off.
+    pub test_ratio: T,
+    /// Fused or rejected.
+    pub outcome: FusionOutcome,
+}
+
+/// Fuses one scalar measurement `z = hᵀ x + v`, `var(v) = r`, given its innovation
+/// `ν = z − ẑ` (computed by the caller from the nonlinear model for an EKF).
+///
+/// On `Ok(report)` with `outcome == Fused`, `x` and `p` are updated; on `Rejected` or `Err`,
+/// they are untouched. Zero entries of `h` are skipped, so sparse rows cost less.
+///
+/// Errors: `NonFiniteInput` (innovation, h or r), `InputOutOfRange` (r ≤ 0),
+/// `InnovationVarianceNotPositive`, `CovarianceNotPositiveSemiDefinite`.
+pub fn fuse_scalar<T: Real, const N: usize>(
+    x: &mut SVector<T, N>,
+    p: &mut SMatrix<T, N, N>,
+    h: &SVector<T, N>,
+    innovation: T,
+    r: T,
+    gate: Gate<T>,
+) -> Result<FusionReport<T>, NavError> {
+    if !innovation.is_finite() {
+        return Err(NavError::NonFiniteInput { input: "innovation" });
+    }
+    if !r.is_finite() {
+        return Err(NavError::NonFiniteInput { input: "measurement variance" });
+    }
+    if r <= T::zero() {
+        return Err(NavError::InputOutOfRange { input: "measurement variance" });
+    }
+    if !h.iter().all(|v| v.is_finite()) {
+        return Err(NavError::NonFiniteInput { input: "measurement row h" });
+    }
+    // b = P h, skipping zero entries of h (columns of P).
+    let mut b = SVector::<T, N>::zeros();
+    for (col, &hj) in p.column_iter().zip(h.iter()) {
+        if hj != T::zero() {
+            b.axpy(hj, &col, T::one());
+        }
+    }
+    let hph = h.dot(&b);
+    let s = hph + r;
+    if !s.is_finite() || s <= T::zero() || hph < T::zero() {
+        return Err(NavError::InnovationVarianceNotPositive);
+    }
+    let inv_s = T::one() / s;
+    let nis = innovation * innovation * inv_s;
+    let (test_ratio, rejected) = match gate {
+        Gate::Off => (T::zero(), false),
+        Gate::Nis(threshold) => {
+            let ratio = nis / threshold;
+            // A NaN/negative threshold rejects nothing it cannot judge: treat as rejected.
+            (ratio, !(ratio <= T::one()) || !(threshold > T::zero()))
+        }
+    };
+    let report = |outcome| FusionReport {
+        innovation,
+        innovation_variance: s,
+        nis,
+        test_ratio,
+        outcome,
+    };
+    if rejected {
+        return Ok(report(FusionOutcome::Rejected));
+    }
+    let k = b * inv_s;
+    // Check the diagonal of P⁺ before writing anything.
+    for ((pii, &ki), &bi) in p.diagonal().iter().zip(k.iter()).zip(b.iter()) {
+        let d = *pii - (ki * bi + bi * ki) + s * (ki * ki);
+        if !d.is_finite() || d < T::zero() {
+            return Err(NavError::CovarianceNotPositiveSemiDefinite);
+        }
+    }
+    let dx = k * innovation;
+    if !dx.iter().all(|v| v.is_finite()) {
+        return Err(NavError::NonFiniteInput { input: "state correction" });
+    }
+    // P⁺_ij = P_ij − (k_i b_j + b_i k_j) + s (k_i k_j), column by column.
+    for ((mut col, &kj), &bj) in p.column_iter_mut().zip(k.iter()).zip(b.iter()) {
+        for ((pij, &ki), &bi) in col.iter_mut().zip(k.iter()).zip(b.iter()) {
+            *pij = *pij - (ki * bj + bi * kj) + s * (ki * kj);
+        }
+    }
+    *x += dx;
+    Ok(report(FusionOutcome::Fused))
+}
+
+/// Dense covariance propagation `P ← Φ P Φᵀ + Q_d`, re-symmetrised. Filters with structured Φ
+/// use their own sparse propagation; this is the reference they are tested against.
+pub fn propagate_dense<T: Real, const N: usize>(
+    p: &mut SMatrix<T, N, N>,
+    phi: &SMatrix<T, N, N>,
+    q_d: &SMatrix<T, N, N>,
+) {
+    let next = phi * *p * phi.transpose() + q_d;
+    *p = (next + next.transpose()) * T::lit(0.5);
+}
+
+/// Largest absolute asymmetry `max |P_ij − P_ji|`.
+pub fn asymmetry<T: Real, const N: usize>(p: &SMatrix<T, N, N>) -> T {
+    (p - p.transpose()).abs().max()
+}
+
+/// `true` if `P + ε·trace(P)·I` has a Cholesky factor (P is symmetric positive semi-definite to
+/// the relative tolerance `rel_eps`) and every element is finite.
+pub fn is_psd<T: Real, const N: usize>(p: &SMatrix<T, N, N>, rel_eps: T) -> bool
+where
+    nalgebra::Const<N>: nalgebra::DimMin<nalgebra::Const<N>, Output = nalgebra::Const<N>>,
+{
+    if !p.iter().all(|v| v.is_finite()) {
+        return false;
+    }
+    let shift = rel_eps * p.trace().abs().max(T::lit(1e-30));
+    let m = (p + p.transpose()) * T::lit(0.5) + SMatrix::<T, N, N>::identity() * shift;
+    nalgebra::linalg::Cholesky::new(m).is_some()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
+
+    #[test]
+    fn hand_computed_two_state_case() {
+        // P = diag(4, 1), h = [1 0], r = 1, ν = 2 → s = 5, k = [0.8, 0], x⁺ = [1.6, 0],
+        // P⁺ = diag(4 − 16/5, 1) = diag(0.8, 1).
+        let mut x = Vector2::new(0.0_f64, 0.0);
+        let mut p = Matrix2::new(4.0, 0.0, 0.0, 1.0);
+        let rep = fuse_scalar(&mut x, &mut p, &Vector2::new(1.0, 0.0), 2.0, 1.0, Gate::Off)
+            .unwrap();
+        assert_eq!(rep.outcome, FusionOutcome::Fused);
+        assert!((rep.innovation_variance - 5.0).abs() < 1e-15);
+        assert!((rep.nis - 0.8).abs() < 1e-15);
+        assert!((x - Vector2::new(1.6, 0.0)).norm() < 1e-15);
+        assert!((p - Matrix2::new(0.8, 0.0, 0.0, 1.0)).abs().max() < 1e-15);
+
+        // Correlated case: P = [2 1; 1 2], h = [0 1], r = 2, ν = 1 → s = 4,
+        // k = [0.25, 0.5], P⁺ = P − b bᵀ/s = [2−0.25, 1−0.5; ., 2−1].
+        let mut x = Vector2::new(0.0_f64, 0.0);
+        let mut p = Matrix2::new(2.0, 1.0, 1.0, 2.0);
+        fuse_scalar(&mut x, &mut p, &Vector2::new(0.0, 1.0), 1.0, 2.0, Gate::Off).unwrap();
+        assert!((x - Vector2::new(0.25, 0.5)).norm() < 1e-15);
+        assert!((p - Matrix2::new(1.75, 0.5, 0.5, 1.0)).abs().max() < 1e-15);
+    }
+
+    #[test]
+    fn sequential_equals_batch() {
+        let mut p = Matrix3::new(3.0, 0.4, -0.2, 0.4, 2.0, 0.3, -0.2, 0.3, 1.5_f64);
+        let mut x = Vector3::new(0.1, -0.2, 0.3);
+        let hm = nalgebra::Matrix2x3::new(1.0, 0.5, 0.0, -0.3, 1.0, 2.0);
+        let r = Matrix2::new(0.5, 0.0, 0.0, 0.8);
+        let z = Vector2::new(0.7, -1.1);
+        // Batch reference.
+        let s = hm * p * hm.transpose() + r;
+        let kb = p * hm.transpose() * s.try_inverse().unwrap();
+        let xb = x + kb * (z - hm * x);
+        let pb = (Matrix3::identity() - kb * hm) * p;
+        // Sequential: the second innovation uses the state after the first update.
+        for i in 0..2 {
+            let h = hm.row(i).transpose();
+            let nu = z[i] - h.dot(&x);
+            fuse_scalar(&mut x, &mut p, &h, nu, r[(i, i)], Gate::Off).unwrap();
+        }
+        assert!((x - xb).norm() < 1e-14);
+        assert!((p - pb).abs().max() < 1e-14);
+        assert_eq!(asymmetry(&p), 0.0);
+        assert!(is_psd(&p, 1e-12));
+    }
+
+    #[test]
+    fn gate_rejects_and_leaves_state() {
+        let mut x = Vector2::new(1.0_f32, 2.0);
+        let mut p = Matrix2::new(1.0, 0.2, 0.2, 1.0);
+        let (x0, p0) = (x, p);
+        // s = 2, ν = 10 → NIS 50 > 9.
+        let rep =
+            fuse_scalar(&mut x, &mut p, &Vector2::new(1.0, 0.0), 10.0, 1.0, Gate::Nis(9.0))
+                .unwrap();
+        assert_eq!(rep.outcome, FusionOutcome::Rejected);
+        assert!(rep.test_ratio > 5.0);
+        assert_eq!(x, x0);
+        assert_eq!(p, p0);
+    }
+
+    #[test]
+    fn bad_input_is_refused_without_damage() {
+        let mut x = Vector2::new(1.0_f64, 2.0);
+        let mut p = Matrix2::new(1.0, 0.2, 0.2, 1.0);
+        let (x0, p0) = (x, p);
+        let h = Vector2::new(1.0, 0.0);
+        let cases = [
+            (h, f64::NAN, 1.0),
+            (h, 1.0, 0.0),
+            (h, 1.0, -1.0),
+            (h, 1.0, f64::INFINITY),
+            (Vector2::new(f64::NAN, 0.0), 1.0, 1.0),
+        ];
+        for (h, nu, r) in cases {
+            assert!(fuse_scalar(&mut x, &mut p, &h, nu, r, Gate::Off).is_err());
+            assert_eq!(x, x0);
+            assert_eq!(p, p0);
+        }
+        // An indefinite P cannot yield a positive innovation variance.
+        let mut bad = Matrix2::new(-5.0, 0.0, 0.0, 1.0);
+        assert_eq!(
+            fuse_scalar(&mut x, &mut bad, &h, 1.0, 1.0, Gate::Off),
+            Err(NavError::InnovationVarianceNotPositive)
+        );
+    }
+
+    #[test]
+    fn propagate_dense_matches_formula() {
+        let mut p = Matrix2::new(1.0_f64, 0.1, 0.1, 2.0);
+        let phi = Matrix2::new(1.0, 0.1, 0.0, 0.9);
+        let q = Matrix2::new(0.01, 0.0, 0.0, 0.02);
+        let expect = phi * p * phi.transpose() + q;
+        propagate_dense(&mut p, &phi, &q);
+        assert!((p - expect).abs().max() < 1e-15);
+        assert!(!is_psd(&Matrix2::new(1.0, 2.0, 2.0, 1.0), 1e-9));
+    }
+}
