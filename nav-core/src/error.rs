@@ -94,9 +94,15 @@ impl core::error::Error for NavError {}
 /// Checks a configuration value: finite and strictly positive.
 pub fn require_positive<T: crate::Real>(field: &'static str, v: T) -> Result<T, NavError> {
     if !v.is_finite() {
-        Err(NavError::InvalidConfig { field, issue: ConfigIssue::NotFinite })
+        Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::NotFinite,
+        })
     } else if v <= T::zero() {
-        Err(NavError::InvalidConfig { field, issue: ConfigIssue::NotPositive })
+        Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::NotPositive,
+        })
     } else {
         Ok(v)
     }
@@ -105,9 +111,15 @@ pub fn require_positive<T: crate::Real>(field: &'static str, v: T) -> Result<T, 
 /// Checks a configuration value: finite and non-negative.
 pub fn require_non_negative<T: crate::Real>(field: &'static str, v: T) -> Result<T, NavError> {
     if !v.is_finite() {
-        Err(NavError::InvalidConfig { field, issue: ConfigIssue::NotFinite })
+        Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::NotFinite,
+        })
     } else if v < T::zero() {
-        Err(NavError::InvalidConfig { field, issue: ConfigIssue::Negative })
+        Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::Negative,
+        })
     } else {
         Ok(v)
     }
@@ -118,7 +130,10 @@ pub fn require_finite<T: crate::Real>(field: &'static str, v: T) -> Result<T, Na
     if v.is_finite() {
         Ok(v)
     } else {
-        Err(NavError::InvalidConfig { field, issue: ConfigIssue::NotFinite })
+        Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::NotFinite,
+        })
     }
 }
 

@@ -1,1 +1,18 @@
-//! nav-sim
+//! # nav-sim
+//!
+//! Host simulator for `nav-core`: synthetic truth and sensor data, seeded Monte Carlo, and
+//! the reproduction of the three papers' experiments as `summary.json`, CSV time series and
+//! PNG plots. It drives nav-core only through its public API, as a firmware would.
+//!
+//! Every scenario is a TOML file in `nav-sim/scenarios/` whose `kind` selects a runner in
+//! [`scenario::REGISTRY`]. One seed gives the same output bit for bit: run `i` draws from
+//! ChaCha8 stream `i` of the seed, whatever the thread that runs it.
+
+pub mod montecarlo;
+pub mod output;
+pub mod plot;
+pub mod processes;
+pub mod rng;
+pub mod scenario;
+pub mod scenarios;
+pub mod stats;

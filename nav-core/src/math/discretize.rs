@@ -58,7 +58,9 @@ pub fn discretize<T: Real, const N: usize>(
     let quarter = T::lit(0.25);
     while scaled > quarter {
         if squarings >= MAX_SQUARINGS {
-            return Err(NavError::NotConverged { iterations: squarings });
+            return Err(NavError::NotConverged {
+                iterations: squarings,
+            });
         }
         scaled *= T::lit(0.5);
         h *= T::lit(0.5);
@@ -122,7 +124,9 @@ pub fn stationary_covariance<T: Real, const N: usize>(
             return Ok((p + p.transpose()) * T::lit(0.5));
         }
     }
-    Err(NavError::NotConverged { iterations: max_doublings })
+    Err(NavError::NotConverged {
+        iterations: max_doublings,
+    })
 }
 
 #[cfg(test)]
@@ -160,8 +164,8 @@ mod tests {
         );
         assert!((qd - exact).abs().max() < 1e-14);
         let f32m = Matrix2::new(0.0f32, 1.0, 0.0, 0.0);
-        let (_, qd32) = discretize(&f32m, &Matrix2::new(0.0, 0.0, 0.0, q as f32), dt as f32)
-            .unwrap();
+        let (_, qd32) =
+            discretize(&f32m, &Matrix2::new(0.0, 0.0, 0.0, q as f32), dt as f32).unwrap();
         assert!((qd32[(0, 0)] as f64 - exact[(0, 0)]).abs() < 1e-6);
     }
 
@@ -182,9 +186,17 @@ mod tests {
         );
         assert!((phi - exact).abs().max() < 1e-12, "{phi} {exact}");
         // For a stable system Q_d = P∞ − Φ P∞ Φᵀ, with P∞ = diag(q/(4ζω³), q/(4ζω)).
-        let p_inf = Matrix2::new(1.0 / (4.0 * zeta * wn.powi(3)), 0.0, 0.0, 1.0 / (4.0 * zeta * wn));
+        let p_inf = Matrix2::new(
+            1.0 / (4.0 * zeta * wn.powi(3)),
+            0.0,
+            0.0,
+            1.0 / (4.0 * zeta * wn),
+        );
         let exact_qd = p_inf - exact * p_inf * exact.transpose();
-        assert!((qd - exact_qd).abs().max() < 1e-12 * p_inf.max(), "{qd} {exact_qd}");
+        assert!(
+            (qd - exact_qd).abs().max() < 1e-12 * p_inf.max(),
+            "{qd} {exact_qd}"
+        );
     }
 
     #[test]

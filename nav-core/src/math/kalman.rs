@@ -75,16 +75,24 @@ pub fn fuse_scalar<T: Real, const N: usize>(
     gate: Gate<T>,
 ) -> Result<FusionReport<T>, NavError> {
     if !innovation.is_finite() {
-        return Err(NavError::NonFiniteInput { input: "innovation" });
+        return Err(NavError::NonFiniteInput {
+            input: "innovation",
+        });
     }
     if !r.is_finite() {
-        return Err(NavError::NonFiniteInput { input: "measurement variance" });
+        return Err(NavError::NonFiniteInput {
+            input: "measurement variance",
+        });
     }
     if r <= T::zero() {
-        return Err(NavError::InputOutOfRange { input: "measurement variance" });
+        return Err(NavError::InputOutOfRange {
+            input: "measurement variance",
+        });
     }
     if !h.iter().all(|v| v.is_finite()) {
-        return Err(NavError::NonFiniteInput { input: "measurement row h" });
+        return Err(NavError::NonFiniteInput {
+            input: "measurement row h",
+        });
     }
     // b = P h, skipping zero entries of h (columns of P).
     let mut b = SVector::<T, N>::zeros();
@@ -128,7 +136,9 @@ pub fn fuse_scalar<T: Real, const N: usize>(
     }
     let dx = k * innovation;
     if !dx.iter().all(|v| v.is_finite()) {
-        return Err(NavError::NonFiniteInput { input: "state correction" });
+        return Err(NavError::NonFiniteInput {
+            input: "state correction",
+        });
     }
     // P⁺_ij = P_ij − (k_i b_j + b_i k_j) + s (k_i k_j), column by column.
     for ((mut col, &kj), &bj) in p.column_iter_mut().zip(k.iter()).zip(b.iter()) {
@@ -181,8 +191,8 @@ mod tests {
         // P⁺ = diag(4 − 16/5, 1) = diag(0.8, 1).
         let mut x = Vector2::new(0.0_f64, 0.0);
         let mut p = Matrix2::new(4.0, 0.0, 0.0, 1.0);
-        let rep = fuse_scalar(&mut x, &mut p, &Vector2::new(1.0, 0.0), 2.0, 1.0, Gate::Off)
-            .unwrap();
+        let rep =
+            fuse_scalar(&mut x, &mut p, &Vector2::new(1.0, 0.0), 2.0, 1.0, Gate::Off).unwrap();
         assert_eq!(rep.outcome, FusionOutcome::Fused);
         assert!((rep.innovation_variance - 5.0).abs() < 1e-15);
         assert!((rep.nis - 0.8).abs() < 1e-15);
@@ -228,9 +238,15 @@ mod tests {
         let mut p = Matrix2::new(1.0, 0.2, 0.2, 1.0);
         let (x0, p0) = (x, p);
         // s = 2, ν = 10 → NIS 50 > 9.
-        let rep =
-            fuse_scalar(&mut x, &mut p, &Vector2::new(1.0, 0.0), 10.0, 1.0, Gate::Nis(9.0))
-                .unwrap();
+        let rep = fuse_scalar(
+            &mut x,
+            &mut p,
+            &Vector2::new(1.0, 0.0),
+            10.0,
+            1.0,
+            Gate::Nis(9.0),
+        )
+        .unwrap();
         assert_eq!(rep.outcome, FusionOutcome::Rejected);
         assert!(rep.test_ratio > 5.0);
         assert_eq!(x, x0);

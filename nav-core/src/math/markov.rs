@@ -72,7 +72,11 @@ impl<T: Real> GaussMarkov<T> {
     pub fn new(order: MarkovOrder, sigma: T, correlation_time_s: T) -> Result<Self, NavError> {
         crate::error::require_non_negative("sigma", sigma)?;
         require_positive("correlation_time_s", correlation_time_s)?;
-        Ok(Self { order, sigma, correlation_time_s })
+        Ok(Self {
+            order,
+            sigma,
+            correlation_time_s,
+        })
     }
 
     /// Pole magnitude β, 1/s.
@@ -194,7 +198,10 @@ mod tests {
 
         let gm2 = GaussMarkov::new(MarkovOrder::Second, 0.1_f64, 2.146).unwrap();
         let (f2, q2) = gm2.continuous_model::<2>().unwrap();
-        let p2 = gm2.stationary_covariance().fixed_view::<2, 2>(0, 0).into_owned();
+        let p2 = gm2
+            .stationary_covariance()
+            .fixed_view::<2, 2>(0, 0)
+            .into_owned();
         let res2: Matrix2<f64> = f2 * p2 + p2 * f2.transpose() + q2;
         assert!(res2.abs().max() < 1e-14);
 

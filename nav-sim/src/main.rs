@@ -1,0 +1,111 @@
+//! `nav-sim`: run the simulator's scenarios from the command line.
+
+use anyhow::Result;
+use clap::{Parser, Subcommand};
+use nav_sim::scenario::{self, RunOptions};
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Debug, Parser)]
+#[command(
+    name = "nav-sim",
+    about = "Host simulator and paper reproductions for nav-core"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Debug, Subcommand)]
+enum Cmd {
+    /// List the scenario files and the scenario kinds.
+    List {
+        /// Directory of scenario files.
+        #[arg(long)]
+        scenario_dir: Option<PathBuf>,
+    },
+    /// Run a scenario (by name, or a path to a .toml file), or `all`.
+    Run {
+        /// Scenario name, path to a scenario file, or `all`.
+        scenario: String,
+        /// Monte Carlo runs (default: the scenario file's).
+        #[arg(long)]
+        runs: Option<usize>,
+        /// Seed (default: the scenario file's).
+        #[arg(long)]
+        seed: Option<u64>,
+        /// Output root; each scenario writes into OUT/<scenario>/.
+        #[arg(long, default_value = "target/sim")]
+        out: PathBuf,
+        /// Directory of scenario files.
+        #[arg(long)]
+        scenario_dir: Option<PathBuf>,
+        /// No progress bars.
+        #[arg(long)]
+        quiet: bool,
+    },
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.cmd {
+        Cmd::List { scenario_dir } => {
+            let dir = scenario_dir.unwrap_or_else(scenario::default_scenario_dir);
+            println!("scenario files in {}:", dir.display());
+            for (name, path) in scenario::list(&dir)? {
+                println!("  {name:<20} {}", path.display());
+            }
+            println!("scenario kinds:");
+            for k in scenario::REGISTRY {
+                println!("  {:<20} {}", k.kind, k.about);
+            }
+            Ok(())
+        }
+        Cmd::Run {
+            scenario: which,
+            runs,
+            seed,
+            out,
+            scenario_dir,
+            quiet,
+        } => {
+            let dir = scenario_dir.unwrap_or_else(scenario::default_scenario_dir);
+            let targets = if which == "all" {
+                scenario::list(&dir)?
+            } else {
+                vec![scenario::resolve(&which, &dir)?]
+            };
+            let opts = RunOptions {
+                runs,
+                seed,
+                out_root: out.clone(),
+                progress: !quiet,
+            };
+            let mut failures = Vec::new();
+            for (name, path) in &targets {
+                let t0 = Instant::now();
+                eprintln!("== {name} ({})", path.display());
+                match scenario::run_file(name, path, &opts) {
+                    Ok(_) => eprintln!(
+                        "   wrote {} ({:.1} s)",
+                        out.join(name).join("summary.json").display(),
+                        t0.elapsed().as_secs_f64()
+                    ),
+                    Err(e) => {
+                        eprintln!("   FAILED: {e:#}");
+                        failures.push(name.clone());
+                    }
+                }
+            }
+            if failures.is_empty() {
+                Ok(())
+            } else {
+                anyhow::bail!(
+                    "{} scenario(s) failed: {}",
+                    failures.len(),
+                    failures.join(", ")
+                )
+            }
+        }
+    }
+}

@@ -1,0 +1,3 @@
+//! Scenario runners, one module per scenario kind.
+
+pub mod flexure_process;
