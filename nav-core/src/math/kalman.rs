@@ -112,8 +112,13 @@ pub fn fuse_scalar<T: Real, const N: usize>(
         Gate::Off => (T::zero(), false),
         Gate::Nis(threshold) => {
             let ratio = nis / threshold;
-            // A NaN/negative threshold rejects nothing it cannot judge: treat as rejected.
-            (ratio, !(ratio <= T::one()) || !(threshold > T::zero()))
+            // Fused only when the ratio is comparable and ≤ 1 with a positive threshold: a NaN
+            // or non-positive threshold rejects.
+            let within = matches!(
+                ratio.partial_cmp(&T::one()),
+                Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
+            );
+            (ratio, !within || threshold <= T::zero())
         }
     };
     let report = |outcome| FusionReport {
