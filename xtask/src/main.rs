@@ -1,1 +1,284 @@
-fn main() {}
+//! Project automation, run as `cargo xtask <command>` (alias in `.cargo/config.toml`).
+//!
+//! * `sim <scenario>|all [--runs N] [--seed S] [--out DIR]`: run simulator scenarios (release
+//!   build) and write `DIR/<scenario>/{summary.json, *.csv, *.png}` (default DIR `target/sim`).
+//! * `thumb`: build nav-core for `thumbv7em-none-eabihf` and `thumbv7em-none-eabi`, with and
+//!   without the `defmt` feature, installing the rustup targets when missing (or falling back to
+//!   Debian's Rust with `-Zbuild-std=core`).
+//! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
+//!   at the end.
+
+use std::env;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode};
+use std::time::Instant;
+
+const THUMB_TARGETS: [&str; 2] = ["thumbv7em-none-eabihf", "thumbv7em-none-eabi"];
+
+fn main() -> ExitCode {
+    let args: Vec<String> = env::args().skip(1).collect();
+    let Some((cmd, rest)) = args.split_first() else {
+        usage();
+        return ExitCode::FAILURE;
+    };
+    let result = match cmd.as_str() {
+        "sim" => sim(rest),
+        "thumb" => thumb().map(|_| ()),
+        "ci" => ci(),
+        "-h" | "--help" | "help" => {
+            usage();
+            Ok(())
+        }
+        other => Err(format!("unknown command `{other}`")),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("xtask: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn usage() {
+    eprintln!(
+        "usage: cargo xtask <command>\n\
+         \n  sim <scenario>|all [--runs N] [--seed S] [--out DIR]   run simulator scenarios\
+         \n  thumb                                               build nav-core for Cortex-M4F/M7\
+         \n  ci                                                  fmt, clippy, thumb, tests, docs"
+    );
+}
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_else(|| PathBuf::from("."))
+}
+
+fn cargo() -> Command {
+    let mut c = Command::new(env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    c.current_dir(root());
+    c
+}
+
+fn run(what: &str, cmd: &mut Command) -> Result<(), String> {
+    eprintln!("xtask: {what}: {cmd:?}");
+    let t0 = Instant::now();
+    let status = cmd
+        .status()
+        .map_err(|e| format!("{what}: cannot start: {e}"))?;
+    eprintln!(
+        "xtask: {what}: {status} ({:.1} s)",
+        t0.elapsed().as_secs_f64()
+    );
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("{what} failed ({status})"))
+    }
+}
+
+fn sim(rest: &[String]) -> Result<(), String> {
+    let Some(scenario) = rest.first() else {
+        return Err("sim needs a scenario name or `all`".into());
+    };
+    let mut cmd = cargo();
+    cmd.args([
+        "run",
+        "--release",
+        "--quiet",
+        "-p",
+        "nav-sim",
+        "--",
+        "run",
+        scenario,
+    ]);
+    cmd.args(&rest[1..]);
+    run(&format!("sim {scenario}"), &mut cmd)
+}
+
+/// How nav-core is built for the thumb targets on this machine.
+enum ThumbToolchain {
+    /// rustup with the targets installed.
+    Rustup,
+    /// Debian's rustc/cargo with library sources: `-Zbuild-std=core`.
+    DebianBuildStd,
+}
+
+fn installed_targets() -> Option<String> {
+    let out = Command::new("rustup")
+        .args(["target", "list", "--installed"])
+        .output()
+        .ok()?;
+    out.status
+        .success()
+        .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+fn thumb_toolchain() -> Result<ThumbToolchain, String> {
+    if let Some(installed) = installed_targets() {
+        let missing: Vec<&str> = THUMB_TARGETS
+            .iter()
+            .copied()
+            .filter(|t| !installed.lines().any(|l| l == *t))
+            .collect();
+        if missing.is_empty() {
+            return Ok(ThumbToolchain::Rustup);
+        }
+        eprintln!("xtask: thumb: adding rustup targets {missing:?}");
+        let ok = Command::new("rustup")
+            .args(["target", "add"])
+            .args(&missing)
+            .status()
+            .is_ok_and(|s| s.success());
+        if ok {
+            return Ok(ThumbToolchain::Rustup);
+        }
+        eprintln!("xtask: thumb: `rustup target add` failed; trying Debian's Rust with build-std");
+    } else {
+        eprintln!("xtask: thumb: no rustup; trying Debian's Rust with build-std");
+    }
+    if !Path::new("/usr/bin/rustc").exists() || !Path::new("/usr/lib/rustlib/src").exists() {
+        eprintln!("xtask: thumb: installing rustc-web cargo-web rust-web-src (apt-get)");
+        let _ = Command::new("apt-get").arg("update").status();
+        run(
+            "apt-get install Debian Rust",
+            Command::new("apt-get").args([
+                "install",
+                "-y",
+                "rustc-web",
+                "cargo-web",
+                "rust-web-src",
+            ]),
+        )?;
+    }
+    Ok(ThumbToolchain::DebianBuildStd)
+}
+
+/// Builds nav-core for both thumb targets, with and without defmt. Returns the toolchain used.
+fn thumb() -> Result<(), String> {
+    let tc = thumb_toolchain()?;
+    let mut failures = Vec::new();
+    for target in THUMB_TARGETS {
+        for features in [None, Some("defmt")] {
+            let mut cmd = match tc {
+                ThumbToolchain::Rustup => cargo(),
+                ThumbToolchain::DebianBuildStd => {
+                    let mut c = Command::new("/usr/bin/cargo");
+                    c.current_dir(root())
+                        .env("RUSTC", "/usr/bin/rustc")
+                        .env("RUSTC_BOOTSTRAP", "1")
+                        .env("CARGO_TARGET_DIR", root().join("target/debian-build-std"));
+                    c
+                }
+            };
+            cmd.args(["build", "--release", "-p", "nav-core", "--target", target]);
+            if matches!(tc, ThumbToolchain::DebianBuildStd) {
+                cmd.arg("-Zbuild-std=core");
+            }
+            if let Some(f) = features {
+                cmd.args(["--features", f]);
+            }
+            let label = format!(
+                "thumb {target}{}",
+                features.map(|f| format!(" +{f}")).unwrap_or_default()
+            );
+            if let Err(e) = run(&label, &mut cmd) {
+                failures.push(e);
+            }
+        }
+    }
+    if failures.is_empty() {
+        Ok(())
+    } else {
+        Err(failures.join("; "))
+    }
+}
+
+fn ci() -> Result<(), String> {
+    let t0 = Instant::now();
+    let mut failures: Vec<String> = Vec::new();
+    let mut step = |name: &str, r: Result<(), String>| {
+        if let Err(e) = r {
+            eprintln!("xtask: ci: step `{name}` FAILED: {e}");
+            failures.push(name.to_string());
+        }
+    };
+    step(
+        "fmt",
+        run("fmt --check", cargo().args(["fmt", "--all", "--check"])),
+    );
+    step(
+        "clippy (host)",
+        run(
+            "clippy host",
+            cargo().args([
+                "clippy",
+                "--workspace",
+                "--all-targets",
+                "--",
+                "-D",
+                "warnings",
+            ]),
+        ),
+    );
+    // The thumb build first: it installs the targets the thumb clippy needs.
+    let thumb_result = thumb();
+    let thumb_ok = thumb_result.is_ok();
+    step("thumb", thumb_result);
+    if thumb_ok && installed_targets().is_some_and(|t| t.contains("thumbv7em-none-eabihf")) {
+        for target in THUMB_TARGETS {
+            step(
+                &format!("clippy ({target})"),
+                run(
+                    &format!("clippy {target}"),
+                    cargo().args([
+                        "clippy",
+                        "-p",
+                        "nav-core",
+                        "--features",
+                        "defmt",
+                        "--target",
+                        target,
+                        "--",
+                        "-D",
+                        "warnings",
+                    ]),
+                ),
+            );
+        }
+    }
+    step(
+        "test",
+        run(
+            "test",
+            cargo().args(["test", "--workspace", "--no-fail-fast"]),
+        ),
+    );
+    step(
+        "doc",
+        run(
+            "doc",
+            cargo()
+                .args([
+                    "doc",
+                    "--workspace",
+                    "--no-deps",
+                    "--document-private-items",
+                ])
+                .env("RUSTDOCFLAGS", "-D warnings"),
+        ),
+    );
+    eprintln!("xtask: ci: finished in {:.0} s", t0.elapsed().as_secs_f64());
+    if failures.is_empty() {
+        eprintln!("xtask: ci: all steps passed");
+        Ok(())
+    } else {
+        Err(format!(
+            "ci: {} step(s) failed: {}",
+            failures.len(),
+            failures.join(", ")
+        ))
+    }
+}
