@@ -115,7 +115,12 @@ fn bad_updates_leave_state_untouched_f32() {
     let mut p = SMatrix::<f32, 3, 3>::identity();
     let (x0, p0) = (x, p);
     let h = SVector::<f32, 3>::new(1.0, 0.0, 0.0);
-    for (nu, r) in [(f32::NAN, 1.0), (1.0, f32::NAN), (1.0, -1.0), (f32::INFINITY, 1.0)] {
+    for (nu, r) in [
+        (f32::NAN, 1.0),
+        (1.0, f32::NAN),
+        (1.0, -1.0),
+        (f32::INFINITY, 1.0),
+    ] {
         assert!(fuse_scalar(&mut x, &mut p, &h, nu, r, Gate::Nis(9.0)).is_err());
         assert_eq!(x.as_slice(), x0.as_slice());
         assert_eq!(p.as_slice(), p0.as_slice());
