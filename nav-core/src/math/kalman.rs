@@ -94,11 +94,14 @@ pub fn fuse_scalar<T: Real, const N: usize>(
             input: "measurement row h",
         });
     }
-    // b = P h, skipping zero entries of h (columns of P).
+    // b = P h, skipping zero entries of h (columns of P). Plain slices (P is column-major)
+    // keep the inner loops tight on the target.
     let mut b = SVector::<T, N>::zeros();
-    for (col, &hj) in p.column_iter().zip(h.iter()) {
+    for (col, &hj) in p.as_slice().chunks_exact(N).zip(h.as_slice()) {
         if hj != T::zero() {
-            b.axpy(hj, &col, T::one());
+            for (bi, &pij) in b.as_mut_slice().iter_mut().zip(col) {
+                *bi += hj * pij;
+            }
         }
     }
     let hph = h.dot(&b);
@@ -133,8 +136,15 @@ pub fn fuse_scalar<T: Real, const N: usize>(
     }
     let k = b * inv_s;
     // Check the diagonal of P⁺ before writing anything.
-    for ((pii, &ki), &bi) in p.diagonal().iter().zip(k.iter()).zip(b.iter()) {
-        let d = *pii - (ki * bi + bi * ki) + s * (ki * ki);
+    let (ks, bs) = (k.as_slice(), b.as_slice());
+    for (i, ((&ki, &bi), col)) in ks
+        .iter()
+        .zip(bs)
+        .zip(p.as_slice().chunks_exact(N))
+        .enumerate()
+    {
+        let pii = col.get(i).copied().unwrap_or_else(T::zero);
+        let d = pii - (ki * bi + bi * ki) + s * (ki * ki);
         if !d.is_finite() || d < T::zero() {
             return Err(NavError::CovarianceNotPositiveSemiDefinite);
         }
@@ -146,8 +156,9 @@ pub fn fuse_scalar<T: Real, const N: usize>(
         });
     }
     // P⁺_ij = P_ij − (k_i b_j + b_i k_j) + s (k_i k_j), column by column.
-    for ((mut col, &kj), &bj) in p.column_iter_mut().zip(k.iter()).zip(b.iter()) {
-        for ((pij, &ki), &bi) in col.iter_mut().zip(k.iter()).zip(b.iter()) {
+    for ((col, &kj), &bj) in p.as_mut_slice().chunks_exact_mut(N).zip(ks).zip(bs) {
+        // s·(k_i k_j), not (s k_i) k_j: the product must be the same for (i, j) and (j, i).
+        for ((pij, &ki), &bi) in col.iter_mut().zip(ks).zip(bs) {
             *pij = *pij - (ki * bj + bi * kj) + s * (ki * kj);
         }
     }

@@ -1,0 +1,73 @@
+//! nav-core on emulated Cortex-M4F / M7: per-kernel instruction counts and peak stack.
+//!
+//! Results are logged with defmt over semihosting as
+//! `BENCH <kernel> insns=<n> stack=<bytes>` and decoded on the host by `cargo xtask bench`.
+#![no_std]
+#![no_main]
+
+mod kernels;
+mod measure;
+
+use cortex_m_rt::{entry, exception, ExceptionFrame};
+use cortex_m_semihosting::debug;
+use defmt_semihosting as _;
+
+#[entry]
+fn main() -> ! {
+    defmt::println!("nav-firmware start");
+    let mut failures = 0u32;
+    for k in kernels::KERNELS {
+        let mut run = || (k.run)();
+        (k.setup)();
+        let insns = measure::instructions(&mut run);
+        (k.setup)();
+        let stack = measure::stack_bytes(&mut run);
+        if !(k.check)() {
+            defmt::println!("CHECK FAILED {=str}", k.name);
+            failures += 1;
+        }
+        defmt::println!(
+            "BENCH {=str} insns={=u32} stack={=u32}",
+            k.name,
+            insns,
+            stack
+        );
+    }
+    if failures == 0 {
+        defmt::println!("DONE ok");
+        debug::exit(debug::EXIT_SUCCESS);
+    } else {
+        defmt::println!("DONE failures={=u32}", failures);
+        debug::exit(debug::EXIT_FAILURE);
+    }
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+#[exception]
+unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
+    debug::exit(debug::EXIT_FAILURE);
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+#[cfg(not(feature = "panic-never"))]
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    defmt::println!("PANIC");
+    debug::exit(debug::EXIT_FAILURE);
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+/// The panic-never technique: this handler refers to a symbol nobody defines, so the image only
+/// links if the optimiser proved every panic in the code it contains unreachable.
+#[cfg(feature = "panic-never")]
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    extern "Rust" {
+        fn nav_core_contains_a_reachable_panic() -> !;
+    }
+    // SAFETY: never executed; the link fails if this call survives optimisation.
+    unsafe { nav_core_contains_a_reachable_panic() }
+}

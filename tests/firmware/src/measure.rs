@@ -1,0 +1,59 @@
+//! Exact instruction counts and painted stack depth on QEMU's MPS2 boards.
+//!
+//! With `-icount shift=10,sleep=off` every guest instruction advances virtual time by 1024 ns,
+//! and the FPGAIO 32-bit counter (0x4002_8018) runs at 25 MHz of virtual time, so one
+//! instruction is 25.6 ticks: `instructions = round(ticks · 5 / 128)`, exact and repeatable.
+
+use core::ptr::{read_volatile, write_volatile};
+
+const FPGAIO_COUNTER: usize = 0x4002_8018;
+const PAINT: u32 = 0xC0FF_EE55;
+/// Bytes painted below the stack pointer before a kernel runs.
+pub const PAINT_BYTES: usize = 24 * 1024;
+
+#[inline(always)]
+fn ticks() -> u32 {
+    // SAFETY: MPS2 FPGAIO counter register, read-only, always mapped on mps2-an386/an500.
+    unsafe { read_volatile(FPGAIO_COUNTER as *const u32) }
+}
+
+#[inline(never)]
+fn ticks_of(f: &mut dyn FnMut()) -> u32 {
+    let t0 = ticks();
+    f();
+    let t1 = ticks();
+    t1.wrapping_sub(t0)
+}
+
+/// Instructions executed by `f` (the cost of an empty call through the same path subtracted).
+pub fn instructions(f: &mut dyn FnMut()) -> u32 {
+    let empty = ticks_of(&mut || {});
+    let t = ticks_of(f).wrapping_sub(empty);
+    ((u64::from(t) * 5 + 64) / 128) as u32
+}
+
+/// Peak stack used by `f`, bytes: paints [SP − PAINT_BYTES, SP) and finds the lowest word `f`
+/// changed. Includes the call into `f` itself (a few words).
+#[inline(never)]
+pub fn stack_bytes(f: &mut dyn FnMut()) -> u32 {
+    let sp = cortex_m::register::msp::read() as usize;
+    let top = sp & !3;
+    let bottom = top - PAINT_BYTES;
+    let mut a = bottom;
+    while a < top - 16 {
+        // SAFETY: below the live stack pointer, inside RAM (4 MiB); no interrupts are enabled,
+        // so nothing else uses this memory until `f` runs.
+        unsafe { write_volatile(a as *mut u32, PAINT) };
+        a += 4;
+    }
+    f();
+    let mut a = bottom;
+    while a < top {
+        // SAFETY: same region as painted above.
+        if unsafe { read_volatile(a as *const u32) } != PAINT {
+            break;
+        }
+        a += 4;
+    }
+    (top - a) as u32
+}
