@@ -8,6 +8,8 @@
 //! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
 //!   at the end.
 
+mod firmware;
+
 use std::env;
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
@@ -25,6 +27,7 @@ fn main() -> ExitCode {
         "sim" => sim(rest),
         "thumb" => thumb().map(|_| ()),
         "ci" => ci(),
+        "bench" => firmware::bench(),
         "-h" | "--help" | "help" => {
             usage();
             Ok(())
@@ -45,11 +48,12 @@ fn usage() {
         "usage: cargo xtask <command>\n\
          \n  sim <scenario>|all [--runs N] [--seed S] [--out DIR]   run simulator scenarios\
          \n  thumb                                               build nav-core for Cortex-M4F/M7\
-         \n  ci                                                  fmt, clippy, thumb, tests, docs"
+         \n  ci                                                  fmt, clippy, thumb, tests, docs\
+         \n  bench                                               firmware on QEMU: instructions, stack, sizes"
     );
 }
 
-fn root() -> PathBuf {
+pub(crate) fn root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .parent()
         .map(Path::to_path_buf)
@@ -62,7 +66,7 @@ fn cargo() -> Command {
     c
 }
 
-fn run(what: &str, cmd: &mut Command) -> Result<(), String> {
+pub(crate) fn run(what: &str, cmd: &mut Command) -> Result<(), String> {
     eprintln!("xtask: {what}: {cmd:?}");
     let t0 = Instant::now();
     let status = cmd

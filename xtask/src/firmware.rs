@@ -1,0 +1,212 @@
+//! `cargo xtask bench`: the firmware image on QEMU (Cortex-M4F `mps2-an386`, Cortex-M7
+//! `mps2-an500`): exact instruction counts per kernel, painted stack, image section sizes.
+
+use crate::{root, run};
+use serde_json::{json, Map, Value};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+
+/// QEMU machines and the names the report uses for them.
+pub const MACHINES: [(&str, &str); 2] = [("cortex-m4f", "mps2-an386"), ("cortex-m7", "mps2-an500")];
+const FW_TARGET: &str = "thumbv7em-none-eabihf";
+
+fn firmware_dir() -> PathBuf {
+    root().join("tests/firmware")
+}
+
+fn have(cmd: &str) -> bool {
+    Command::new("sh")
+        .args(["-c", &format!("command -v {cmd}")])
+        .stdout(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// Installs `qemu-system-arm` (Debian) and `defmt-print` (crates.io) when missing.
+pub fn ensure_tools() -> Result<PathBuf, String> {
+    if !have("qemu-system-arm") {
+        eprintln!("xtask: installing qemu-system-arm (apt-get)");
+        let _ = Command::new("apt-get").args(["update", "-qq"]).status();
+        run(
+            "apt-get install qemu-system-arm",
+            Command::new("apt-get").args(["install", "-y", "-qq", "qemu-system-arm"]),
+        )?;
+    }
+    let home_bin = std::env::var("CARGO_HOME")
+        .map(PathBuf::from)
+        .unwrap_or_else(|_| PathBuf::from(std::env::var("HOME").unwrap_or_default()).join(".cargo"))
+        .join("bin/defmt-print");
+    if have("defmt-print") {
+        return Ok(PathBuf::from("defmt-print"));
+    }
+    if !home_bin.exists() {
+        eprintln!("xtask: installing defmt-print (cargo install, a few minutes once)");
+        run(
+            "cargo install defmt-print",
+            Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into())).args([
+                "install",
+                "defmt-print",
+                "--locked",
+            ]),
+        )?;
+    }
+    Ok(home_bin)
+}
+
+/// Builds the firmware image (release, LTO) with the given features; returns the ELF path.
+pub fn build_firmware(features: &[&str]) -> Result<PathBuf, String> {
+    let mut cmd = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+    cmd.current_dir(firmware_dir()).args(["build", "--release"]);
+    if !features.is_empty() {
+        cmd.args(["--features", &features.join(",")]);
+    }
+    run(&format!("firmware build {features:?}"), &mut cmd)?;
+    Ok(firmware_dir()
+        .join("target")
+        .join(FW_TARGET)
+        .join("release/nav-firmware"))
+}
+
+/// Runs the image on a QEMU machine with exact instruction counting; returns decoded log lines.
+pub fn run_on_qemu(elf: &Path, machine: &str, decoder: &Path) -> Result<Vec<String>, String> {
+    let cmd = format!(
+        "timeout 600 qemu-system-arm -M {machine} -nographic -semihosting-config enable=on,target=native \
+         -icount shift=10,sleep=off -kernel {elf} | {dec} -e {elf}; exit ${{PIPESTATUS[0]}}",
+        elf = elf.display(),
+        dec = decoder.display()
+    );
+    eprintln!("xtask: qemu {machine}: {}", elf.display());
+    let out = Command::new("bash")
+        .args(["-c", &cmd])
+        .output()
+        .map_err(|e| format!("qemu {machine}: {e}"))?;
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    let lines: Vec<String> = text.lines().map(|l| l.trim().to_string()).collect();
+    for l in &lines {
+        eprintln!("    {l}");
+    }
+    if !out.status.success() {
+        return Err(format!(
+            "qemu {machine}: exit {} ({})",
+            out.status,
+            String::from_utf8_lossy(&out.stderr)
+        ));
+    }
+    Ok(lines)
+}
+
+/// Section sizes of an ELF32 little-endian image: (.text, .rodata, .data, .bss) in bytes.
+pub fn section_sizes(elf: &Path) -> Result<(u64, u64, u64, u64), String> {
+    let b = std::fs::read(elf).map_err(|e| format!("{}: {e}", elf.display()))?;
+    let u16_at = |o: usize| {
+        b.get(o..o + 2)
+            .map(|s| u16::from_le_bytes([s[0], s[1]]) as usize)
+    };
+    let u32_at = |o: usize| {
+        b.get(o..o + 4)
+            .map(|s| u32::from_le_bytes([s[0], s[1], s[2], s[3]]) as usize)
+    };
+    let bad = || format!("{}: not a little-endian ELF32 image", elf.display());
+    if b.get(0..6) != Some(&[0x7f, b'E', b'L', b'F', 1, 1][..]) {
+        return Err(bad());
+    }
+    let shoff = u32_at(0x20).ok_or_else(bad)?;
+    let shentsize = u16_at(0x2e).ok_or_else(bad)?;
+    let shnum = u16_at(0x30).ok_or_else(bad)?;
+    let shstrndx = u16_at(0x32).ok_or_else(bad)?;
+    let str_off = u32_at(shoff + shstrndx * shentsize + 0x10).ok_or_else(bad)?;
+    let (mut text, mut rodata, mut data, mut bss) = (0, 0, 0, 0);
+    for i in 0..shnum {
+        let h = shoff + i * shentsize;
+        let name_off = u32_at(h).ok_or_else(bad)?;
+        let size = u32_at(h + 0x14).ok_or_else(bad)? as u64;
+        let name: String = b
+            .get(str_off + name_off..)
+            .ok_or_else(bad)?
+            .iter()
+            .take_while(|&&c| c != 0)
+            .map(|&c| c as char)
+            .collect();
+        match name.as_str() {
+            ".text" | ".vector_table" => text += size,
+            ".rodata" => rodata += size,
+            ".data" => data += size,
+            ".bss" | ".uninit" => bss += size,
+            _ => {}
+        }
+    }
+    Ok((text, rodata, data, bss))
+}
+
+/// Parses `BENCH <kernel> insns=<n> stack=<bytes>` lines.
+pub fn parse_bench(lines: &[String]) -> Vec<(String, u64, u64)> {
+    lines
+        .iter()
+        .filter_map(|l| {
+            let rest = l.split("BENCH ").nth(1)?;
+            let mut it = rest.split_whitespace();
+            let name = it.next()?.to_string();
+            let insns = it.next()?.strip_prefix("insns=")?.parse().ok()?;
+            let stack = it.next()?.strip_prefix("stack=")?.parse().ok()?;
+            Some((name, insns, stack))
+        })
+        .collect()
+}
+
+/// `cargo xtask bench`.
+pub fn bench() -> Result<(), String> {
+    let decoder = ensure_tools()?;
+    let elf = build_firmware(&[])?;
+    let (text, rodata, data, bss) = section_sizes(&elf)?;
+    let mut report = Map::new();
+    for (label, machine) in MACHINES {
+        let lines = run_on_qemu(&elf, machine, &decoder)?;
+        let rows = parse_bench(&lines);
+        if rows.is_empty() {
+            return Err(format!("{machine}: no BENCH lines"));
+        }
+        let mut m = Map::new();
+        let mut stacks = Map::new();
+        for (name, insns, stack) in &rows {
+            m.insert(format!("{name}_insns"), json!(insns));
+            stacks.insert(name.clone(), json!(stack));
+        }
+        m.insert("text_bytes".into(), json!(text));
+        m.insert("rodata_bytes".into(), json!(rodata));
+        m.insert("data_bytes".into(), json!(data));
+        m.insert("bss_bytes".into(), json!(bss));
+        m.insert("max_stack_bytes".into(), Value::Object(stacks));
+        report.insert(label.into(), Value::Object(m));
+    }
+    let dir = root().join("target/bench");
+    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
+    let path = dir.join("report.json");
+    let text_json =
+        serde_json::to_string_pretty(&Value::Object(report.clone())).map_err(|e| e.to_string())?;
+    std::fs::write(&path, text_json + "\n").map_err(|e| e.to_string())?;
+    print_table(&report);
+    eprintln!("xtask: bench: wrote {}", path.display());
+    Ok(())
+}
+
+fn print_table(report: &Map<String, Value>) {
+    println!(
+        "{:<34} {:>12} {:>12}",
+        "kernel (instructions, stack B)", "cortex-m4f", "cortex-m7"
+    );
+    let m4 = report.get("cortex-m4f").and_then(Value::as_object);
+    let m7 = report.get("cortex-m7").and_then(Value::as_object);
+    if let (Some(m4), Some(m7)) = (m4, m7) {
+        for (k, v) in m4 {
+            if let Some(n) = v.as_u64() {
+                let n7 = m7.get(k).and_then(Value::as_u64).unwrap_or(0);
+                println!("{k:<34} {n:>12} {n7:>12}");
+            }
+        }
+        if let Some(stacks) = m4.get("max_stack_bytes").and_then(Value::as_object) {
+            for (k, v) in stacks {
+                println!("stack {k:<28} {:>12}", v.as_u64().unwrap_or(0));
+            }
+        }
+    }
+}
