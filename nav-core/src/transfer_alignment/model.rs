@@ -107,11 +107,14 @@ pub struct AxisChain<T: Real, const K: usize> {
     pub p0: SMatrix<T, K, K>,
 }
 
+/// `(F_j, Q_c,j, Markov process)` of one axis chain.
+pub type ChainContinuous<T, const K: usize> = (SMatrix<T, K, K>, SMatrix<T, K, K>, GaussMarkov<T>);
+
 /// Continuous `(F_j, Q_c,j)` of one axis chain of length K (θ_m first, then the flexure
 /// companion block of order K − 1; spec "States").
 pub fn axis_continuous<T: Real, const K: usize>(
     flex: &AxisFlexure<T>,
-) -> Result<(SMatrix<T, K, K>, SMatrix<T, K, K>, GaussMarkov<T>), NavError> {
+) -> Result<ChainContinuous<T, K>, NavError> {
     let model = FlexureModel::for_chain::<K>()?;
     let gm = GaussMarkov::new(model.markov_order(), flex.sigma_rad, flex.tau_s)?;
     let beta = gm.beta();
