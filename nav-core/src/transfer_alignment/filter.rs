@@ -270,7 +270,12 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     }
 
     fn block(&self, d: usize) -> Vector3<T> {
-        let g = |a: usize| self.x.get(axis_index::<K>(d, a)).copied().unwrap_or_else(T::zero);
+        let g = |a: usize| {
+            self.x
+                .get(axis_index::<K>(d, a))
+                .copied()
+                .unwrap_or_else(T::zero)
+        };
         Vector3::new(g(0), g(1), g(2))
     }
 
@@ -321,7 +326,9 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
 
     /// 1σ of θ per axis, rad.
     pub fn theta_sigma_rad(&self) -> Vector3<T> {
-        self.theta_covariance().diagonal().map(|v| v.max(T::zero()).sqrt())
+        self.theta_covariance()
+            .diagonal()
+            .map(|v| v.max(T::zero()).sqrt())
     }
 
     /// State in the spec's ordering `[θ_m, θ_f, θ̇_f(, θ̈_f)]`.
@@ -422,13 +429,18 @@ mod tests {
         }
         let mut pd = p0;
         propagate_dense(&mut pd, &phi, &qd);
-        assert!(((pd - p).abs().max()).to_f64() < tol * 1e-4, "{}", (pd - p).abs().max());
+        assert!(
+            ((pd - p).abs().max()).to_f64() < tol * 1e-4,
+            "{}",
+            (pd - p).abs().max()
+        );
         assert!(((phi * x0 - x).abs().max()).to_f64() < tol * 1e-2);
         assert_eq!(crate::math::kalman::asymmetry(&p), T::zero());
         // And the blocks equal exp(F dt) of the spec-ordered model.
-        let (fs, _) = crate::transfer_alignment::model::continuous_model::<T, K, N>(&f.cfg.flexure)
-            .unwrap();
-        let (phis, _) = crate::math::discretize::discretize(&fs, &SMatrix::zeros(), f.cfg.dt_s).unwrap();
+        let (fs, _) =
+            crate::transfer_alignment::model::continuous_model::<T, K, N>(&f.cfg.flexure).unwrap();
+        let (phis, _) =
+            crate::math::discretize::discretize(&fs, &SMatrix::zeros(), f.cfg.dt_s).unwrap();
         let blocks = [&f.chains[0].phi, &f.chains[1].phi, &f.chains[2].phi];
         let phi_spec = assemble_spec::<T, K, N>(blocks);
         assert!(((phis - phi_spec).abs().max()).to_f64() < tol);
@@ -447,8 +459,14 @@ mod tests {
         let (m, s) = samples::<T>(0.0);
         let rep = f.step(&m, &s).unwrap();
         assert_eq!(rep.predictions, 0);
-        assert!(rep.updates.iter().all(|u| u.outcome == FusionOutcome::Fused));
-        assert!(rep.updates.iter().all(|u| u.innovation_variance > T::zero()));
+        assert!(rep
+            .updates
+            .iter()
+            .all(|u| u.outcome == FusionOutcome::Fused));
+        assert!(rep
+            .updates
+            .iter()
+            .all(|u| u.innovation_variance > T::zero()));
         let (m1, s1) = samples::<T>(0.01);
         assert_eq!(f.step(&m1, &s1).unwrap().predictions, 1);
         let before = (f.state(), f.covariance(), f.time_s());
@@ -474,7 +492,10 @@ mod tests {
         // NaN input.
         let (mut m5, s5) = samples::<T>(0.02);
         m5.specific_force_m_s2.x = T::lit(f64::NAN);
-        assert!(matches!(f.step(&m5, &s5), Err(NavError::NonFiniteInput { .. })));
+        assert!(matches!(
+            f.step(&m5, &s5),
+            Err(NavError::NonFiniteInput { .. })
+        ));
         unchanged(&f);
         // Gap of 2 steps is bridged.
         let (m6, s6) = samples::<T>(0.03);
@@ -504,13 +525,19 @@ mod tests {
         c.flexure[1].tau_s = 0.0;
         assert!(matches!(
             ProposedFilter::new(c),
-            Err(NavError::InvalidConfig { field: "flexure.tau_s", .. })
+            Err(NavError::InvalidConfig {
+                field: "flexure.tau_s",
+                ..
+            })
         ));
         let mut c = ok;
         c.accel_noise_sigma_m_s2 = -1.0;
         assert!(matches!(
             ConventionalFilter::new(c),
-            Err(NavError::InvalidConfig { field: "accel_noise_sigma_m_s2", .. })
+            Err(NavError::InvalidConfig {
+                field: "accel_noise_sigma_m_s2",
+                ..
+            })
         ));
         let mut c = ok;
         c.lever_arm_m.y = f32::INFINITY;
@@ -537,7 +564,10 @@ mod tests {
         let s = f.theta_sigma_rad();
         assert!((s.x - (2.0 * sm * sm).sqrt()).abs() < 1e-12);
         assert!(f.theta_f_accel().is_some());
-        assert!(ConventionalFilter::<f64>::new(cfg()).unwrap().theta_f_accel().is_none());
+        assert!(ConventionalFilter::<f64>::new(cfg())
+            .unwrap()
+            .theta_f_accel()
+            .is_none());
         // C_n^s for zero misalignment is C_n^m.
         let c = crate::math::rotation::euler_to_dcm(0.1, 0.2, 0.3).transpose();
         assert!((f.slave_attitude(&c) - c).abs().max() < 1e-15);

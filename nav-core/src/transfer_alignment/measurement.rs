@@ -72,7 +72,10 @@ fn finite3<T: Real>(input: &'static str, v: &Vector3<T>) -> Result<(), NavError>
 /// Master specific force moved to the nominal slave station L_0:
 /// `f̃_m = f_m + ω̇_m × L_0 + ω_m × (ω_m × L_0)`, m/s².
 #[inline]
-pub fn compensate_lever_arm<T: Real>(master: &MasterSample<T>, lever_arm_m: &Vector3<T>) -> Vector3<T> {
+pub fn compensate_lever_arm<T: Real>(
+    master: &MasterSample<T>,
+    lever_arm_m: &Vector3<T>,
+) -> Vector3<T> {
     let w = &master.angular_rate_rad_s;
     master.specific_force_m_s2
         + master.angular_accel_rad_s2.cross(lever_arm_m)
@@ -90,7 +93,10 @@ pub fn measurement<T: Real>(
     let f_comp = compensate_lever_arm(master, lever_arm_m);
     let dw = master.angular_rate_rad_s - slave.angular_rate_rad_s;
     let df = f_comp - slave.specific_force_m_s2;
-    (SVector::<T, 6>::new(dw.x, dw.y, dw.z, df.x, df.y, df.z), f_comp)
+    (
+        SVector::<T, 6>::new(dw.x, dw.y, dw.z, df.x, df.y, df.z),
+        f_comp,
+    )
 }
 
 /// Row `i` of the skew matrix `[v×]`.
@@ -130,7 +136,11 @@ pub fn h_row<T: Real, const N: usize>(
     index: impl Fn(usize, usize) -> usize,
 ) -> SVector<T, N> {
     let mut h = SVector::<T, N>::zeros();
-    let (i, gyro) = if row < 3 { (row, true) } else { (row - 3, false) };
+    let (i, gyro) = if row < 3 {
+        (row, true)
+    } else {
+        (row - 3, false)
+    };
     let s = if gyro {
         skew_row(omega_m, i)
     } else {
@@ -159,7 +169,14 @@ pub fn h_matrix<T: Real, const K: usize, const N: usize>(
     let model = FlexureModel::for_dims::<K, N>()?;
     let mut h = SMatrix::<T, 6, N>::zeros();
     for (row, mut out) in h.row_iter_mut().enumerate() {
-        let r: SVector<T, N> = h_row(model, row, omega_m, f_h, lever_arm_m, super::model::spec_index);
+        let r: SVector<T, N> = h_row(
+            model,
+            row,
+            omega_m,
+            f_h,
+            lever_arm_m,
+            super::model::spec_index,
+        );
         out.copy_from(&r.transpose());
     }
     Ok(h)
@@ -181,7 +198,10 @@ mod tests {
         let lx = sk(&l0);
         assert_eq!(h.fixed_view::<3, 3>(0, 0).into_owned(), -wx);
         assert_eq!(h.fixed_view::<3, 3>(0, 3).into_owned(), -wx);
-        assert_eq!(h.fixed_view::<3, 3>(0, 6).into_owned(), -nalgebra::Matrix3::identity());
+        assert_eq!(
+            h.fixed_view::<3, 3>(0, 6).into_owned(),
+            -nalgebra::Matrix3::identity()
+        );
         assert_eq!(h.fixed_view::<3, 3>(3, 3).into_owned(), -fx);
         assert_eq!(h.fixed_view::<3, 3>(3, 9).into_owned(), lx);
         assert!(h.fixed_view::<3, 3>(3, 6).iter().all(|v| *v == 0.0));

@@ -195,9 +195,10 @@ pub fn assemble_spec<T: Real, const K: usize, const N: usize>(
     for (a, blk) in blocks.iter().enumerate() {
         for r in 0..K {
             for c in 0..K {
-                if let (Some(dst), Some(src)) =
-                    (m.get_mut((spec_index(r, a), spec_index(c, a))), blk.get((r, c)))
-                {
+                if let (Some(dst), Some(src)) = (
+                    m.get_mut((spec_index(r, a), spec_index(c, a))),
+                    blk.get((r, c)),
+                ) {
                     *dst = *src;
                 }
             }
@@ -300,7 +301,10 @@ mod tests {
         assert!(res.abs().max().to_f64() < tol * scale, "{res}");
         // and agrees with the doubling solution of the flexure block.
         let pd = stationary_covariance(&ch.phi, &ch.q_d, 64);
-        assert!(pd.is_err(), "θ_m is a random constant: the full chain is not stable");
+        assert!(
+            pd.is_err(),
+            "θ_m is a random constant: the full chain is not stable"
+        );
         assert_eq!(ch.phi[(0, 0)], T::one());
         assert!(ch.q_d.row(0).iter().all(|v| *v == T::zero()));
     }

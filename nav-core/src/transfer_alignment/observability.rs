@@ -77,7 +77,13 @@ pub fn som_rank<T: Real, const N: usize, const M: usize>(
             *c = c.max(x.abs());
         }
     });
-    let inv_col = col.map(|c| if c > T::zero() { T::one() / c } else { T::one() });
+    let inv_col = col.map(|c| {
+        if c > T::zero() {
+            T::one() / c
+        } else {
+            T::one()
+        }
+    });
     let mut basis = SMatrix::<T, N, N>::zeros();
     let mut rank = 0usize;
     let mut smallest = T::one();

@@ -170,7 +170,11 @@ impl CaseConfig {
     pub fn manoeuvre_window_s(&self) -> Option<(f64, f64)> {
         let mut start = 0.0;
         for s in &self.profile {
-            let moving = s.accel_g.iter().chain(&s.angular_rate_deg_s).any(|v| *v != 0.0);
+            let moving = s
+                .accel_g
+                .iter()
+                .chain(&s.angular_rate_deg_s)
+                .any(|v| *v != 0.0);
             if moving {
                 return Some((start, start + s.duration_s));
             }
@@ -181,18 +185,33 @@ impl CaseConfig {
 
     /// Filter configuration (f64) with the filter's τ scaled by `1 + tau_error_pct/100`.
     pub fn filter_config(&self, tau_error_pct: f64) -> TaConfig<f64> {
-        let sigma = self.filter.sigma_deg.unwrap_or(self.truth_flexure.sigma_deg);
+        let sigma = self
+            .filter
+            .sigma_deg
+            .unwrap_or(self.truth_flexure.sigma_deg);
         let tau = self.filter.tau_s.unwrap_or(self.truth_flexure.tau_s);
         let scale = 1.0 + tau_error_pct / 100.0;
         let ax = |i: usize| AxisFlexure {
             sigma_rad: sigma[i].to_radians(),
             tau_s: tau[i] * scale,
         };
-        let rate = (self.master_imu.gyro_sigma_per_sample_rad_s(self.dt_s).powi(2)
-            + self.slave_imu.gyro_sigma_per_sample_rad_s(self.dt_s).powi(2))
+        let rate = (self
+            .master_imu
+            .gyro_sigma_per_sample_rad_s(self.dt_s)
+            .powi(2)
+            + self
+                .slave_imu
+                .gyro_sigma_per_sample_rad_s(self.dt_s)
+                .powi(2))
         .sqrt();
-        let accel = (self.master_imu.accel_sigma_per_sample_m_s2(self.dt_s).powi(2)
-            + self.slave_imu.accel_sigma_per_sample_m_s2(self.dt_s).powi(2))
+        let accel = (self
+            .master_imu
+            .accel_sigma_per_sample_m_s2(self.dt_s)
+            .powi(2)
+            + self
+                .slave_imu
+                .accel_sigma_per_sample_m_s2(self.dt_s)
+                .powi(2))
         .sqrt();
         TaConfig {
             lever_arm_m: Vector3::from(self.lever_arm_m),
@@ -211,7 +230,8 @@ impl CaseConfig {
 /// Reads a shipped scenario file's kind-specific keys (for tests and tools).
 pub fn load_scenario<T: serde::de::DeserializeOwned>(name: &str) -> Result<(T, usize, u64)> {
     let path = crate::scenario::default_scenario_dir().join(format!("{name}.toml"));
-    let text = std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(&path).with_context(|| format!("reading {}", path.display()))?;
     let mut doc: toml::Table = toml::from_str(&text)?;
     let runs = doc.get("runs").and_then(|v| v.as_integer()).unwrap_or(1) as usize;
     let seed = doc.get("seed").and_then(|v| v.as_integer()).unwrap_or(0) as u64;

@@ -172,7 +172,11 @@ fn reduce(t: &[f64], runs: &[&MethodRun]) -> MethodStats {
     }
     let m = runs.len().max(1) as f64;
     let mut mean_nis = [0.0; 6];
-    let per_channel = runs.iter().map(|r| r.fused as f64 / 6.0).sum::<f64>().max(1.0);
+    let per_channel = runs
+        .iter()
+        .map(|r| r.fused as f64 / 6.0)
+        .sum::<f64>()
+        .max(1.0);
     for (c, v) in mean_nis.iter_mut().enumerate() {
         *v = runs.iter().map(|r| r.nis_sum[c]).sum::<f64>() / per_channel;
     }
@@ -220,13 +224,17 @@ pub fn run_case(
         let prop = run_precision::<4, 12>(cfg.precision, &fcfg, &truth)?;
         Ok((truth, conv, prop))
     });
-    let results: Vec<(TruthRun, MethodRun, MethodRun)> = results.into_iter().collect::<Result<_>>()?;
+    let results: Vec<(TruthRun, MethodRun, MethodRun)> =
+        results.into_iter().collect::<Result<_>>()?;
     let t = results[0].0.t_s.clone();
     let conv: Vec<&MethodRun> = results.iter().map(|r| &r.1).collect();
     let prop: Vec<&MethodRun> = results.iter().map(|r| &r.2).collect();
     let conventional = reduce(&t, &conv);
     let proposed = reduce(&t, &prop);
-    let run0 = results.into_iter().next().ok_or_else(|| anyhow!("no runs"))?;
+    let run0 = results
+        .into_iter()
+        .next()
+        .ok_or_else(|| anyhow!("no runs"))?;
     Ok(CaseResult {
         t_s: t,
         conventional,

@@ -90,7 +90,12 @@ fn write_case_outputs(ctx: &Context, cfg: &CaseConfig, r: &CaseResult) -> Result
         .collect();
     write_csv(
         &dir.join("flexure_accel.csv"),
-        &["t_s", "theta_f_dd_x_rad_s2", "theta_f_dd_y_rad_s2", "theta_f_dd_z_rad_s2"],
+        &[
+            "t_s",
+            "theta_f_dd_x_rad_s2",
+            "theta_f_dd_y_rad_s2",
+            "theta_f_dd_z_rad_s2",
+        ],
         &[t, &acc[0], &acc[1], &acc[2]],
     )?;
     render(
@@ -120,11 +125,20 @@ fn write_case_outputs(ctx: &Context, cfg: &CaseConfig, r: &CaseResult) -> Result
     write_csv(
         &dir.join("single_run.csv"),
         &[
-            "t_s", "theta_x_mrad", "theta_y_mrad", "theta_z_mrad", "err_conv_x_mrad",
-            "err_conv_y_mrad", "err_conv_z_mrad", "err_prop_x_mrad", "err_prop_y_mrad",
+            "t_s",
+            "theta_x_mrad",
+            "theta_y_mrad",
+            "theta_z_mrad",
+            "err_conv_x_mrad",
+            "err_conv_y_mrad",
+            "err_conv_z_mrad",
+            "err_prop_x_mrad",
+            "err_prop_y_mrad",
             "err_prop_z_mrad",
         ],
-        &[t, &th[0], &th[1], &th[2], &ec[0], &ec[1], &ec[2], &ep[0], &ep[1], &ep[2]],
+        &[
+            t, &th[0], &th[1], &th[2], &ec[0], &ec[1], &ec[2], &ep[0], &ep[1], &ep[2],
+        ],
     )?;
     let span = |a: usize| {
         // Range: the larger of the errors after 0.2 s, at most ±20 mrad (the Z error starts at
@@ -165,27 +179,64 @@ fn write_case_outputs(ctx: &Context, cfg: &CaseConfig, r: &CaseResult) -> Result
     write_csv(
         &dir.join("monte_carlo.csv"),
         &[
-            "t_s", "conv_rms_x_mrad", "conv_rms_y_mrad", "conv_rms_z_mrad", "conv_std_x_mrad",
-            "conv_std_y_mrad", "conv_std_z_mrad", "conv_sigma_x_mrad", "conv_sigma_y_mrad",
-            "conv_sigma_z_mrad", "prop_rms_x_mrad", "prop_rms_y_mrad", "prop_rms_z_mrad",
-            "prop_std_x_mrad", "prop_std_y_mrad", "prop_std_z_mrad", "prop_sigma_x_mrad",
-            "prop_sigma_y_mrad", "prop_sigma_z_mrad",
+            "t_s",
+            "conv_rms_x_mrad",
+            "conv_rms_y_mrad",
+            "conv_rms_z_mrad",
+            "conv_std_x_mrad",
+            "conv_std_y_mrad",
+            "conv_std_z_mrad",
+            "conv_sigma_x_mrad",
+            "conv_sigma_y_mrad",
+            "conv_sigma_z_mrad",
+            "prop_rms_x_mrad",
+            "prop_rms_y_mrad",
+            "prop_rms_z_mrad",
+            "prop_std_x_mrad",
+            "prop_std_y_mrad",
+            "prop_std_z_mrad",
+            "prop_sigma_x_mrad",
+            "prop_sigma_y_mrad",
+            "prop_sigma_z_mrad",
         ],
         &[
             t,
-            &c.rms_mrad[0], &c.rms_mrad[1], &c.rms_mrad[2], &c.std_mrad[0], &c.std_mrad[1],
-            &c.std_mrad[2], &c.filter_sigma_mrad[0], &c.filter_sigma_mrad[1],
-            &c.filter_sigma_mrad[2], &p.rms_mrad[0], &p.rms_mrad[1], &p.rms_mrad[2],
-            &p.std_mrad[0], &p.std_mrad[1], &p.std_mrad[2], &p.filter_sigma_mrad[0],
-            &p.filter_sigma_mrad[1], &p.filter_sigma_mrad[2],
+            &c.rms_mrad[0],
+            &c.rms_mrad[1],
+            &c.rms_mrad[2],
+            &c.std_mrad[0],
+            &c.std_mrad[1],
+            &c.std_mrad[2],
+            &c.filter_sigma_mrad[0],
+            &c.filter_sigma_mrad[1],
+            &c.filter_sigma_mrad[2],
+            &p.rms_mrad[0],
+            &p.rms_mrad[1],
+            &p.rms_mrad[2],
+            &p.std_mrad[0],
+            &p.std_mrad[1],
+            &p.std_mrad[2],
+            &p.filter_sigma_mrad[0],
+            &p.filter_sigma_mrad[1],
+            &p.filter_sigma_mrad[2],
         ],
     )?;
     let mc_span = |a: usize| {
-        let m = [&c.std_mrad[a], &p.std_mrad[a], &c.filter_sigma_mrad[a], &p.filter_sigma_mrad[a]]
-            .iter()
-            .flat_map(|v| v.iter().zip(t).filter(|(_, tt)| **tt > 0.2).map(|(x, _)| *x))
-            .fold(0.5f64, f64::max)
-            .min(20.0)
+        let m = [
+            &c.std_mrad[a],
+            &p.std_mrad[a],
+            &c.filter_sigma_mrad[a],
+            &p.filter_sigma_mrad[a],
+        ]
+        .iter()
+        .flat_map(|v| {
+            v.iter()
+                .zip(t)
+                .filter(|(_, tt)| **tt > 0.2)
+                .map(|(x, _)| *x)
+        })
+        .fold(0.5f64, f64::max)
+        .min(20.0)
             * 1.1;
         Some((0.0, m))
     };
@@ -271,7 +322,14 @@ fn run_model_error(ctx: &Context) -> Result<Value> {
     let mut results = Vec::new();
     for pct in &cfg.tau_error_pct {
         // Same seed: every level sees the same truth.
-        let r = run_case(&cfg.case, ctx.runs, ctx.seed, *pct, ctx.progress, &format!("τ +{pct}%"))?;
+        let r = run_case(
+            &cfg.case,
+            ctx.runs,
+            ctx.seed,
+            *pct,
+            ctx.progress,
+            &format!("τ +{pct}%"),
+        )?;
         println!("τ error +{pct} %:");
         print_method("proposed", &r.proposed);
         print_method("conventional", &r.conventional);
@@ -401,14 +459,22 @@ fn run_observability(ctx: &Context) -> Result<Value> {
     let (s12, m12) = observability_ranks::<4, 12>(&cfg)?;
     let (s9, m9) = observability_ranks::<3, 9>(&cfg)?;
     let mut rows = Vec::new();
-    for (n, r) in SEGMENT_NAMES.iter().zip(&s12).chain(SOM_NAMES.iter().zip(&m12)) {
+    for (n, r) in SEGMENT_NAMES
+        .iter()
+        .zip(&s12)
+        .chain(SOM_NAMES.iter().zip(&m12))
+    {
         println!(
             "  12-state {n:<18} rank {:>2}  (smallest accepted residual {:.2e}, largest rejected {:.2e})",
             r.rank, r.smallest_accepted, r.largest_rejected
         );
         rows.push(format!("{n},{}", r.rank));
     }
-    for (n, r) in SEGMENT_NAMES.iter().zip(&s9).chain(SOM_NAMES.iter().zip(&m9)) {
+    for (n, r) in SEGMENT_NAMES
+        .iter()
+        .zip(&s9)
+        .chain(SOM_NAMES.iter().zip(&m9))
+    {
         println!("  9-state  {n:<18} rank {:>2}", r.rank);
     }
     std::fs::write(

@@ -60,7 +60,8 @@ fn flexure_axis(
     let mut out = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
     match cfg.model {
         TruthModel::Markov3 => {
-            let gm = GaussMarkov::new(MarkovOrder::Third, sigma, tau).map_err(|e| anyhow!("{e}"))?;
+            let gm =
+                GaussMarkov::new(MarkovOrder::Third, sigma, tau).map_err(|e| anyhow!("{e}"))?;
             let mut p = crate::processes::gauss_markov::<3>(&gm, dt, rng)?;
             let mut x = p.x;
             for k in 0..n {
