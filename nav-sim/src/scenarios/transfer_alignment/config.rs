@@ -147,7 +147,12 @@ impl CaseConfig {
         if !(self.dt_s > 0.0 && self.duration_s >= self.dt_s) {
             bail!("dt_s and duration_s must be positive with duration_s ≥ dt_s");
         }
-        if self.profile.is_empty() || self.profile.iter().any(|s| !(s.duration_s > 0.0)) {
+        if self.profile.is_empty()
+            || self
+                .profile
+                .iter()
+                .any(|s| s.duration_s.is_nan() || s.duration_s <= 0.0)
+        {
             bail!("profile: at least one segment, each with duration_s > 0");
         }
         Ok(())

@@ -170,7 +170,6 @@ fn reduce(t: &[f64], runs: &[&MethodRun]) -> MethodStats {
             .collect();
         sig[a] = ensemble(&s).mean;
     }
-    let m = runs.len().max(1) as f64;
     let mut mean_nis = [0.0; 6];
     let per_channel = runs
         .iter()
@@ -182,7 +181,6 @@ fn reduce(t: &[f64], runs: &[&MethodRun]) -> MethodStats {
     }
     let total: f64 = runs.iter().map(|r| (r.fused + r.rejected) as f64).sum();
     let rejected = runs.iter().map(|r| r.rejected as f64).sum::<f64>() / total.max(1.0);
-    let _ = m;
     MethodStats {
         axes,
         rms_mrad: rms,

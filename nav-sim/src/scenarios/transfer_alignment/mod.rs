@@ -418,10 +418,13 @@ pub const SEGMENT_NAMES: [&str; 4] = ["cruise", "accel_x", "accel_y", "accel_xy"
 /// SOM names: cruise followed by each accelerated segment.
 pub const SOM_NAMES: [&str; 3] = ["cruise+accel_x", "cruise+accel_y", "cruise+accel_xy"];
 
+/// Ranks of the four segments and of the three SOMs.
+pub type ObservabilityRanks = ([RankReport<f64>; 4], [RankReport<f64>; 3]);
+
 /// Rank reports of the four segments and the three SOMs for the K-per-axis model.
 pub fn observability_ranks<const K: usize, const N: usize>(
     cfg: &ObservabilityConfig,
-) -> Result<([RankReport<f64>; 4], [RankReport<f64>; 3])> {
+) -> Result<ObservabilityRanks> {
     let flex: [AxisFlexure<f64>; 3] = std::array::from_fn(|a| AxisFlexure {
         sigma_rad: cfg.sigma_deg[a].to_radians(),
         tau_s: cfg.tau_s[a],

@@ -119,10 +119,11 @@ fn flexure_axis(
             let x0: SVector<f64, 3> = draw(rng, &psd_sqrt(&(p_unit * scale)));
             let mut p = LinearProcess::new(&f, &q, dt, x0)?;
             let mut x = x0;
-            for k in 0..n {
-                out[0][k] = x[0];
-                out[1][k] = x[1];
-                out[2][k] = -wn * wn * x[0] - 2.0 * zeta * wn * x[1] + x[2];
+            let [th, th_d, th_dd] = &mut out;
+            for ((a, b), c) in th.iter_mut().zip(th_d.iter_mut()).zip(th_dd.iter_mut()) {
+                *a = x[0];
+                *b = x[1];
+                *c = -wn * wn * x[0] - 2.0 * zeta * wn * x[1] + x[2];
                 x = p.step(rng);
             }
         }
