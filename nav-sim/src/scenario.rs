@@ -58,7 +58,12 @@ pub struct Kind {
 }
 
 /// Every scenario kind nav-sim knows.
-pub static REGISTRY: &[Kind] = &[crate::scenarios::flexure_process::KIND];
+pub static REGISTRY: &[Kind] = &[
+    crate::scenarios::flexure_process::KIND,
+    crate::scenarios::transfer_alignment::KIND_CASE,
+    crate::scenarios::transfer_alignment::KIND_MODEL_ERROR,
+    crate::scenarios::transfer_alignment::KIND_OBSERVABILITY,
+];
 
 #[derive(Debug, Deserialize)]
 struct Header {

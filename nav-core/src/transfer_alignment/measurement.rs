@@ -1,0 +1,233 @@
+//! Master/slave samples, lever-arm compensation, the measurement z = [dω; df] and the
+//! measurement matrices H of both filters (spec "Measurements", seed eqs. 4, 5, 12-14).
+//!
+//! ```text
+//! dω = ω_m − ω_s          = θ × ω_m − θ̇_f + v                    (seed eq. 4)
+//! df = f̃_m − f_s          = θ × f_m + v                            (conventional, seed eq. 5)
+//!                          ≈ −[f_s×] θ + L_0 × θ̈_f + v             (proposed, seed eqs. 12-14)
+//! f̃_m = f_m + ω̇_m × L_0 + ω_m × (ω_m × L_0)                       (lever-arm compensation)
+//! ```
+//!
+//! with θ = θ_m + θ_f and `C_m^s ≈ I − [θ×]`. The rigid lever-arm terms are removed from the
+//! master specific force before matching; the flexure terms cannot be (the proposed filter models
+//! the largest one, `L_0 × θ̈_f`).
+use super::model::FlexureModel;
+use crate::error::input_finite;
+use crate::{NavError, Real};
+use nalgebra::{SMatrix, SVector, Vector3};
+
+/// One master INS sample (navigation grade), time-stamped.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct MasterSample<T> {
+    /// Time stamp, s.
+    pub time_s: T,
+    /// Master angular rate ω_m (inertial, master axes), rad/s.
+    pub angular_rate_rad_s: Vector3<T>,
+    /// Master angular acceleration ω̇_m (master axes), rad/s², for the lever-arm compensation.
+    pub angular_accel_rad_s2: Vector3<T>,
+    /// Master specific force f_m (master axes), m/s².
+    pub specific_force_m_s2: Vector3<T>,
+}
+
+/// One slave IMU sample (tactical grade), time-stamped.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SlaveSample<T> {
+    /// Time stamp, s.
+    pub time_s: T,
+    /// Slave gyro output ω_s (slave axes), rad/s.
+    pub angular_rate_rad_s: Vector3<T>,
+    /// Slave accelerometer output f_s (slave axes), m/s².
+    pub specific_force_m_s2: Vector3<T>,
+}
+
+impl<T: Real> MasterSample<T> {
+    /// `NonFiniteInput` unless every field is finite.
+    pub fn validate(&self) -> Result<(), NavError> {
+        input_finite("master.time_s", self.time_s)?;
+        finite3("master.angular_rate_rad_s", &self.angular_rate_rad_s)?;
+        finite3("master.angular_accel_rad_s2", &self.angular_accel_rad_s2)?;
+        finite3("master.specific_force_m_s2", &self.specific_force_m_s2)
+    }
+}
+
+impl<T: Real> SlaveSample<T> {
+    /// `NonFiniteInput` unless every field is finite.
+    pub fn validate(&self) -> Result<(), NavError> {
+        input_finite("slave.time_s", self.time_s)?;
+        finite3("slave.angular_rate_rad_s", &self.angular_rate_rad_s)?;
+        finite3("slave.specific_force_m_s2", &self.specific_force_m_s2)
+    }
+}
+
+fn finite3<T: Real>(input: &'static str, v: &Vector3<T>) -> Result<(), NavError> {
+    if v.iter().all(|c| c.is_finite()) {
+        Ok(())
+    } else {
+        Err(NavError::NonFiniteInput { input })
+    }
+}
+
+/// Master specific force moved to the nominal slave station L_0:
+/// `f̃_m = f_m + ω̇_m × L_0 + ω_m × (ω_m × L_0)`, m/s².
+#[inline]
+pub fn compensate_lever_arm<T: Real>(
+    master: &MasterSample<T>,
+    lever_arm_m: &Vector3<T>,
+) -> Vector3<T> {
+    let w = &master.angular_rate_rad_s;
+    master.specific_force_m_s2
+        + master.angular_accel_rad_s2.cross(lever_arm_m)
+        + w.cross(&w.cross(lever_arm_m))
+}
+
+/// Measurement `z = [ω_m − ω_s; f̃_m − f_s]` (rad/s, m/s²) and the compensated master specific
+/// force f̃_m.
+#[inline]
+pub fn measurement<T: Real>(
+    master: &MasterSample<T>,
+    slave: &SlaveSample<T>,
+    lever_arm_m: &Vector3<T>,
+) -> (SVector<T, 6>, Vector3<T>) {
+    let f_comp = compensate_lever_arm(master, lever_arm_m);
+    let dw = master.angular_rate_rad_s - slave.angular_rate_rad_s;
+    let df = f_comp - slave.specific_force_m_s2;
+    (
+        SVector::<T, 6>::new(dw.x, dw.y, dw.z, df.x, df.y, df.z),
+        f_comp,
+    )
+}
+
+/// Row `i` of the skew matrix `[v×]`.
+#[inline(always)]
+fn skew_row<T: Real>(v: &Vector3<T>, i: usize) -> [T; 3] {
+    let z = T::zero();
+    match i {
+        0 => [z, -v.z, v.y],
+        1 => [v.z, z, -v.x],
+        _ => [-v.y, v.x, z],
+    }
+}
+
+#[inline(always)]
+fn set<T: Real, const N: usize>(h: &mut SVector<T, N>, i: usize, v: T) {
+    if let Some(e) = h.get_mut(i) {
+        *e = v;
+    }
+}
+
+/// Row `row` (0-2: dω_X..Z, 3-5: df_X..Z) of H, placed with the index map `index(d, a)`
+/// (derivative d, axis a):
+///
+/// ```text
+/// conventional (6×9):  | −[ω_m×]  −[ω_m×]  −I |      proposed (6×12): | −[ω_m×]  −[ω_m×]  −I   0     |
+///                      | −[f_m×]  −[f_m×]   0 |                       | −[f_s×]  −[f_s×]   0  [L_0×] |
+/// ```
+///
+/// `f_h` is the specific force the model puts in H: the compensated master f̃_m (conventional)
+/// or the slave's f_s (proposed).
+pub fn h_row<T: Real, const N: usize>(
+    model: FlexureModel,
+    row: usize,
+    omega_m: &Vector3<T>,
+    f_h: &Vector3<T>,
+    lever_arm_m: &Vector3<T>,
+    index: impl Fn(usize, usize) -> usize,
+) -> SVector<T, N> {
+    let mut h = SVector::<T, N>::zeros();
+    let (i, gyro) = if row < 3 {
+        (row, true)
+    } else {
+        (row - 3, false)
+    };
+    let s = if gyro {
+        skew_row(omega_m, i)
+    } else {
+        skew_row(f_h, i)
+    };
+    for (a, v) in s.iter().enumerate() {
+        set(&mut h, index(0, a), -*v);
+        set(&mut h, index(1, a), -*v);
+    }
+    if gyro {
+        set(&mut h, index(2, i), -T::one());
+    } else if model == FlexureModel::Proposed {
+        for (a, v) in skew_row(lever_arm_m, i).iter().enumerate() {
+            set(&mut h, index(3, a), *v);
+        }
+    }
+    h
+}
+
+/// H (6×N) in the spec's state ordering.
+pub fn h_matrix<T: Real, const K: usize, const N: usize>(
+    omega_m: &Vector3<T>,
+    f_h: &Vector3<T>,
+    lever_arm_m: &Vector3<T>,
+) -> Result<SMatrix<T, 6, N>, NavError> {
+    let model = FlexureModel::for_dims::<K, N>()?;
+    let mut h = SMatrix::<T, 6, N>::zeros();
+    for (row, mut out) in h.row_iter_mut().enumerate() {
+        let r: SVector<T, N> = h_row(
+            model,
+            row,
+            omega_m,
+            f_h,
+            lever_arm_m,
+            super::model::spec_index,
+        );
+        out.copy_from(&r.transpose());
+    }
+    Ok(h)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn h_blocks_as_printed() {
+        let w = Vector3::new(0.1, -0.2, 0.3);
+        let f = Vector3::new(2.0, 1.0, -9.8);
+        let l0 = Vector3::new(0.0, 5.0, 0.0);
+        let h = h_matrix::<f64, 4, 12>(&w, &f, &l0).unwrap();
+        let sk = crate::math::rotation::skew;
+        let wx = sk(&w);
+        let fx = sk(&f);
+        let lx = sk(&l0);
+        assert_eq!(h.fixed_view::<3, 3>(0, 0).into_owned(), -wx);
+        assert_eq!(h.fixed_view::<3, 3>(0, 3).into_owned(), -wx);
+        assert_eq!(
+            h.fixed_view::<3, 3>(0, 6).into_owned(),
+            -nalgebra::Matrix3::identity()
+        );
+        assert_eq!(h.fixed_view::<3, 3>(3, 3).into_owned(), -fx);
+        assert_eq!(h.fixed_view::<3, 3>(3, 9).into_owned(), lx);
+        assert!(h.fixed_view::<3, 3>(3, 6).iter().all(|v| *v == 0.0));
+        // L_0 × θ̈_f = [l θ̈_Z, 0, −l θ̈_X]
+        let th = Vector3::new(1.0, 2.0, 3.0);
+        assert_eq!(lx * th, Vector3::new(5.0 * 3.0, 0.0, -5.0 * 1.0));
+        let h9 = h_matrix::<f64, 3, 9>(&w, &f, &l0).unwrap();
+        assert_eq!(h9.fixed_view::<3, 3>(3, 0).into_owned(), -fx);
+        assert!(h_matrix::<f64, 3, 12>(&w, &f, &l0).is_err());
+    }
+
+    #[test]
+    fn lever_arm_compensation_is_rigid_body_kinematics() {
+        let m = MasterSample {
+            time_s: 0.0_f64,
+            angular_rate_rad_s: Vector3::new(0.0, 0.0, 0.5),
+            angular_accel_rad_s2: Vector3::new(0.0, 0.0, 2.0),
+            specific_force_m_s2: Vector3::new(0.0, 0.0, -9.8),
+        };
+        let l0 = Vector3::new(0.0, 5.0, 0.0);
+        let f = compensate_lever_arm(&m, &l0);
+        // Yaw acceleration 2 rad/s² at 5 m right: −10 m/s² along X; centripetal −0.25·5 along Y.
+        assert!((f - Vector3::new(-10.0, -1.25, -9.8)).norm() < 1e-12);
+        let mut bad = m;
+        bad.angular_accel_rad_s2.y = f64::NAN;
+        assert!(bad.validate().is_err());
+        assert!(m.validate().is_ok());
+    }
+}

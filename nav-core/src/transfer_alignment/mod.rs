@@ -1,0 +1,17 @@
+//! Transfer alignment of a wing-mounted slave INS by angular-rate and acceleration matching,
+//! with wing flexure (spec `transfer-alignment.md`; Yang & Shim 2000).
+//!
+//! - [`model`]: the 2nd-order (conventional, 9 states) and 3rd-order (proposed, 12 states)
+//!   flexure models, per-axis exact discretisation and stationary initial covariance.
+//! - [`measurement`]: samples, lever-arm compensation, z = [dω; df] and H of both filters.
+//! - [`filter`]: the filter ([`ConventionalFilter`], [`ProposedFilter`]).
+//! - [`observability`]: observability matrix of a constant segment and the stripped
+//!   observability matrix of piecewise-constant segments, with a numerical rank.
+pub mod filter;
+pub mod measurement;
+pub mod model;
+pub mod observability;
+
+pub use filter::{ConventionalFilter, ProposedFilter, StepReport, TaConfig, TransferAlignment};
+pub use measurement::{MasterSample, SlaveSample};
+pub use model::{AxisFlexure, FlexureModel};
