@@ -12,8 +12,8 @@
 //! P⁺ = (I − k hᵀ) P (I − k hᵀ)ᵀ + r k kᵀ = P − k bᵀ − b kᵀ + s k kᵀ
 //! ```
 //!
-//! The element formula `P⁺_ij = P_ij − (k_i b_j + b_i k_j) + s (k_i k_j)` is symmetric in i, j
-//! term by term, so a symmetric P stays exactly symmetric in floating point. The new diagonal is
+//! computed as `P⁺_ij = P_ij + k_i c_j − b_i k_j` with `c = s k − b` (two multiply-adds per
+//! element) on the upper triangle only, then mirrored, so P stays exactly symmetric. The new diagonal is
 //! checked before anything is written: an update that would produce a negative or non-finite
 //! variance is refused with [`NavError::CovarianceNotPositiveSemiDefinite`] and leaves x and P
 //! untouched.
@@ -135,16 +135,28 @@ pub fn fuse_scalar<T: Real, const N: usize>(
         return Ok(report(FusionOutcome::Rejected));
     }
     let k = b * inv_s;
+    // Joseph form regrouped per column j: P⁺_ij = P_ij + k_i c_j − b_i k_j with
+    // c_j = s k_j − b_j (zero in exact arithmetic, kept so the result is the Joseph form's).
+    let mut c = SVector::<T, N>::zeros();
+    for ((cj, &kj), &bj) in c
+        .as_mut_slice()
+        .iter_mut()
+        .zip(k.as_slice())
+        .zip(b.as_slice())
+    {
+        *cj = s * kj - bj;
+    }
+    let (ks, bs, cs) = (k.as_slice(), b.as_slice(), c.as_slice());
     // Check the diagonal of P⁺ before writing anything.
-    let (ks, bs) = (k.as_slice(), b.as_slice());
-    for (i, ((&ki, &bi), col)) in ks
+    for (i, (((&ki, &bi), &ci), col)) in ks
         .iter()
         .zip(bs)
+        .zip(cs)
         .zip(p.as_slice().chunks_exact(N))
         .enumerate()
     {
         let pii = col.get(i).copied().unwrap_or_else(T::zero);
-        let d = pii - (ki * bi + bi * ki) + s * (ki * ki);
+        let d = pii + ki * ci - bi * ki;
         if !d.is_finite() || d < T::zero() {
             return Err(NavError::CovarianceNotPositiveSemiDefinite);
         }
@@ -155,15 +167,39 @@ pub fn fuse_scalar<T: Real, const N: usize>(
             input: "state correction",
         });
     }
-    // P⁺_ij = P_ij − (k_i b_j + b_i k_j) + s (k_i k_j), column by column.
-    for ((col, &kj), &bj) in p.as_mut_slice().chunks_exact_mut(N).zip(ks).zip(bs) {
-        // s·(k_i k_j), not (s k_i) k_j: the product must be the same for (i, j) and (j, i).
-        for ((pij, &ki), &bi) in col.iter_mut().zip(ks).zip(bs) {
-            *pij = *pij - (ki * bj + bi * kj) + s * (ki * kj);
+    // Upper triangle (rows i ≤ j of column j; P is column-major), then mirror: P stays exactly
+    // symmetric and the work is N(N+1)/2 elements.
+    for (j, (((col, &kj), &cj), _)) in p
+        .as_mut_slice()
+        .chunks_exact_mut(N)
+        .zip(ks)
+        .zip(cs)
+        .zip(bs)
+        .enumerate()
+    {
+        for ((pij, &ki), &bi) in col.iter_mut().take(j + 1).zip(ks).zip(bs) {
+            *pij = *pij + ki * cj - bi * kj;
         }
     }
+    mirror_upper_to_lower(p);
     *x += dx;
     Ok(report(FusionOutcome::Fused))
+}
+
+/// Copies the upper triangle of a square matrix onto its lower triangle.
+#[inline]
+pub fn mirror_upper_to_lower<T: Real, const N: usize>(p: &mut SMatrix<T, N, N>) {
+    let flat = p.as_mut_slice();
+    for i in 0..N {
+        for j in (i + 1)..N {
+            // Column-major: (row j, column i) at i·N + j, (row i, column j) at j·N + i.
+            if let Some(v) = flat.get(j * N + i).copied() {
+                if let Some(d) = flat.get_mut(i * N + j) {
+                    *d = v;
+                }
+            }
+        }
+    }
 }
 
 /// Dense covariance propagation `P ← Φ P Φᵀ + Q_d`, re-symmetrised. Filters with structured Φ
