@@ -58,7 +58,10 @@ pub struct Kind {
 }
 
 /// Every scenario kind nav-sim knows.
-pub static REGISTRY: &[Kind] = &[crate::scenarios::flexure_process::KIND];
+pub static REGISTRY: &[Kind] = &[
+    crate::scenarios::flexure_process::KIND,
+    crate::scenarios::seeker_ins::KIND,
+];
 
 #[derive(Debug, Deserialize)]
 struct Header {
