@@ -81,7 +81,12 @@ pub fn f_block<T: Real>(
     set(&mut f, 0, 0, -v.x * inv_m * inv_m * k.drm_dlat);
     set(&mut f, 0, 2, -v.x * inv_m * inv_m);
     set(&mut f, 0, 3, inv_m);
-    set(&mut f, 1, 0, v.y * tan * sec * inv_n - v.y * sec * inv_n * inv_n * k.drn_dlat);
+    set(
+        &mut f,
+        1,
+        0,
+        v.y * tan * sec * inv_n - v.y * sec * inv_n * inv_n * k.drn_dlat,
+    );
     set(&mut f, 1, 2, -v.y * sec * inv_n * inv_n);
     set(&mut f, 1, 4, sec * inv_n);
     set(&mut f, 2, 5, -T::one());
@@ -115,14 +120,24 @@ pub fn f_block<T: Real>(
 }
 
 #[inline]
-fn set<T: Real, const R: usize, const C: usize>(m: &mut SMatrix<T, R, C>, r: usize, c: usize, v: T) {
+fn set<T: Real, const R: usize, const C: usize>(
+    m: &mut SMatrix<T, R, C>,
+    r: usize,
+    c: usize,
+    v: T,
+) {
     if let Some(x) = m.get_mut((r, c)) {
         *x = v;
     }
 }
 
 #[inline]
-fn add<T: Real, const R: usize, const C: usize>(m: &mut SMatrix<T, R, C>, r: usize, c: usize, v: T) {
+fn add<T: Real, const R: usize, const C: usize>(
+    m: &mut SMatrix<T, R, C>,
+    r: usize,
+    c: usize,
+    v: T,
+) {
     if let Some(x) = m.get_mut((r, c)) {
         *x += v;
     }
@@ -133,7 +148,7 @@ fn add<T: Real, const R: usize, const C: usize>(m: &mut SMatrix<T, R, C>, r: usi
 /// m/s² per rad and 1/s².
 fn gravity_gradient<T: Real>(lat: T, h: T) -> (T, T) {
     use crate::earth::{
-        ECCENTRICITY_SQ, EARTH_RATE_RAD_S, FLATTENING, GM_M3_S2, GRAVITY_EQUATOR_M_S2,
+        EARTH_RATE_RAD_S, ECCENTRICITY_SQ, FLATTENING, GM_M3_S2, GRAVITY_EQUATOR_M_S2,
         SEMI_MAJOR_AXIS_M, SEMI_MINOR_AXIS_M, SOMIGLIANA_K,
     };
     let a = SEMI_MAJOR_AXIS_M;
@@ -198,8 +213,8 @@ pub fn propagate_covariance<T: Real>(
     // Rows 0..9 of Φ P.
     let phi_p_top: SMatrix<T, 9, STATES> = p.fixed_view::<9, STATES>(0, 0) + b;
     // Corner 9×9 of Φ P Φᵀ = (Φ P)[0..9, 0..9] + (Φ P)[0..9, 0..15] Aᵀ.
-    let corner: SMatrix<T, 9, 9> = phi_p_top.fixed_view::<9, 9>(0, 0)
-        + phi_p_top.fixed_view::<9, 15>(0, 0) * a.transpose();
+    let corner: SMatrix<T, 9, 9> =
+        phi_p_top.fixed_view::<9, 9>(0, 0) + phi_p_top.fixed_view::<9, 15>(0, 0) * a.transpose();
     // Q_d on the corner: Q_c Δt + ½Δt (A Q_c + Q_c Aᵀ), Q_c = diag(0, q_a I, q_g I) on 0..9.
     let mut aq = SMatrix::<T, 9, 9>::zeros();
     let half_dt = T::lit(0.5) * dt_s;
@@ -271,7 +286,8 @@ mod tests {
         for i in 3..9 {
             qc[(i, i)] = if i < 6 { qa } else { qg };
         }
-        let qd = qc * dt + (phi - SMatrix::identity()) * qc * (0.5 * dt)
+        let qd = qc * dt
+            + (phi - SMatrix::identity()) * qc * (0.5 * dt)
             + qc * (phi - SMatrix::identity()).transpose() * (0.5 * dt);
         let mut dense = p0;
         propagate_dense(&mut dense, &phi, &qd);

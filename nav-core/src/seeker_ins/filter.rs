@@ -14,8 +14,8 @@
 //! Every method that returns an error leaves the whole filter exactly as it was.
 
 use super::error_model::{
-    f_block, propagate_covariance, transition_block, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS,
-    STATES, VEL,
+    f_block, propagate_covariance, transition_block, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES,
+    VEL,
 };
 use super::measurement::{los_model, GimbalAngles, Landmark};
 use super::mechanization::{ImuIncrement, Ins, InsState};
@@ -136,6 +136,11 @@ impl<T: Real> SeekerIns<T> {
             q_gyro: g * g,
             config,
         })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &SeekerInsConfig<T> {
+        &self.config
     }
 
     /// Navigation state (after all feedback so far).

@@ -294,8 +294,8 @@ mod tests {
             Vector2::new(n_th.dot(&(e_l - e_g)), n_ps.dot(&(e_l - e_g)))
         };
         let steps = [
-            1e-6, 1e-6, 10.0, 1.0, 1.0, 1.0, 1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0,
-            1e-4, 1e-4,
+            1e-6, 1e-6, 10.0, 1.0, 1.0, 1.0, 1e-4, 1e-4, 1e-4, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1e-4,
+            1e-4,
         ];
         for (j, &h) in steps.iter().enumerate() {
             let mut dx = SVector::<f64, STATES>::zeros();

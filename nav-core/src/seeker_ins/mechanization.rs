@@ -361,13 +361,7 @@ pub fn continuous_derivative<T: Real>(
     let mut v_dot = c_b_n * f_b_m_s2 - (k.w_ie * T::lit(2.0) + k.w_en).cross(v);
     v_dot.z += g;
     let c_dot = c_b_n * skew(w_ib_b_rad_s) - skew(&(k.w_ie + k.w_en)) * c_b_n;
-    (
-        v.x / k.rm_h,
-        v.y / (k.rn_h * k.cos_lat),
-        -v.z,
-        v_dot,
-        c_dot,
-    )
+    (v.x / k.rm_h, v.y / (k.rn_h * k.cos_lat), -v.z, v_dot, c_dot)
 }
 
 #[cfg(test)]

@@ -27,7 +27,7 @@ use nav_core::seeker_ins::{
 use nav_core::Real;
 use serde::Deserialize;
 use serde_json::json;
-use trajectory::{Truth, TrajectoryConfig};
+use trajectory::{TrajectoryConfig, Truth};
 
 /// Registry entry.
 pub const KIND: Kind = Kind {
@@ -173,6 +173,16 @@ pub struct RunOutput {
     pub errors: usize,
     /// True gimbal angles at the seeker epochs (pitch, yaw), deg (first run only used).
     pub gimbal_deg: Vec<(f64, f64, f64)>,
+}
+
+/// Loads the configuration of a shipped scenario file (`nav-sim/scenarios/<name>.toml`).
+pub fn load_config(name: &str) -> Result<Config> {
+    let path = crate::scenario::default_scenario_dir().join(format!("{name}.toml"));
+    let mut doc: toml::Table = toml::from_str(&std::fs::read_to_string(&path)?)?;
+    for k in ["kind", "description", "runs", "seed"] {
+        doc.remove(k);
+    }
+    Ok(Config::deserialize(toml::Value::Table(doc))?)
 }
 
 /// Output sample indices (IMU epochs).
@@ -343,11 +353,7 @@ pub fn simulate_run<T: Real>(
             let inc = &truth.imu[k];
             let dv = acc_m * inc.delta_v_m_s
                 + acc_b * dt
-                + Vector3::new(
-                    normal(rng, sd_dv),
-                    normal(rng, sd_dv),
-                    normal(rng, sd_dv),
-                );
+                + Vector3::new(normal(rng, sd_dv), normal(rng, sd_dv), normal(rng, sd_dv));
             let dth = gyr_m * inc.delta_theta_rad
                 + gyr_b * dt
                 + Vector3::new(
@@ -404,9 +410,7 @@ pub fn simulate_run<T: Real>(
                     .predict_covariance()
                     .map_err(|e| anyhow::anyhow!("{e}"))?;
             }
-            record(
-                &mut out, &filter, truth, k, &acc_b, &gyr_b, &seeker_bias,
-            );
+            record(&mut out, &filter, truth, k, &acc_b, &gyr_b, &seeker_bias);
         }
     }
     Ok(out)
@@ -615,7 +619,12 @@ pub fn nees_summary(st: &Stats) -> serde_json::Value {
         .enumerate()
     {
         let v = &st.nees[b];
-        let body: Vec<f64> = v.iter().skip(1).copied().filter(|x| x.is_finite()).collect();
+        let body: Vec<f64> = v
+            .iter()
+            .skip(1)
+            .copied()
+            .filter(|x| x.is_finite())
+            .collect();
         let mean = body.iter().sum::<f64>() / body.len().max(1) as f64;
         let lo = chi2_quantile(dof * runs, -1.959_964) / runs;
         let hi = chi2_quantile(dof * runs, 1.959_964) / runs;
@@ -623,8 +632,14 @@ pub fn nees_summary(st: &Stats) -> serde_json::Value {
             / body.len().max(1) as f64;
         m.insert(format!("nees{name}_mean"), json!(sig(mean, 4)));
         m.insert(format!("nees{name}_dof"), json!(dof));
-        m.insert(format!("nees{name}_95_bounds"), json!([sig(lo, 4), sig(hi, 4)]));
-        m.insert(format!("nees{name}_in_95_bounds_frac"), json!(sig(inside, 3)));
+        m.insert(
+            format!("nees{name}_95_bounds"),
+            json!([sig(lo, 4), sig(hi, 4)]),
+        );
+        m.insert(
+            format!("nees{name}_in_95_bounds_frac"),
+            json!(sig(inside, 3)),
+        );
         m.insert(
             format!("nees{name}_final"),
             json!(sig(*v.last().unwrap_or(&f64::NAN), 4)),
@@ -669,11 +684,7 @@ pub fn monte_carlo_batches(
     }
     let t: Vec<f64> = epochs.iter().map(|&k| truth.t_s[k]).collect();
     let first = aided.first().cloned().unwrap_or_default();
-    Ok((
-        statistics(&aided, t.clone()),
-        statistics(&free, t),
-        first,
-    ))
+    Ok((statistics(&aided, t.clone()), statistics(&free, t), first))
 }
 
 fn run(ctx: &Context) -> Result<serde_json::Value> {
@@ -682,19 +693,24 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
         bail!("rates must be positive");
     }
     let truth = trajectory::generate(&cfg.trajectory, 1.0 / cfg.rates.imu_hz);
-    let (aided, free, first) =
-        monte_carlo_batches(&cfg, &truth, ctx.runs, ctx.seed, ctx.progress)?;
+    let (aided, free, first) = monte_carlo_batches(&cfg, &truth, ctx.runs, ctx.seed, ctx.progress)?;
     write_outputs(ctx, &cfg, &truth, &aided, &free, &first)?;
     let mut a = summary_block(&aided);
     if let (Some(obj), serde_json::Value::Object(n)) = (a.as_object_mut(), nees_summary(&aided)) {
         for (k, v) in n {
             obj.insert(k, v);
         }
-        obj.insert("nis_mean_per_component".into(), json!(sig(aided.nis_mean, 4)));
+        obj.insert(
+            "nis_mean_per_component".into(),
+            json!(sig(aided.nis_mean, 4)),
+        );
         obj.insert("components_fused".into(), json!(aided.fused));
         obj.insert("components_rejected".into(), json!(aided.rejected));
         obj.insert("updates_refused".into(), json!(aided.errors));
-        obj.insert("seeker_epochs_out_of_field_run0".into(), json!(aided.out_of_field));
+        obj.insert(
+            "seeker_epochs_out_of_field_run0".into(),
+            json!(aided.out_of_field),
+        );
     }
     let f = summary_block(&free);
     println!(
@@ -738,7 +754,10 @@ fn write_outputs(
         headers.push(format!("{name}_free_rms"));
         cols.push(&free.rms[i]);
     }
-    for (b, name) in ["nees", "nees_pos", "nees_vel", "nees_att"].iter().enumerate() {
+    for (b, name) in ["nees", "nees_pos", "nees_vel", "nees_att"]
+        .iter()
+        .enumerate()
+    {
         headers.push((*name).into());
         cols.push(&aided.nees[b]);
     }
@@ -835,7 +854,15 @@ fn write_outputs(
                 Series::dashed("95 % bounds", t, &vec![lo; t.len()], 1),
                 Series::dashed("", t, &vec![hi; t.len()], 1),
             ],
-            y_range: Some((0.0, (3.0 * hi).max(aided.nees[b].iter().skip(1).fold(0.0, |m: f64, x| m.max(x.min(10.0 * hi)))))),
+            y_range: Some((
+                0.0,
+                (3.0 * hi).max(
+                    aided.nees[b]
+                        .iter()
+                        .skip(1)
+                        .fold(0.0, |m: f64, x| m.max(x.min(10.0 * hi))),
+                ),
+            )),
         });
     }
     render(

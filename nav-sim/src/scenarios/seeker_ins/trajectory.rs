@@ -118,7 +118,11 @@ impl TrajectoryConfig {
         let (sp, cp) = psi.sin_cos();
         Kin {
             v_ned: Vector3::new(s * cp, s * sp, 0.0),
-            a_ned: Vector3::new(s_dot * cp - s * psi_dot * sp, s_dot * sp + s * psi_dot * cp, 0.0),
+            a_ned: Vector3::new(
+                s_dot * cp - s * psi_dot * sp,
+                s_dot * sp + s * psi_dot * cp,
+                0.0,
+            ),
             roll,
             roll_rate,
             yaw: psi,
@@ -160,7 +164,11 @@ fn sensed(cfg: &TrajectoryConfig, t: f64, p: &Position) -> (Vector3<f64>, Vector
     let w_en = nav_core::earth::transport_rate_ned(p.lat_rad, p.alt_m, &k.v_ned);
     let f_n = k.a_ned + (w_ie * 2.0 + w_en).cross(&k.v_ned) - gravity_ned(p.lat_rad, p.alt_m);
     // ω_nb^b from Euler rates (pitch 0): [φ̇, ψ̇ sin φ, ψ̇ cos φ].
-    let w_nb_b = Vector3::new(k.roll_rate, k.yaw_rate * k.roll.sin(), k.yaw_rate * k.roll.cos());
+    let w_nb_b = Vector3::new(
+        k.roll_rate,
+        k.yaw_rate * k.roll.sin(),
+        k.yaw_rate * k.roll.cos(),
+    );
     let ct = c.transpose();
     (ct * f_n, w_nb_b + ct * (w_ie + w_en))
 }
