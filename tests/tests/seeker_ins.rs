@@ -6,7 +6,8 @@ use nav_core::earth::radii_m;
 use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
-    GimbalAngles, ImuIncrement, Ins, InsState, Landmark, Position, SeekerIns, SeekerInsConfig,
+    GimbalAngles, ImuIncrement, Ins, InsState, Landmark, LosResidual, Position, SeekerIns,
+    SeekerInsConfig,
 };
 use nav_core::{NavError, Real};
 use nav_sim::scenarios::seeker_ins::{monte_carlo_batches, trajectory, Config};
@@ -156,6 +157,7 @@ fn filter_at_start() -> (SeekerIns<f32>, GimbalAngles<f32>) {
         seeker_noise_rad: 0.003,
         gate_nis: 16.0,
         landmark: lm,
+        residual: LosResidual::Projected2d,
     };
     let mut p0 = SMatrix::<f32, 17, 17>::zeros();
     let sig = [

@@ -17,7 +17,7 @@ use super::error_model::{
     f_block, propagate_covariance, transition_block, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES,
     VEL,
 };
-use super::measurement::{los_model, GimbalAngles, Landmark};
+use super::measurement::{los_model, los_model_3d, GimbalAngles, Landmark};
 use super::mechanization::{ImuIncrement, Ins, InsState};
 use crate::error::ConfigIssue;
 use crate::math::kalman::{fuse_scalar, FusionOutcome, FusionReport, Gate};
@@ -41,6 +41,23 @@ pub struct SeekerInsConfig<T> {
     pub gate_nis: T,
     /// The landmark the seeker tracks.
     pub landmark: Landmark<T>,
+    /// Residual form (the spec's first open point; [`LosResidual::Projected2d`] is the design
+    /// choice, the other is kept for comparison).
+    pub residual: LosResidual,
+}
+
+/// Form of the LOS residual fused by [`SeekerIns::update_los`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LosResidual {
+    /// Two components in the plane normal to the LOS, `R = diag(σ², σ² cos² θ_s)`
+    /// ([`super::measurement::los_model`]).
+    #[default]
+    Projected2d,
+    /// The NED 3-vector with full-rank `R = σ² I₃` ([`super::measurement::los_model_3d`]);
+    /// the report's `pitch`/`yaw` then hold the N and E components, the D component is fused
+    /// as well but reported only through the state.
+    FullRank3d,
 }
 
 /// Outcome of one seeker update.
@@ -222,40 +239,72 @@ impl<T: Real> SeekerIns<T> {
             yaw_rad: measured.yaw_rad - next.gimbal_bias_rad.y,
         };
         let s = next.ins.state();
-        let model = los_model(
-            &s.position,
-            &next.ins.c_b_n(),
-            &corrected,
-            &self.config.landmark,
-            self.config.seeker_noise_rad,
-        )?;
         let gate = Gate::Nis(self.config.gate_nis);
         let mut x = SVector::<T, STATES>::zeros();
-        let pitch = fuse_scalar(
-            &mut x,
-            &mut next.p,
-            &model.h_pitch,
-            model.residual_rad.x,
-            model.variance_rad2.x,
-            gate,
-        )?;
-        let nu_yaw = model.residual_rad.y - model.h_yaw.dot(&x);
-        let yaw = fuse_scalar(
-            &mut x,
-            &mut next.p,
-            &model.h_yaw,
-            nu_yaw,
-            model.variance_rad2.y,
-            gate,
-        )?;
-        if pitch.outcome == FusionOutcome::Fused || yaw.outcome == FusionOutcome::Fused {
+        let c_b_n = next.ins.c_b_n();
+        let (pitch, yaw, range_m, any_fused) = match self.config.residual {
+            LosResidual::Projected2d => {
+                let model = los_model(
+                    &s.position,
+                    &c_b_n,
+                    &corrected,
+                    &self.config.landmark,
+                    self.config.seeker_noise_rad,
+                )?;
+                let pitch = fuse_scalar(
+                    &mut x,
+                    &mut next.p,
+                    &model.h_pitch,
+                    model.residual_rad.x,
+                    model.variance_rad2.x,
+                    gate,
+                )?;
+                let nu_yaw = model.residual_rad.y - model.h_yaw.dot(&x);
+                let yaw = fuse_scalar(
+                    &mut x,
+                    &mut next.p,
+                    &model.h_yaw,
+                    nu_yaw,
+                    model.variance_rad2.y,
+                    gate,
+                )?;
+                let fused =
+                    pitch.outcome == FusionOutcome::Fused || yaw.outcome == FusionOutcome::Fused;
+                (pitch, yaw, model.range_m, fused)
+            }
+            LosResidual::FullRank3d => {
+                let model = los_model_3d(
+                    &s.position,
+                    &c_b_n,
+                    &corrected,
+                    &self.config.landmark,
+                    self.config.seeker_noise_rad,
+                )?;
+                let r = model.variance_rad2;
+                let n = fuse_scalar(
+                    &mut x,
+                    &mut next.p,
+                    &model.h_north,
+                    model.residual.x,
+                    r,
+                    gate,
+                )?;
+                let nu_e = model.residual.y - model.h_east.dot(&x);
+                let e = fuse_scalar(&mut x, &mut next.p, &model.h_east, nu_e, r, gate)?;
+                let nu_d = model.residual.z - model.h_down.dot(&x);
+                let d = fuse_scalar(&mut x, &mut next.p, &model.h_down, nu_d, r, gate)?;
+                let fused = [n, e, d].iter().any(|c| c.outcome == FusionOutcome::Fused);
+                (n, e, model.range_m, fused)
+            }
+        };
+        if any_fused {
             next.feed_back(&x)?;
         }
         *self = next;
         Ok(LosReport {
             pitch,
             yaw,
-            range_m: model.range_m,
+            range_m,
         })
     }
 

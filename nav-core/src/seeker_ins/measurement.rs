@@ -228,6 +228,74 @@ pub fn los_model<T: Real>(
     Ok(model)
 }
 
+/// The alternative the spec mentions: the full 3-vector residual `ê_landmark − ê_gimbal`
+/// (NED components) with a full-rank `R = σ² I₃`, fused as three scalar updates.
+///
+/// Kept for comparison with [`los_model`] (scenario option `residual = "full-rank-3d"`): the
+/// true noise covariance of this residual is `σ² (n_θ n_θᵀ + cos²θ_s n_ψ n_ψᵀ)`, of rank 2;
+/// `σ² I₃` adds a fictitious σ² along the LOS (where the residual and its H row are ≈ 0, so
+/// that component carries almost no information) and over-weights the yaw direction by
+/// `1/cos² θ_s`. Rows: `H1 = P⊥ (−T + [D×] M)/r`, `H3 = −[ê_G ×]`, `H6 = [−n_θ, −cos θ_s n_ψ]`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LosModel3<T> {
+    /// Residual `ê_landmark − ê_gimbal` in NED (dimensionless, ≈ rad).
+    pub residual: Vector3<T>,
+    /// H rows of the N, E, D components.
+    pub h_north: SVector<T, STATES>,
+    /// H row of E.
+    pub h_east: SVector<T, STATES>,
+    /// H row of D.
+    pub h_down: SVector<T, STATES>,
+    /// σ², rad² (the same for every component).
+    pub variance_rad2: T,
+    /// Range to the landmark, m.
+    pub range_m: T,
+}
+
+/// Builds the 3-vector residual model [`LosModel3`]; same inputs and errors as [`los_model`].
+pub fn los_model_3d<T: Real>(
+    pos: &Position,
+    c_b_n: &Matrix3<T>,
+    gimbal: &GimbalAngles<T>,
+    lm: &Landmark<T>,
+    sigma_rad: T,
+) -> Result<LosModel3<T>, NavError> {
+    // Validation and the shared geometry come from the 2-D model.
+    let m2 = los_model(pos, c_b_n, gimbal, lm, sigma_rad)?;
+    let (st, ct) = (gimbal.pitch_rad.sin(), gimbal.pitch_rad.cos());
+    let (sp, cp) = (gimbal.yaw_rad.sin(), gimbal.yaw_rad.cos());
+    let n_th = c_b_n * Vector3::new(-st * cp, -st * sp, -ct);
+    let n_ps = c_b_n * Vector3::new(-sp, cp, T::zero());
+    let d = landmark_vector_ned(pos, lm);
+    let e_l = m2.los_landmark_ned;
+    let e_g = m2.los_gimbal_ned;
+    let k = Kinematics::new(pos, &Vector3::zeros());
+    let z = T::zero();
+    let t = Matrix3::new(k.rm_h, z, z, z, k.rn_h * k.cos_lat, z, z, z, -T::one());
+    let m = Matrix3::new(z, k.cos_lat, z, -T::one(), z, z, z, -k.sin_lat, z);
+    let h1 = (Matrix3::identity() - e_l * e_l.transpose()) * (skew(&d) * m - t) / m2.range_m;
+    let h3 = -skew(&e_g);
+    let h6a = -n_th;
+    let h6b = -n_ps * ct;
+    let row = |i: usize| {
+        let mut h = SVector::<T, STATES>::zeros();
+        h.fixed_rows_mut::<3>(POS).copy_from(&h1.row(i).transpose());
+        h.fixed_rows_mut::<3>(ATT).copy_from(&h3.row(i).transpose());
+        let g = Vector2::new(*h6a.get(i).unwrap_or(&z), *h6b.get(i).unwrap_or(&z));
+        h.fixed_rows_mut::<2>(GIMBAL).copy_from(&g);
+        h
+    };
+    Ok(LosModel3 {
+        residual: e_l - e_g,
+        h_north: row(0),
+        h_east: row(1),
+        h_down: row(2),
+        variance_rad2: sigma_rad * sigma_rad,
+        range_m: m2.range_m,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -333,5 +401,35 @@ mod tests {
             alt_m: 0.0
         })
         .is_err());
+    }
+
+    #[test]
+    fn h3d_matches_finite_differences() {
+        let (pos, lm, c, g) = geometry();
+        let m = los_model_3d(&pos, &c, &g, &lm, 0.003).unwrap();
+        let resid = |dx: &SVector<f64, STATES>| -> Vector3<f64> {
+            let p_hat = Position {
+                lat_rad: pos.lat_rad + dx[0],
+                lon_rad: pos.lon_rad + dx[1],
+                alt_m: pos.alt_m + dx[2],
+            };
+            let c_hat = exp_so3(&(-dx.fixed_rows::<3>(ATT).into_owned())) * c;
+            let g_meas = GimbalAngles {
+                pitch_rad: g.pitch_rad + dx[GIMBAL],
+                yaw_rad: g.yaw_rad + dx[GIMBAL + 1],
+            };
+            landmark_vector_ned(&p_hat, &lm).normalize() - c_hat * los_body(&g_meas)
+        };
+        let steps = [1e-6, 1e-6, 10.0, 1.0, 1.0, 1.0, 1e-4, 1e-4, 1e-4];
+        for j in [0usize, 1, 2, 6, 7, 8, 15, 16] {
+            let h = if j >= GIMBAL { 1e-4 } else { steps[j] };
+            let mut dx = SVector::<f64, STATES>::zeros();
+            dx[j] = h;
+            let col = (resid(&dx) - resid(&(-dx))) / (2.0 * h);
+            for (i, hrow) in [&m.h_north, &m.h_east, &m.h_down].iter().enumerate() {
+                let tol = 1e-6 * hrow.abs().max();
+                assert!((col[i] - hrow[j]).abs() <= tol, "H3d[{i},{j}]");
+            }
+        }
     }
 }

@@ -22,7 +22,8 @@ use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_euler, dcm_to_quat, euler_to_dcm, log_so3, quat_to_dcm};
 use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned};
 use nav_core::seeker_ins::{
-    GimbalAngles, ImuIncrement, InsState, Landmark, Position, SeekerIns, SeekerInsConfig, STATES,
+    GimbalAngles, ImuIncrement, InsState, Landmark, LosResidual, Position, SeekerIns,
+    SeekerInsConfig, STATES,
 };
 use nav_core::Real;
 use serde::Deserialize;
@@ -150,6 +151,13 @@ pub struct FilterConfig {
     pub gimbal_bias_sigma_deg: f64,
     /// Seeker white noise assumed by the filter, deg.
     pub seeker_noise_deg: f64,
+    /// LOS residual form: "projected-2d" (default) or "full-rank-3d" (comparison).
+    #[serde(default = "default_residual")]
+    pub residual: String,
+}
+
+fn default_residual() -> String {
+    "projected-2d".into()
 }
 
 /// Output of one run (sampled at the output rate).
@@ -340,6 +348,11 @@ pub fn simulate_run<T: Real>(
         seeker_noise_rad: T::lit(fc.seeker_noise_deg.to_radians()),
         gate_nis: T::lit(fc.gate_nis),
         landmark: Landmark::new(lm_pos).map_err(|e| anyhow::anyhow!("landmark: {e}"))?,
+        residual: match fc.residual.as_str() {
+            "projected-2d" => LosResidual::Projected2d,
+            "full-rank-3d" => LosResidual::FullRank3d,
+            r => bail!("filter.residual `{r}`: must be \"projected-2d\" or \"full-rank-3d\""),
+        },
     };
     let mut filter = SeekerIns::new(config, init, &p0m.cast::<T>())
         .map_err(|e| anyhow::anyhow!("filter init: {e}"))?;
@@ -726,6 +739,7 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
     Ok(json!({
         "trajectory": format!("{:?}", cfg.trajectory.shape),
         "filter_precision": cfg.filter.precision,
+        "los_residual": cfg.filter.residual,
         "aided": a,
         "free_ins": f,
     }))
