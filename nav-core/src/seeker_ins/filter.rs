@@ -198,14 +198,29 @@ impl<T: Real> SeekerIns<T> {
             delta_theta_rad: inc.delta_theta_rad - self.gyro_bias_rad_s * dt,
             delta_v_m_s: inc.delta_v_m_s - self.accel_bias_m_s2 * dt,
         };
-        let mut next = *self;
-        next.ins.step(&compensated)?;
-        next.dv_ned_pending_m_s += next.ins.specific_force_ned_m_s2() * dt;
-        next.steps_pending = next.steps_pending.saturating_add(1);
-        if next.steps_pending >= self.config.covariance_interval_steps {
-            next.predict_covariance()?;
+        // The INS steps on a copy (P, the large part, is not copied: the covariance step below
+        // is atomic), and everything is committed only when both succeeded.
+        let mut ins = self.ins;
+        ins.step(&compensated)?;
+        let dv_pending = self.dv_ned_pending_m_s + ins.specific_force_ned_m_s2() * dt;
+        let steps = self.steps_pending.saturating_add(1);
+        if steps >= self.config.covariance_interval_steps {
+            Self::covariance_step(
+                &mut self.p,
+                &ins,
+                steps,
+                &dv_pending,
+                &self.config,
+                self.q_accel,
+                self.q_gyro,
+            )?;
+            self.steps_pending = 0;
+            self.dv_ned_pending_m_s = Vector3::zeros();
+        } else {
+            self.steps_pending = steps;
+            self.dv_ned_pending_m_s = dv_pending;
         }
-        *self = next;
+        self.ins = ins;
         Ok(())
     }
 
@@ -215,15 +230,37 @@ impl<T: Real> SeekerIns<T> {
         if self.steps_pending == 0 {
             return Ok(());
         }
-        let dt_total = self.config.imu_dt_s * T::lit(f64::from(self.steps_pending));
-        let f_ned = self.dv_ned_pending_m_s / dt_total;
-        let s = self.ins.state();
-        let f = f_block(&s.position, &s.vel_ned_m_s, &self.ins.c_b_n(), &f_ned);
-        let a = transition_block(&f, dt_total);
-        propagate_covariance(&mut self.p, &a, dt_total, self.q_accel, self.q_gyro)?;
+        Self::covariance_step(
+            &mut self.p,
+            &self.ins,
+            self.steps_pending,
+            &self.dv_ned_pending_m_s,
+            &self.config,
+            self.q_accel,
+            self.q_gyro,
+        )?;
         self.steps_pending = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
         Ok(())
+    }
+
+    /// `P ← Φ P Φᵀ + Q_d` over `steps` IMU intervals with F at the INS state and the mean
+    /// specific force `dv_ned / (steps Δt)`; atomic (P unchanged on error).
+    fn covariance_step(
+        p: &mut SMatrix<T, STATES, STATES>,
+        ins: &Ins<T>,
+        steps: u16,
+        dv_ned_m_s: &Vector3<T>,
+        config: &SeekerInsConfig<T>,
+        q_accel: T,
+        q_gyro: T,
+    ) -> Result<(), NavError> {
+        let dt_total = config.imu_dt_s * T::lit(f64::from(steps));
+        let f_ned = dv_ned_m_s / dt_total;
+        let s = ins.state();
+        let f = f_block(&s.position, &s.vel_ned_m_s, &ins.c_b_n(), &f_ned);
+        let a = transition_block(&f, dt_total);
+        propagate_covariance(p, &a, dt_total, q_accel, q_gyro)
     }
 
     /// Fuses one pair of measured gimbal angles (rad) to the configured landmark.
