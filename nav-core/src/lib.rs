@@ -56,6 +56,7 @@ pub mod earth;
 pub mod error;
 pub mod math;
 pub mod real;
+pub mod seeker_ins;
 pub mod transfer_alignment;
 
 pub use error::NavError;

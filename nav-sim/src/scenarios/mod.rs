@@ -1,4 +1,5 @@
 //! Scenario runners, one module per scenario kind.
 
 pub mod flexure_process;
+pub mod seeker_ins;
 pub mod transfer_alignment;

@@ -1,0 +1,364 @@
+//! The 17-state INS error model (seed eq. 2; Titterton & Weston §12.3, Groves §14.2) for the
+//! n-frame misalignment φ, `Ĉ_b^n = (I − [φ×]) C_b^n`, and its discrete propagation.
+//!
+//! With errors "estimate minus truth", `ρ = 2ω_ie + ω_en`, `ω_in = ω_ie + ω_en`:
+//!
+//! ```text
+//! δL̇ = δV_N/(R_M+h) − V_N (R_M' δL + δh)/(R_M+h)²
+//! δl̇ = δV_E/((R_N+h) cos L) + V_E tan L sec L δL/(R_N+h) − V_E sec L (R_N' δL + δh)/(R_N+h)²
+//! δḣ = −δV_D
+//! δV̇ = [fⁿ×] φ + C_b^n ∇ − ρ × δV + V × δρ + [0, 0, ∂g/∂L δL + ∂g/∂h δh]
+//! φ̇  = −ω_in × φ + δω_in − C_b^n ε
+//! ∇̇ = ε̇ = δθ̇_s = δψ̇_s = 0
+//! ```
+//!
+//! (R' = dR/dL; δρ, δω_in are the first-order changes of ρ, ω_in with δL, δh and δV.)
+//! Only the first 9 rows of F are non-zero and only its first 15 columns, so F is stored as a
+//! 9×15 block. Noise: `G w` puts the accelerometer white noise (PSD `q_a`, (m/s²)²/Hz) on δV
+//! through C_b^n and the gyro white noise (PSD `q_g`, (rad/s)²/Hz) on φ through −C_b^n; both
+//! are isotropic, so `G Q Gᵀ = diag(0₃, q_a I₃, q_g I₃, 0₈)`.
+//!
+//! Discretisation over the filter interval Δt (F frozen over Δt):
+//! `Φ = I + A`, `A = FΔt + ½(FΔt)²` (the second-order term carries, e.g., the gyro-bias →
+//! attitude → velocity coupling, ≈ 5 % of the first-order terms at Δt = 0.1 s; the third-order
+//! remainder is below 1 % of it), and `Q_d = Q_cΔt + ½Δt (A Q_c + Q_c Aᵀ)` (trapezoidal
+//! `½(Φ Q_c Φᵀ + Q_c)Δt` to first order in A).
+
+use super::mechanization::{Kinematics, Position};
+use crate::math::rotation::skew;
+use crate::{NavError, Real};
+use nalgebra::{Matrix3, SMatrix, Vector3};
+
+/// Number of error states.
+pub const STATES: usize = 17;
+/// Index of δL (then δl, δh).
+pub const POS: usize = 0;
+/// Index of δV_N (then δV_E, δV_D).
+pub const VEL: usize = 3;
+/// Index of φ_N (then φ_E, φ_D).
+pub const ATT: usize = 6;
+/// Index of ∇_x (then ∇_y, ∇_z).
+pub const ACC_BIAS: usize = 9;
+/// Index of ε_x (then ε_y, ε_z).
+pub const GYRO_BIAS: usize = 12;
+/// Index of δθ_s (then δψ_s).
+pub const GIMBAL: usize = 15;
+
+/// The non-zero block `F[0..9, 0..15]` of the error-model matrix (module doc).
+pub type FBlock<T> = SMatrix<T, 9, 15>;
+
+/// Error-model block F at a navigation state: position, velocity (m/s, NED), C_b^n and the
+/// specific force in NED `f_ned_m_s2` (m/s²).
+pub fn f_block<T: Real>(
+    pos: &Position,
+    v: &Vector3<T>,
+    c_b_n: &Matrix3<T>,
+    f_ned_m_s2: &Vector3<T>,
+) -> FBlock<T> {
+    let k = Kinematics::new(pos, v);
+    let z = T::zero();
+    let inv_m = T::one() / k.rm_h;
+    let inv_n = T::one() / k.rn_h;
+    let sec = T::one() / k.cos_lat;
+    let tan = k.sin_lat * sec;
+    let w = T::lit(crate::earth::EARTH_RATE_RAD_S);
+    // ∂ω_ie/∂L (only column L).
+    let dwie_dl = Vector3::new(-w * k.sin_lat, z, -w * k.cos_lat);
+    // ∂ω_en/∂(L, h) as columns, ∂ω_en/∂V.
+    let dwen_dlat = Vector3::new(
+        -v.y * inv_n * inv_n * k.drn_dlat,
+        v.x * inv_m * inv_m * k.drm_dlat,
+        -v.y * sec * sec * inv_n + v.y * tan * inv_n * inv_n * k.drn_dlat,
+    );
+    let dwen_dh = Vector3::new(
+        -v.y * inv_n * inv_n,
+        v.x * inv_m * inv_m,
+        v.y * tan * inv_n * inv_n,
+    );
+    let dwen_dv = Matrix3::new(z, inv_n, z, -inv_m, z, z, z, -tan * inv_n, z);
+    // Position rows.
+    let mut f = FBlock::<T>::zeros();
+    set(&mut f, 0, 0, -v.x * inv_m * inv_m * k.drm_dlat);
+    set(&mut f, 0, 2, -v.x * inv_m * inv_m);
+    set(&mut f, 0, 3, inv_m);
+    set(
+        &mut f,
+        1,
+        0,
+        v.y * tan * sec * inv_n - v.y * sec * inv_n * inv_n * k.drn_dlat,
+    );
+    set(&mut f, 1, 2, -v.y * sec * inv_n * inv_n);
+    set(&mut f, 1, 4, sec * inv_n);
+    set(&mut f, 2, 5, -T::one());
+    // Velocity rows: [V×] δρ with δρ = 2 δω_ie + δω_en.
+    let vx = skew(v);
+    let drho_dlat = dwie_dl * T::lit(2.0) + dwen_dlat;
+    let col_lat = vx * drho_dlat;
+    let col_h = vx * dwen_dh;
+    let rho = k.w_ie * T::lit(2.0) + k.w_en;
+    let f_vv = vx * dwen_dv - skew(&rho);
+    // Gravity gradient (module earth: g = g0(L)(1 − (c1 + c1' sin²L) h + c2 h²)).
+    let lat = T::lit(pos.lat_rad);
+    let h = T::lit(pos.alt_m);
+    let (dg_dlat, dg_dh) = gravity_gradient(lat, h);
+    f.fixed_view_mut::<3, 1>(3, 0).copy_from(&col_lat);
+    f.fixed_view_mut::<3, 1>(3, 2).copy_from(&col_h);
+    add(&mut f, 5, 0, dg_dlat);
+    add(&mut f, 5, 2, dg_dh);
+    f.fixed_view_mut::<3, 3>(3, 3).copy_from(&f_vv);
+    f.fixed_view_mut::<3, 3>(3, 6).copy_from(&skew(f_ned_m_s2));
+    f.fixed_view_mut::<3, 3>(3, 9).copy_from(c_b_n);
+    // Attitude rows.
+    let datt_dlat = dwie_dl + dwen_dlat;
+    f.fixed_view_mut::<3, 1>(6, 0).copy_from(&datt_dlat);
+    f.fixed_view_mut::<3, 1>(6, 2).copy_from(&dwen_dh);
+    f.fixed_view_mut::<3, 3>(6, 3).copy_from(&dwen_dv);
+    f.fixed_view_mut::<3, 3>(6, 6)
+        .copy_from(&(-skew(&(k.w_ie + k.w_en))));
+    f.fixed_view_mut::<3, 3>(6, 12).copy_from(&(-c_b_n));
+    f
+}
+
+#[inline]
+fn set<T: Real, const R: usize, const C: usize>(
+    m: &mut SMatrix<T, R, C>,
+    r: usize,
+    c: usize,
+    v: T,
+) {
+    if let Some(x) = m.get_mut((r, c)) {
+        *x = v;
+    }
+}
+
+#[inline]
+fn add<T: Real, const R: usize, const C: usize>(
+    m: &mut SMatrix<T, R, C>,
+    r: usize,
+    c: usize,
+    v: T,
+) {
+    if let Some(x) = m.get_mut((r, c)) {
+        *x += v;
+    }
+}
+
+/// `(∂g/∂L, ∂g/∂h)` of the normal gravity model in [`crate::earth::normal_gravity_m_s2`]
+/// (`g = g0(L) (1 − (c1 + c1' sin²L) h + c2 h²)`, `g0` Somigliana), in closed form:
+/// m/s² per rad and 1/s².
+fn gravity_gradient<T: Real>(lat: T, h: T) -> (T, T) {
+    use crate::earth::{
+        EARTH_RATE_RAD_S, ECCENTRICITY_SQ, FLATTENING, GM_M3_S2, GRAVITY_EQUATOR_M_S2,
+        SEMI_MAJOR_AXIS_M, SEMI_MINOR_AXIS_M, SOMIGLIANA_K,
+    };
+    let a = SEMI_MAJOR_AXIS_M;
+    let m = EARTH_RATE_RAD_S * EARTH_RATE_RAD_S * a * a * SEMI_MINOR_AXIS_M / GM_M3_S2;
+    let c1 = T::lit(2.0 / a * (1.0 + FLATTENING + m));
+    let c1_lat = T::lit(2.0 / a * (-2.0 * FLATTENING));
+    let c2 = T::lit(3.0 / (a * a));
+    let (s, c) = (lat.sin(), lat.cos());
+    let s2 = s * s;
+    let k = T::lit(SOMIGLIANA_K);
+    let e2 = T::lit(ECCENTRICITY_SQ);
+    let d = T::one() - e2 * s2;
+    let sd = d.sqrt();
+    let ge = T::lit(GRAVITY_EQUATOR_M_S2);
+    let g0 = ge * (T::one() + k * s2) / sd;
+    let dg0 = ge * s * c * (T::lit(2.0) * k + (T::one() + k * s2) * e2 / d) / sd;
+    let alt_factor = T::one() - (c1 + c1_lat * s2) * h + c2 * h * h;
+    (
+        dg0 * alt_factor - g0 * c1_lat * T::lit(2.0) * s * c * h,
+        g0 * (T::lit(2.0) * c2 * h - c1 - c1_lat * s2),
+    )
+}
+
+/// The full 17×17 F (zero outside the 9×15 block), for tests and reference.
+pub fn full_f<T: Real>(block: &FBlock<T>) -> SMatrix<T, STATES, STATES> {
+    let mut f = SMatrix::<T, STATES, STATES>::zeros();
+    f.fixed_view_mut::<9, 15>(0, 0).copy_from(block);
+    f
+}
+
+/// `A = Φ − I = FΔt + ½(FΔt)²` restricted to its non-zero 9×15 block.
+pub fn transition_block<T: Real>(f: &FBlock<T>, dt_s: T) -> FBlock<T> {
+    // (F²)[0..9, 0..15] = F[0..9, 0..9] F[0..9, 0..15] because rows 9.. of F are zero.
+    let f9 = f.fixed_view::<9, 9>(0, 0);
+    let f2 = f9 * f;
+    f * dt_s + f2 * (T::lit(0.5) * dt_s * dt_s)
+}
+
+/// Covariance propagation `P ← Φ P Φᵀ + Q_d` with `Φ = I + A` (A from [`transition_block`])
+/// using only A's 9×15 block: `B = A P[0..15, :]`, then the rows 0..9 and the 9×9 corner.
+/// `q_accel` and `q_gyro` are the white-noise PSDs ((m/s²)²/Hz and (rad/s)²/Hz).
+///
+/// Errors (P unchanged): `InvalidTimeStep`, `NonFiniteInput`,
+/// `CovarianceNotPositiveSemiDefinite` (a negative or non-finite variance would result).
+pub fn propagate_covariance<T: Real>(
+    p: &mut SMatrix<T, STATES, STATES>,
+    a: &FBlock<T>,
+    dt_s: T,
+    q_accel: T,
+    q_gyro: T,
+) -> Result<(), NavError> {
+    if !dt_s.is_finite() || dt_s <= T::zero() {
+        return Err(NavError::InvalidTimeStep);
+    }
+    if !a.iter().all(|v| v.is_finite()) {
+        return Err(NavError::NonFiniteInput {
+            input: "transition matrix",
+        });
+    }
+    // B = A P[0..15, 0..17]  (9×17).
+    let b: SMatrix<T, 9, STATES> = a * p.fixed_view::<15, STATES>(0, 0);
+    // Rows 0..9 of Φ P.
+    let phi_p_top: SMatrix<T, 9, STATES> = p.fixed_view::<9, STATES>(0, 0) + b;
+    // Corner 9×9 of Φ P Φᵀ = (Φ P)[0..9, 0..9] + (Φ P)[0..9, 0..15] Aᵀ.
+    let corner: SMatrix<T, 9, 9> =
+        phi_p_top.fixed_view::<9, 9>(0, 0) + phi_p_top.fixed_view::<9, 15>(0, 0) * a.transpose();
+    // Q_d on the corner: Q_c Δt + ½Δt (A Q_c + Q_c Aᵀ), Q_c = diag(0, q_a I, q_g I) on 0..9.
+    let mut aq = SMatrix::<T, 9, 9>::zeros();
+    let half_dt = T::lit(0.5) * dt_s;
+    for c in 3..9 {
+        let q = if c < 6 { q_accel } else { q_gyro };
+        for r in 0..9 {
+            if let (Some(dst), Some(src)) = (aq.get_mut((r, c)), a.get((r, c))) {
+                *dst = *src * q * half_dt;
+            }
+        }
+    }
+    let mut corner = corner + aq + aq.transpose();
+    for i in 3..9 {
+        let q = if i < 6 { q_accel } else { q_gyro };
+        if let Some(d) = corner.get_mut((i, i)) {
+            *d += q * dt_s;
+        }
+    }
+    // Exact symmetry of the corner.
+    let corner = (corner + corner.transpose()) * T::lit(0.5);
+    if !corner.iter().all(|v| v.is_finite()) || !phi_p_top.iter().all(|v| v.is_finite()) {
+        return Err(NavError::NonFiniteInput {
+            input: "propagated covariance",
+        });
+    }
+    if corner.diagonal().iter().any(|d| *d < T::zero()) {
+        return Err(NavError::CovarianceNotPositiveSemiDefinite);
+    }
+    // Commit: off-diagonal blocks rows 0..9 × cols 9..17 (and their transposes), then corner.
+    let off = phi_p_top.fixed_view::<9, 8>(0, 9).into_owned();
+    p.fixed_view_mut::<9, 8>(0, 9).copy_from(&off);
+    p.fixed_view_mut::<8, 9>(9, 0).copy_from(&off.transpose());
+    p.fixed_view_mut::<9, 9>(0, 0).copy_from(&corner);
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::kalman::{asymmetry, propagate_dense};
+    use nalgebra::SVector;
+
+    #[test]
+    fn sparse_propagation_equals_dense() {
+        let pos = Position {
+            lat_rad: 0.65,
+            lon_rad: 2.2,
+            alt_m: 1000.0,
+        };
+        let v = Vector3::new(30.0, 200.0, -3.0);
+        let c = crate::math::rotation::euler_to_dcm(0.3, 0.05, 1.4);
+        let f_n = Vector3::new(0.5, 2.0, -9.8);
+        let fb = f_block(&pos, &v, &c, &f_n);
+        let dt = 0.1;
+        let a = transition_block(&fb, dt);
+        // A random-ish SPD P.
+        let mut l = SMatrix::<f64, 17, 17>::zeros();
+        for i in 0..17 {
+            for j in 0..=i {
+                l[(i, j)] = ((i * 7 + j * 3) % 11) as f64 * 0.1 + if i == j { 1.0 } else { 0.0 };
+            }
+        }
+        let p0 = l * l.transpose();
+        let mut phi = SMatrix::<f64, 17, 17>::identity();
+        let blk = phi.fixed_view::<9, 15>(0, 0) + a;
+        phi.fixed_view_mut::<9, 15>(0, 0).copy_from(&blk);
+        let (qa, qg) = (1e-3, 1e-5);
+        let mut qc = SMatrix::<f64, 17, 17>::zeros();
+        for i in 3..9 {
+            qc[(i, i)] = if i < 6 { qa } else { qg };
+        }
+        let qd = qc * dt
+            + (phi - SMatrix::identity()) * qc * (0.5 * dt)
+            + qc * (phi - SMatrix::identity()).transpose() * (0.5 * dt);
+        let mut dense = p0;
+        propagate_dense(&mut dense, &phi, &qd);
+        let mut sparse = p0;
+        propagate_covariance(&mut sparse, &a, dt, qa, qg).unwrap();
+        assert!((dense - sparse).abs().max() < 1e-9 * dense.abs().max());
+        assert_eq!(asymmetry(&sparse), 0.0);
+        // Bad dt leaves P untouched.
+        let before = sparse;
+        assert!(propagate_covariance(&mut sparse, &a, -1.0, qa, qg).is_err());
+        assert_eq!(sparse, before);
+    }
+
+    /// F against central finite differences of the nonlinear INS equations: each error
+    /// component is applied to the truth (p̂ = p + δp, V̂ = V + δV, Ĉ = exp(−[φ×]) C,
+    /// f̂ = f + ∇, ω̂ = ω + ε) and the error derivative is read off the two derivatives.
+    #[test]
+    fn f_matches_finite_differences_of_the_ins_equations() {
+        use crate::math::rotation::{exp_so3, unskew};
+        use crate::seeker_ins::mechanization::continuous_derivative;
+        let pos = Position {
+            lat_rad: 0.65,
+            lon_rad: 2.2,
+            alt_m: 1500.0,
+        };
+        let v = Vector3::new(40.0, 210.0, -5.0);
+        let c = crate::math::rotation::euler_to_dcm(0.4, 0.1, 1.3);
+        let f_b = Vector3::new(1.5, -2.0, -9.5);
+        let w_b = Vector3::new(0.02, -0.01, 0.04);
+        let err_dot = |dx: &SVector<f64, 17>| -> SVector<f64, 17> {
+            let p_hat = Position {
+                lat_rad: pos.lat_rad + dx[0],
+                lon_rad: pos.lon_rad + dx[1],
+                alt_m: pos.alt_m + dx[2],
+            };
+            let v_hat = v + dx.fixed_rows::<3>(3);
+            let e = exp_so3(&(-dx.fixed_rows::<3>(6).into_owned()));
+            let c_hat = e * c;
+            let f_hat = f_b + dx.fixed_rows::<3>(9);
+            let w_hat = w_b + dx.fixed_rows::<3>(12);
+            let d0 = continuous_derivative(&pos, &v, &c, &f_b, &w_b);
+            let d1 = continuous_derivative(&p_hat, &v_hat, &c_hat, &f_hat, &w_hat);
+            let e_dot = d1.4 * c.transpose() + c_hat * d0.4.transpose();
+            let phi_dot = -unskew(&e_dot);
+            let mut out = SVector::<f64, 17>::zeros();
+            out[0] = d1.0 - d0.0;
+            out[1] = d1.1 - d0.1;
+            out[2] = d1.2 - d0.2;
+            out.fixed_rows_mut::<3>(3).copy_from(&(d1.3 - d0.3));
+            out.fixed_rows_mut::<3>(6).copy_from(&phi_dot);
+            out
+        };
+        let f = full_f(&f_block(&pos, &v, &c, &(c * f_b)));
+        let steps = [
+            1e-7, 1e-7, 1.0, 0.01, 0.01, 0.01, 1e-5, 1e-5, 1e-5, 1e-3, 1e-3, 1e-3, 1e-6, 1e-6,
+            1e-6, 1e-4, 1e-4,
+        ];
+        for (j, &h) in steps.iter().enumerate() {
+            let mut dx = SVector::<f64, 17>::zeros();
+            dx[j] = h;
+            let col = (err_dot(&dx) - err_dot(&(-dx))) / (2.0 * h);
+            let scale: f64 = f.column(j).abs().max().max(1e-12);
+            for i in 0..17 {
+                let diff = (col[i] - f[(i, j)]).abs();
+                assert!(
+                    diff <= 1e-5 * scale,
+                    "F[{i},{j}] = {:e}, finite difference {:e}",
+                    f[(i, j)],
+                    col[i]
+                );
+            }
+        }
+    }
+}
