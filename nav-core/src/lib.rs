@@ -56,6 +56,7 @@ pub mod earth;
 pub mod error;
 pub mod math;
 pub mod real;
+pub mod vertical_channel;
 
 pub use error::NavError;
 pub use real::Real;
