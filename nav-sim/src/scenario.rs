@@ -58,7 +58,12 @@ pub struct Kind {
 }
 
 /// Every scenario kind nav-sim knows.
-pub static REGISTRY: &[Kind] = &[crate::scenarios::flexure_process::KIND];
+pub static REGISTRY: &[Kind] = &[
+    crate::scenarios::flexure_process::KIND,
+    crate::scenarios::vertical_channel::KIND_RESPONSE,
+    crate::scenarios::vertical_channel::KIND_MONTECARLO,
+    crate::scenarios::vertical_channel::KIND_TAU_SWEEP,
+];
 
 #[derive(Debug, Deserialize)]
 struct Header {

@@ -197,7 +197,11 @@ pub fn solve_filter_care<T: Real, const M: usize>(
     }
     let gain = p * c.transpose() * r_inv;
     let (_, relative_residual) = care_residual(a, &q, c, r_diag, &p);
-    if !(relative_residual <= T::EPS.sqrt()) {
+    let small = matches!(
+        relative_residual.partial_cmp(&T::EPS.sqrt()),
+        Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
+    );
+    if !small {
         return Err(NavError::NotConverged { iterations });
     }
     if !is_hurwitz3(&(a - gain * c)) {

@@ -376,7 +376,8 @@ fn bad_input_leaves_state_unchanged() {
         time_s: 0.02,
         specific_force_up_m_s2: 9.8,
     };
-    let cases: [(ImuSample<f64>, Option<BaroSample<f64>>, Option<VelocitySample<f64>>); 7] = [
+    type Case = (ImuSample<f64>, Option<BaroSample<f64>>, Option<VelocitySample<f64>>);
+    let cases: [Case; 7] = [
         (
             ImuSample {
                 time_s: 0.02,
