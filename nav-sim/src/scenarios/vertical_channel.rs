@@ -205,6 +205,18 @@ pub struct Dropout {
 
 const MG: f64 = 9.806_65e-3;
 
+/// Loads the kind-specific configuration of a shipped scenario file (e.g. `"vc-montecarlo"`),
+/// for tests and tools.
+pub fn load_config(name: &str) -> Result<Config> {
+    let (_, path) = crate::scenario::resolve(name, &crate::scenario::default_scenario_dir())?;
+    let text = std::fs::read_to_string(&path)?;
+    let mut doc: toml::Table = toml::from_str(&text)?;
+    for key in ["kind", "description", "runs", "seed"] {
+        doc.remove(key);
+    }
+    Ok(Config::deserialize(toml::Value::Table(doc))?)
+}
+
 /// Piecewise-constant-acceleration vertical truth.
 #[derive(Debug, Clone)]
 pub struct Profile {
