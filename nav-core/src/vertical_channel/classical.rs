@@ -77,8 +77,8 @@ impl ClassicalGains {
         }
         let t3 = tau_s * tau_s * tau_s;
         let den = den0 * t3;
-        let c1 = (c_per_s2 * c4_s * t3 + 3.0 * tau_s * tau_s + 3.0 * c4_s * tau_s + c4_s * c4_s)
-            / den;
+        let c1 =
+            (c_per_s2 * c4_s * t3 + 3.0 * tau_s * tau_s + 3.0 * c4_s * tau_s + c4_s * c4_s) / den;
         let c2 = (c_per_s2 * (t3 + 3.0 * c4_s * tau_s * tau_s) + 3.0 * tau_s + c4_s) / den;
         Ok(Self {
             c1_per_s: c1,
@@ -154,11 +154,8 @@ impl<T: Real> ClassicalLoop<T> {
             .baro_timeouts
             .validate("baro_timeouts.stale_after_s", "baro_timeouts.lost_after_s")?;
         let gravity = GravityModel::at_latitude(config.latitude_rad)?;
-        let gains = ClassicalGains::pole_placement(
-            config.tau_s,
-            config.baro_lag_s,
-            gravity.c_per_s2(),
-        )?;
+        let gains =
+            ClassicalGains::pole_placement(config.tau_s, config.baro_lag_s, gravity.c_per_s2())?;
         let (k, c) = gains.observer();
         let modes = discretise_modes::<T>(&open_loop(-1.0), &k, &c, config.imu_dt_s)?;
         let core = LoopCore::new(

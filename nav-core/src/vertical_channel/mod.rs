@@ -363,11 +363,7 @@ impl<T: Real> AidChannel<T> {
 }
 
 /// Checks an IMU sample against the loop time; returns Δt.
-pub(crate) fn check_imu<T: Real>(
-    imu: &ImuSample<T>,
-    time_s: T,
-    dt_s: T,
-) -> Result<(), NavError> {
+pub(crate) fn check_imu<T: Real>(imu: &ImuSample<T>, time_s: T, dt_s: T) -> Result<(), NavError> {
     if !imu.time_s.is_finite() {
         return Err(NavError::NonFiniteInput {
             input: "imu time_s",
@@ -475,10 +471,13 @@ impl<T: Real> LoopCore<T> {
         check_imu(imu, self.time_s, self.dt_s)?;
         let now = imu.time_s;
         let baro_ch = match baro {
-            Some(s) => {
-                self.baro
-                    .with_sample(s.time_s, s.altitude_m, now, "altitude_m", ALTITUDE_RANGE_M)?
-            }
+            Some(s) => self.baro.with_sample(
+                s.time_s,
+                s.altitude_m,
+                now,
+                "altitude_m",
+                ALTITUDE_RANGE_M,
+            )?,
             None => self.baro,
         };
         let vel_ch = match velocity {

@@ -250,7 +250,11 @@ mod tests {
         for i in 0..3 {
             let (ai, qi, ri) = (a[(i, i)], q[(i, i)], r[i]);
             let exact = ri * (ai + (ai * ai + qi / ri).sqrt());
-            assert!((s.p[(i, i)] - exact).abs() < 1e-12, "{i}: {} {exact}", s.p[(i, i)]);
+            assert!(
+                (s.p[(i, i)] - exact).abs() < 1e-12,
+                "{i}: {} {exact}",
+                s.p[(i, i)]
+            );
         }
     }
 

@@ -47,15 +47,30 @@ fn c_grav() -> f64 {
 
 #[test]
 fn classical_poles_at_minus_one_over_tau_with_and_without_c4() {
-    for &(tau, c4) in &[(10.0, 0.0), (20.0, 0.0), (20.0, 0.2), (50.0, 0.5), (5.0, 1.0)] {
+    for &(tau, c4) in &[
+        (10.0, 0.0),
+        (20.0, 0.0),
+        (20.0, 0.2),
+        (50.0, 0.5),
+        (5.0, 1.0),
+    ] {
         let g = ClassicalGains::pole_placement(tau, c4, c_grav()).unwrap();
         let f = g.error_matrix();
         // Characteristic polynomial equals (s + 1/τ)³ = s³ + 3/τ s² + 3/τ² s + 1/τ³.
         let [a2, a1, a0] = char_poly3(&f);
         let p = 1.0 / tau;
-        assert!((a2 - 3.0 * p).abs() < 1e-12 * 3.0 * p, "{tau} {c4}: a2 {a2}");
-        assert!((a1 - 3.0 * p * p).abs() < 1e-10 * 3.0 * p * p, "{tau} {c4}: a1 {a1}");
-        assert!((a0 - p * p * p).abs() < 1e-10 * p * p * p, "{tau} {c4}: a0 {a0}");
+        assert!(
+            (a2 - 3.0 * p).abs() < 1e-12 * 3.0 * p,
+            "{tau} {c4}: a2 {a2}"
+        );
+        assert!(
+            (a1 - 3.0 * p * p).abs() < 1e-10 * 3.0 * p * p,
+            "{tau} {c4}: a1 {a1}"
+        );
+        assert!(
+            (a0 - p * p * p).abs() < 1e-10 * p * p * p,
+            "{tau} {c4}: a0 {a0}"
+        );
         // Eigenvalues (a triple root is perturbed by ~ε^(1/3) relative).
         for ev in f.complex_eigenvalues().iter() {
             assert!((ev.re + p).abs() < 1e-4 * p, "{tau} {c4}: {ev}");
@@ -133,19 +148,32 @@ fn classical_discrete_loop_poles_near_exp_minus_dt_over_tau() {
 
 #[test]
 fn aided_discrete_loop_matches_continuous_error_matrix() {
-    let make = || AidedLoop::<f64>::new(&aided_config(), &init(500.0)).unwrap().core;
+    let make = || {
+        AidedLoop::<f64>::new(&aided_config(), &init(500.0))
+            .unwrap()
+            .core
+    };
     let jac = step_jacobian(&make, true);
     let g = AidedGains::design(&aided_config()).unwrap();
     let (phi_err, _) =
         crate::math::discretize::discretize(&g.error_matrix(), &Matrix3::zeros(), 0.01).unwrap();
     let ev_j = jac.complex_eigenvalues();
     let ev_c = phi_err.complex_eigenvalues();
-    let mut mj: std::vec::Vec<f64> = ev_j.iter().map(|e| (e.re * e.re + e.im * e.im).sqrt()).collect();
-    let mut mc: std::vec::Vec<f64> = ev_c.iter().map(|e| (e.re * e.re + e.im * e.im).sqrt()).collect();
+    let mut mj: std::vec::Vec<f64> = ev_j
+        .iter()
+        .map(|e| (e.re * e.re + e.im * e.im).sqrt())
+        .collect();
+    let mut mc: std::vec::Vec<f64> = ev_c
+        .iter()
+        .map(|e| (e.re * e.re + e.im * e.im).sqrt())
+        .collect();
     mj.sort_by(f64::total_cmp);
     mc.sort_by(f64::total_cmp);
     for (a, b) in mj.iter().zip(&mc) {
-        assert!((a - b).abs() < 2e-3 * (1.0 - b).max(1e-6) + 1e-9, "{mj:?} {mc:?}");
+        assert!(
+            (a - b).abs() < 2e-3 * (1.0 - b).max(1e-6) + 1e-9,
+            "{mj:?} {mc:?}"
+        );
         assert!(*a < 1.0);
     }
 }
@@ -228,7 +256,12 @@ fn riccati_gains_match_riccati_ode_steady_state() {
     let r_inv = Matrix2::from_diagonal(&g.r.map(|r| 1.0 / r));
     let k_ode: Matrix3x2<f64> = p * g.c.transpose() * r_inv;
     for (a, b) in g.k.iter().zip(k_ode.iter()) {
-        assert!((a - b).abs() <= 1e-6 * a.abs().max(1e-9), "{} vs {}", g.k, k_ode);
+        assert!(
+            (a - b).abs() <= 1e-6 * a.abs().max(1e-9),
+            "{} vs {}",
+            g.k,
+            k_ode
+        );
     }
 }
 
@@ -301,9 +334,15 @@ fn run_noise_free<T: Real>(aided: bool, t_end: f64) -> (f64, f64, f64) {
 fn loops_converge_noise_free_f32_and_f64() {
     for aided in [false, true] {
         let (eh, ev, eb) = run_noise_free::<f64>(aided, 1000.0);
-        assert!(eh.abs() < 0.05 && ev.abs() < 0.005 && eb.abs() < 1e-4, "{aided}: {eh} {ev} {eb}");
+        assert!(
+            eh.abs() < 0.05 && ev.abs() < 0.005 && eb.abs() < 1e-4,
+            "{aided}: {eh} {ev} {eb}"
+        );
         let (eh, ev, eb) = run_noise_free::<f32>(aided, 1000.0);
-        assert!(eh.abs() < 0.2 && ev.abs() < 0.02 && eb.abs() < 5e-4, "{aided}: {eh} {ev} {eb}");
+        assert!(
+            eh.abs() < 0.2 && ev.abs() < 0.02 && eb.abs() < 5e-4,
+            "{aided}: {eh} {ev} {eb}"
+        );
     }
 }
 
@@ -376,7 +415,11 @@ fn bad_input_leaves_state_unchanged() {
         time_s: 0.02,
         specific_force_up_m_s2: 9.8,
     };
-    type Case = (ImuSample<f64>, Option<BaroSample<f64>>, Option<VelocitySample<f64>>);
+    type Case = (
+        ImuSample<f64>,
+        Option<BaroSample<f64>>,
+        Option<VelocitySample<f64>>,
+    );
     let cases: [Case; 7] = [
         (
             ImuSample {
@@ -478,4 +521,3 @@ fn gravity_model_matches_earth_model() {
     // c = 2ω_s² is the vertical gradient to within the ellipsoidal corrections (< 1 %).
     assert!((g.c_per_s2() - g.g1_per_s2).abs() < 0.01 * g.g1_per_s2);
 }
-

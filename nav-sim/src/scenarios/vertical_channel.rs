@@ -381,7 +381,11 @@ pub fn simulate<T: Real>(
     let dt = 1.0 / cfg.imu_rate_hz;
     let steps = (cfg.duration_s / dt).round() as usize;
     let baro_every = ratio(cfg.imu_rate_hz, cfg.baro.rate_hz, "baro.rate_hz")?;
-    let vel_every = ratio(cfg.imu_rate_hz, cfg.velocity_aid.rate_hz, "velocity_aid.rate_hz")?;
+    let vel_every = ratio(
+        cfg.imu_rate_hz,
+        cfg.velocity_aid.rate_hz,
+        "velocity_aid.rate_hz",
+    )?;
     let out_every = ratio(cfg.output_interval_s, dt, "output_interval_s")?;
     let rmse_from = (cfg.rmse_after_s / dt).round() as usize;
     let lat = cfg.latitude_deg.to_radians();
@@ -477,7 +481,10 @@ pub fn simulate<T: Real>(
             .step(&imu, baro.as_ref(), vel.as_ref())
             .map_err(|e| anyhow!("aided loop at t = {t}: {e}"))?;
         let est = [
-            (classical.altitude_m().to_f64(), classical.vz_up_m_s().to_f64()),
+            (
+                classical.altitude_m().to_f64(),
+                classical.vz_up_m_s().to_f64(),
+            ),
             (aided.altitude_m().to_f64(), aided.vz_up_m_s().to_f64()),
         ];
         for (l, (eh, ev)) in est.iter().enumerate() {
@@ -516,7 +523,10 @@ pub fn simulate<T: Real>(
 
 fn validate(cfg: &Config) -> Result<()> {
     ensure!(cfg.imu_rate_hz > 0.0, "imu_rate_hz must be positive");
-    ensure!(cfg.duration_s > cfg.rmse_after_s, "duration_s ≤ rmse_after_s");
+    ensure!(
+        cfg.duration_s > cfg.rmse_after_s,
+        "duration_s ≤ rmse_after_s"
+    );
     ensure!(
         cfg.precision == "f32" || cfg.precision == "f64",
         "precision must be \"f32\" or \"f64\""
@@ -784,9 +794,23 @@ pub fn monte_carlo_rmse(
     let fixed = (cfg.initial_error.altitude_m, cfg.initial_error.vz_m_s);
     let mut unused = crate::rng::run_rng(seed, u64::MAX);
     let quiet = if cfg.precision == "f32" {
-        simulate::<f32>(cfg, &profile, tau_s, fixed, Noise { on: false }, &mut unused)?
+        simulate::<f32>(
+            cfg,
+            &profile,
+            tau_s,
+            fixed,
+            Noise { on: false },
+            &mut unused,
+        )?
     } else {
-        simulate::<f64>(cfg, &profile, tau_s, fixed, Noise { on: false }, &mut unused)?
+        simulate::<f64>(
+            cfg,
+            &profile,
+            tau_s,
+            fixed,
+            Noise { on: false },
+            &mut unused,
+        )?
     };
     let settle_s = quiet.settle_s;
     let mut rmse_t: [[Vec<f64>; 2]; 2] = Default::default();
@@ -816,13 +840,12 @@ fn run_montecarlo(ctx: &Context) -> Result<Value> {
     let mut loops = serde_json::Map::new();
     // RMSE over runs within windows, for the report.
     let window = |l: usize, q: usize, a: f64, b: f64| {
-        let v: Vec<f64> = mc
-            .t
-            .iter()
-            .zip(&mc.rmse_t[l][q])
-            .filter(|(t, _)| **t >= a && **t < b)
-            .map(|(_, r)| r * r)
-            .collect();
+        let v: Vec<f64> =
+            mc.t.iter()
+                .zip(&mc.rmse_t[l][q])
+                .filter(|(t, _)| **t >= a && **t < b)
+                .map(|(_, r)| r * r)
+                .collect();
         sig((v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt(), 4)
     };
     for (l, name) in LOOPS.iter().enumerate() {
