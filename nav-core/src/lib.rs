@@ -58,6 +58,7 @@ pub mod math;
 pub mod real;
 pub mod seeker_ins;
 pub mod transfer_alignment;
+pub mod vertical_channel;
 
 pub use error::NavError;
 pub use real::Real;

@@ -64,6 +64,9 @@ pub static REGISTRY: &[Kind] = &[
     crate::scenarios::transfer_alignment::KIND_MODEL_ERROR,
     crate::scenarios::transfer_alignment::KIND_OBSERVABILITY,
     crate::scenarios::seeker_ins::KIND,
+    crate::scenarios::vertical_channel::KIND_RESPONSE,
+    crate::scenarios::vertical_channel::KIND_MONTECARLO,
+    crate::scenarios::vertical_channel::KIND_TAU_SWEEP,
 ];
 
 #[derive(Debug, Deserialize)]

@@ -1,0 +1,555 @@
+//! Baro-inertial vertical channel (spec `vertical-channel.md`): the classical 3rd-order
+//! damping loop ([`classical`]) and the velocity-aided loop with Riccati-designed gains
+//! ([`aided`]).
+//!
+//! Both loops are linear observers on `x = [h, V_z, b]` (altitude m up, vertical velocity m/s
+//! up, accelerometer bias state m/s²) driven by the vertical specific force and corrected by
+//! the aids:
+//!
+//! ```text
+//! x̂' = A₀ x̂ + e₂ A_z + K (z − C x̂),     A_z = f_up − g(ĥ)
+//! ```
+//!
+//! `g(ĥ)` is normal gravity with its altitude dependence, evaluated at the estimate, so the
+//! error dynamics contain the destabilising term `c δh` (`c = 2ω_s²`) of the spec. The
+//! continuous loop is **discretised exactly at the IMU rate**: with the aids held over one
+//! IMU interval (zero-order hold; a held sample is extrapolated to the middle of the interval
+//! with `V̂_z · age`), `x̂_{k+1} = Φ_m x̂_k + Γ_m u_k`, `u = [A_z, z_h, z_v]`, where
+//! `[Φ_m Γ_m]` comes from the exponential of the augmented matrix `[[F_m, G_m], [0, 0]]`
+//! (computed once at configuration in `f64`) for each of the four aid modes `m` (which aids are
+//! in use). A step costs two 3×3 matrix-vector products and the gravity polynomial.
+//!
+//! Multi-rate: the IMU drives [`classical::ClassicalLoop::step`] /
+//! [`aided::AidedLoop::step`] at its rate; aid samples are passed when they arrive,
+//! time-stamped, and may be missing. Each aid has an [`AidStatus`]: `Fresh` and `Stale` samples
+//! are used, a `Lost` (or never received) aid is dropped and the loop runs on the IMU alone
+//! (pure inertial in that channel), which the per-step [`AidReport`] says.
+
+pub mod aided;
+pub mod classical;
+pub mod riccati;
+
+use crate::error::{require_positive, ConfigIssue};
+use crate::math::discretize::discretize;
+use crate::{NavError, Real};
+use nalgebra::{Matrix3, Matrix3x2, SMatrix, Vector3};
+
+/// Largest accepted |specific force|, m/s² (20 g).
+pub const MAX_SPECIFIC_FORCE_M_S2: f64 = 196.0;
+/// Accepted altitude range of the estimate and the baro, m.
+pub const ALTITUDE_RANGE_M: (f64, f64) = (-2_000.0, 60_000.0);
+/// Largest accepted |vertical velocity| of the aid, m/s.
+pub const MAX_VERTICAL_SPEED_M_S: f64 = 1_500.0;
+/// Accepted IMU interval relative to the configured one: `|Δt − dt| ≤ 0.25 dt`.
+pub const IMU_DT_TOLERANCE: f64 = 0.25;
+
+/// One IMU sample: the vertical component of the specific force, averaged over the interval
+/// that ends at `time_s`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ImuSample<T> {
+    /// End of the IMU interval, s.
+    pub time_s: T,
+    /// Vertical specific force, up positive, m/s² (≈ +g at rest).
+    pub specific_force_up_m_s2: T,
+}
+
+/// One barometric altitude sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct BaroSample<T> {
+    /// Time of validity, s (same clock as the IMU).
+    pub time_s: T,
+    /// Barometric altitude, m, up positive.
+    pub altitude_m: T,
+}
+
+/// One vertical-velocity aid sample (GNSS Doppler, air data …).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct VelocitySample<T> {
+    /// Time of validity, s.
+    pub time_s: T,
+    /// Vertical velocity, m/s, up positive.
+    pub vz_up_m_s: T,
+}
+
+/// Freshness of an aid at the end of a step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AidStatus<T> {
+    /// Latest sample not older than `stale_after_s`: used.
+    Fresh {
+        /// Age of the latest sample, s.
+        age_s: T,
+    },
+    /// Latest sample older than `stale_after_s` but not than `lost_after_s`: still used,
+    /// extrapolated with the estimated vertical velocity.
+    Stale {
+        /// Age of the latest sample, s.
+        age_s: T,
+    },
+    /// Latest sample older than `lost_after_s`: dropped, the loop runs on the IMU alone.
+    Lost {
+        /// Age of the latest sample, s.
+        age_s: T,
+    },
+    /// No sample received yet: the loop runs on the IMU alone.
+    NoData,
+}
+
+impl<T> AidStatus<T> {
+    /// `true` for `Fresh` and `Stale` (the aid corrects the loop).
+    pub fn in_use(&self) -> bool {
+        matches!(self, AidStatus::Fresh { .. } | AidStatus::Stale { .. })
+    }
+}
+
+/// Per-aid report of one step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AidReport<T> {
+    /// Freshness (and whether the aid was used).
+    pub status: AidStatus<T>,
+    /// Innovation `z − C x̂` at the start of the step (measurement unit), `None` when the aid
+    /// was not used. For the baro, `z` is the held sample extrapolated to mid-interval and the
+    /// prediction includes the lag compensation `ĥ − lag · V̂_z`.
+    pub innovation: Option<T>,
+    /// Innovation variance of a fresh sample under the steady-state design,
+    /// `C P Cᵀ + σ²` (unit²); `None` for the classical loop (no covariance) or an unused aid.
+    pub innovation_variance: Option<T>,
+}
+
+/// Timeouts of one aid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AidTimeouts {
+    /// Age beyond which the aid is reported `Stale` (still used), s.
+    pub stale_after_s: f64,
+    /// Age beyond which the aid is `Lost` (dropped), s; ≥ `stale_after_s`.
+    pub lost_after_s: f64,
+}
+
+impl AidTimeouts {
+    fn validate(&self, stale: &'static str, lost: &'static str) -> Result<(), NavError> {
+        require_positive(stale, self.stale_after_s)?;
+        require_positive(lost, self.lost_after_s)?;
+        if self.lost_after_s < self.stale_after_s {
+            return Err(NavError::InvalidConfig {
+                field: lost,
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
+        Ok(())
+    }
+}
+
+/// Initial state of a loop.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct InitialState<T> {
+    /// Time of the initial state, s (the first IMU sample must end one interval later).
+    pub time_s: T,
+    /// Initial altitude estimate, m, up positive.
+    pub altitude_m: T,
+    /// Initial vertical velocity estimate, m/s, up positive.
+    pub vz_up_m_s: T,
+    /// Initial accelerometer bias estimate (measured − true), m/s².
+    pub accel_bias_m_s2: T,
+}
+
+/// Normal gravity as a quadratic in altitude at a fixed latitude,
+/// `g(h) = g₀ − g₁ h + g₂ h²` (m/s²), fitted exactly to [`crate::earth::normal_gravity_m_s2`]
+/// (which is quadratic in h) at configuration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GravityModel<T> {
+    /// Gravity on the ellipsoid, m/s².
+    pub g0_m_s2: T,
+    /// Vertical gradient −∂g/∂h at h = 0, 1/s².
+    pub g1_per_s2: T,
+    /// Second-order coefficient, 1/(m s²).
+    pub g2_per_m_s2: T,
+}
+
+impl GravityModel<f64> {
+    /// Model at a geodetic latitude (rad, |lat| ≤ π/2).
+    pub fn at_latitude(latitude_rad: f64) -> Result<Self, NavError> {
+        if !latitude_rad.is_finite() {
+            return Err(NavError::InvalidConfig {
+                field: "latitude_rad",
+                issue: ConfigIssue::NotFinite,
+            });
+        }
+        if latitude_rad.abs() > core::f64::consts::FRAC_PI_2 {
+            return Err(NavError::InvalidConfig {
+                field: "latitude_rad",
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
+        let g = |h: f64| crate::earth::normal_gravity_m_s2(latitude_rad, h);
+        let d = 1000.0;
+        let (gm, g0, gp) = (g(-d), g(0.0), g(d));
+        Ok(Self {
+            g0_m_s2: g0,
+            g1_per_s2: -(gp - gm) / (2.0 * d),
+            g2_per_m_s2: (gp - 2.0 * g0 + gm) / (2.0 * d * d),
+        })
+    }
+
+    /// The spec's `c = 2ω_s² = 2 g₀ / R₀`, 1/s² (used in the gain design).
+    pub fn c_per_s2(&self) -> f64 {
+        2.0 * crate::earth::schuler_frequency_sq(self.g0_m_s2)
+    }
+
+    fn cast<T: Real>(&self) -> GravityModel<T> {
+        GravityModel {
+            g0_m_s2: T::lit(self.g0_m_s2),
+            g1_per_s2: T::lit(self.g1_per_s2),
+            g2_per_m_s2: T::lit(self.g2_per_m_s2),
+        }
+    }
+}
+
+impl<T: Real> GravityModel<T> {
+    /// g(h), m/s².
+    #[inline(always)]
+    pub fn gravity_m_s2(&self, altitude_m: T) -> T {
+        self.g0_m_s2 - altitude_m * (self.g1_per_s2 - self.g2_per_m_s2 * altitude_m)
+    }
+}
+
+/// One aid mode of the discretised loop: `x̂⁺ = Φ x̂ + Γ [A_z, z_h, z_v]ᵀ`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Mode<T: Real> {
+    pub(crate) phi: Matrix3<T>,
+    pub(crate) gamma: Matrix3<T>,
+}
+
+/// The four modes (none / baro / velocity / both) and the continuous gains they come from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Modes<T: Real> {
+    pub(crate) none: Mode<T>,
+    pub(crate) baro: Mode<T>,
+    pub(crate) velocity: Mode<T>,
+    pub(crate) both: Mode<T>,
+}
+
+impl<T: Real> Modes<T> {
+    #[inline(always)]
+    pub(crate) fn select(&self, baro: bool, velocity: bool) -> &Mode<T> {
+        match (baro, velocity) {
+            (false, false) => &self.none,
+            (true, false) => &self.baro,
+            (false, true) => &self.velocity,
+            (true, true) => &self.both,
+        }
+    }
+}
+
+/// Open-loop matrix of the observer state `[h, V_z, b]` (gravity handled outside):
+/// `ḣ = V_z`, `V̇_z = A_z + bias_sign · b`.
+pub(crate) fn open_loop(bias_sign: f64) -> Matrix3<f64> {
+    Matrix3::new(0.0, 1.0, 0.0, 0.0, 0.0, bias_sign, 0.0, 0.0, 0.0)
+}
+
+/// Exact ZOH discretisation of `x̂' = (A₀ − K_m C) x̂ + [e₂ | K_m] u` for the four aid modes.
+/// `k` columns: baro, velocity; `c` rows: baro, velocity.
+pub(crate) fn discretise_modes<T: Real>(
+    a0: &Matrix3<f64>,
+    k: &Matrix3x2<f64>,
+    c: &SMatrix<f64, 2, 3>,
+    dt_s: f64,
+) -> Result<Modes<T>, NavError> {
+    let one = |use_baro: bool, use_vel: bool| -> Result<Mode<T>, NavError> {
+        let mut km = *k;
+        if !use_baro {
+            km.set_column(0, &Vector3::zeros());
+        }
+        if !use_vel {
+            km.set_column(1, &Vector3::zeros());
+        }
+        let f = a0 - km * c;
+        let mut aug = SMatrix::<f64, 6, 6>::zeros();
+        aug.fixed_view_mut::<3, 3>(0, 0).copy_from(&f);
+        aug.m24 = 1.0; // A_z drives V̇_z (row 1, input column 0 = aug column 3)
+        aug.fixed_view_mut::<3, 2>(0, 4).copy_from(&km);
+        let (phi_aug, _) = discretize(&aug, &SMatrix::<f64, 6, 6>::zeros(), dt_s)?;
+        let phi: Matrix3<f64> = phi_aug.fixed_view::<3, 3>(0, 0).into_owned();
+        let gamma: Matrix3<f64> = phi_aug.fixed_view::<3, 3>(0, 3).into_owned();
+        Ok(Mode {
+            phi: phi.cast::<T>(),
+            gamma: gamma.cast::<T>(),
+        })
+    };
+    Ok(Modes {
+        none: one(false, false)?,
+        baro: one(true, false)?,
+        velocity: one(false, true)?,
+        both: one(true, true)?,
+    })
+}
+
+/// A held aid sample and its timeouts (in the loop's float type).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct AidChannel<T> {
+    pub(crate) last_time_s: T,
+    pub(crate) last_value: T,
+    pub(crate) received: bool,
+    pub(crate) stale_after_s: T,
+    pub(crate) lost_after_s: T,
+}
+
+impl<T: Real> AidChannel<T> {
+    pub(crate) fn new(t: &AidTimeouts) -> Self {
+        Self {
+            last_time_s: T::zero(),
+            last_value: T::zero(),
+            received: false,
+            stale_after_s: T::lit(t.stale_after_s),
+            lost_after_s: T::lit(t.lost_after_s),
+        }
+    }
+
+    /// Validates a new sample against the channel and the current IMU time; returns the
+    /// channel as it would be with the sample (self is not modified).
+    pub(crate) fn with_sample(
+        &self,
+        time_s: T,
+        value: T,
+        now_s: T,
+        value_name: &'static str,
+        range: (f64, f64),
+    ) -> Result<Self, NavError> {
+        if !time_s.is_finite() {
+            return Err(NavError::NonFiniteInput {
+                input: "aid time_s",
+            });
+        }
+        if !value.is_finite() {
+            return Err(NavError::NonFiniteInput { input: value_name });
+        }
+        if value < T::lit(range.0) || value > T::lit(range.1) {
+            return Err(NavError::InputOutOfRange { input: value_name });
+        }
+        if time_s > now_s {
+            return Err(NavError::MeasurementTimeOutOfWindow);
+        }
+        if self.received && time_s <= self.last_time_s {
+            return Err(NavError::TimeNotIncreasing);
+        }
+        Ok(Self {
+            last_time_s: time_s,
+            last_value: value,
+            received: true,
+            ..*self
+        })
+    }
+
+    #[inline(always)]
+    pub(crate) fn status(&self, now_s: T) -> AidStatus<T> {
+        if !self.received {
+            return AidStatus::NoData;
+        }
+        let age_s = now_s - self.last_time_s;
+        if age_s > self.lost_after_s {
+            AidStatus::Lost { age_s }
+        } else if age_s > self.stale_after_s {
+            AidStatus::Stale { age_s }
+        } else {
+            AidStatus::Fresh { age_s }
+        }
+    }
+}
+
+/// Checks an IMU sample against the loop time; returns Δt.
+pub(crate) fn check_imu<T: Real>(imu: &ImuSample<T>, time_s: T, dt_s: T) -> Result<(), NavError> {
+    if !imu.time_s.is_finite() {
+        return Err(NavError::NonFiniteInput {
+            input: "imu time_s",
+        });
+    }
+    if !imu.specific_force_up_m_s2.is_finite() {
+        return Err(NavError::NonFiniteInput {
+            input: "specific_force_up_m_s2",
+        });
+    }
+    if imu.specific_force_up_m_s2.abs() > T::lit(MAX_SPECIFIC_FORCE_M_S2) {
+        return Err(NavError::InputOutOfRange {
+            input: "specific_force_up_m_s2",
+        });
+    }
+    if imu.time_s <= time_s {
+        return Err(NavError::TimeNotIncreasing);
+    }
+    let dt = imu.time_s - time_s;
+    if (dt - dt_s).abs() > T::lit(IMU_DT_TOLERANCE) * dt_s {
+        return Err(NavError::InvalidTimeStep);
+    }
+    Ok(())
+}
+
+/// Validates an initial state.
+pub(crate) fn check_initial<T: Real>(init: &InitialState<T>) -> Result<(), NavError> {
+    for (name, v) in [
+        ("initial time_s", init.time_s),
+        ("initial altitude_m", init.altitude_m),
+        ("initial vz_up_m_s", init.vz_up_m_s),
+        ("initial accel_bias_m_s2", init.accel_bias_m_s2),
+    ] {
+        if !v.is_finite() {
+            return Err(NavError::NonFiniteInput { input: name });
+        }
+    }
+    if init.altitude_m < T::lit(ALTITUDE_RANGE_M.0) || init.altitude_m > T::lit(ALTITUDE_RANGE_M.1)
+    {
+        return Err(NavError::InputOutOfRange {
+            input: "initial altitude_m",
+        });
+    }
+    Ok(())
+}
+
+/// The state and machinery shared by both loops.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct LoopCore<T: Real> {
+    /// `[ĥ (m), V̂_z (m/s), b̂ (m/s²)]`.
+    pub(crate) x: Vector3<T>,
+    pub(crate) time_s: T,
+    pub(crate) dt_s: T,
+    pub(crate) half_dt_s: T,
+    pub(crate) modes: Modes<T>,
+    pub(crate) gravity: GravityModel<T>,
+    pub(crate) baro: AidChannel<T>,
+    pub(crate) velocity: AidChannel<T>,
+    /// Baro lag compensation (the classical loop's C4), s.
+    pub(crate) baro_lag_s: T,
+    /// +1 when `V̇_z = A_z + b` (aided loop, spec's A), −1 when `V̇_z = A_z − b` (classical).
+    pub(crate) bias_sign: T,
+}
+
+impl<T: Real> LoopCore<T> {
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn new(
+        init: &InitialState<T>,
+        bias_sign: f64,
+        dt_s: f64,
+        modes: Modes<T>,
+        gravity: &GravityModel<f64>,
+        baro: &AidTimeouts,
+        velocity: &AidTimeouts,
+        baro_lag_s: f64,
+    ) -> Result<Self, NavError> {
+        check_initial(init)?;
+        Ok(Self {
+            x: Vector3::new(
+                init.altitude_m,
+                init.vz_up_m_s,
+                -init.accel_bias_m_s2 * T::lit(bias_sign),
+            ),
+            time_s: init.time_s,
+            dt_s: T::lit(dt_s),
+            half_dt_s: T::lit(0.5 * dt_s),
+            modes,
+            gravity: gravity.cast(),
+            baro: AidChannel::new(baro),
+            velocity: AidChannel::new(velocity),
+            baro_lag_s: T::lit(baro_lag_s),
+            bias_sign: T::lit(bias_sign),
+        })
+    }
+
+    /// One IMU step with optional new aid samples. On error nothing changes.
+    /// `variances`: innovation variances to report for (baro, velocity) when used.
+    pub(crate) fn step(
+        &mut self,
+        imu: &ImuSample<T>,
+        baro: Option<&BaroSample<T>>,
+        velocity: Option<&VelocitySample<T>>,
+        variances: (Option<T>, Option<T>),
+    ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
+        check_imu(imu, self.time_s, self.dt_s)?;
+        let now = imu.time_s;
+        let baro_ch = match baro {
+            Some(s) => self.baro.with_sample(
+                s.time_s,
+                s.altitude_m,
+                now,
+                "altitude_m",
+                ALTITUDE_RANGE_M,
+            )?,
+            None => self.baro,
+        };
+        let vel_ch = match velocity {
+            Some(s) => self.velocity.with_sample(
+                s.time_s,
+                s.vz_up_m_s,
+                now,
+                "vz_up_m_s",
+                (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
+            )?,
+            None => self.velocity,
+        };
+        let baro_status = baro_ch.status(now);
+        let vel_status = vel_ch.status(now);
+        let use_baro = baro_status.in_use();
+        let use_vel = vel_status.in_use();
+
+        let (h, v, b) = (self.x.x, self.x.y, self.x.z);
+        let az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h);
+        let mid = now - self.half_dt_s;
+        // Held samples extrapolated to the middle of the interval (ZOH of the continuous loop).
+        let (z_h, nu_h) = if use_baro {
+            let z = baro_ch.last_value + (mid - baro_ch.last_time_s) * v;
+            (z, Some(z - (h - self.baro_lag_s * v)))
+        } else {
+            (T::zero(), None)
+        };
+        let (z_v, nu_v) = if use_vel {
+            let z = vel_ch.last_value + (mid - vel_ch.last_time_s) * (az + self.bias_sign * b);
+            (z, Some(z - v))
+        } else {
+            (T::zero(), None)
+        };
+        let mode = self.modes.select(use_baro, use_vel);
+        let u = Vector3::new(az, z_h, z_v);
+        let x_new = mode.phi * self.x + mode.gamma * u;
+        if !x_new.iter().all(|v| v.is_finite()) {
+            return Err(NavError::NonFiniteInput {
+                input: "state after step",
+            });
+        }
+        if x_new.x < T::lit(ALTITUDE_RANGE_M.0) || x_new.x > T::lit(ALTITUDE_RANGE_M.1) {
+            return Err(NavError::InputOutOfRange {
+                input: "altitude estimate",
+            });
+        }
+        self.x = x_new;
+        self.time_s = now;
+        self.baro = baro_ch;
+        self.velocity = vel_ch;
+        Ok((
+            AidReport {
+                status: baro_status,
+                innovation: nu_h,
+                innovation_variance: if use_baro { variances.0 } else { None },
+            },
+            AidReport {
+                status: vel_status,
+                innovation: nu_v,
+                innovation_variance: if use_vel { variances.1 } else { None },
+            },
+        ))
+    }
+
+    /// Accelerometer bias estimate (measured − true), m/s².
+    pub(crate) fn accel_bias_m_s2(&self) -> T {
+        -self.x.z * self.bias_sign
+    }
+}
+
+pub use aided::{AidedConfig, AidedGains, AidedLoop, AidedReport};
+pub use classical::{ClassicalConfig, ClassicalGains, ClassicalLoop, ClassicalReport};
+
+#[cfg(test)]
+mod tests;

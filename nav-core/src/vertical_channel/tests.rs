@@ -1,0 +1,523 @@
+//! Unit tests of the vertical channel (both float types).
+
+use super::riccati::{care_residual, char_poly3, is_hurwitz3};
+use super::*;
+use nalgebra::{Matrix3, Matrix3x2};
+
+const LAT: f64 = 0.6; // rad
+
+fn classical_config(tau_s: f64, lag_s: f64) -> ClassicalConfig {
+    ClassicalConfig {
+        imu_dt_s: 0.01,
+        latitude_rad: LAT,
+        tau_s,
+        baro_lag_s: lag_s,
+        baro_timeouts: AidTimeouts {
+            stale_after_s: 0.1,
+            lost_after_s: 1.0,
+        },
+    }
+}
+
+fn aided_config() -> AidedConfig {
+    AidedConfig {
+        imu_dt_s: 0.01,
+        latitude_rad: LAT,
+        accel_noise_m_s2_rt_hz: 1e-3,
+        accel_bias_rw_m_s2_rt_s: 1e-5,
+        baro_noise_m: 1.0,
+        baro_period_s: 0.04,
+        baro_lag_s: 0.2,
+        velocity_noise_m_s: 0.1,
+        velocity_period_s: 0.1,
+        baro_timeouts: AidTimeouts {
+            stale_after_s: 0.1,
+            lost_after_s: 1.0,
+        },
+        velocity_timeouts: AidTimeouts {
+            stale_after_s: 0.25,
+            lost_after_s: 1.0,
+        },
+    }
+}
+
+fn c_grav() -> f64 {
+    GravityModel::at_latitude(LAT).unwrap().c_per_s2()
+}
+
+#[test]
+fn classical_poles_at_minus_one_over_tau_with_and_without_c4() {
+    for &(tau, c4) in &[
+        (10.0, 0.0),
+        (20.0, 0.0),
+        (20.0, 0.2),
+        (50.0, 0.5),
+        (5.0, 1.0),
+    ] {
+        let g = ClassicalGains::pole_placement(tau, c4, c_grav()).unwrap();
+        let f = g.error_matrix();
+        // Characteristic polynomial equals (s + 1/τ)³ = s³ + 3/τ s² + 3/τ² s + 1/τ³.
+        let [a2, a1, a0] = char_poly3(&f);
+        let p = 1.0 / tau;
+        assert!(
+            (a2 - 3.0 * p).abs() < 1e-12 * 3.0 * p,
+            "{tau} {c4}: a2 {a2}"
+        );
+        assert!(
+            (a1 - 3.0 * p * p).abs() < 1e-10 * 3.0 * p * p,
+            "{tau} {c4}: a1 {a1}"
+        );
+        assert!(
+            (a0 - p * p * p).abs() < 1e-10 * p * p * p,
+            "{tau} {c4}: a0 {a0}"
+        );
+        // Eigenvalues (a triple root is perturbed by ~ε^(1/3) relative).
+        for ev in f.complex_eigenvalues().iter() {
+            assert!((ev.re + p).abs() < 1e-4 * p, "{tau} {c4}: {ev}");
+            assert!(ev.im.abs() < 1e-4 * p, "{tau} {c4}: {ev}");
+        }
+    }
+    // C4 = 0 closed form: C1 = 3/τ, C2 = c + 3/τ², C3 = 1/τ³.
+    let g = ClassicalGains::pole_placement(20.0, 0.0, c_grav()).unwrap();
+    assert!((g.c1_per_s - 3.0 / 20.0).abs() < 1e-15);
+    assert!((g.c2_per_s2 - (c_grav() + 3.0 / 400.0)).abs() < 1e-15);
+    assert!((g.c3_per_s3 - 1.0 / 8000.0).abs() < 1e-18);
+}
+
+/// Jacobian of one loop step with respect to the state, by central finite differences
+/// (truth at rest at 500 m, a fresh baro sample at the step's end reading 500 m).
+fn step_jacobian(make: &dyn Fn() -> LoopCore<f64>, vel: bool) -> Matrix3<f64> {
+    let g = GravityModel::at_latitude(LAT).unwrap();
+    let mut jac = Matrix3::zeros();
+    for i in 0..3 {
+        let d = [1e-3, 1e-4, 1e-6][i];
+        let mut out = [nalgebra::Vector3::zeros(); 2];
+        for (j, s) in [1.0, -1.0].iter().enumerate() {
+            let mut core = make();
+            core.x[i] += s * d;
+            let imu = ImuSample {
+                time_s: 0.01,
+                specific_force_up_m_s2: g.gravity_m_s2(500.0),
+            };
+            let baro = BaroSample {
+                time_s: 0.01,
+                altitude_m: 500.0,
+            };
+            let v = VelocitySample {
+                time_s: 0.01,
+                vz_up_m_s: 0.0,
+            };
+            core.step(&imu, Some(&baro), vel.then_some(&v), (None, None))
+                .unwrap();
+            out[j] = core.x;
+        }
+        jac.set_column(i, &((out[0] - out[1]) / (2.0 * d)));
+    }
+    jac
+}
+
+#[test]
+fn classical_discrete_loop_poles_near_exp_minus_dt_over_tau() {
+    // The step's Jacobian (finite differences through the gravity model, the held-baro
+    // extrapolation and Φ, Γ) has all three eigenvalues at ≈ e^{−Δt/τ}: the discretised loop
+    // keeps the continuous pole placement, including the c δh gravity feedback.
+    for &(tau, c4) in &[(10.0, 0.0), (20.0, 0.2), (50.0, 0.5)] {
+        let make = || {
+            let mut init0 = init::<f64>(500.0);
+            init0.time_s = 0.0;
+            let lp = ClassicalLoop::<f64>::new(&classical_config(tau, c4), &init0).unwrap();
+            lp.core
+        };
+        let jac = step_jacobian(&make, false);
+        let target = (-0.01 / tau).exp();
+        let [a2, a1, a0] = char_poly3(&jac);
+        // (z − r)³ = z³ − 3r z² + 3r² z − r³; ZOH/extrapolation perturb it at O((Δt/τ)²).
+        let tol = 5.0 * (0.01 / tau) * (0.01 / tau);
+        assert!((a2 + 3.0 * target).abs() < tol, "{tau} {c4}: {a2}");
+        assert!((a1 - 3.0 * target * target).abs() < tol, "{tau} {c4}: {a1}");
+        assert!((a0 + target.powi(3)).abs() < tol, "{tau} {c4}: {a0}");
+        // Compare with the exact exponential of the continuous error matrix.
+        let g = ClassicalGains::pole_placement(tau, c4, c_grav()).unwrap();
+        let (phi_err, _) =
+            crate::math::discretize::discretize(&g.error_matrix(), &Matrix3::zeros(), 0.01)
+                .unwrap();
+        let [b2, b1, b0] = char_poly3(&phi_err);
+        assert!((a2 - b2).abs() < tol && (a1 - b1).abs() < tol && (a0 - b0).abs() < tol);
+    }
+}
+
+#[test]
+fn aided_discrete_loop_matches_continuous_error_matrix() {
+    let make = || {
+        AidedLoop::<f64>::new(&aided_config(), &init(500.0))
+            .unwrap()
+            .core
+    };
+    let jac = step_jacobian(&make, true);
+    let g = AidedGains::design(&aided_config()).unwrap();
+    let (phi_err, _) =
+        crate::math::discretize::discretize(&g.error_matrix(), &Matrix3::zeros(), 0.01).unwrap();
+    let ev_j = jac.complex_eigenvalues();
+    let ev_c = phi_err.complex_eigenvalues();
+    let mut mj: std::vec::Vec<f64> = ev_j
+        .iter()
+        .map(|e| (e.re * e.re + e.im * e.im).sqrt())
+        .collect();
+    let mut mc: std::vec::Vec<f64> = ev_c
+        .iter()
+        .map(|e| (e.re * e.re + e.im * e.im).sqrt())
+        .collect();
+    mj.sort_by(f64::total_cmp);
+    mc.sort_by(f64::total_cmp);
+    for (a, b) in mj.iter().zip(&mc) {
+        assert!(
+            (a - b).abs() < 2e-3 * (1.0 - b).max(1e-6) + 1e-9,
+            "{mj:?} {mc:?}"
+        );
+        assert!(*a < 1.0);
+    }
+}
+
+#[test]
+fn classical_rejects_bad_config() {
+    let mut c = classical_config(20.0, 0.2);
+    c.tau_s = -1.0;
+    assert!(matches!(
+        ClassicalLoop::<f32>::new(&c, &init(0.0)),
+        Err(NavError::InvalidConfig { field: "tau_s", .. })
+    ));
+    let mut c = classical_config(20.0, 0.2);
+    c.baro_lag_s = f64::NAN;
+    assert!(matches!(
+        ClassicalLoop::<f32>::new(&c, &init(0.0)),
+        Err(NavError::InvalidConfig {
+            field: "baro_lag_s",
+            ..
+        })
+    ));
+    let mut c = classical_config(20.0, 0.2);
+    c.baro_timeouts.lost_after_s = 0.05;
+    assert!(matches!(
+        ClassicalLoop::<f32>::new(&c, &init(0.0)),
+        Err(NavError::InvalidConfig { .. })
+    ));
+    let mut c = aided_config();
+    c.velocity_noise_m_s = 0.0;
+    assert!(matches!(
+        AidedLoop::<f64>::new(&c, &init(0.0)),
+        Err(NavError::InvalidConfig {
+            field: "velocity_noise_m_s",
+            ..
+        })
+    ));
+}
+
+#[test]
+fn riccati_solution_residual_and_stability() {
+    let g = AidedGains::design(&aided_config()).unwrap();
+    let (_, rel) = care_residual(&g.a, &g.q, &g.c, &g.r, &g.p);
+    assert!(rel < 1e-10, "relative residual {rel}");
+    assert!(g.relative_residual < 1e-10);
+    assert!(is_hurwitz3(&g.error_matrix()));
+    for ev in g.error_matrix().complex_eigenvalues().iter() {
+        assert!(ev.re < 0.0, "{ev}");
+    }
+    // K = P Cᵀ R⁻¹.
+    let r_inv = Matrix2::from_diagonal(&g.r.map(|r| 1.0 / r));
+    assert!((g.k - g.p * g.c.transpose() * r_inv).abs().max() < 1e-12 * g.k.abs().max());
+}
+
+use nalgebra::Matrix2;
+
+/// Integrates the Riccati differential equation Ṗ = AP + PAᵀ + Q − PCᵀR⁻¹CP (RK4) from P(0)
+/// to steady state: a route independent of the Hamiltonian sign function.
+fn riccati_ode_steady_state(g: &AidedGains, p0: Matrix3<f64>, dt: f64, t_end: f64) -> Matrix3<f64> {
+    let r_inv = Matrix2::from_diagonal(&g.r.map(|r| 1.0 / r));
+    let gm = g.c.transpose() * r_inv * g.c;
+    let f = |p: &Matrix3<f64>| g.a * p + p * g.a.transpose() + g.q - p * gm * p;
+    let mut p = p0;
+    let steps = (t_end / dt) as usize;
+    for _ in 0..steps {
+        let k1 = f(&p);
+        let k2 = f(&(p + k1 * (dt / 2.0)));
+        let k3 = f(&(p + k2 * (dt / 2.0)));
+        let k4 = f(&(p + k3 * dt));
+        p += (k1 + k2 * 2.0 + k3 * 2.0 + k4) * (dt / 6.0);
+        p = (p + p.transpose()) * 0.5;
+    }
+    p
+}
+
+#[test]
+fn riccati_gains_match_riccati_ode_steady_state() {
+    let g = AidedGains::design(&aided_config()).unwrap();
+    let p0 = Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, 0.01, 1e-6));
+    let p = riccati_ode_steady_state(&g, p0, 0.005, 3000.0);
+    let r_inv = Matrix2::from_diagonal(&g.r.map(|r| 1.0 / r));
+    let k_ode: Matrix3x2<f64> = p * g.c.transpose() * r_inv;
+    for (a, b) in g.k.iter().zip(k_ode.iter()) {
+        assert!(
+            (a - b).abs() <= 1e-6 * a.abs().max(1e-9),
+            "{} vs {}",
+            g.k,
+            k_ode
+        );
+    }
+}
+
+fn init<T: Real>(h: f64) -> InitialState<T> {
+    InitialState {
+        time_s: T::zero(),
+        altitude_m: T::lit(h),
+        vz_up_m_s: T::zero(),
+        accel_bias_m_s2: T::zero(),
+    }
+}
+
+/// Noise-free closed-loop run: truth climbs at constant rate with a constant accelerometer
+/// bias; the estimate starts 20 m / 2 m/s off. Returns final errors (h, V, bias).
+fn run_noise_free<T: Real>(aided: bool, t_end: f64) -> (f64, f64, f64) {
+    let dt = 0.01;
+    let g = GravityModel::at_latitude(LAT).unwrap();
+    let bias = 0.0098; // 1 mg
+    let (h0, vz) = (500.0, 5.0);
+    let mut init0 = init::<T>(h0 + 20.0);
+    init0.vz_up_m_s = T::lit(vz + 2.0);
+    let mut cl = ClassicalLoop::<T>::new(&classical_config(10.0, 0.0), &init0).unwrap();
+    let mut al = AidedLoop::<T>::new(&aided_config(), &init0).unwrap();
+    let n = (t_end / dt) as usize;
+    for k in 1..=n {
+        let t = k as f64 * dt;
+        let h = h0 + vz * t;
+        let f = g.gravity_m_s2(h - 0.5 * vz * dt) + bias;
+        let imu = ImuSample {
+            time_s: T::lit(t),
+            specific_force_up_m_s2: T::lit(f),
+        };
+        // baro with no lag (the classical loop here has C4 = 0; aided compensates 0.2 s of
+        // lag, so give it a lagged reading h − 0.2 V, exact for a constant climb).
+        let baro_c = (k % 4 == 0).then(|| BaroSample {
+            time_s: T::lit(t),
+            altitude_m: T::lit(h),
+        });
+        let baro_a = (k % 4 == 0).then(|| BaroSample {
+            time_s: T::lit(t),
+            altitude_m: T::lit(h - 0.2 * vz),
+        });
+        let vel = (k % 10 == 0).then(|| VelocitySample {
+            time_s: T::lit(t),
+            vz_up_m_s: T::lit(vz),
+        });
+        if aided {
+            al.step(&imu, baro_a.as_ref(), vel.as_ref()).unwrap();
+        } else {
+            cl.step(&imu, baro_c.as_ref()).unwrap();
+        }
+    }
+    let h = h0 + vz * t_end;
+    if aided {
+        (
+            al.altitude_m().to_f64() - h,
+            al.vz_up_m_s().to_f64() - vz,
+            al.accel_bias_m_s2().to_f64() - bias,
+        )
+    } else {
+        (
+            cl.altitude_m().to_f64() - h,
+            cl.vz_up_m_s().to_f64() - vz,
+            cl.accel_bias_m_s2().to_f64() - bias,
+        )
+    }
+}
+
+#[test]
+fn loops_converge_noise_free_f32_and_f64() {
+    for aided in [false, true] {
+        let (eh, ev, eb) = run_noise_free::<f64>(aided, 1000.0);
+        assert!(
+            eh.abs() < 0.05 && ev.abs() < 0.005 && eb.abs() < 1e-4,
+            "{aided}: {eh} {ev} {eb}"
+        );
+        let (eh, ev, eb) = run_noise_free::<f32>(aided, 1000.0);
+        assert!(
+            eh.abs() < 0.2 && ev.abs() < 0.02 && eb.abs() < 5e-4,
+            "{aided}: {eh} {ev} {eb}"
+        );
+    }
+}
+
+#[test]
+fn dropout_status_and_inertial_coasting() {
+    let mut lp = AidedLoop::<f32>::new(&aided_config(), &init(100.0)).unwrap();
+    let g = GravityModel::at_latitude(LAT).unwrap();
+    let f = g.gravity_m_s2(100.0) as f32;
+    let mut last = None;
+    for k in 1..=300u32 {
+        let t = k as f32 * 0.01;
+        let imu = ImuSample {
+            time_s: t,
+            specific_force_up_m_s2: f,
+        };
+        // Both aids until 1 s, then the velocity aid drops out; baro throughout.
+        let baro = (k % 4 == 0).then_some(BaroSample {
+            time_s: t,
+            altitude_m: 100.0,
+        });
+        let vel = (k % 10 == 0 && k <= 100).then_some(VelocitySample {
+            time_s: t,
+            vz_up_m_s: 0.0,
+        });
+        let rep = lp.step(&imu, baro.as_ref(), vel.as_ref()).unwrap();
+        if k == 50 {
+            assert!(matches!(rep.velocity.status, AidStatus::Fresh { .. }));
+            assert!(rep.velocity.innovation.is_some());
+            assert!(rep.velocity.innovation_variance.unwrap() > 0.0);
+        }
+        if k == 130 {
+            assert!(
+                matches!(rep.velocity.status, AidStatus::Stale { age_s } if (age_s - 0.3).abs() < 1e-4),
+                "{:?}",
+                rep.velocity.status
+            );
+            assert!(rep.velocity.innovation.is_some());
+        }
+        last = Some(rep);
+    }
+    let rep = last.unwrap();
+    assert!(matches!(rep.velocity.status, AidStatus::Lost { age_s } if age_s > 1.9));
+    assert_eq!(rep.velocity.innovation, None);
+    assert!(matches!(rep.baro.status, AidStatus::Fresh { .. }));
+    assert!((lp.altitude_m() - 100.0).abs() < 0.5);
+
+    // Classical loop with no baro at all: NoData, pure inertial propagation.
+    let mut cl = ClassicalLoop::<f64>::new(&classical_config(20.0, 0.0), &init(100.0)).unwrap();
+    let imu = ImuSample {
+        time_s: 0.01,
+        specific_force_up_m_s2: g.gravity_m_s2(100.0) + 1.0,
+    };
+    let rep = cl.step(&imu, None).unwrap();
+    assert_eq!(rep.baro.status, AidStatus::NoData);
+    assert_eq!(rep.baro.innovation, None);
+    assert!((cl.vz_up_m_s() - 0.01).abs() < 1e-9, "{}", cl.vz_up_m_s());
+    assert!((cl.altitude_m() - 100.00005).abs() < 1e-9);
+}
+
+#[test]
+fn bad_input_leaves_state_unchanged() {
+    let mut lp = AidedLoop::<f64>::new(&aided_config(), &init(100.0)).unwrap();
+    let good = ImuSample {
+        time_s: 0.01,
+        specific_force_up_m_s2: 9.8,
+    };
+    lp.step(&good, None, None).unwrap();
+    let before = lp;
+    let imu = ImuSample {
+        time_s: 0.02,
+        specific_force_up_m_s2: 9.8,
+    };
+    type Case = (
+        ImuSample<f64>,
+        Option<BaroSample<f64>>,
+        Option<VelocitySample<f64>>,
+    );
+    let cases: [Case; 7] = [
+        (
+            ImuSample {
+                time_s: 0.02,
+                specific_force_up_m_s2: f64::NAN,
+            },
+            None,
+            None,
+        ),
+        (
+            ImuSample {
+                time_s: 0.01,
+                specific_force_up_m_s2: 9.8,
+            },
+            None,
+            None,
+        ),
+        (
+            ImuSample {
+                time_s: 0.05,
+                specific_force_up_m_s2: 9.8,
+            },
+            None,
+            None,
+        ),
+        (
+            imu,
+            Some(BaroSample {
+                time_s: 0.02,
+                altitude_m: f64::INFINITY,
+            }),
+            None,
+        ),
+        (
+            imu,
+            Some(BaroSample {
+                time_s: 0.03,
+                altitude_m: 100.0,
+            }),
+            None,
+        ),
+        (
+            imu,
+            Some(BaroSample {
+                time_s: 0.02,
+                altitude_m: 100.0,
+            }),
+            Some(VelocitySample {
+                time_s: 0.02,
+                vz_up_m_s: 1e6,
+            }),
+        ),
+        (
+            ImuSample {
+                time_s: 0.02,
+                specific_force_up_m_s2: 1e4,
+            },
+            None,
+            None,
+        ),
+    ];
+    for (i, (imu, b, v)) in cases.iter().enumerate() {
+        assert!(lp.step(imu, b.as_ref(), v.as_ref()).is_err(), "case {i}");
+        assert_eq!(lp, before, "case {i}");
+    }
+    // An old sample after a newer one is refused.
+    lp.step(
+        &imu,
+        Some(&BaroSample {
+            time_s: 0.02,
+            altitude_m: 100.0,
+        }),
+        None,
+    )
+    .unwrap();
+    let before = lp;
+    let r = lp.step(
+        &ImuSample {
+            time_s: 0.03,
+            specific_force_up_m_s2: 9.8,
+        },
+        Some(&BaroSample {
+            time_s: 0.015,
+            altitude_m: 100.0,
+        }),
+        None,
+    );
+    assert_eq!(r, Err(NavError::TimeNotIncreasing));
+    assert_eq!(lp, before);
+}
+
+#[test]
+fn gravity_model_matches_earth_model() {
+    let g = GravityModel::at_latitude(LAT).unwrap();
+    for h in [-500.0, 0.0, 1234.0, 10_000.0] {
+        let e = crate::earth::normal_gravity_m_s2(LAT, h);
+        assert!((g.gravity_m_s2(h) - e).abs() < 1e-9, "{h}");
+    }
+    // c = 2ω_s² is the vertical gradient to within the ellipsoidal corrections (< 1 %).
+    assert!((g.c_per_s2() - g.g1_per_s2).abs() < 0.01 * g.g1_per_s2);
+}
