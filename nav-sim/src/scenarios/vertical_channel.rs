@@ -772,7 +772,7 @@ pub struct McResult {
     pub rmse_t: [[Vec<f64>; 2]; 2],
     /// RMSE over runs and time after `rmse_after_s`: [loop][h, vz].
     pub rmse: [[f64; 2]; 2],
-    /// Noise-free settle times [loop] with the configured initial errors taken as fixed.
+    /// Noise-free settle times (per loop) with the configured initial errors taken as fixed.
     pub settle_s: [Option<f64>; 2],
 }
 
