@@ -32,6 +32,36 @@ pub static KERNELS: &[Kernel] = &[
         check: ta12_check,
     },
     Kernel {
+        name: "vc_classical_step",
+        setup: vcc_setup,
+        run: vcc_step,
+        check: vcc_check,
+    },
+    Kernel {
+        name: "vc_aided_step",
+        setup: vca_setup,
+        run: vca_step,
+        check: vca_check,
+    },
+    Kernel {
+        name: "ins_mech_step",
+        setup: ins_setup,
+        run: ins_step,
+        check: ins_check,
+    },
+    Kernel {
+        name: "eskf17_predict",
+        setup: seeker_setup,
+        run: eskf_predict,
+        check: seeker_check,
+    },
+    Kernel {
+        name: "eskf17_los_update",
+        setup: seeker_setup,
+        run: eskf_los_update,
+        check: seeker_check,
+    },
+    Kernel {
         name: "kalman17_scalar_update",
         setup: k17_setup,
         run: k17_scalar,
@@ -225,3 +255,303 @@ macro_rules! ta_kernel {
 
 ta_kernel!(ta9_setup, ta9_step, ta9_check, TA9, ConventionalFilter<f32>);
 ta_kernel!(ta12_setup, ta12_step, ta12_check, TA12, ProposedFilter<f32>);
+
+// ---------------------------------------------------------------- vertical channel
+
+use nav_core::vertical_channel::{
+    AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
+    InitialState, VelocitySample,
+};
+
+const VC_DT_S: f64 = 0.01;
+
+fn vc_timeouts() -> AidTimeouts {
+    AidTimeouts {
+        stale_after_s: 0.06,
+        lost_after_s: 0.5,
+    }
+}
+
+fn vc_init() -> InitialState<f32> {
+    InitialState {
+        time_s: 0.0,
+        altitude_m: 520.0,
+        vz_up_m_s: 2.0,
+        accel_bias_m_s2: 0.0,
+    }
+}
+
+fn vc_imu(k: u32) -> (ImuSample<f32>, BaroSample<f32>, VelocitySample<f32>) {
+    let t = (k + 1) as f32 * VC_DT_S as f32;
+    let imu = ImuSample {
+        time_s: t,
+        specific_force_up_m_s2: 9.80,
+    };
+    let baro = BaroSample {
+        time_s: t,
+        altitude_m: 500.0,
+    };
+    let vel = VelocitySample {
+        time_s: t,
+        vz_up_m_s: 0.0,
+    };
+    (
+        core::hint::black_box(imu),
+        core::hint::black_box(baro),
+        core::hint::black_box(vel),
+    )
+}
+
+struct Vc<L> {
+    filter: L,
+    k: u32,
+    ok: bool,
+}
+
+static VCC: Mutex<RefCell<Option<Vc<ClassicalLoop<f32>>>>> = Mutex::new(RefCell::new(None));
+static VCA: Mutex<RefCell<Option<Vc<AidedLoop<f32>>>>> = Mutex::new(RefCell::new(None));
+
+fn vcc_setup() {
+    let cfg = ClassicalConfig {
+        imu_dt_s: VC_DT_S,
+        latitude_rad: 0.6458,
+        tau_s: 20.0,
+        baro_lag_s: 0.2,
+        baro_timeouts: vc_timeouts(),
+    };
+    let state = ClassicalLoop::new(&cfg, &vc_init()).ok().map(|filter| Vc {
+        filter,
+        k: 0,
+        ok: true,
+    });
+    interrupt::free(|cs| *VCC.borrow(cs).borrow_mut() = state);
+    for _ in 0..3 {
+        vcc_step();
+    }
+}
+
+fn vcc_step() {
+    interrupt::free(|cs| {
+        if let Some(s) = VCC.borrow(cs).borrow_mut().as_mut() {
+            let (imu, baro, _) = vc_imu(s.k);
+            s.ok &= s.filter.step(&imu, Some(&baro)).is_ok();
+            s.k += 1;
+        }
+    });
+}
+
+fn vcc_check() -> bool {
+    interrupt::free(|cs| {
+        VCC.borrow(cs)
+            .borrow()
+            .as_ref()
+            .is_some_and(|s| s.ok && s.filter.altitude_m().is_finite())
+    })
+}
+
+fn vca_setup() {
+    let cfg = AidedConfig {
+        imu_dt_s: VC_DT_S,
+        latitude_rad: 0.6458,
+        accel_noise_m_s2_rt_hz: 1e-3,
+        accel_bias_rw_m_s2_rt_s: 1e-5,
+        baro_noise_m: 1.0,
+        baro_period_s: 0.04,
+        baro_lag_s: 0.2,
+        velocity_noise_m_s: 0.1,
+        velocity_period_s: 0.1,
+        baro_timeouts: vc_timeouts(),
+        velocity_timeouts: AidTimeouts {
+            stale_after_s: 0.15,
+            lost_after_s: 1.0,
+        },
+    };
+    let state = AidedLoop::new(&cfg, &vc_init()).ok().map(|filter| Vc {
+        filter,
+        k: 0,
+        ok: true,
+    });
+    interrupt::free(|cs| *VCA.borrow(cs).borrow_mut() = state);
+    for _ in 0..3 {
+        vca_step();
+    }
+}
+
+fn vca_step() {
+    interrupt::free(|cs| {
+        if let Some(s) = VCA.borrow(cs).borrow_mut().as_mut() {
+            let (imu, baro, vel) = vc_imu(s.k);
+            s.ok &= s.filter.step(&imu, Some(&baro), Some(&vel)).is_ok();
+            s.k += 1;
+        }
+    });
+}
+
+fn vca_check() -> bool {
+    interrupt::free(|cs| {
+        VCA.borrow(cs)
+            .borrow()
+            .as_ref()
+            .is_some_and(|s| s.ok && s.filter.altitude_m().is_finite())
+    })
+}
+
+// ---------------------------------------------------------------- seeker-aided INS
+
+use nalgebra::Vector2;
+use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
+use nav_core::seeker_ins::filter::{LosResidual, SeekerIns, SeekerInsConfig};
+use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned, Landmark};
+use nav_core::seeker_ins::mechanization::{ImuIncrement, Ins, InsState, Position};
+
+const INS_DT_S: f32 = 0.01;
+
+fn ins_initial() -> InsState<f32> {
+    let deg = core::f64::consts::PI / 180.0;
+    InsState {
+        position: Position {
+            lat_rad: 37.0 * deg,
+            lon_rad: 127.0 * deg,
+            alt_m: 1000.0,
+        },
+        vel_ned_m_s: Vector3::new(0.0, 200.0, 0.0),
+        q_b_n: dcm_to_quat(&euler_to_dcm(0.0, 0.0, core::f32::consts::FRAC_PI_2)),
+    }
+}
+
+fn ins_increment() -> ImuIncrement<f32> {
+    // Level flight east: the accelerometers feel gravity (up), the gyros earth + transport rate.
+    core::hint::black_box(ImuIncrement {
+        delta_theta_rad: Vector3::new(1.0e-7, 4.4e-7, -3.5e-7),
+        delta_v_m_s: Vector3::new(0.0, 0.0, -9.80 * INS_DT_S),
+    })
+}
+
+fn landmark() -> Option<Landmark<f32>> {
+    let deg = core::f64::consts::PI / 180.0;
+    let lat = 37.0 * deg + 2000.0 / 6_356_000.0;
+    let lon = 127.0 * deg + 70_000.0 / (6_386_000.0 * libm::cos(37.0 * deg));
+    Landmark::new(Position {
+        lat_rad: lat,
+        lon_rad: lon,
+        alt_m: 0.0,
+    })
+    .ok()
+}
+
+struct Seeker {
+    filter: SeekerIns<f32>,
+    ok: bool,
+}
+
+static INS: Mutex<RefCell<Option<(Ins<f32>, bool)>>> = Mutex::new(RefCell::new(None));
+static SEEKER: Mutex<RefCell<Option<Seeker>>> = Mutex::new(RefCell::new(None));
+
+fn ins_setup() {
+    let ins = Ins::new(ins_initial(), INS_DT_S).ok().map(|i| (i, true));
+    interrupt::free(|cs| *INS.borrow(cs).borrow_mut() = ins);
+}
+
+fn ins_step() {
+    interrupt::free(|cs| {
+        if let Some((ins, ok)) = INS.borrow(cs).borrow_mut().as_mut() {
+            *ok &= ins.step(&ins_increment()).is_ok();
+        }
+    });
+}
+
+fn ins_check() -> bool {
+    interrupt::free(|cs| {
+        INS.borrow(cs)
+            .borrow()
+            .as_ref()
+            .is_some_and(|(ins, ok)| *ok && ins.state().vel_ned_m_s.iter().all(|v| v.is_finite()))
+    })
+}
+
+fn seeker_p0() -> SMatrix<f32, 17, 17> {
+    let deg = core::f32::consts::PI / 180.0;
+    let r0 = 6_371_000.0f32;
+    let ug = 9.80665e-6f32;
+    let deg_h = deg / 3600.0;
+    let sig = [
+        40.0 / r0,
+        40.0 / r0,
+        40.0,
+        10.0,
+        10.0,
+        10.0,
+        deg,
+        deg,
+        5.0 * deg,
+        100.0 * ug,
+        100.0 * ug,
+        100.0 * ug,
+        0.01 * deg_h,
+        0.01 * deg_h,
+        0.01 * deg_h,
+        0.04 * deg,
+        0.04 * deg,
+    ];
+    let mut p = SMatrix::<f32, 17, 17>::zeros();
+    for (i, s) in sig.iter().enumerate() {
+        p[(i, i)] = s * s;
+    }
+    p
+}
+
+fn seeker_setup() {
+    let state = landmark().and_then(|lm| {
+        let cfg = SeekerInsConfig {
+            imu_dt_s: INS_DT_S,
+            covariance_interval_steps: 1000,
+            accel_noise_density_m_s2_rt_hz: 5.0 * 9.80665e-6,
+            gyro_noise_density_rad_s_rt_hz: 0.01 * core::f32::consts::PI / 180.0 / 60.0,
+            seeker_noise_rad: 0.17 * core::f32::consts::PI / 180.0,
+            gate_nis: 16.0,
+            landmark: lm,
+            residual: LosResidual::Projected2d,
+        };
+        SeekerIns::new(cfg, ins_initial(), &seeker_p0()).ok()
+    });
+    let mut state = state.map(|filter| Seeker { filter, ok: true });
+    if let Some(s) = state.as_mut() {
+        for _ in 0..10 {
+            s.ok &= s.filter.propagate(&ins_increment()).is_ok();
+        }
+    }
+    interrupt::free(|cs| *SEEKER.borrow(cs).borrow_mut() = state);
+}
+
+fn eskf_predict() {
+    interrupt::free(|cs| {
+        if let Some(s) = SEEKER.borrow(cs).borrow_mut().as_mut() {
+            s.ok &= s.filter.predict_covariance().is_ok();
+        }
+    });
+}
+
+fn eskf_los_update() {
+    interrupt::free(|cs| {
+        if let Some(s) = SEEKER.borrow(cs).borrow_mut().as_mut() {
+            let Some(lm) = landmark() else {
+                s.ok = false;
+                return;
+            };
+            let st = *s.filter.state();
+            let d = landmark_vector_ned(&st.position, &lm);
+            let u_b = quat_to_dcm(&st.q_b_n).transpose() * d.normalize();
+            let g = core::hint::black_box(gimbal_angles_of(&u_b));
+            s.ok &= s.filter.update_los(&g).is_ok();
+        }
+    });
+}
+
+fn seeker_check() -> bool {
+    interrupt::free(|cs| {
+        SEEKER.borrow(cs).borrow().as_ref().is_some_and(|s| {
+            s.ok && s.filter.covariance().iter().all(|v| v.is_finite())
+                && s.filter.gimbal_bias_rad() != Vector2::new(f32::NAN, 0.0)
+        })
+    })
+}
