@@ -24,6 +24,15 @@ enum Cmd {
         #[arg(long)]
         scenario_dir: Option<PathBuf>,
     },
+    /// Record the golden vectors the firmware replays on QEMU (`cargo xtask qemu`).
+    Golden {
+        /// Output directory.
+        #[arg(long, default_value = "target/golden")]
+        out: PathBuf,
+        /// Seed of the recorded runs.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
     /// Run a scenario (by name, or a path to a .toml file), or `all`.
     Run {
         /// Scenario name, path to a scenario file, or `all`.
@@ -58,6 +67,16 @@ fn main() -> Result<()> {
             println!("scenario kinds:");
             for k in scenario::REGISTRY {
                 println!("  {:<20} {}", k.kind, k.about);
+            }
+            Ok(())
+        }
+        Cmd::Golden { out, seed } => {
+            for (case, steps) in nav_sim::golden::record(&out, seed)? {
+                println!(
+                    "golden {:<14} {steps:>5} steps -> {}",
+                    case.name(),
+                    out.display()
+                );
             }
             Ok(())
         }

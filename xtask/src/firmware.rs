@@ -153,6 +153,127 @@ pub fn parse_bench(lines: &[String]) -> Vec<(String, u64, u64)> {
         .collect()
 }
 
+/// Records the golden vectors on the host (`nav-sim golden`) into `target/golden`.
+fn record_golden() -> Result<PathBuf, String> {
+    let dir = root().join("target/golden");
+    let mut cmd = crate::cargo();
+    cmd.args([
+        "run",
+        "--release",
+        "--quiet",
+        "-p",
+        "nav-sim",
+        "--",
+        "golden",
+        "--out",
+    ])
+    .arg(&dir);
+    run("record golden vectors (host, f32)", &mut cmd)?;
+    Ok(dir)
+}
+
+/// Parses `GOLDEN <case> steps=… values=… mismatched=… max_ulps=… missing=…` lines:
+/// `(case, line, ok)`.
+fn parse_golden(lines: &[String]) -> Vec<(String, String, bool)> {
+    lines
+        .iter()
+        .filter_map(|l| {
+            let rest = l.split("GOLDEN ").nth(1)?;
+            let case = rest.split_whitespace().next()?.to_string();
+            if case == "FAILED" {
+                return None;
+            }
+            let ok = rest.contains("mismatched=0 ") && rest.contains("missing=0");
+            Some((case, rest.to_string(), ok))
+        })
+        .collect()
+}
+
+/// `cargo xtask qemu`: golden vectors recorded on the host are replayed by the firmware on
+/// both machines; any mismatch, error or skipped case fails.
+pub fn qemu() -> Result<(), String> {
+    let decoder = ensure_tools()?;
+    let dir = record_golden()?;
+    std::env::set_var("NAV_GOLDEN_DIR", &dir);
+    let elf = build_firmware(&[])?;
+    let mut failures = Vec::new();
+    for (label, machine) in MACHINES {
+        match run_on_qemu(&elf, machine, &decoder) {
+            Ok(lines) => {
+                let cases = parse_golden(&lines);
+                if cases.len() != nav_golden_case_count() {
+                    failures.push(format!("{label}: {} golden cases reported", cases.len()));
+                }
+                for (case, line, ok) in cases {
+                    println!("{label:<11} {line}");
+                    if !ok {
+                        failures.push(format!("{label}: {case}"));
+                    }
+                }
+            }
+            Err(e) => failures.push(e),
+        }
+    }
+    if failures.is_empty() {
+        println!("qemu: every golden case bit-identical on both machines");
+        Ok(())
+    } else {
+        Err(format!("qemu: {}", failures.join("; ")))
+    }
+}
+
+/// Number of golden cases the firmware replays.
+const fn nav_golden_case_count() -> usize {
+    5
+}
+
+/// Rate plan for the CPU-load table: (kernel, rate in Hz).
+const RATE_PLAN: [(&str, f64); 7] = [
+    ("ins_mech_step", 100.0),
+    ("eskf17_predict", 10.0),
+    ("eskf17_los_update", 10.0),
+    ("ta12_step", 100.0),
+    ("vc_aided_step", 100.0),
+    ("vc_classical_step", 100.0),
+    ("ta9_step", 0.0),
+];
+/// Cycles per instruction assumed for the load table (not measured: QEMU counts
+/// instructions). M4F: single-issue, flash wait states partly hidden by the ART accelerator.
+/// M7: dual-issue with caches.
+const CPU: [(&str, f64, f64); 2] = [("cortex-m4f", 168.0e6, 1.25), ("cortex-m7", 480.0e6, 0.75)];
+
+fn cpu_load(report: &Map<String, Value>) -> Value {
+    let mut out = Map::new();
+    for (label, clock_hz, cpi) in CPU {
+        let Some(m) = report.get(label).and_then(Value::as_object) else {
+            continue;
+        };
+        let mut total = 0.0;
+        let mut rows = Map::new();
+        for (kernel, rate) in RATE_PLAN {
+            if rate == 0.0 {
+                continue;
+            }
+            let insns = m
+                .get(&format!("{kernel}_insns"))
+                .and_then(Value::as_f64)
+                .unwrap_or(0.0);
+            let load = insns * rate * cpi / clock_hz * 100.0;
+            total += load;
+            rows.insert(
+                kernel.into(),
+                json!({ "rate_hz": rate, "load_pct": (load * 1000.0).round() / 1000.0 }),
+            );
+        }
+        out.insert(
+            label.into(),
+            json!({ "clock_hz": clock_hz, "cycles_per_instruction_assumed": cpi,
+                    "kernels": rows, "total_load_pct": (total * 1000.0).round() / 1000.0 }),
+        );
+    }
+    Value::Object(out)
+}
+
 /// `cargo xtask bench`.
 pub fn bench() -> Result<(), String> {
     let decoder = ensure_tools()?;
@@ -178,6 +299,8 @@ pub fn bench() -> Result<(), String> {
         m.insert("max_stack_bytes".into(), Value::Object(stacks));
         report.insert(label.into(), Value::Object(m));
     }
+    let load = cpu_load(&report);
+    report.insert("cpu_load".into(), load.clone());
     let dir = root().join("target/bench");
     std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
     let path = dir.join("report.json");
@@ -185,6 +308,26 @@ pub fn bench() -> Result<(), String> {
         serde_json::to_string_pretty(&Value::Object(report.clone())).map_err(|e| e.to_string())?;
     std::fs::write(&path, text_json + "\n").map_err(|e| e.to_string())?;
     print_table(&report);
+    println!("\nCPU load of the rate plan (cycles/instruction assumed, not measured):");
+    if let Some(l) = load.as_object() {
+        for (cpu, v) in l {
+            println!(
+                "  {cpu:<11} {:>5.0} MHz, CPI {:.2}: total {:.2} %",
+                v["clock_hz"].as_f64().unwrap_or(0.0) / 1e6,
+                v["cycles_per_instruction_assumed"].as_f64().unwrap_or(0.0),
+                v["total_load_pct"].as_f64().unwrap_or(0.0)
+            );
+            if let Some(k) = v["kernels"].as_object() {
+                for (name, row) in k {
+                    println!(
+                        "      {name:<20} {:>6.0} Hz  {:>7.3} %",
+                        row["rate_hz"].as_f64().unwrap_or(0.0),
+                        row["load_pct"].as_f64().unwrap_or(0.0)
+                    );
+                }
+            }
+        }
+    }
     eprintln!("xtask: bench: wrote {}", path.display());
     Ok(())
 }

@@ -5,6 +5,9 @@
 //! * `thumb`: build nav-core for `thumbv7em-none-eabihf` and `thumbv7em-none-eabi`, with and
 //!   without the `defmt` feature, installing the rustup targets when missing (or falling back to
 //!   Debian's Rust with `-Zbuild-std=core`).
+//! * `qemu`: record golden vectors on the host, replay them in the firmware on QEMU Cortex-M4F
+//!   and Cortex-M7, fail on any mismatch.
+//! * `bench`: instruction counts, stack and image sizes on QEMU → `target/bench/report.json`.
 //! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
 //!   at the end.
 
@@ -28,6 +31,7 @@ fn main() -> ExitCode {
         "thumb" => thumb().map(|_| ()),
         "ci" => ci(),
         "bench" => firmware::bench(),
+        "qemu" => firmware::qemu(),
         "-h" | "--help" | "help" => {
             usage();
             Ok(())
@@ -49,6 +53,7 @@ fn usage() {
          \n  sim <scenario>|all [--runs N] [--seed S] [--out DIR]   run simulator scenarios\
          \n  thumb                                               build nav-core for Cortex-M4F/M7\
          \n  ci                                                  fmt, clippy, thumb, tests, docs\
+         \n  qemu                                                firmware on QEMU: golden-vector replay\
          \n  bench                                               firmware on QEMU: instructions, stack, sizes"
     );
 }
@@ -60,7 +65,7 @@ pub(crate) fn root() -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("."))
 }
 
-fn cargo() -> Command {
+pub(crate) fn cargo() -> Command {
     let mut c = Command::new(env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
     c.current_dir(root());
     c
@@ -260,6 +265,9 @@ fn ci() -> Result<(), String> {
             cargo().args(["test", "--workspace", "--no-fail-fast"]),
         ),
     );
+    // The firmware on QEMU: golden-vector replay (fails on any mismatch), then the cost report.
+    step("qemu", firmware::qemu());
+    step("bench", firmware::bench());
     step(
         "doc",
         run(

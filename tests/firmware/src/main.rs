@@ -5,6 +5,7 @@
 #![no_std]
 #![no_main]
 
+mod golden;
 mod kernels;
 mod measure;
 
@@ -16,6 +17,7 @@ use defmt_semihosting as _;
 fn main() -> ! {
     defmt::println!("nav-firmware start");
     let mut failures = 0u32;
+    let golden_failures = golden::check_all();
     for k in kernels::KERNELS {
         let mut run = || (k.run)();
         (k.setup)();
@@ -33,11 +35,14 @@ fn main() -> ! {
             stack
         );
     }
-    if failures == 0 {
+    if golden_failures != 0 {
+        defmt::println!("GOLDEN FAILED cases={=u32}", golden_failures);
+    }
+    if failures == 0 && golden_failures == 0 {
         defmt::println!("DONE ok");
         debug::exit(debug::EXIT_SUCCESS);
     } else {
-        defmt::println!("DONE failures={=u32}", failures);
+        defmt::println!("DONE failures={=u32}", failures + golden_failures);
         debug::exit(debug::EXIT_FAILURE);
     }
     #[allow(clippy::empty_loop)]

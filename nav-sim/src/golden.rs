@@ -1,0 +1,154 @@
+//! Golden vectors for the firmware: short runs of every filter, generated from the simulator's
+//! truth, replayed on the host in f32 through [`nav_golden::replay`] (the same code the
+//! firmware runs) and written as little-endian f32 files `<case>.in.f32` / `<case>.out.f32`.
+
+use crate::rng::{normal, run_rng};
+use crate::scenarios::seeker_ins::{self, trajectory};
+use crate::scenarios::transfer_alignment::{config::load_scenario, config::CaseConfig, truth};
+use crate::scenarios::vertical_channel::{self, Profile};
+use anyhow::{anyhow, Context, Result};
+use nav_core::earth::normal_gravity_m_s2;
+use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned, Landmark};
+use nav_golden::{replay, Case, CASES, LOS_EVERY};
+use std::path::Path;
+
+/// Steps recorded per case.
+pub const TA_STEPS: usize = 300;
+/// VC steps (20 s at 100 Hz).
+pub const VC_STEPS: usize = 2000;
+/// Seeker INS steps (6 s at 100 Hz, LOS at 10 Hz).
+pub const SEEKER_STEPS: usize = 600;
+
+fn ta_inputs(seed: u64) -> Result<Vec<f32>> {
+    let (cfg, _, _) = load_scenario::<CaseConfig>("ta-case2")?;
+    let mut rng = run_rng(seed, 0);
+    let run = truth::simulate(&cfg, &mut rng)?;
+    let mut v = Vec::new();
+    for (m, s) in run.master.iter().zip(&run.slave).take(TA_STEPS) {
+        v.push(m.time_s as f32);
+        v.extend(m.angular_rate_rad_s.iter().map(|x| *x as f32));
+        v.extend(m.angular_accel_rad_s2.iter().map(|x| *x as f32));
+        v.extend(m.specific_force_m_s2.iter().map(|x| *x as f32));
+        v.push(s.time_s as f32);
+        v.extend(s.angular_rate_rad_s.iter().map(|x| *x as f32));
+        v.extend(s.specific_force_m_s2.iter().map(|x| *x as f32));
+    }
+    Ok(v)
+}
+
+fn vc_inputs(seed: u64) -> Result<Vec<f32>> {
+    let cfg = vertical_channel::load_config("vc-response")?;
+    let profile = Profile::new(&cfg.profile)?;
+    let mut rng = run_rng(seed, 1);
+    let lat = nav_golden::vc_classical_config().latitude_rad;
+    let bias = 9.806_65e-3; // 1 mg, m/s²
+    let dt = nav_golden::VC_DT_S;
+    let mut v = Vec::new();
+    for k in 0..VC_STEPS {
+        let t = (k + 1) as f64 * dt;
+        let (h, vz, a) = profile.at(t);
+        let f_up = a + normal_gravity_m_s2(lat, h) + bias + normal(&mut rng, 0.01);
+        let baro_valid = (k + 1) % 4 == 0;
+        let vel_valid = (k + 1) % 10 == 0;
+        v.extend([
+            t as f32,
+            f_up as f32,
+            f32::from(u8::from(baro_valid)),
+            (h + normal(&mut rng, 1.0)) as f32,
+            f32::from(u8::from(vel_valid)),
+            (vz + normal(&mut rng, 0.1)) as f32,
+        ]);
+    }
+    Ok(v)
+}
+
+fn seeker_inputs(seed: u64) -> Result<Vec<f32>> {
+    let cfg = seeker_ins::load_config("seeker-straight")?;
+    let truth = trajectory::generate(&cfg.trajectory, f64::from(nav_golden::INS_DT_S));
+    let lm = Landmark::<f64>::new(nav_golden::seeker_landmark_position())
+        .map_err(|e| anyhow!("landmark: {e}"))?;
+    let mut rng = run_rng(seed, 2);
+    let sigma = 0.17f64.to_radians();
+    let mut v = Vec::new();
+    for k in 1..=SEEKER_STEPS {
+        let inc = truth.imu.get(k).context("trajectory too short")?;
+        v.extend(inc.delta_theta_rad.iter().map(|x| *x as f32));
+        v.extend(inc.delta_v_m_s.iter().map(|x| *x as f32));
+        if k % LOS_EVERY == 0 {
+            let d = landmark_vector_ned(&truth.position[k], &lm);
+            let u_b = truth.c_b_n[k].transpose() * d.normalize();
+            let g = gimbal_angles_of(&u_b);
+            v.extend([
+                1.0,
+                (g.pitch_rad + normal(&mut rng, sigma)) as f32,
+                (g.yaw_rad + normal(&mut rng, sigma)) as f32,
+            ]);
+        } else {
+            v.extend([0.0, 0.0, 0.0]);
+        }
+    }
+    Ok(v)
+}
+
+fn to_bytes(v: &[f32]) -> Vec<u8> {
+    v.iter().flat_map(|x| x.to_le_bytes()).collect()
+}
+
+/// Writes the golden inputs and host outputs of every case into `dir`; returns
+/// `(case, steps)` per case.
+pub fn record(dir: &Path, seed: u64) -> Result<Vec<(Case, usize)>> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let mut done = Vec::new();
+    for case in CASES {
+        let inputs = match case {
+            Case::Ta9 | Case::Ta12 => ta_inputs(seed)?,
+            Case::VcClassical | Case::VcAided => vc_inputs(seed)?,
+            Case::SeekerIns => seeker_inputs(seed)?,
+        };
+        let in_bytes = to_bytes(&inputs);
+        let mut outputs: Vec<f32> = Vec::new();
+        let steps = replay(case, &in_bytes, &mut |_, out| {
+            outputs.extend_from_slice(out)
+        })
+        .map_err(|e| anyhow!("{}: host replay failed: {e}", case.name()))?;
+        anyhow::ensure!(
+            outputs.iter().all(|x| x.is_finite()),
+            "{}: non-finite host output",
+            case.name()
+        );
+        std::fs::write(dir.join(format!("{}.in.f32", case.name())), in_bytes)?;
+        std::fs::write(
+            dir.join(format!("{}.out.f32", case.name())),
+            to_bytes(&outputs),
+        )?;
+        done.push((case, steps));
+    }
+    Ok(done)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recording_is_reproducible_and_replays_identically() {
+        let a = std::env::temp_dir().join(format!("nav-golden-a-{}", std::process::id()));
+        let b = std::env::temp_dir().join(format!("nav-golden-b-{}", std::process::id()));
+        let ra = record(&a, 5).unwrap();
+        let rb = record(&b, 5).unwrap();
+        assert_eq!(ra, rb);
+        for case in CASES {
+            for ext in ["in", "out"] {
+                let f = format!("{}.{ext}.f32", case.name());
+                assert_eq!(
+                    std::fs::read(a.join(&f)).unwrap(),
+                    std::fs::read(b.join(&f)).unwrap()
+                );
+            }
+            let steps = ra.iter().find(|(c, _)| *c == case).unwrap().1;
+            assert!(steps >= 300, "{}: {steps} steps", case.name());
+        }
+        let _ = std::fs::remove_dir_all(&a);
+        let _ = std::fs::remove_dir_all(&b);
+    }
+}

@@ -1,0 +1,435 @@
+//! Golden-vector replay, shared by the host recorder and the firmware.
+//!
+//! `nav-sim golden` generates the inputs of a short run of each filter from its simulated
+//! truth, runs them through [`replay`] on the host (f32) and writes both; the firmware image
+//! runs the *same* [`replay`] on the recorded inputs on Cortex-M4F/M7 and compares its outputs
+//! with the host's, value by value (bits, and the largest distance in units in the last place).
+//!
+//! Files are little-endian `f32` arrays: `<case>.in.f32` (records of [`Case::input_len`]
+//! values) and `<case>.out.f32` (records of [`Case::output_len`] values), one record per step.
+#![no_std]
+#![forbid(unsafe_code)]
+
+use nalgebra::Vector3;
+use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm};
+use nav_core::seeker_ins::filter::{LosResidual, SeekerIns, SeekerInsConfig};
+use nav_core::seeker_ins::measurement::{GimbalAngles, Landmark};
+use nav_core::seeker_ins::mechanization::{ImuIncrement, InsState, Position};
+use nav_core::transfer_alignment::{
+    AxisFlexure, ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig,
+};
+use nav_core::vertical_channel::{
+    AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
+    InitialState, VelocitySample,
+};
+use nav_core::NavError;
+
+/// A recorded filter run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Case {
+    /// Conventional 9-state transfer alignment.
+    Ta9,
+    /// Proposed 12-state transfer alignment.
+    Ta12,
+    /// Classical vertical-channel loop.
+    VcClassical,
+    /// Velocity-aided vertical-channel loop.
+    VcAided,
+    /// Strapdown INS + 17-state EKF with LOS updates.
+    SeekerIns,
+}
+
+/// Every case, in file order.
+pub const CASES: [Case; 5] = [
+    Case::Ta9,
+    Case::Ta12,
+    Case::VcClassical,
+    Case::VcAided,
+    Case::SeekerIns,
+];
+
+/// Largest output record.
+pub const MAX_OUTPUT_LEN: usize = 16;
+
+impl Case {
+    /// File stem.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Case::Ta9 => "ta9",
+            Case::Ta12 => "ta12",
+            Case::VcClassical => "vc_classical",
+            Case::VcAided => "vc_aided",
+            Case::SeekerIns => "seeker_ins",
+        }
+    }
+
+    /// Values per input record.
+    ///
+    /// * TA: `[t_m, ω_m(3), ω̇_m(3), f_m(3), t_s, ω_s(3), f_s(3)]` (s, rad/s, rad/s², m/s²).
+    /// * VC: `[t, f_up, baro_valid, h_baro, velocity_valid, v_ref]` (s, m/s², 0|1, m, 0|1, m/s).
+    /// * Seeker: `[Δθ(3), Δv(3), los_valid, gimbal_pitch, gimbal_yaw]` (rad, m/s, 0|1, rad).
+    pub const fn input_len(self) -> usize {
+        match self {
+            Case::Ta9 | Case::Ta12 => 17,
+            Case::VcClassical | Case::VcAided => 6,
+            Case::SeekerIns => 9,
+        }
+    }
+
+    /// Values per output record.
+    ///
+    /// * TA: `[θ(3), σ_θ(3)]` (rad).
+    /// * VC: `[h, V_z]` (m, m/s).
+    /// * Seeker: `[north, east, up offsets from the start (m), V_NED(3), q_b^n(4), σ of δL·R,
+    ///   δl·R, δh (m)]`.
+    pub const fn output_len(self) -> usize {
+        match self {
+            Case::Ta9 | Case::Ta12 => 6,
+            Case::VcClassical | Case::VcAided => 2,
+            Case::SeekerIns => 13,
+        }
+    }
+}
+
+/// Little-endian f32 values of a byte slice (a trailing partial value is ignored).
+pub fn f32s(bytes: &[u8]) -> impl Iterator<Item = f32> + '_ {
+    bytes
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+}
+
+// ------------------------------------------------------------------ configurations
+
+/// Filter step of the TA cases, s.
+pub const TA_DT_S: f32 = 0.01;
+/// IMU interval of the VC cases, s.
+pub const VC_DT_S: f64 = 0.01;
+/// IMU interval of the seeker case, s.
+pub const INS_DT_S: f32 = 0.01;
+/// Seeker case: LOS update every this many IMU samples.
+pub const LOS_EVERY: usize = 10;
+
+/// TA filter configuration (case-2 flexure, tactical slave).
+pub fn ta_config() -> TaConfig<f32> {
+    let deg = core::f32::consts::PI / 180.0;
+    TaConfig {
+        lever_arm_m: Vector3::new(0.0, 5.0, 0.0),
+        flexure: [
+            AxisFlexure {
+                sigma_rad: 0.5 * deg,
+                tau_s: 0.358,
+            },
+            AxisFlexure {
+                sigma_rad: 0.1 * deg,
+                tau_s: 2.146,
+            },
+            AxisFlexure {
+                sigma_rad: 0.1 * deg,
+                tau_s: 2.146,
+            },
+        ],
+        mount_sigma_rad: Vector3::new(0.5 * deg, 0.5 * deg, 0.5 * deg),
+        rate_noise_sigma_rad_s: 2.0e-4,
+        accel_noise_sigma_m_s2: 5.0e-3,
+        dt_s: TA_DT_S,
+        time_tolerance_s: 0.001,
+        max_gap_steps: 5,
+        nis_gate: Some(25.0),
+    }
+}
+
+fn vc_timeouts() -> AidTimeouts {
+    AidTimeouts {
+        stale_after_s: 0.06,
+        lost_after_s: 0.5,
+    }
+}
+
+/// Classical loop configuration.
+pub fn vc_classical_config() -> ClassicalConfig {
+    ClassicalConfig {
+        imu_dt_s: VC_DT_S,
+        latitude_rad: 0.645_771_823_2,
+        tau_s: 20.0,
+        baro_lag_s: 0.2,
+        baro_timeouts: vc_timeouts(),
+    }
+}
+
+/// Aided loop configuration.
+pub fn vc_aided_config() -> AidedConfig {
+    AidedConfig {
+        imu_dt_s: VC_DT_S,
+        latitude_rad: 0.645_771_823_2,
+        accel_noise_m_s2_rt_hz: 1e-3,
+        accel_bias_rw_m_s2_rt_s: 1e-5,
+        baro_noise_m: 1.0,
+        baro_period_s: 0.04,
+        baro_lag_s: 0.2,
+        velocity_noise_m_s: 0.1,
+        velocity_period_s: 0.1,
+        baro_timeouts: vc_timeouts(),
+        velocity_timeouts: AidTimeouts {
+            stale_after_s: 0.15,
+            lost_after_s: 1.0,
+        },
+    }
+}
+
+/// Initial state of both VC loops (the truth starts at 500 m, level).
+pub fn vc_initial() -> InitialState<f32> {
+    InitialState {
+        time_s: 0.0,
+        altitude_m: 520.0,
+        vz_up_m_s: 2.0,
+        accel_bias_m_s2: 0.0,
+    }
+}
+
+/// Start of the seeker case: 37° N, 127° E, 1000 m, east at 200 m/s, level.
+pub fn seeker_start() -> Position {
+    let deg = core::f64::consts::PI / 180.0;
+    Position {
+        lat_rad: 37.0 * deg,
+        lon_rad: 127.0 * deg,
+        alt_m: 1000.0,
+    }
+}
+
+/// Landmark of the seeker case: 70 km east, 2 km north of the start, on the ground.
+pub fn seeker_landmark_position() -> Position {
+    let deg = core::f64::consts::PI / 180.0;
+    let lat0 = 37.0 * deg;
+    Position {
+        lat_rad: lat0 + 2000.0 / 6_356_000.0,
+        lon_rad: 127.0 * deg + 70_000.0 / (6_386_000.0 * libm::cos(lat0)),
+        alt_m: 0.0,
+    }
+}
+
+/// The INS's initial state (the truth's, perturbed: 30 m north, 1 m/s east, 0.5° yaw).
+pub fn seeker_initial() -> InsState<f32> {
+    let mut p = seeker_start();
+    p.lat_rad += 30.0 / 6_356_000.0;
+    InsState {
+        position: p,
+        vel_ned_m_s: Vector3::new(0.0, 201.0, 0.0),
+        q_b_n: dcm_to_quat(&euler_to_dcm(0.0, 0.0, 90.5f32.to_radians())),
+    }
+}
+
+/// Seeker filter configuration and initial covariance.
+pub fn seeker_config() -> Result<(SeekerInsConfig<f32>, nalgebra::SMatrix<f32, 17, 17>), NavError> {
+    let deg = core::f32::consts::PI / 180.0;
+    let ug = 9.806_65e-6_f32;
+    let cfg = SeekerInsConfig {
+        imu_dt_s: INS_DT_S,
+        covariance_interval_steps: LOS_EVERY as u16,
+        accel_noise_density_m_s2_rt_hz: 5.0 * ug,
+        gyro_noise_density_rad_s_rt_hz: 0.01 * deg / 60.0,
+        seeker_noise_rad: 0.17 * deg,
+        gate_nis: 16.0,
+        landmark: Landmark::new(seeker_landmark_position())?,
+        residual: LosResidual::Projected2d,
+    };
+    let r0 = 6_371_000.0f32;
+    let sig = [
+        40.0 / r0,
+        40.0 / r0,
+        40.0,
+        10.0,
+        10.0,
+        10.0,
+        deg,
+        deg,
+        5.0 * deg,
+        100.0 * ug,
+        100.0 * ug,
+        100.0 * ug,
+        0.01 * deg / 3600.0,
+        0.01 * deg / 3600.0,
+        0.01 * deg / 3600.0,
+        0.04 * deg,
+        0.04 * deg,
+    ];
+    let mut p0 = nalgebra::SMatrix::<f32, 17, 17>::zeros();
+    for (i, s) in sig.iter().enumerate() {
+        if let Some(v) = p0.get_mut((i, i)) {
+            *v = s * s;
+        }
+    }
+    Ok((cfg, p0))
+}
+
+// ------------------------------------------------------------------ replay
+
+fn v3(r: &[f32], at: usize) -> Vector3<f32> {
+    Vector3::new(
+        r.get(at).copied().unwrap_or(f32::NAN),
+        r.get(at + 1).copied().unwrap_or(f32::NAN),
+        r.get(at + 2).copied().unwrap_or(f32::NAN),
+    )
+}
+
+fn val(r: &[f32], at: usize) -> f32 {
+    r.get(at).copied().unwrap_or(f32::NAN)
+}
+
+fn ta_samples(r: &[f32]) -> (MasterSample<f32>, SlaveSample<f32>) {
+    (
+        MasterSample {
+            time_s: val(r, 0),
+            angular_rate_rad_s: v3(r, 1),
+            angular_accel_rad_s2: v3(r, 4),
+            specific_force_m_s2: v3(r, 7),
+        },
+        SlaveSample {
+            time_s: val(r, 10),
+            angular_rate_rad_s: v3(r, 11),
+            specific_force_m_s2: v3(r, 14),
+        },
+    )
+}
+
+fn ta_output(theta: Vector3<f32>, sigma: Vector3<f32>, out: &mut [f32; MAX_OUTPUT_LEN]) {
+    for (o, v) in out.iter_mut().zip(theta.iter().chain(sigma.iter())) {
+        *o = *v;
+    }
+}
+
+/// Replays recorded inputs (little-endian f32 records of `case.input_len()`) through the
+/// case's filter in f32 and calls `sink(step, output record)` after every step. Returns the
+/// number of steps. A filter error is returned as is (the recording has none).
+pub fn replay(
+    case: Case,
+    inputs: &[u8],
+    sink: &mut dyn FnMut(usize, &[f32]),
+) -> Result<usize, NavError> {
+    let n_in = case.input_len();
+    let n_out = case.output_len();
+    let mut rec = [0f32; 17];
+    let mut out = [0f32; MAX_OUTPUT_LEN];
+    let records = inputs.chunks_exact(4 * n_in);
+    let mut steps = 0usize;
+    match case {
+        Case::Ta9 | Case::Ta12 => {
+            let mut f9 = ConventionalFilter::<f32>::new(ta_config())?;
+            let mut f12 = ProposedFilter::<f32>::new(ta_config())?;
+            for (k, bytes) in records.enumerate() {
+                for (d, v) in rec.iter_mut().zip(f32s(bytes)) {
+                    *d = v;
+                }
+                let (m, s) = ta_samples(&rec);
+                if case == Case::Ta9 {
+                    f9.step(&m, &s)?;
+                    ta_output(f9.theta(), f9.theta_sigma_rad(), &mut out);
+                } else {
+                    f12.step(&m, &s)?;
+                    ta_output(f12.theta(), f12.theta_sigma_rad(), &mut out);
+                }
+                sink(k, out.get(..n_out).unwrap_or(&[]));
+                steps = k + 1;
+            }
+        }
+        Case::VcClassical | Case::VcAided => {
+            let mut cl = ClassicalLoop::<f32>::new(&vc_classical_config(), &vc_initial())?;
+            let mut ai = AidedLoop::<f32>::new(&vc_aided_config(), &vc_initial())?;
+            for (k, bytes) in records.enumerate() {
+                for (d, v) in rec.iter_mut().zip(f32s(bytes)) {
+                    *d = v;
+                }
+                let t = val(&rec, 0);
+                let imu = ImuSample {
+                    time_s: t,
+                    specific_force_up_m_s2: val(&rec, 1),
+                };
+                let baro = BaroSample {
+                    time_s: t,
+                    altitude_m: val(&rec, 3),
+                };
+                let vel = VelocitySample {
+                    time_s: t,
+                    vz_up_m_s: val(&rec, 5),
+                };
+                let baro = (val(&rec, 2) != 0.0).then_some(&baro);
+                let vel = (val(&rec, 4) != 0.0).then_some(&vel);
+                let (h, v) = if case == Case::VcClassical {
+                    cl.step(&imu, baro)?;
+                    (cl.altitude_m(), cl.vz_up_m_s())
+                } else {
+                    ai.step(&imu, baro, vel)?;
+                    (ai.altitude_m(), ai.vz_up_m_s())
+                };
+                out[0] = h;
+                out[1] = v;
+                sink(k, out.get(..n_out).unwrap_or(&[]));
+                steps = k + 1;
+            }
+        }
+        Case::SeekerIns => {
+            let (cfg, p0) = seeker_config()?;
+            let mut f = SeekerIns::<f32>::new(cfg, seeker_initial(), &p0)?;
+            let start = seeker_start();
+            for (k, bytes) in records.enumerate() {
+                for (d, v) in rec.iter_mut().zip(f32s(bytes)) {
+                    *d = v;
+                }
+                let inc = ImuIncrement {
+                    delta_theta_rad: v3(&rec, 0),
+                    delta_v_m_s: v3(&rec, 3),
+                };
+                f.propagate(&inc)?;
+                if val(&rec, 6) != 0.0 {
+                    f.predict_covariance()?;
+                    let g = GimbalAngles {
+                        pitch_rad: val(&rec, 7),
+                        yaw_rad: val(&rec, 8),
+                    };
+                    f.update_los(&g)?;
+                }
+                let st = f.state();
+                let r = 6_371_000.0;
+                out[0] = ((st.position.lat_rad - start.lat_rad) * r) as f32;
+                out[1] =
+                    ((st.position.lon_rad - start.lon_rad) * r * libm::cos(start.lat_rad)) as f32;
+                out[2] = (st.position.alt_m - start.alt_m) as f32;
+                for (o, v) in out.iter_mut().skip(3).zip(st.vel_ned_m_s.iter()) {
+                    *o = *v;
+                }
+                for (o, v) in out.iter_mut().skip(6).zip(st.q_b_n.coords.iter()) {
+                    *o = *v;
+                }
+                let p = f.covariance();
+                let rf = r as f32;
+                out[10] = libm::sqrtf(p[(0, 0)]) * rf;
+                out[11] = libm::sqrtf(p[(1, 1)]) * rf;
+                out[12] = libm::sqrtf(p[(2, 2)]);
+                sink(k, out.get(..n_out).unwrap_or(&[]));
+                steps = k + 1;
+            }
+        }
+    }
+    Ok(steps)
+}
+
+/// Distance between two f32 values in units in the last place (0 when the bits are equal;
+/// `u32::MAX` when exactly one is NaN).
+pub fn ulps(a: f32, b: f32) -> u32 {
+    if a.to_bits() == b.to_bits() {
+        return 0;
+    }
+    if a.is_nan() || b.is_nan() {
+        return u32::MAX;
+    }
+    let key = |x: f32| {
+        let i = x.to_bits() as i32;
+        if i < 0 {
+            i32::MIN.wrapping_sub(i)
+        } else {
+            i
+        }
+    };
+    (i64::from(key(a)) - i64::from(key(b)))
+        .unsigned_abs()
+        .min(u64::from(u32::MAX)) as u32
+}
