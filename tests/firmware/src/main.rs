@@ -7,11 +7,11 @@
 
 mod golden;
 mod kernels;
+mod logger;
 mod measure;
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::debug;
-use defmt_semihosting as _;
 
 #[entry]
 fn main() -> ! {
