@@ -3,7 +3,7 @@
 //! * [`SeekerIns::propagate`] (every IMU sample): removes the estimated biases from the
 //!   increments, advances the INS ([`super::mechanization`]) and every
 //!   `covariance_interval_steps` samples propagates P over the accumulated interval
-//!   ([`super::error_model::propagate_covariance`], F at the current state and the mean
+//!   ([`super::error_model::propagate_covariance_sparse`], F at the current state and the mean
 //!   specific force of the interval).
 //! * [`SeekerIns::update_los`] (seeker rate): first propagates P over any pending interval,
 //!   then fuses the two LOS residual components ([`super::measurement`]) as sequential scalar
@@ -14,8 +14,7 @@
 //! Every method that returns an error leaves the whole filter exactly as it was.
 
 use super::error_model::{
-    f_block, propagate_covariance, transition_block, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES,
-    VEL,
+    propagate_covariance_sparse, SparseF, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
 };
 use super::measurement::{los_model, los_model_3d, GimbalAngles, Landmark};
 use super::mechanization::{ImuIncrement, Ins, InsState};
@@ -258,9 +257,8 @@ impl<T: Real> SeekerIns<T> {
         let dt_total = config.imu_dt_s * T::lit(f64::from(steps));
         let f_ned = dv_ned_m_s / dt_total;
         let s = ins.state();
-        let f = f_block(&s.position, &s.vel_ned_m_s, &ins.c_b_n(), &f_ned);
-        let a = transition_block(&f, dt_total);
-        propagate_covariance(p, &a, dt_total, q_accel, q_gyro)
+        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &ins.c_b_n(), &f_ned);
+        propagate_covariance_sparse(p, &f, dt_total, q_accel, q_gyro)
     }
 
     /// Fuses one pair of measured gimbal angles (rad) to the configured landmark.
