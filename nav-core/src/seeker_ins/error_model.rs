@@ -91,7 +91,12 @@ pub struct SparseF<T> {
 
 impl<T: Real> SparseF<T> {
     /// F at a navigation state (arguments as [`f_block`]); one `sin`/`cos` pair and one `sqrt`.
-    pub fn new(pos: &Position, v: &Vector3<T>, c_b_n: &Matrix3<T>, f_ned_m_s2: &Vector3<T>) -> Self {
+    pub fn new(
+        pos: &Position,
+        v: &Vector3<T>,
+        c_b_n: &Matrix3<T>,
+        f_ned_m_s2: &Vector3<T>,
+    ) -> Self {
         let k = Kinematics::new(pos, v);
         let z = T::zero();
         let inv_m = T::one() / k.rm_h;
@@ -168,7 +173,12 @@ impl<T: Real> SparseF<T> {
         let zero = T::zero();
         let acc = (self.f00 + self.f02 + self.f03 + self.f10 + self.f12 + self.f14 + self.f25)
             * zero
-            + (self.vel_lat + self.vel_h + self.f_ned + self.att_lat + self.att_h + self.att_v
+            + (self.vel_lat
+                + self.vel_h
+                + self.f_ned
+                + self.att_lat
+                + self.att_h
+                + self.att_v
                 + self.w_in)
                 .sum()
                 * zero
@@ -196,7 +206,8 @@ impl<T: Real> SparseF<T> {
         set(&mut f, 6, 4, self.att_v.x);
         set(&mut f, 7, 3, self.att_v.y);
         set(&mut f, 8, 4, self.att_v.z);
-        f.fixed_view_mut::<3, 3>(6, 6).copy_from(&(-skew(&self.w_in)));
+        f.fixed_view_mut::<3, 3>(6, 6)
+            .copy_from(&(-skew(&self.w_in)));
         f.fixed_view_mut::<3, 3>(6, 12).copy_from(&(-self.c_b_n));
         f
     }
@@ -222,11 +233,26 @@ impl<T: Real> SparseF<T> {
             self.f00 * x0 + self.f02 * x2 + self.f03 * x3,
             self.f10 * x0 + self.f12 * x2 + self.f14 * x4,
             self.f25 * x5,
-            vl.x * x0 + vh.x * x2 + m.m11 * x3 + m.m12 * x4 + m.m13 * x5 + (f.y * a2 - f.z * a1)
+            vl.x * x0
+                + vh.x * x2
+                + m.m11 * x3
+                + m.m12 * x4
+                + m.m13 * x5
+                + (f.y * a2 - f.z * a1)
                 + cb0,
-            vl.y * x0 + vh.y * x2 + m.m21 * x3 + m.m22 * x4 + m.m23 * x5 + (f.z * a0 - f.x * a2)
+            vl.y * x0
+                + vh.y * x2
+                + m.m21 * x3
+                + m.m22 * x4
+                + m.m23 * x5
+                + (f.z * a0 - f.x * a2)
                 + cb1,
-            vl.z * x0 + vh.z * x2 + m.m31 * x3 + m.m32 * x4 + m.m33 * x5 + (f.x * a1 - f.y * a0)
+            vl.z * x0
+                + vh.z * x2
+                + m.m31 * x3
+                + m.m32 * x4
+                + m.m33 * x5
+                + (f.x * a1 - f.y * a0)
                 + cb2,
             al.x * x0 + ah.x * x2 + self.att_v.x * x4 - (w.y * a2 - w.z * a1) - ce0,
             al.y * x0 + ah.y * x2 + self.att_v.y * x3 - (w.z * a0 - w.x * a2) - ce1,
@@ -335,7 +361,12 @@ pub fn propagate_covariance_sparse<T: Real>(
             .and_then(|col| col.get(r))
             .map_or(zero, |v| *v * q)
     };
-    let at = |r: usize, c: usize| -> T { cols.get(c).and_then(|col| col.get(r)).copied().unwrap_or(zero) };
+    let at = |r: usize, c: usize| -> T {
+        cols.get(c)
+            .and_then(|col| col.get(r))
+            .copied()
+            .unwrap_or(zero)
+    };
     // Exactly symmetric: ½(C_rc + C_cr) + (gq_rc + gq_cr) + Q_c Δt on the diagonal.
     let corner: [[T; 9]; 9] = core::array::from_fn(|c| {
         core::array::from_fn(|r| {
@@ -571,8 +602,8 @@ mod tests {
         let sf = SparseF::new(&pos, &v, &c, &f_n);
         let fb = sf.to_block();
         let sig = [
-            6e-6, 6e-6, 40.0, 10.0, 10.0, 10.0, 0.017, 0.017, 0.087, 1e-3, 1e-3, 1e-3, 5e-8,
-            5e-8, 5e-8, 7e-4, 7e-4,
+            6e-6, 6e-6, 40.0, 10.0, 10.0, 10.0, 0.017, 0.017, 0.087, 1e-3, 1e-3, 1e-3, 5e-8, 5e-8,
+            5e-8, 7e-4, 7e-4,
         ];
         let mut l = SMatrix::<f64, 17, 17>::zeros();
         for i in 0..17 {
@@ -612,7 +643,9 @@ mod tests {
         // Bad input leaves P untouched.
         let mut p = p0;
         assert!(propagate_covariance_sparse(&mut p, &sf, f64::NAN, qa, qg).is_err());
-        assert!(propagate_covariance_sparse(&mut p, &sf.scaled(f64::INFINITY), 0.1, qa, qg).is_err());
+        assert!(
+            propagate_covariance_sparse(&mut p, &sf.scaled(f64::INFINITY), 0.1, qa, qg).is_err()
+        );
         assert_eq!(p, p0);
     }
 
