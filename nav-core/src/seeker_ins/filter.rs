@@ -147,8 +147,9 @@ impl<T: Real> SeekerIns<T> {
     /// Filter at the initial INS state with initial covariance `p0` (units of the error state,
     /// see the module [`super`] doc).
     ///
-    /// Errors: `InvalidConfig` (non-positive interval, densities, σ or gate; zero
-    /// `covariance_interval_steps`), `InvalidTimeStep`, `NonFiniteInput`,
+    /// Errors: `InvalidConfig` (non-positive interval, σ or gate, negative or NaN densities;
+    /// zero `covariance_interval_steps`), `InvalidTimeStep` (interval not in (0, 1] s),
+    /// `NonFiniteInput`, `InputOutOfRange` (a variance of p0 beyond its physical bound),
     /// `CovarianceNotPositiveSemiDefinite` (p0 not symmetric PSD).
     pub fn new(
         config: SeekerInsConfig<T>,
@@ -175,6 +176,21 @@ impl<T: Real> SeekerIns<T> {
         }
         if !p0.iter().all(|v| v.is_finite()) {
             return Err(NavError::NonFiniteInput { input: "p0" });
+        }
+        // Physical bounds on the initial variances (units of the error state): position
+        // (1 rad)², altitude (10⁷ m)², velocity (10⁴ m/s)², attitude 10 rad², accelerometer
+        // bias (100 m/s²)², gyro bias (1 rad/s)², gimbal errors 10 rad².
+        const MAX_VARIANCE: [f64; STATES] = [
+            1.0, 1.0, 1e14, 1e8, 1e8, 1e8, 10.0, 10.0, 10.0, 1e4, 1e4, 1e4, 1.0, 1.0, 1.0, 10.0,
+            10.0,
+        ];
+        if p0
+            .diagonal()
+            .iter()
+            .zip(MAX_VARIANCE.iter())
+            .any(|(v, m)| *v > T::lit(*m))
+        {
+            return Err(NavError::InputOutOfRange { input: "p0" });
         }
         if crate::math::kalman::asymmetry(p0) > T::zero()
             || !crate::math::kalman::is_psd(p0, T::lit(1e-6))
@@ -598,7 +614,12 @@ fn scalar_report<T: Real>(
         Gate::Off => (T::zero(), false),
         Gate::Nis(threshold) => {
             let ratio = nis / threshold;
-            (ratio, !(ratio <= T::one()) || threshold <= T::zero())
+            // A NaN ratio or a non-positive threshold rejects.
+            let within = matches!(
+                ratio.partial_cmp(&T::one()),
+                Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
+            );
+            (ratio, !within || threshold <= T::zero())
         }
     };
     Ok((

@@ -167,7 +167,7 @@ pub struct LosModel<T> {
 /// Builds the residual, H and R (module doc) at the INS position `pos`, attitude `c_b_n`
 /// and bias-corrected gimbal angles, for a seeker white noise `sigma_rad` (1σ per angle, rad).
 ///
-/// Errors: `NonFiniteInput`, `InputOutOfRange` (|θ_s| > 80°, range < 1 m, σ ≤ 0).
+/// Errors: `NonFiniteInput`, `InputOutOfRange` (|θ_s| > 80°, |ψ_s| > π, range < 1 m, σ ≤ 0).
 pub fn los_model<T: Real>(
     pos: &Position,
     c_b_n: &Matrix3<T>,
@@ -183,6 +183,11 @@ pub fn los_model<T: Real>(
     if gimbal.pitch_rad.abs() > T::lit(MAX_GIMBAL_PITCH_RAD) {
         return Err(NavError::InputOutOfRange {
             input: "gimbal pitch",
+        });
+    }
+    if gimbal.yaw_rad.abs() > T::lit(core::f64::consts::PI) {
+        return Err(NavError::InputOutOfRange {
+            input: "gimbal yaw",
         });
     }
     if !sigma_rad.is_finite() || sigma_rad <= T::zero() {
