@@ -471,7 +471,23 @@ fn soak_f32() {
                 uni(0.02),
             ];
         }
-        f.propagate(&increment::<f32>(&man)).unwrap();
+        // Keep the random flight physical over long runs: damp body velocity towards
+        // 200 m/s east, tilt towards level and altitude towards 1 km (feedback from the
+        // filter's own estimate; this only shapes the random input).
+        let st = *f.state();
+        let c = quat_to_dcm(&st.q_b_n).cast::<f64>();
+        let v_b = c.transpose() * (st.vel_ned_m_s.cast::<f64>() - Vector3::new(0.0, 200.0, 0.0));
+        let (roll, pitch, _) = nav_core::math::rotation::dcm_to_euler(&c);
+        let dh = st.position.alt_m - 1000.0;
+        let m = [
+            man[0] - 0.05 * v_b.x,
+            man[1] - 0.05 * v_b.y,
+            man[2] - 0.05 * v_b.z + 0.002 * dh,
+            man[3] - 0.2 * roll,
+            man[4] - 0.2 * pitch,
+            man[5],
+        ];
+        f.propagate(&increment::<f32>(&m)).unwrap();
         if k % 10 == 9 {
             let (a, b) = (uni(0.005), uni(0.005));
             let g = los_from_estimate(&f, a, b);
