@@ -67,7 +67,7 @@ pub fn f_block<T: Real>(
 /// W_v = ∂ω_in/∂V: (φ_N, V_E) = att_v[0], (φ_E, V_N) = att_v[1], (φ_D, V_E) = att_v[2]
 /// ```
 ///
-/// [`SparseF::scaled`] gives `G = F Δt` in the same layout; [`SparseF::apply_transition`] applies
+/// [`SparseF::scaled`] gives `G = F Δt` in the same layout; `SparseF::apply_transition` applies
 /// `A = Φ − I` to a column without forming the 9×15 block.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SparseF<T> {
@@ -303,7 +303,7 @@ impl<T: Real> SparseF<T> {
 }
 
 /// Covariance propagation `P ← Φ P Φᵀ + Q_d` over `dt_s` with `Φ = I + A` applied through the
-/// sparse F ([`SparseF::apply_transition`], 26 column applications instead of dense 9×15
+/// sparse F (`SparseF::apply_transition`, 26 column applications instead of dense 9×15
 /// products) and `Q_d = Q_cΔt + ½Δt (G Q_c + Q_c Gᵀ)`, `G = FΔt`. Only rows and columns 0..9
 /// of P change; the result is exactly symmetric. `q_accel`, `q_gyro`: white-noise PSDs
 /// ((m/s²)²/Hz, (rad/s)²/Hz).
