@@ -48,75 +48,373 @@ pub const GIMBAL: usize = 15;
 pub type FBlock<T> = SMatrix<T, 9, 15>;
 
 /// Error-model block F at a navigation state: position, velocity (m/s, NED), C_b^n and the
-/// specific force in NED `f_ned_m_s2` (m/s²).
+/// specific force in NED `f_ned_m_s2` (m/s²). Dense form of [`SparseF::new`] (tests, reference).
 pub fn f_block<T: Real>(
     pos: &Position,
     v: &Vector3<T>,
     c_b_n: &Matrix3<T>,
     f_ned_m_s2: &Vector3<T>,
 ) -> FBlock<T> {
-    let k = Kinematics::new(pos, v);
-    let z = T::zero();
-    let inv_m = T::one() / k.rm_h;
-    let inv_n = T::one() / k.rn_h;
-    let sec = T::one() / k.cos_lat;
-    let tan = k.sin_lat * sec;
-    let w = T::lit(crate::earth::EARTH_RATE_RAD_S);
-    // ∂ω_ie/∂L (only column L).
-    let dwie_dl = Vector3::new(-w * k.sin_lat, z, -w * k.cos_lat);
-    // ∂ω_en/∂(L, h) as columns, ∂ω_en/∂V.
-    let dwen_dlat = Vector3::new(
-        -v.y * inv_n * inv_n * k.drn_dlat,
-        v.x * inv_m * inv_m * k.drm_dlat,
-        -v.y * sec * sec * inv_n + v.y * tan * inv_n * inv_n * k.drn_dlat,
-    );
-    let dwen_dh = Vector3::new(
-        -v.y * inv_n * inv_n,
-        v.x * inv_m * inv_m,
-        v.y * tan * inv_n * inv_n,
-    );
-    let dwen_dv = Matrix3::new(z, inv_n, z, -inv_m, z, z, z, -tan * inv_n, z);
-    // Position rows.
-    let mut f = FBlock::<T>::zeros();
-    set(&mut f, 0, 0, -v.x * inv_m * inv_m * k.drm_dlat);
-    set(&mut f, 0, 2, -v.x * inv_m * inv_m);
-    set(&mut f, 0, 3, inv_m);
-    set(
-        &mut f,
-        1,
-        0,
-        v.y * tan * sec * inv_n - v.y * sec * inv_n * inv_n * k.drn_dlat,
-    );
-    set(&mut f, 1, 2, -v.y * sec * inv_n * inv_n);
-    set(&mut f, 1, 4, sec * inv_n);
-    set(&mut f, 2, 5, -T::one());
-    // Velocity rows: [V×] δρ with δρ = 2 δω_ie + δω_en.
-    let vx = skew(v);
-    let drho_dlat = dwie_dl * T::lit(2.0) + dwen_dlat;
-    let col_lat = vx * drho_dlat;
-    let col_h = vx * dwen_dh;
-    let rho = k.w_ie * T::lit(2.0) + k.w_en;
-    let f_vv = vx * dwen_dv - skew(&rho);
-    // Gravity gradient (module earth: g = g0(L)(1 − (c1 + c1' sin²L) h + c2 h²)).
-    let lat = T::lit(pos.lat_rad);
-    let h = T::lit(pos.alt_m);
-    let (dg_dlat, dg_dh) = gravity_gradient(lat, h);
-    f.fixed_view_mut::<3, 1>(3, 0).copy_from(&col_lat);
-    f.fixed_view_mut::<3, 1>(3, 2).copy_from(&col_h);
-    add(&mut f, 5, 0, dg_dlat);
-    add(&mut f, 5, 2, dg_dh);
-    f.fixed_view_mut::<3, 3>(3, 3).copy_from(&f_vv);
-    f.fixed_view_mut::<3, 3>(3, 6).copy_from(&skew(f_ned_m_s2));
-    f.fixed_view_mut::<3, 3>(3, 9).copy_from(c_b_n);
-    // Attitude rows.
-    let datt_dlat = dwie_dl + dwen_dlat;
-    f.fixed_view_mut::<3, 1>(6, 0).copy_from(&datt_dlat);
-    f.fixed_view_mut::<3, 1>(6, 2).copy_from(&dwen_dh);
-    f.fixed_view_mut::<3, 3>(6, 3).copy_from(&dwen_dv);
-    f.fixed_view_mut::<3, 3>(6, 6)
-        .copy_from(&(-skew(&(k.w_ie + k.w_en))));
-    f.fixed_view_mut::<3, 3>(6, 12).copy_from(&(-c_b_n));
-    f
+    SparseF::new(pos, v, c_b_n, f_ned_m_s2).to_block()
+}
+
+/// The structurally non-zero entries of F (module doc), 61 of the 9×15 block:
+///
+/// ```text
+/// rows δL, δl:  F00 F02 F03 / F10 F12 F14       row δh: F25 (= −1)
+/// rows δV:      [vel_lat  vel_h  vel_vel  [f_ned×]  C_b^n   0    ]   (cols L, h, V, φ, ∇, ε)
+/// rows φ:       [att_lat  att_h  W_v      −[w_in×]  0      −C_b^n]
+/// W_v = ∂ω_in/∂V: (φ_N, V_E) = att_v[0], (φ_E, V_N) = att_v[1], (φ_D, V_E) = att_v[2]
+/// ```
+///
+/// [`SparseF::scaled`] gives `G = F Δt` in the same layout; `SparseF::apply_transition` applies
+/// `A = Φ − I` to a column without forming the 9×15 block.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SparseF<T> {
+    f00: T,
+    f02: T,
+    f03: T,
+    f10: T,
+    f12: T,
+    f14: T,
+    f25: T,
+    vel_lat: Vector3<T>,
+    vel_h: Vector3<T>,
+    vel_vel: Matrix3<T>,
+    f_ned: Vector3<T>,
+    c_b_n: Matrix3<T>,
+    att_lat: Vector3<T>,
+    att_h: Vector3<T>,
+    att_v: Vector3<T>,
+    w_in: Vector3<T>,
+}
+
+impl<T: Real> SparseF<T> {
+    /// F at a navigation state (arguments as [`f_block`]); one `sin`/`cos` pair and one `sqrt`.
+    pub fn new(
+        pos: &Position,
+        v: &Vector3<T>,
+        c_b_n: &Matrix3<T>,
+        f_ned_m_s2: &Vector3<T>,
+    ) -> Self {
+        let k = Kinematics::new(pos, v);
+        let z = T::zero();
+        let inv_m = T::one() / k.rm_h;
+        let inv_n = T::one() / k.rn_h;
+        let sec = T::one() / k.cos_lat;
+        let tan = k.sin_lat * sec;
+        let w = T::lit(crate::earth::EARTH_RATE_RAD_S);
+        // ∂ω_ie/∂L (only column L).
+        let dwie_dl = Vector3::new(-w * k.sin_lat, z, -w * k.cos_lat);
+        // ∂ω_en/∂(L, h) as columns, ∂ω_en/∂V.
+        let inv_n2 = inv_n * inv_n;
+        let inv_m2 = inv_m * inv_m;
+        let dwen_dlat = Vector3::new(
+            -v.y * inv_n2 * k.drn_dlat,
+            v.x * inv_m2 * k.drm_dlat,
+            -v.y * sec * sec * inv_n + v.y * tan * inv_n2 * k.drn_dlat,
+        );
+        let dwen_dh = Vector3::new(-v.y * inv_n2, v.x * inv_m2, v.y * tan * inv_n2);
+        let dwen_dv = Matrix3::new(z, inv_n, z, -inv_m, z, z, z, -tan * inv_n, z);
+        // Velocity rows: [V×] δρ with δρ = 2 δω_ie + δω_en.
+        let vx = skew(v);
+        let drho_dlat = dwie_dl * T::lit(2.0) + dwen_dlat;
+        let mut vel_lat = vx * drho_dlat;
+        let mut vel_h = vx * dwen_dh;
+        let rho = k.w_ie * T::lit(2.0) + k.w_en;
+        // Gravity gradient (module earth: g = g0(L)(1 − (c1 + c1' sin²L) h + c2 h²)).
+        let (dg_dlat, dg_dh) = gravity_gradient(k.sin_lat, k.cos_lat, T::lit(pos.alt_m));
+        vel_lat.z += dg_dlat;
+        vel_h.z += dg_dh;
+        Self {
+            f00: -v.x * inv_m2 * k.drm_dlat,
+            f02: -v.x * inv_m2,
+            f03: inv_m,
+            f10: v.y * tan * sec * inv_n - v.y * sec * inv_n2 * k.drn_dlat,
+            f12: -v.y * sec * inv_n2,
+            f14: sec * inv_n,
+            f25: -T::one(),
+            vel_lat,
+            vel_h,
+            vel_vel: vx * dwen_dv - skew(&rho),
+            f_ned: *f_ned_m_s2,
+            c_b_n: *c_b_n,
+            att_lat: dwie_dl + dwen_dlat,
+            att_h: dwen_dh,
+            att_v: Vector3::new(inv_n, -inv_m, -tan * inv_n),
+            w_in: k.w_ie + k.w_en,
+        }
+    }
+
+    /// `G = F Δt` (same layout).
+    pub fn scaled(&self, dt_s: T) -> Self {
+        Self {
+            f00: self.f00 * dt_s,
+            f02: self.f02 * dt_s,
+            f03: self.f03 * dt_s,
+            f10: self.f10 * dt_s,
+            f12: self.f12 * dt_s,
+            f14: self.f14 * dt_s,
+            f25: self.f25 * dt_s,
+            vel_lat: self.vel_lat * dt_s,
+            vel_h: self.vel_h * dt_s,
+            vel_vel: self.vel_vel * dt_s,
+            f_ned: self.f_ned * dt_s,
+            c_b_n: self.c_b_n * dt_s,
+            att_lat: self.att_lat * dt_s,
+            att_h: self.att_h * dt_s,
+            att_v: self.att_v * dt_s,
+            w_in: self.w_in * dt_s,
+        }
+    }
+
+    /// `true` when every entry is finite.
+    pub fn is_finite(&self) -> bool {
+        let zero = T::zero();
+        let acc = (self.f00 + self.f02 + self.f03 + self.f10 + self.f12 + self.f14 + self.f25)
+            * zero
+            + (self.vel_lat
+                + self.vel_h
+                + self.f_ned
+                + self.att_lat
+                + self.att_h
+                + self.att_v
+                + self.w_in)
+                .sum()
+                * zero
+            + (self.vel_vel + self.c_b_n).sum() * zero;
+        acc == zero
+    }
+
+    /// The dense 9×15 block.
+    pub fn to_block(&self) -> FBlock<T> {
+        let mut f = FBlock::<T>::zeros();
+        set(&mut f, 0, 0, self.f00);
+        set(&mut f, 0, 2, self.f02);
+        set(&mut f, 0, 3, self.f03);
+        set(&mut f, 1, 0, self.f10);
+        set(&mut f, 1, 2, self.f12);
+        set(&mut f, 1, 4, self.f14);
+        set(&mut f, 2, 5, self.f25);
+        f.fixed_view_mut::<3, 1>(3, 0).copy_from(&self.vel_lat);
+        f.fixed_view_mut::<3, 1>(3, 2).copy_from(&self.vel_h);
+        f.fixed_view_mut::<3, 3>(3, 3).copy_from(&self.vel_vel);
+        f.fixed_view_mut::<3, 3>(3, 6).copy_from(&skew(&self.f_ned));
+        f.fixed_view_mut::<3, 3>(3, 9).copy_from(&self.c_b_n);
+        f.fixed_view_mut::<3, 1>(6, 0).copy_from(&self.att_lat);
+        f.fixed_view_mut::<3, 1>(6, 2).copy_from(&self.att_h);
+        set(&mut f, 6, 4, self.att_v.x);
+        set(&mut f, 7, 3, self.att_v.y);
+        set(&mut f, 8, 4, self.att_v.z);
+        f.fixed_view_mut::<3, 3>(6, 6)
+            .copy_from(&(-skew(&self.w_in)));
+        f.fixed_view_mut::<3, 3>(6, 12).copy_from(&(-self.c_b_n));
+        f
+    }
+
+    /// `y = F x` for the first 15 entries of `x` (rows 0..9; 61 multiply-adds, written out in
+    /// scalars so that no generic matrix-vector loop runs on the target).
+    #[inline(always)]
+    fn apply(&self, x: &[T; STATES]) -> [T; 9] {
+        let [x0, _x1, x2, x3, x4, x5, a0, a1, a2, b0, b1, b2, e0, e1, e2, _, _] = *x;
+        let m = &self.vel_vel;
+        let c = &self.c_b_n;
+        let f = &self.f_ned;
+        let w = &self.w_in;
+        let (vl, vh, al, ah) = (&self.vel_lat, &self.vel_h, &self.att_lat, &self.att_h);
+        // C x for the accelerometer and gyro bias columns.
+        let cb0 = c.m11 * b0 + c.m12 * b1 + c.m13 * b2;
+        let cb1 = c.m21 * b0 + c.m22 * b1 + c.m23 * b2;
+        let cb2 = c.m31 * b0 + c.m32 * b1 + c.m33 * b2;
+        let ce0 = c.m11 * e0 + c.m12 * e1 + c.m13 * e2;
+        let ce1 = c.m21 * e0 + c.m22 * e1 + c.m23 * e2;
+        let ce2 = c.m31 * e0 + c.m32 * e1 + c.m33 * e2;
+        [
+            self.f00 * x0 + self.f02 * x2 + self.f03 * x3,
+            self.f10 * x0 + self.f12 * x2 + self.f14 * x4,
+            self.f25 * x5,
+            vl.x * x0
+                + vh.x * x2
+                + m.m11 * x3
+                + m.m12 * x4
+                + m.m13 * x5
+                + (f.y * a2 - f.z * a1)
+                + cb0,
+            vl.y * x0
+                + vh.y * x2
+                + m.m21 * x3
+                + m.m22 * x4
+                + m.m23 * x5
+                + (f.z * a0 - f.x * a2)
+                + cb1,
+            vl.z * x0
+                + vh.z * x2
+                + m.m31 * x3
+                + m.m32 * x4
+                + m.m33 * x5
+                + (f.x * a1 - f.y * a0)
+                + cb2,
+            al.x * x0 + ah.x * x2 + self.att_v.x * x4 - (w.y * a2 - w.z * a1) - ce0,
+            al.y * x0 + ah.y * x2 + self.att_v.y * x3 - (w.z * a0 - w.x * a2) - ce1,
+            al.z * x0 + ah.z * x2 + self.att_v.z * x4 - (w.x * a1 - w.y * a0) - ce2,
+        ]
+    }
+
+    /// On `G = F Δt` (from [`SparseF::scaled`]): `A x = (Φ − I) x` with
+    /// `Φ ≈ I + G + ½ G_f G`, rows 0..9. `G_f` keeps the entries of G whose products with G are
+    /// not negligible: velocity → position (`G03`, `G14`, `G25`) and attitude → velocity
+    /// (`[Δt fⁿ×]`). The entries left out of the second-order term are earth rate, transport
+    /// rate, Coriolis and gravity gradient (≤ 1.5e-4 /s), so the dropped part of `½G²` is below
+    /// ≈ 1e-5 of G for Δt ≤ 0.1 s, the size of the third-order remainder already dropped.
+    #[inline(always)]
+    fn apply_transition(&self, x: &[T; STATES]) -> [T; 9] {
+        let w = self.apply(x);
+        let [w0, w1, w2, w3, w4, w5, w6, w7, w8] = w;
+        let half = T::lit(0.5);
+        let f = &self.f_ned;
+        [
+            w0 + half * self.f03 * w3,
+            w1 + half * self.f14 * w4,
+            w2 + half * self.f25 * w5,
+            w3 + half * (f.y * w8 - f.z * w7),
+            w4 + half * (f.z * w6 - f.x * w8),
+            w5 + half * (f.x * w7 - f.y * w6),
+            w6,
+            w7,
+            w8,
+        ]
+    }
+
+    /// Columns 3..9 of G (the ones the white noise enters), rows 0..9, as column arrays.
+    fn noise_columns(&self) -> [[T; 9]; 6] {
+        let z = T::zero();
+        let m = &self.vel_vel;
+        let (f, w, av) = (&self.f_ned, &self.w_in, &self.att_v);
+        [
+            [self.f03, z, z, m.m11, m.m21, m.m31, z, av.y, z],
+            [z, self.f14, z, m.m12, m.m22, m.m32, av.x, z, av.z],
+            [z, z, self.f25, m.m13, m.m23, m.m33, z, z, z],
+            // [f×] and −[w×] columns.
+            [z, z, z, z, f.z, -f.y, z, -w.z, w.y],
+            [z, z, z, -f.z, z, f.x, w.z, z, -w.x],
+            [z, z, z, f.y, -f.x, z, -w.y, w.x, z],
+        ]
+    }
+}
+
+/// Covariance propagation `P ← Φ P Φᵀ + Q_d` over `dt_s` with `Φ = I + A` applied through the
+/// sparse F (`SparseF::apply_transition`, 26 column applications instead of dense 9×15
+/// products) and `Q_d = Q_cΔt + ½Δt (G Q_c + Q_c Gᵀ)`, `G = FΔt`. Only rows and columns 0..9
+/// of P change; the result is exactly symmetric. `q_accel`, `q_gyro`: white-noise PSDs
+/// ((m/s²)²/Hz, (rad/s)²/Hz).
+///
+/// Errors (P unchanged): `InvalidTimeStep`, `NonFiniteInput`,
+/// `CovarianceNotPositiveSemiDefinite` (a negative or non-finite variance would result).
+pub fn propagate_covariance_sparse<T: Real>(
+    p: &mut SMatrix<T, STATES, STATES>,
+    f: &SparseF<T>,
+    dt_s: T,
+    q_accel: T,
+    q_gyro: T,
+) -> Result<(), NavError> {
+    if !dt_s.is_finite() || dt_s <= T::zero() {
+        return Err(NavError::InvalidTimeStep);
+    }
+    let g = f.scaled(dt_s);
+    if !g.is_finite() {
+        return Err(NavError::NonFiniteInput {
+            input: "transition matrix",
+        });
+    }
+    // rows[i] = row i of Φ P (i < 9), 17 entries: column j of Φ P is p_j + A p_j.
+    let zero = T::zero();
+    let mut rows = [[zero; STATES]; 9];
+    for (j, col) in p.as_slice().chunks_exact(STATES).enumerate() {
+        let Ok(x) = <&[T; STATES]>::try_from(col) else {
+            continue;
+        };
+        let y = g.apply_transition(x);
+        for ((row, yi), xi) in rows.iter_mut().zip(y.iter()).zip(x.iter()) {
+            if let Some(dst) = row.get_mut(j) {
+                *dst = *xi + *yi;
+            }
+        }
+    }
+    // corner = (Φ P Φᵀ)[0..9, 0..9]: row i = rows[i][0..9] + (A rows[i])ᵀ (symmetric up to
+    // rounding; symmetrised below). Plain arrays: no strided iterators on the target.
+    let mut cols = [[zero; 9]; 9];
+    for (row, dst) in rows.iter().zip(cols.iter_mut()) {
+        let y = g.apply_transition(row);
+        for ((d, yi), xi) in dst.iter_mut().zip(y.iter()).zip(row.iter()) {
+            *d = *xi + *yi;
+        }
+    }
+    // Q_d on the corner: Q_c Δt + ½Δt (G Q_c + Q_c Gᵀ), Q_c = diag(0, q_a I, q_g I) on 0..9:
+    // gq = ½Δt G Q_c (columns 3..9).
+    let half_dt = T::lit(0.5) * dt_s;
+    let (qa, qg) = (q_accel * half_dt, q_gyro * half_dt);
+    let nc = g.noise_columns();
+    let gq = |r: usize, c: usize| -> T {
+        let q = if c < 6 { qa } else { qg };
+        c.checked_sub(3)
+            .and_then(|k| nc.get(k))
+            .and_then(|col| col.get(r))
+            .map_or(zero, |v| *v * q)
+    };
+    let at = |r: usize, c: usize| -> T {
+        cols.get(c)
+            .and_then(|col| col.get(r))
+            .copied()
+            .unwrap_or(zero)
+    };
+    // Exactly symmetric: ½(C_rc + C_cr) + (gq_rc + gq_cr) + Q_c Δt on the diagonal.
+    let corner: [[T; 9]; 9] = core::array::from_fn(|c| {
+        core::array::from_fn(|r| {
+            let mut v = (at(r, c) + at(c, r)) * T::lit(0.5) + (gq(r, c) + gq(c, r));
+            if r == c && r >= 3 {
+                v += if r < 6 { q_accel } else { q_gyro } * dt_s;
+            }
+            v
+        })
+    });
+    let flat_corner = corner.as_flattened();
+    let probe = flat_corner.iter().fold(zero, |a, v| a + *v * zero)
+        + rows
+            .iter()
+            .flat_map(|row| row.iter().skip(9))
+            .fold(zero, |a, v| a + *v * zero);
+    if probe != zero {
+        return Err(NavError::NonFiniteInput {
+            input: "propagated covariance",
+        });
+    }
+    if corner
+        .iter()
+        .enumerate()
+        .any(|(i, col)| col.get(i).is_none_or(|d| *d < zero))
+    {
+        return Err(NavError::CovarianceNotPositiveSemiDefinite);
+    }
+    // Commit: P[0..9, 9..17] = (Φ P)[0..9, 9..17] (Φᵀ is the identity there), its transpose
+    // P[9..17, 0..9], and the corner. Column by column over P's column-major storage.
+    for (j, col) in p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
+        if let Some(cc) = corner.get(j) {
+            let (top, bottom) = col.split_at_mut(9);
+            top.copy_from_slice(cc);
+            if let Some(row) = rows.get(j) {
+                for (d, v) in bottom.iter_mut().zip(row.iter().skip(9)) {
+                    *d = *v;
+                }
+            }
+        } else {
+            for (d, row) in col.iter_mut().zip(rows.iter()) {
+                if let Some(v) = row.get(j) {
+                    *d = *v;
+                }
+            }
+        }
+    }
+    Ok(())
 }
 
 #[inline]
@@ -131,22 +429,10 @@ fn set<T: Real, const R: usize, const C: usize>(
     }
 }
 
-#[inline]
-fn add<T: Real, const R: usize, const C: usize>(
-    m: &mut SMatrix<T, R, C>,
-    r: usize,
-    c: usize,
-    v: T,
-) {
-    if let Some(x) = m.get_mut((r, c)) {
-        *x += v;
-    }
-}
-
 /// `(∂g/∂L, ∂g/∂h)` of the normal gravity model in [`crate::earth::normal_gravity_m_s2`]
 /// (`g = g0(L) (1 − (c1 + c1' sin²L) h + c2 h²)`, `g0` Somigliana), in closed form:
 /// m/s² per rad and 1/s².
-fn gravity_gradient<T: Real>(lat: T, h: T) -> (T, T) {
+fn gravity_gradient<T: Real>(s: T, c: T, h: T) -> (T, T) {
     use crate::earth::{
         EARTH_RATE_RAD_S, ECCENTRICITY_SQ, FLATTENING, GM_M3_S2, GRAVITY_EQUATOR_M_S2,
         SEMI_MAJOR_AXIS_M, SEMI_MINOR_AXIS_M, SOMIGLIANA_K,
@@ -156,7 +442,6 @@ fn gravity_gradient<T: Real>(lat: T, h: T) -> (T, T) {
     let c1 = T::lit(2.0 / a * (1.0 + FLATTENING + m));
     let c1_lat = T::lit(2.0 / a * (-2.0 * FLATTENING));
     let c2 = T::lit(3.0 / (a * a));
-    let (s, c) = (lat.sin(), lat.cos());
     let s2 = s * s;
     let k = T::lit(SOMIGLIANA_K);
     let e2 = T::lit(ECCENTRICITY_SQ);
@@ -299,6 +584,69 @@ mod tests {
         let before = sparse;
         assert!(propagate_covariance(&mut sparse, &a, -1.0, qa, qg).is_err());
         assert_eq!(sparse, before);
+    }
+
+    /// The sparse propagation (second-order term restricted to the fast couplings) against the
+    /// dense `Φ = I + FΔt + ½(FΔt)²`, on a covariance of physical size: every element within
+    /// 1e-5 of √(P_ii P_jj).
+    #[test]
+    fn sparse_propagation_matches_dense_second_order() {
+        let pos = Position {
+            lat_rad: 0.65,
+            lon_rad: 2.2,
+            alt_m: 1000.0,
+        };
+        let v = Vector3::new(30.0, 200.0, -3.0);
+        let c = crate::math::rotation::euler_to_dcm(0.3, 0.05, 1.4);
+        let f_n = Vector3::new(0.5, 2.0, -9.8);
+        let sf = SparseF::new(&pos, &v, &c, &f_n);
+        let fb = sf.to_block();
+        let sig = [
+            6e-6, 6e-6, 40.0, 10.0, 10.0, 10.0, 0.017, 0.017, 0.087, 1e-3, 1e-3, 1e-3, 5e-8, 5e-8,
+            5e-8, 7e-4, 7e-4,
+        ];
+        let mut l = SMatrix::<f64, 17, 17>::zeros();
+        for i in 0..17 {
+            for j in 0..=i {
+                l[(i, j)] = ((i * 7 + j * 3) % 11) as f64 * 0.05 + if i == j { 1.0 } else { 0.0 };
+            }
+        }
+        let corr = l * l.transpose();
+        let mut p0 = SMatrix::<f64, 17, 17>::zeros();
+        for i in 0..17 {
+            for j in 0..17 {
+                p0[(i, j)] = corr[(i, j)] / (corr[(i, i)] * corr[(j, j)]).sqrt() * sig[i] * sig[j];
+            }
+        }
+        let p0 = (p0 + p0.transpose()) * 0.5;
+        let (qa, qg) = (2.4e-9, 8.5e-13);
+        for dt in [0.01, 0.1, 1.0] {
+            let a = transition_block(&fb, dt);
+            let mut dense = p0;
+            propagate_covariance(&mut dense, &a, dt, qa, qg).unwrap();
+            let mut sparse = p0;
+            propagate_covariance_sparse(&mut sparse, &sf, dt, qa, qg).unwrap();
+            assert_eq!(asymmetry(&sparse), 0.0);
+            for i in 0..17 {
+                for j in 0..17 {
+                    let scale = (dense[(i, i)] * dense[(j, j)]).sqrt();
+                    let tol = if dt <= 0.1 { 1e-5 } else { 1e-3 };
+                    assert!(
+                        (dense[(i, j)] - sparse[(i, j)]).abs() <= tol * scale,
+                        "dt {dt} P[{i},{j}] dense {:e} sparse {:e}",
+                        dense[(i, j)],
+                        sparse[(i, j)]
+                    );
+                }
+            }
+        }
+        // Bad input leaves P untouched.
+        let mut p = p0;
+        assert!(propagate_covariance_sparse(&mut p, &sf, f64::NAN, qa, qg).is_err());
+        assert!(
+            propagate_covariance_sparse(&mut p, &sf.scaled(f64::INFINITY), 0.1, qa, qg).is_err()
+        );
+        assert_eq!(p, p0);
     }
 
     /// F against central finite differences of the nonlinear INS equations: each error

@@ -3,7 +3,7 @@
 //! * [`SeekerIns::propagate`] (every IMU sample): removes the estimated biases from the
 //!   increments, advances the INS ([`super::mechanization`]) and every
 //!   `covariance_interval_steps` samples propagates P over the accumulated interval
-//!   ([`super::error_model::propagate_covariance`], F at the current state and the mean
+//!   ([`super::error_model::propagate_covariance_sparse`], F at the current state and the mean
 //!   specific force of the interval).
 //! * [`SeekerIns::update_los`] (seeker rate): first propagates P over any pending interval,
 //!   then fuses the two LOS residual components ([`super::measurement`]) as sequential scalar
@@ -14,8 +14,7 @@
 //! Every method that returns an error leaves the whole filter exactly as it was.
 
 use super::error_model::{
-    f_block, propagate_covariance, transition_block, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES,
-    VEL,
+    propagate_covariance_sparse, SparseF, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
 };
 use super::measurement::{los_model, los_model_3d, GimbalAngles, Landmark};
 use super::mechanization::{ImuIncrement, Ins, InsState};
@@ -85,6 +84,48 @@ pub struct SeekerIns<T> {
     q_accel: T,
     q_gyro: T,
     config: SeekerInsConfig<T>,
+    counters: LosCounters,
+    recovery: RecoveryPolicy<T>,
+}
+
+/// Counts of what the LOS updates did (each scalar component counts once).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LosCounters {
+    /// Components fused.
+    pub fused: u32,
+    /// Components rejected by the χ² gate.
+    pub rejected: u32,
+    /// Seeker updates in a row in which both components were rejected.
+    pub consecutive_rejections: u32,
+    /// Covariance re-inflations done by the recovery path ([`RecoveryPolicy`]).
+    pub inflations: u32,
+}
+
+/// Recovery when the filter is starved of measurements by its own gate (the estimate drifted
+/// beyond what P admits, so every LOS is rejected): after `max_consecutive_rejections` seeker
+/// updates with both components rejected, P's navigation block (δL … φ, states 0..9) is
+/// re-inflated, `P ← D P D` with `D = diag(√inflation_factor I₉, I₈)` (a congruence: P stays
+/// symmetric PSD, correlations are kept), so that the gate opens again. Loss of lock (no
+/// update calls) needs no recovery: P grows by propagation. Default: 50 updates (5 s at
+/// 10 Hz; a 10 s false lock 2° off causes at most two inflations, σ × 4, still rejected),
+/// factor 4 (σ × 2).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RecoveryPolicy<T> {
+    /// Consecutive fully rejected seeker updates before an inflation (0 disables recovery).
+    pub max_consecutive_rejections: u32,
+    /// Variance factor on the navigation block (> 1).
+    pub inflation_factor: T,
+}
+
+impl<T: Real> Default for RecoveryPolicy<T> {
+    fn default() -> Self {
+        Self {
+            max_consecutive_rejections: 50,
+            inflation_factor: T::lit(4.0),
+        }
+    }
 }
 
 impl<T: Real> PartialEq for SeekerIns<T> {
@@ -97,6 +138,8 @@ impl<T: Real> PartialEq for SeekerIns<T> {
             && self.steps_pending == o.steps_pending
             && self.dv_ned_pending_m_s == o.dv_ned_pending_m_s
             && self.config == o.config
+            && self.counters == o.counters
+            && self.recovery == o.recovery
     }
 }
 
@@ -104,8 +147,9 @@ impl<T: Real> SeekerIns<T> {
     /// Filter at the initial INS state with initial covariance `p0` (units of the error state,
     /// see the module [`super`] doc).
     ///
-    /// Errors: `InvalidConfig` (non-positive interval, densities, σ or gate; zero
-    /// `covariance_interval_steps`), `InvalidTimeStep`, `NonFiniteInput`,
+    /// Errors: `InvalidConfig` (non-positive interval, σ or gate, negative or NaN densities;
+    /// zero `covariance_interval_steps`), `InvalidTimeStep` (interval not in (0, 1] s),
+    /// `NonFiniteInput`, `InputOutOfRange` (a variance of p0 beyond its physical bound),
     /// `CovarianceNotPositiveSemiDefinite` (p0 not symmetric PSD).
     pub fn new(
         config: SeekerInsConfig<T>,
@@ -133,6 +177,21 @@ impl<T: Real> SeekerIns<T> {
         if !p0.iter().all(|v| v.is_finite()) {
             return Err(NavError::NonFiniteInput { input: "p0" });
         }
+        // Physical bounds on the initial variances (units of the error state): position
+        // (1 rad)², altitude (10⁷ m)², velocity (10⁴ m/s)², attitude 10 rad², accelerometer
+        // bias (100 m/s²)², gyro bias (1 rad/s)², gimbal errors 10 rad².
+        const MAX_VARIANCE: [f64; STATES] = [
+            1.0, 1.0, 1e14, 1e8, 1e8, 1e8, 10.0, 10.0, 10.0, 1e4, 1e4, 1e4, 1.0, 1.0, 1.0, 10.0,
+            10.0,
+        ];
+        if p0
+            .diagonal()
+            .iter()
+            .zip(MAX_VARIANCE.iter())
+            .any(|(v, m)| *v > T::lit(*m))
+        {
+            return Err(NavError::InputOutOfRange { input: "p0" });
+        }
         if crate::math::kalman::asymmetry(p0) > T::zero()
             || !crate::math::kalman::is_psd(p0, T::lit(1e-6))
         {
@@ -152,7 +211,32 @@ impl<T: Real> SeekerIns<T> {
             q_accel: a * a,
             q_gyro: g * g,
             config,
+            counters: LosCounters::default(),
+            recovery: RecoveryPolicy::default(),
         })
+    }
+
+    /// Counters of fused / rejected LOS components and recovery inflations.
+    pub fn counters(&self) -> LosCounters {
+        self.counters
+    }
+
+    /// The recovery policy in force.
+    pub fn recovery_policy(&self) -> RecoveryPolicy<T> {
+        self.recovery
+    }
+
+    /// Replaces the recovery policy. Errors (filter unchanged): `InvalidConfig` when the factor
+    /// is not finite and > 1.
+    pub fn set_recovery_policy(&mut self, policy: RecoveryPolicy<T>) -> Result<(), NavError> {
+        if !policy.inflation_factor.is_finite() || policy.inflation_factor <= T::one() {
+            return Err(NavError::InvalidConfig {
+                field: "inflation_factor",
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
+        self.recovery = policy;
+        Ok(())
     }
 
     /// The configuration.
@@ -258,96 +342,244 @@ impl<T: Real> SeekerIns<T> {
         let dt_total = config.imu_dt_s * T::lit(f64::from(steps));
         let f_ned = dv_ned_m_s / dt_total;
         let s = ins.state();
-        let f = f_block(&s.position, &s.vel_ned_m_s, &ins.c_b_n(), &f_ned);
-        let a = transition_block(&f, dt_total);
-        propagate_covariance(p, &a, dt_total, q_accel, q_gyro)
+        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &ins.c_b_n(), &f_ned);
+        propagate_covariance_sparse(p, &f, dt_total, q_accel, q_gyro)
     }
 
     /// Fuses one pair of measured gimbal angles (rad) to the configured landmark.
     ///
     /// Each of the two residual components is gated separately (χ², 1 dof); the report says
-    /// which were fused. Errors (filter unchanged): `NonFiniteInput`, `InputOutOfRange`,
+    /// which were fused, [`SeekerIns::counters`] counts them, and [`RecoveryPolicy`] re-inflates
+    /// P when the gate starves the filter. Errors (filter unchanged): `NonFiniteInput`,
+    /// `InputOutOfRange` (gimbal pitch beyond ±80°, landmark closer than 1 m),
     /// `InnovationVarianceNotPositive`, `CovarianceNotPositiveSemiDefinite`.
+    ///
+    /// With P propagated up to date (the usual case at the seeker rate) the update works in
+    /// place with no copy of P: the two scalar updates are computed as rank-one terms
+    /// `P⁺ = P − k₁K₁ᵀ − k₂K₂ᵀ` (`k = P⁻h`, `K = k/s`), checked (variances stay ≥ 0, all
+    /// finite, feedback valid) and only then applied. With IMU samples pending, P is first
+    /// propagated on a copy of the filter (more stack) and committed with the update.
     pub fn update_los(&mut self, measured: &GimbalAngles<T>) -> Result<LosReport<T>, NavError> {
+        if self.steps_pending > 0 {
+            return self.update_los_pending(measured);
+        }
+        self.update_los_now(measured)
+    }
+
+    #[inline(never)]
+    fn update_los_pending(&mut self, measured: &GimbalAngles<T>) -> Result<LosReport<T>, NavError> {
         let mut next = *self;
         next.predict_covariance()?;
+        let report = next.update_los_now(measured)?;
+        *self = next;
+        Ok(report)
+    }
+
+    fn update_los_now(&mut self, measured: &GimbalAngles<T>) -> Result<LosReport<T>, NavError> {
         let corrected = GimbalAngles {
-            pitch_rad: measured.pitch_rad - next.gimbal_bias_rad.x,
-            yaw_rad: measured.yaw_rad - next.gimbal_bias_rad.y,
+            pitch_rad: measured.pitch_rad - self.gimbal_bias_rad.x,
+            yaw_rad: measured.yaw_rad - self.gimbal_bias_rad.y,
         };
-        let s = next.ins.state();
+        let s = self.ins.state();
         let gate = Gate::Nis(self.config.gate_nis);
-        let mut x = SVector::<T, STATES>::zeros();
-        let c_b_n = next.ins.c_b_n();
-        let (pitch, yaw, range_m, any_fused) = match self.config.residual {
-            LosResidual::Projected2d => {
-                let model = los_model(
-                    &s.position,
-                    &c_b_n,
-                    &corrected,
-                    &self.config.landmark,
-                    self.config.seeker_noise_rad,
-                )?;
-                let pitch = fuse_scalar(
-                    &mut x,
-                    &mut next.p,
-                    &model.h_pitch,
-                    model.residual_rad.x,
-                    model.variance_rad2.x,
-                    gate,
-                )?;
-                let nu_yaw = model.residual_rad.y - model.h_yaw.dot(&x);
-                let yaw = fuse_scalar(
-                    &mut x,
-                    &mut next.p,
-                    &model.h_yaw,
-                    nu_yaw,
-                    model.variance_rad2.y,
-                    gate,
-                )?;
-                let fused =
-                    pitch.outcome == FusionOutcome::Fused || yaw.outcome == FusionOutcome::Fused;
-                (pitch, yaw, model.range_m, fused)
+        let c_b_n = self.ins.c_b_n();
+        if self.config.residual == LosResidual::FullRank3d {
+            return self.update_los_3d(&corrected, &c_b_n, gate);
+        }
+        let model = los_model(
+            &s.position,
+            &c_b_n,
+            &corrected,
+            &self.config.landmark,
+            self.config.seeker_noise_rad,
+        )?;
+        let zero = T::zero();
+        let p = &self.p;
+        // k = P h over the 8 non-zero entries of h (columns 0..3, 6..9, 15..17 of P).
+        let ph = |h: &SVector<T, STATES>| -> [T; STATES] {
+            let mut k = [zero; STATES];
+            for (col, hj) in p.as_slice().chunks_exact(STATES).zip(h.iter()) {
+                if *hj != zero {
+                    for (ki, pij) in k.iter_mut().zip(col) {
+                        *ki += *hj * *pij;
+                    }
+                }
             }
-            LosResidual::FullRank3d => {
-                let model = los_model_3d(
-                    &s.position,
-                    &c_b_n,
-                    &corrected,
-                    &self.config.landmark,
-                    self.config.seeker_noise_rad,
-                )?;
-                let r = model.variance_rad2;
-                let n = fuse_scalar(
-                    &mut x,
-                    &mut next.p,
-                    &model.h_north,
-                    model.residual.x,
-                    r,
-                    gate,
-                )?;
-                let nu_e = model.residual.y - model.h_east.dot(&x);
-                let e = fuse_scalar(&mut x, &mut next.p, &model.h_east, nu_e, r, gate)?;
-                let nu_d = model.residual.z - model.h_down.dot(&x);
-                let d = fuse_scalar(&mut x, &mut next.p, &model.h_down, nu_d, r, gate)?;
-                let fused = [n, e, d].iter().any(|c| c.outcome == FusionOutcome::Fused);
-                (n, e, model.range_m, fused)
-            }
+            k
         };
-        if any_fused {
-            next.feed_back(&x)?;
+        let dot = |a: &[T; STATES], h: &SVector<T, STATES>| -> T {
+            a.iter()
+                .zip(h.iter())
+                .fold(zero, |acc, (x, y)| acc + *x * *y)
+        };
+        // Component 1 (pitch direction).
+        let h1 = &model.h_pitch;
+        let k1 = ph(h1);
+        let (rep1, inv_s1) = scalar_report(
+            dot(&k1, h1),
+            model.variance_rad2.x,
+            model.residual_rad.x,
+            gate,
+        )?;
+        let fused1 = rep1.outcome == FusionOutcome::Fused;
+        // Component 2 (yaw direction), against P after component 1: k₂ = P h₂ − k₁ (K₁·h₂).
+        let h2 = &model.h_yaw;
+        let mut k2 = ph(h2);
+        let mut x = [zero; STATES];
+        let mut kk1 = [zero; STATES];
+        if fused1 {
+            let c = dot(&k1, h2) * inv_s1;
+            let it = k2
+                .iter_mut()
+                .zip(k1.iter())
+                .zip(x.iter_mut())
+                .zip(kk1.iter_mut());
+            for (((k2i, k1i), xi), kk) in it {
+                *k2i -= *k1i * c;
+                *kk = *k1i * inv_s1;
+                *xi = *kk * rep1.innovation;
+            }
+        }
+        let nu2 =
+            model.residual_rad.y - h2.iter().zip(x.iter()).fold(zero, |a, (h, v)| a + *h * *v);
+        let (rep2, inv_s2) = scalar_report(dot(&k2, h2), model.variance_rad2.y, nu2, gate)?;
+        let fused2 = rep2.outcome == FusionOutcome::Fused;
+        let mut kk2 = [zero; STATES];
+        if fused2 {
+            for ((kk, k2i), xi) in kk2.iter_mut().zip(k2.iter()).zip(x.iter_mut()) {
+                *kk = *k2i * inv_s2;
+                *xi += *kk * rep2.innovation;
+            }
+        }
+        let report = LosReport {
+            pitch: rep1,
+            yaw: rep2,
+            range_m: model.range_m,
+        };
+        if !(fused1 || fused2) {
+            self.note_rejection();
+            return Ok(report);
+        }
+        // Check before anything changes: variances stay ≥ 0 and everything is finite.
+        let updated = |i: usize, j: usize, pij: T| -> T {
+            let g = |a: &[T; STATES], i: usize| a.get(i).copied().unwrap_or(zero);
+            pij - g(&k1, i) * g(&kk1, j) - g(&k2, i) * g(&kk2, j)
+        };
+        for (i, col) in p.as_slice().chunks_exact(STATES).enumerate() {
+            let d = updated(i, i, col.get(i).copied().unwrap_or(zero));
+            if !d.is_finite() || d < zero {
+                return Err(NavError::CovarianceNotPositiveSemiDefinite);
+            }
+        }
+        let xv = SVector::<T, STATES>::from(x);
+        // Feedback first: it is atomic (the INS validates before it changes) and only P, which
+        // cannot fail any more, follows.
+        self.feed_back_parts(&xv)?;
+        // P: upper triangle, mirrored (exactly symmetric).
+        for j in 0..STATES {
+            for i in 0..=j {
+                if let Some(v) = self.p.get((i, j)).copied() {
+                    let u = updated(i, j, v);
+                    if let Some(d) = self.p.get_mut((i, j)) {
+                        *d = u;
+                    }
+                    if let Some(d) = self.p.get_mut((j, i)) {
+                        *d = u;
+                    }
+                }
+            }
+        }
+        self.counters.fused = self
+            .counters
+            .fused
+            .saturating_add(u32::from(fused1) + u32::from(fused2));
+        self.counters.rejected = self
+            .counters
+            .rejected
+            .saturating_add(u32::from(!fused1) + u32::from(!fused2));
+        self.counters.consecutive_rejections = 0;
+        Ok(report)
+    }
+
+    /// Both components rejected: count, and re-inflate P per [`RecoveryPolicy`].
+    fn note_rejection(&mut self) {
+        let c = &mut self.counters;
+        c.rejected = c.rejected.saturating_add(2);
+        c.consecutive_rejections = c.consecutive_rejections.saturating_add(1);
+        let max = self.recovery.max_consecutive_rejections;
+        if max > 0 && c.consecutive_rejections >= max {
+            let f = self.recovery.inflation_factor;
+            let sf = f.sqrt();
+            for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
+                for (i, v) in col.iter_mut().enumerate() {
+                    match (i < 9, j < 9) {
+                        (true, true) => *v *= f,
+                        (false, false) => {}
+                        _ => *v *= sf,
+                    }
+                }
+            }
+            c.consecutive_rejections = 0;
+            c.inflations = c.inflations.saturating_add(1);
+        }
+    }
+
+    /// The comparison variant: three scalar updates with the shared `fuse_scalar` on a copy
+    /// (not inlined: its copy of the filter stays out of the 2-D path's stack frame).
+    #[inline(never)]
+    fn update_los_3d(
+        &mut self,
+        corrected: &GimbalAngles<T>,
+        c_b_n: &nalgebra::Matrix3<T>,
+        gate: Gate<T>,
+    ) -> Result<LosReport<T>, NavError> {
+        let mut next = *self;
+        let s = next.ins.state();
+        let model = los_model_3d(
+            &s.position,
+            c_b_n,
+            corrected,
+            &self.config.landmark,
+            self.config.seeker_noise_rad,
+        )?;
+        let mut x = SVector::<T, STATES>::zeros();
+        let r = model.variance_rad2;
+        let n = fuse_scalar(
+            &mut x,
+            &mut next.p,
+            &model.h_north,
+            model.residual.x,
+            r,
+            gate,
+        )?;
+        let nu_e = model.residual.y - model.h_east.dot(&x);
+        let e = fuse_scalar(&mut x, &mut next.p, &model.h_east, nu_e, r, gate)?;
+        let nu_d = model.residual.z - model.h_down.dot(&x);
+        let d = fuse_scalar(&mut x, &mut next.p, &model.h_down, nu_d, r, gate)?;
+        let fused = [n, e, d]
+            .iter()
+            .filter(|c| c.outcome == FusionOutcome::Fused)
+            .count() as u32;
+        if fused > 0 {
+            next.feed_back_parts(&x)?;
+            next.counters.fused = next.counters.fused.saturating_add(fused);
+            next.counters.rejected = next.counters.rejected.saturating_add(3 - fused);
+            next.counters.consecutive_rejections = 0;
+        } else {
+            next.note_rejection();
         }
         *self = next;
         Ok(LosReport {
-            pitch,
-            yaw,
-            range_m,
+            pitch: n,
+            yaw: e,
+            range_m: model.range_m,
         })
     }
 
     /// Closed-loop feedback of δx and reset (δx = 0 afterwards; P is kept: the reset of an
-    /// additive error state is the identity to first order).
-    fn feed_back(&mut self, x: &SVector<T, STATES>) -> Result<(), NavError> {
+    /// additive error state is the identity to first order). Atomic: on error (corrected
+    /// position invalid) nothing changed.
+    fn feed_back_parts(&mut self, x: &SVector<T, STATES>) -> Result<(), NavError> {
         let v3 = |i: usize| x.fixed_rows::<3>(i).into_owned();
         let dp = v3(POS);
         self.ins.correct(
@@ -362,4 +594,46 @@ impl<T: Real> SeekerIns<T> {
         self.gimbal_bias_rad += x.fixed_rows::<2>(GIMBAL);
         Ok(())
     }
+}
+
+/// Innovation variance, NIS and χ² gate of one scalar component with `hᵀPh = hph`: the report
+/// and `1/s`. Errors: `InnovationVarianceNotPositive` (s not finite and > 0, or hᵀPh < 0).
+fn scalar_report<T: Real>(
+    hph: T,
+    r: T,
+    innovation: T,
+    gate: Gate<T>,
+) -> Result<(FusionReport<T>, T), NavError> {
+    let s = hph + r;
+    if !s.is_finite() || s <= T::zero() || hph < T::zero() || !innovation.is_finite() {
+        return Err(NavError::InnovationVarianceNotPositive);
+    }
+    let inv_s = T::one() / s;
+    let nis = innovation * innovation * inv_s;
+    let (test_ratio, rejected) = match gate {
+        Gate::Off => (T::zero(), false),
+        Gate::Nis(threshold) => {
+            let ratio = nis / threshold;
+            // A NaN ratio or a non-positive threshold rejects.
+            let within = matches!(
+                ratio.partial_cmp(&T::one()),
+                Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
+            );
+            (ratio, !within || threshold <= T::zero())
+        }
+    };
+    Ok((
+        FusionReport {
+            innovation,
+            innovation_variance: s,
+            nis,
+            test_ratio,
+            outcome: if rejected {
+                FusionOutcome::Rejected
+            } else {
+                FusionOutcome::Fused
+            },
+        },
+        inv_s,
+    ))
 }

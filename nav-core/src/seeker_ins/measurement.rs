@@ -37,7 +37,7 @@
 //!    so `z ≈ [H1 0 H3 0 0 H6] δx + v` (seed eq. 4 with its sign convention).
 
 use super::error_model::{ATT, GIMBAL, POS, STATES};
-use super::mechanization::{Kinematics, Position};
+use super::mechanization::{sin_cos, Kinematics, Position};
 use crate::earth::{transverse_radius_m, ECCENTRICITY_SQ};
 use crate::math::rotation::skew;
 use crate::{NavError, Real};
@@ -118,15 +118,29 @@ impl<T: Real> Landmark<T> {
 /// WGS-84 ellipsoid: ECEF difference, rotated into NED).
 pub fn landmark_vector_ned<T: Real>(pos: &Position, lm: &Landmark<T>) -> Vector3<T> {
     let lat = T::lit(pos.lat_rad);
-    let (sl, cl) = (lat.sin(), lat.cos());
-    let rn = transverse_radius_m(lat);
+    let (sl, cl) = sin_cos(lat);
+    let rn = T::lit(crate::earth::SEMI_MAJOR_AXIS_M)
+        / (T::one() - T::lit(ECCENTRICITY_SQ) * sl * sl).sqrt();
     let h = T::lit(pos.alt_m);
     // ECEF rotated about z by −l_vehicle: vehicle in the x-z plane.
-    let dlon = T::lit(lm.position.lon_rad - pos.lon_rad);
-    let dx = lm.axis_distance_m * dlon.cos() - (rn + h) * cl;
-    let dy = lm.axis_distance_m * dlon.sin();
+    let dlon = T::lit(wrap_pi(lm.position.lon_rad - pos.lon_rad));
+    let (sdl, cdl) = sin_cos(dlon);
+    let dx = lm.axis_distance_m * cdl - (rn + h) * cl;
+    let dy = lm.axis_distance_m * sdl;
     let dz = lm.ecef_z_m - (rn * T::lit(1.0 - ECCENTRICITY_SQ) + h) * sl;
     Vector3::new(-sl * dx + cl * dz, dy, -cl * dx - sl * dz)
+}
+
+/// Longitude difference wrapped into [−π, π] (one f64 compare in the common case).
+fn wrap_pi(x: f64) -> f64 {
+    use core::f64::consts::PI;
+    if x > PI {
+        x - 2.0 * PI
+    } else if x < -PI {
+        x + 2.0 * PI
+    } else {
+        x
+    }
 }
 
 /// The linearised LOS measurement at the current estimate.
@@ -153,7 +167,7 @@ pub struct LosModel<T> {
 /// Builds the residual, H and R (module doc) at the INS position `pos`, attitude `c_b_n`
 /// and bias-corrected gimbal angles, for a seeker white noise `sigma_rad` (1σ per angle, rad).
 ///
-/// Errors: `NonFiniteInput`, `InputOutOfRange` (|θ_s| > 80°, range < 1 m, σ ≤ 0).
+/// Errors: `NonFiniteInput`, `InputOutOfRange` (|θ_s| > 80°, |ψ_s| > π, range < 1 m, σ ≤ 0).
 pub fn los_model<T: Real>(
     pos: &Position,
     c_b_n: &Matrix3<T>,
@@ -171,6 +185,11 @@ pub fn los_model<T: Real>(
             input: "gimbal pitch",
         });
     }
+    if gimbal.yaw_rad.abs() > T::lit(core::f64::consts::PI) {
+        return Err(NavError::InputOutOfRange {
+            input: "gimbal yaw",
+        });
+    }
     if !sigma_rad.is_finite() || sigma_rad <= T::zero() {
         return Err(NavError::InputOutOfRange {
             input: "seeker noise sigma",
@@ -184,8 +203,8 @@ pub fn los_model<T: Real>(
         });
     }
     let e_l = d / range;
-    let (st, ct) = (gimbal.pitch_rad.sin(), gimbal.pitch_rad.cos());
-    let (sp, cp) = (gimbal.yaw_rad.sin(), gimbal.yaw_rad.cos());
+    let (st, ct) = sin_cos(gimbal.pitch_rad);
+    let (sp, cp) = sin_cos(gimbal.yaw_rad);
     let e_g = c_b_n * Vector3::new(ct * cp, ct * sp, -st);
     let n_th = c_b_n * Vector3::new(-st * cp, -st * sp, -ct);
     let n_ps = c_b_n * Vector3::new(-sp, cp, T::zero());

@@ -31,7 +31,7 @@
 //! `f32` latitude resolves only ≈ 0.4 m near 37° and accumulates rounding over hours); only
 //! the per-step increments are computed in `T`, then added in `f64`.
 
-use crate::earth::{normal_gravity_m_s2, radii_m, EARTH_RATE_RAD_S};
+use crate::earth::{normal_gravity_m_s2, EARTH_RATE_RAD_S};
 use crate::math::rotation::{quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm};
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, Quaternion, Vector3, Vector4};
@@ -127,10 +127,13 @@ impl<T: Real> Kinematics<T> {
     pub(crate) fn new(pos: &Position, v: &Vector3<T>) -> Self {
         let lat = T::lit(pos.lat_rad);
         let h = T::lit(pos.alt_m);
-        let (sin_lat, cos_lat) = (lat.sin(), lat.cos());
-        let (rm, rn) = radii_m(lat);
+        let (sin_lat, cos_lat) = sin_cos(lat);
         let e2 = T::lit(crate::earth::ECCENTRICITY_SQ);
-        let d_inv = T::one() / (T::one() - e2 * sin_lat * sin_lat);
+        let d = T::one() - e2 * sin_lat * sin_lat;
+        let d_inv = T::one() / d;
+        // Radii as crate::earth::radii_m, from sin L (no second sin).
+        let rn = T::lit(crate::earth::SEMI_MAJOR_AXIS_M) / d.sqrt();
+        let rm = rn * T::lit(1.0 - crate::earth::ECCENTRICITY_SQ) * d_inv;
         let sc = e2 * sin_lat * cos_lat * d_inv;
         let rm_h = rm + h;
         let rn_h = rn + h;
@@ -149,6 +152,56 @@ impl<T: Real> Kinematics<T> {
             w_en: Vector3::new(v.y * inv_n, -v.x * inv_m, -v.y * tan_lat * inv_n),
         }
     }
+}
+
+/// `(sin x, cos x)`. In `f32` for |x| ≤ 1.6 rad (latitudes, gimbal angles) by Taylor
+/// polynomials to x¹⁵ / x¹⁶ (truncation < 1e-9, below f32 rounding) instead of libm's `sinf`,
+/// which works in `f64` (software floating point on a Cortex-M4F, ≈ 1 200 instructions a call).
+/// `f64` and larger |x|: the library functions.
+#[inline]
+pub(crate) fn sin_cos<T: Real>(x: T) -> (T, T) {
+    if T::EPS > T::lit(1e-10) && x.abs() <= T::lit(1.6) {
+        let x2 = x * x;
+        let l = |v: f64| T::lit(v);
+        let s = x
+            * (T::one()
+                + x2 * (l(-1.0 / 6.0)
+                    + x2 * (l(1.0 / 120.0)
+                        + x2 * (l(-1.0 / 5040.0)
+                            + x2 * (l(1.0 / 362_880.0)
+                                + x2 * (l(-1.0 / 39_916_800.0)
+                                    + x2 * (l(1.0 / 6_227_020_800.0)
+                                        + x2 * l(-1.0 / 1_307_674_368_000.0))))))));
+        let c = T::one()
+            + x2 * (l(-0.5)
+                + x2 * (l(1.0 / 24.0)
+                    + x2 * (l(-1.0 / 720.0)
+                        + x2 * (l(1.0 / 40_320.0)
+                            + x2 * (l(-1.0 / 3_628_800.0)
+                                + x2 * (l(1.0 / 479_001_600.0)
+                                    + x2 * (l(-1.0 / 87_178_291_200.0)
+                                        + x2 * l(1.0 / 20_922_789_888_000.0))))))));
+        (s, c)
+    } else {
+        (x.sin(), x.cos())
+    }
+}
+
+/// Normal gravity as [`crate::earth::normal_gravity_m_s2`], from `sin L` (no trig call).
+pub(crate) fn normal_gravity_from_sin<T: Real>(sin_lat: T, alt_m: T) -> T {
+    use crate::earth::{
+        ECCENTRICITY_SQ, FLATTENING, GM_M3_S2, GRAVITY_EQUATOR_M_S2, SEMI_MAJOR_AXIS_M,
+        SEMI_MINOR_AXIS_M, SOMIGLIANA_K,
+    };
+    let s2 = sin_lat * sin_lat;
+    let g0 = T::lit(GRAVITY_EQUATOR_M_S2) * (T::one() + T::lit(SOMIGLIANA_K) * s2)
+        / (T::one() - T::lit(ECCENTRICITY_SQ) * s2).sqrt();
+    let a = SEMI_MAJOR_AXIS_M;
+    let m = EARTH_RATE_RAD_S * EARTH_RATE_RAD_S * a * a * SEMI_MINOR_AXIS_M / GM_M3_S2;
+    let c1 = T::lit(2.0 / a * (1.0 + FLATTENING + m));
+    let c1_lat = T::lit(2.0 / a * (-2.0 * FLATTENING));
+    let c2 = T::lit(3.0 / (a * a));
+    g0 * (T::one() - (c1 + c1_lat * s2) * alt_m + c2 * alt_m * alt_m)
 }
 
 /// Strapdown INS (mechanization only; the filter corrects it through [`Ins::correct`]).
@@ -268,7 +321,7 @@ impl<T: Real> Ins<T> {
         let c = unit_dcm(&s.q_b_n);
         let dv_n0 = c * dv_b;
         let dv_n = dv_n0 - zeta.cross(&dv_n0) * half;
-        let g = normal_gravity_m_s2(T::lit(s.position.lat_rad), T::lit(s.position.alt_m));
+        let g = normal_gravity_from_sin(k.sin_lat, T::lit(s.position.alt_m));
         let coriolis = (k.w_ie * T::lit(2.0) + k.w_en).cross(&v);
         let mut dv_total = dv_n - coriolis * dt;
         dv_total.z += g * dt;
