@@ -162,7 +162,7 @@ pub fn fuse_scalar<T: Real, const N: usize>(
         }
     }
     let dx = k * innovation;
-    if !dx.as_slice().iter().all(|v| finite(*v)) {
+    if !all_finite(dx.as_slice()) {
         return Err(NavError::NonFiniteInput {
             input: "state correction",
         });
@@ -316,35 +316,45 @@ fn joseph_pass<T: Real, const N: usize>(
     b: &SVector<T, N>,
     c: &SVector<T, N>,
 ) {
-    let flat = p.as_mut_slice();
-    for (j, ((&kj, &cj), &bj)) in k
-        .as_slice()
-        .iter()
-        .zip(c.as_slice().iter())
-        .zip(b.as_slice().iter())
-        .enumerate()
-    {
-        let (left, right) = flat.split_at_mut(j * N);
-        let Some(colj) = right.get_mut(..N) else {
+    let ([ks], [bs], [cs]) = (&k.data.0, &b.data.0, &c.data.0);
+    // Column arrays ([[T; N]; N], column-major): indices below N are provably in range.
+    let cols = &mut p.data.0;
+    for j in 0..N {
+        let (Some(&kj), Some(&cj), Some(&bj)) = (ks.get(j), cs.get(j), bs.get(j)) else {
             break;
         };
-        // Rows i < j of column j, mirrored into row j of column i.
-        for (((pij, col_i), &ki), &bi) in colj
-            .iter_mut()
-            .zip(left.chunks_exact_mut(N))
-            .zip(k.as_slice().iter())
-            .zip(b.as_slice().iter())
-        {
-            let nv = *pij + ki * cj - bi * kj;
-            *pij = nv;
-            if let Some(m) = col_i.get_mut(j) {
-                *m = nv;
+        // Rows i < j of column j (upper triangle), each value also written to row j of
+        // column i.
+        for i in 0..j {
+            let (Some(&ki), Some(&bi)) = (ks.get(i), bs.get(i)) else {
+                break;
+            };
+            let Some(pij) = cols.get(j).and_then(|c| c.get(i)).copied() else {
+                break;
+            };
+            let nv = pij + ki * cj - bi * kj;
+            if let Some(v) = cols.get_mut(j).and_then(|c| c.get_mut(i)) {
+                *v = nv;
+            }
+            if let Some(v) = cols.get_mut(i).and_then(|c| c.get_mut(j)) {
+                *v = nv;
             }
         }
-        if let Some(pjj) = colj.get_mut(j) {
+        if let Some(pjj) = cols.get_mut(j).and_then(|c| c.get_mut(j)) {
             *pjj = *pjj + kj * cj - bj * kj;
         }
     }
+}
+
+/// `true` if every value is finite: `Σ vᵢ·0` is 0 unless some vᵢ is NaN or ±∞ (one compare
+/// instead of a classification per element on the target).
+#[inline(always)]
+fn all_finite<T: Real>(v: &[T]) -> bool {
+    let mut z = T::zero();
+    for &x in v {
+        z += x * T::zero();
+    }
+    z == T::zero()
 }
 
 fn check_scalar_inputs<T: Real>(innovation: T, r: T) -> Result<(), NavError> {
@@ -435,19 +445,22 @@ fn check_diagonal<T: Real, const N: usize>(
     b: &SVector<T, N>,
     c: &SVector<T, N>,
 ) -> Result<(), NavError> {
-    let inf = T::lit(f64::INFINITY);
-    for (((&ki, &bi), &ci), pii) in k
-        .as_slice()
-        .iter()
-        .zip(b.as_slice().iter())
-        .zip(c.as_slice().iter())
-        .zip(p.as_slice().iter().step_by(N + 1))
-    {
-        let d = *pii + ki * ci - bi * ki;
-        // Plain comparisons (NaN fails both): 0 ≤ d < ∞.
-        if !(d >= T::zero() && d < inf) {
-            return Err(NavError::CovarianceNotPositiveSemiDefinite);
+    let ([ks], [bs], [cs]) = (&k.data.0, &b.data.0, &c.data.0);
+    // One compare per element; ±∞ and NaN make the sum non-finite.
+    let mut negative = false;
+    let mut sum = T::zero();
+    for (i, col) in p.data.0.iter().enumerate() {
+        if let (Some(&ki), Some(&bi), Some(&ci), Some(&pii)) =
+            (ks.get(i), bs.get(i), cs.get(i), col.get(i))
+        {
+            let d = pii + ki * ci - bi * ki;
+            // `d < 0` misses NaN, but NaN also makes `sum` non-finite.
+            negative |= d < T::zero();
+            sum += d;
         }
+    }
+    if negative || !all_finite(&[sum]) {
+        return Err(NavError::CovarianceNotPositiveSemiDefinite);
     }
     Ok(())
 }

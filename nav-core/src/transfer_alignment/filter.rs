@@ -453,17 +453,21 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
 
     /// Predicts `n` steps from the current covariance into the scratch buffer (a copy if n = 0).
     fn predict_to_scratch(&mut self, x: &mut SVector<T, N>, n: u32) {
-        let chains = self.chains;
-        let (cur, scratch) = self.buffers();
+        // Borrow the fields separately: no copy of the chains.
+        let Self {
+            chains, p, second, ..
+        } = self;
+        let [a, b] = p;
+        let (cur, scratch) = if *second { (&*b, a) } else { (&*a, b) };
         if n == 0 {
             scratch.copy_from(cur);
             return;
         }
-        Self::predict_state(&chains, x);
-        Self::predict_cov(&chains, Some(cur), scratch);
+        Self::predict_state(chains, x);
+        Self::predict_cov(chains, Some(cur), scratch);
         for _ in 1..n {
-            Self::predict_state(&chains, x);
-            Self::predict_cov(&chains, None, scratch);
+            Self::predict_state(chains, x);
+            Self::predict_cov(chains, None, scratch);
         }
     }
 
