@@ -227,13 +227,11 @@ pub fn recoveries(cfg: &FaultConfig, t_tag: &[f64], rms: &[f64]) -> Vec<Recovery
     out
 }
 
+/// Summary, master time tags (s), ensemble RMS of |θ error| and mean filter σ (mrad).
+pub type FaultAnalysis = (Value, Vec<f64>, Vec<f64>, Vec<f64>);
+
 /// Runs the Monte Carlo and the analysis; returns the summary, `t_tag` and the RMS / σ series.
-pub fn analyse(
-    cfg: &FaultConfig,
-    runs: usize,
-    seed: u64,
-    progress: bool,
-) -> Result<(Value, Vec<f64>, Vec<f64>, Vec<f64>)> {
+pub fn analyse(cfg: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Result<FaultAnalysis> {
     let res: Vec<Result<FaultRun>> =
         monte_carlo("fault-transfer", runs, seed, progress, |_, rng| {
             run_once(cfg, rng)
