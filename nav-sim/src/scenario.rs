@@ -63,6 +63,7 @@ pub static REGISTRY: &[Kind] = &[
     crate::scenarios::transfer_alignment::KIND_CASE,
     crate::scenarios::transfer_alignment::KIND_MODEL_ERROR,
     crate::scenarios::transfer_alignment::KIND_OBSERVABILITY,
+    crate::scenarios::transfer_alignment::fault::KIND_FAULT,
     crate::scenarios::seeker_ins::KIND,
     crate::scenarios::vertical_channel::KIND_RESPONSE,
     crate::scenarios::vertical_channel::KIND_MONTECARLO,

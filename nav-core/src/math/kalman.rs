@@ -74,12 +74,12 @@ pub fn fuse_scalar<T: Real, const N: usize>(
     r: T,
     gate: Gate<T>,
 ) -> Result<FusionReport<T>, NavError> {
-    if !innovation.is_finite() {
+    if !finite(innovation) {
         return Err(NavError::NonFiniteInput {
             input: "innovation",
         });
     }
-    if !r.is_finite() {
+    if !finite(r) {
         return Err(NavError::NonFiniteInput {
             input: "measurement variance",
         });
@@ -89,7 +89,7 @@ pub fn fuse_scalar<T: Real, const N: usize>(
             input: "measurement variance",
         });
     }
-    if !h.iter().all(|v| v.is_finite()) {
+    if !h.as_slice().iter().all(|v| finite(*v)) {
         return Err(NavError::NonFiniteInput {
             input: "measurement row h",
         });
@@ -106,7 +106,7 @@ pub fn fuse_scalar<T: Real, const N: usize>(
     }
     let hph = h.dot(&b);
     let s = hph + r;
-    if !s.is_finite() || s <= T::zero() || hph < T::zero() {
+    if !finite(s) || s <= T::zero() || hph < T::zero() {
         return Err(NavError::InnovationVarianceNotPositive);
     }
     let inv_s = T::one() / s;
@@ -157,33 +157,319 @@ pub fn fuse_scalar<T: Real, const N: usize>(
     {
         let pii = col.get(i).copied().unwrap_or_else(T::zero);
         let d = pii + ki * ci - bi * ki;
-        if !d.is_finite() || d < T::zero() {
+        if !finite(d) || d < T::zero() {
             return Err(NavError::CovarianceNotPositiveSemiDefinite);
         }
     }
     let dx = k * innovation;
-    if !dx.iter().all(|v| v.is_finite()) {
+    if !all_finite(dx.as_slice()) {
         return Err(NavError::NonFiniteInput {
             input: "state correction",
         });
     }
-    // Upper triangle (rows i ≤ j of column j; P is column-major), then mirror: P stays exactly
-    // symmetric and the work is N(N+1)/2 elements.
-    for (j, (((col, &kj), &cj), _)) in p
-        .as_mut_slice()
-        .chunks_exact_mut(N)
-        .zip(ks)
-        .zip(cs)
-        .zip(bs)
-        .enumerate()
-    {
-        for ((pij, &ki), &bi) in col.iter_mut().take(j + 1).zip(ks).zip(bs) {
-            *pij = *pij + ki * cj - bi * kj;
-        }
-    }
-    mirror_upper_to_lower(p);
+    // Upper triangle (rows i ≤ j of column j), each value written to both triangles: P stays
+    // exactly symmetric and the work is N(N+1)/2 elements.
+    joseph_pass(p, &k, &b, &c);
     *x += dx;
     Ok(report(FusionOutcome::Fused))
+}
+
+/// A measurement row `h` stored by its non-zero entries: `index[..len]` (strictly ascending,
+/// each < N) and `value[..len]`. At most `M` entries.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SparseRow<T, const M: usize> {
+    /// Column indices of the stored entries (strictly ascending).
+    pub index: [usize; M],
+    /// Values of the stored entries, in the measurement's unit per state unit.
+    pub value: [T; M],
+    /// Number of stored entries (≤ M).
+    pub len: usize,
+}
+
+impl<T: Real, const M: usize> SparseRow<T, M> {
+    /// An empty row (h = 0).
+    pub fn new() -> Self {
+        Self {
+            index: [0; M],
+            value: [T::zero(); M],
+            len: 0,
+        }
+    }
+
+    /// Appends the entry `(index, value)`; `CapacityExceeded` when full. Indices must be pushed
+    /// in strictly ascending order ([`fuse_scalar_sparse`] checks).
+    pub fn push(&mut self, index: usize, value: T) -> Result<(), NavError> {
+        match (self.index.get_mut(self.len), self.value.get_mut(self.len)) {
+            (Some(i), Some(v)) => {
+                *i = index;
+                *v = value;
+                self.len += 1;
+                Ok(())
+            }
+            _ => Err(NavError::CapacityExceeded),
+        }
+    }
+
+    /// The stored `(index, value)` pairs.
+    pub fn entries(&self) -> impl Iterator<Item = (usize, T)> + Clone + '_ {
+        self.index
+            .iter()
+            .copied()
+            .zip(self.value.iter().copied())
+            .take(self.len)
+    }
+
+    /// `hᵀ v`, summed in ascending index order.
+    pub fn dot<const N: usize>(&self, v: &SVector<T, N>) -> T {
+        let mut acc = T::zero();
+        for (j, hj) in self.entries() {
+            acc += hj * v.get(j).copied().unwrap_or_else(T::zero);
+        }
+        acc
+    }
+
+    /// The dense row (for tests and analysis).
+    pub fn to_dense<const N: usize>(&self) -> SVector<T, N> {
+        let mut h = SVector::<T, N>::zeros();
+        for (j, hj) in self.entries() {
+            if let Some(e) = h.get_mut(j) {
+                *e = hj;
+            }
+        }
+        h
+    }
+}
+
+impl<T: Real, const M: usize> Default for SparseRow<T, M> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// [`fuse_scalar`] for a sparse row: the same Joseph-form update, gate, report, exact symmetry
+/// and refusal without damage, with `b = P h` computed from the `len` stored columns only and
+/// the upper triangle written to both triangles in one pass (no separate mirror).
+///
+/// Errors: those of [`fuse_scalar`], and `InputOutOfRange` if an index is ≥ N or the indices
+/// are not strictly ascending.
+pub fn fuse_scalar_sparse<T: Real, const N: usize, const M: usize>(
+    x: &mut SVector<T, N>,
+    p: &mut SMatrix<T, N, N>,
+    h: &SparseRow<T, M>,
+    innovation: T,
+    r: T,
+    gate: Gate<T>,
+) -> Result<FusionReport<T>, NavError> {
+    check_scalar_inputs(innovation, r)?;
+    let mut prev: Option<usize> = None;
+    for (j, hj) in h.entries() {
+        if !finite(hj) {
+            return Err(NavError::NonFiniteInput {
+                input: "measurement row h",
+            });
+        }
+        if j >= N || prev.is_some_and(|q| q >= j) {
+            return Err(NavError::InputOutOfRange {
+                input: "measurement row index",
+            });
+        }
+        prev = Some(j);
+    }
+    // b = P h from the stored columns (P is column-major: column j is contiguous).
+    let mut b = SVector::<T, N>::zeros();
+    for (j, hj) in h.entries() {
+        if hj != T::zero() {
+            if let Some(col) = p.as_slice().get(j * N..j * N + N) {
+                for (bi, &pij) in b.as_mut_slice().iter_mut().zip(col) {
+                    *bi += hj * pij;
+                }
+            }
+        }
+    }
+    let hph = h.dot(&b);
+    let s = hph + r;
+    let (report, k, c) = match gain(innovation, hph, s, &b, gate)? {
+        GainOutcome::Rejected(rep) => return Ok(rep),
+        GainOutcome::Fuse { report, k, c } => (report, k, c),
+    };
+    check_diagonal(p, &k, &b, &c)?;
+    let dx = k * innovation;
+    let inf = T::lit(f64::INFINITY);
+    if !dx.as_slice().iter().all(|v| v.abs() < inf) {
+        return Err(NavError::NonFiniteInput {
+            input: "state correction",
+        });
+    }
+    joseph_pass(p, &k, &b, &c);
+    *x += dx;
+    Ok(report)
+}
+
+/// `P⁺_ij = P_ij + k_i c_j − b_i k_j` on the upper triangle (i ≤ j, column j of the
+/// column-major storage), each value also written to (j, i): exactly symmetric, N(N+1)/2
+/// elements, no separate mirror pass.
+#[inline(always)]
+fn joseph_pass<T: Real, const N: usize>(
+    p: &mut SMatrix<T, N, N>,
+    k: &SVector<T, N>,
+    b: &SVector<T, N>,
+    c: &SVector<T, N>,
+) {
+    let ([ks], [bs], [cs]) = (&k.data.0, &b.data.0, &c.data.0);
+    // Column arrays ([[T; N]; N], column-major): indices below N are provably in range.
+    let cols = &mut p.data.0;
+    for j in 0..N {
+        let (Some(&kj), Some(&cj), Some(&bj)) = (ks.get(j), cs.get(j), bs.get(j)) else {
+            break;
+        };
+        // Rows i < j of column j (upper triangle), each value also written to row j of
+        // column i.
+        for i in 0..j {
+            let (Some(&ki), Some(&bi)) = (ks.get(i), bs.get(i)) else {
+                break;
+            };
+            let Some(pij) = cols.get(j).and_then(|c| c.get(i)).copied() else {
+                break;
+            };
+            let nv = pij + ki * cj - bi * kj;
+            if let Some(v) = cols.get_mut(j).and_then(|c| c.get_mut(i)) {
+                *v = nv;
+            }
+            if let Some(v) = cols.get_mut(i).and_then(|c| c.get_mut(j)) {
+                *v = nv;
+            }
+        }
+        if let Some(pjj) = cols.get_mut(j).and_then(|c| c.get_mut(j)) {
+            *pjj = *pjj + kj * cj - bj * kj;
+        }
+    }
+}
+
+/// `true` if every value is finite: `Σ vᵢ·0` is 0 unless some vᵢ is NaN or ±∞ (one compare
+/// instead of a classification per element on the target).
+#[inline(always)]
+fn all_finite<T: Real>(v: &[T]) -> bool {
+    let mut z = T::zero();
+    for &x in v {
+        z += x * T::zero();
+    }
+    z == T::zero()
+}
+
+fn check_scalar_inputs<T: Real>(innovation: T, r: T) -> Result<(), NavError> {
+    if !finite(innovation) {
+        return Err(NavError::NonFiniteInput {
+            input: "innovation",
+        });
+    }
+    if !finite(r) {
+        return Err(NavError::NonFiniteInput {
+            input: "measurement variance",
+        });
+    }
+    if r <= T::zero() {
+        return Err(NavError::InputOutOfRange {
+            input: "measurement variance",
+        });
+    }
+    Ok(())
+}
+
+enum GainOutcome<T: Real, const N: usize> {
+    Rejected(FusionReport<T>),
+    Fuse {
+        report: FusionReport<T>,
+        k: SVector<T, N>,
+        c: SVector<T, N>,
+    },
+}
+
+/// Innovation variance checks, gate, gain k = b / s and c = s k − b.
+#[inline(always)]
+fn gain<T: Real, const N: usize>(
+    innovation: T,
+    hph: T,
+    s: T,
+    b: &SVector<T, N>,
+    gate: Gate<T>,
+) -> Result<GainOutcome<T, N>, NavError> {
+    if !finite(s) || s <= T::zero() || hph < T::zero() {
+        return Err(NavError::InnovationVarianceNotPositive);
+    }
+    let inv_s = T::one() / s;
+    let nis = innovation * innovation * inv_s;
+    let (test_ratio, rejected) = match gate {
+        Gate::Off => (T::zero(), false),
+        Gate::Nis(threshold) => {
+            let ratio = nis / threshold;
+            let within = matches!(
+                ratio.partial_cmp(&T::one()),
+                Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
+            );
+            (ratio, !within || threshold <= T::zero())
+        }
+    };
+    let report = |outcome| FusionReport {
+        innovation,
+        innovation_variance: s,
+        nis,
+        test_ratio,
+        outcome,
+    };
+    if rejected {
+        return Ok(GainOutcome::Rejected(report(FusionOutcome::Rejected)));
+    }
+    let k = b * inv_s;
+    let mut c = SVector::<T, N>::zeros();
+    for ((cj, &kj), &bj) in c
+        .as_mut_slice()
+        .iter_mut()
+        .zip(k.as_slice().iter())
+        .zip(b.as_slice().iter())
+    {
+        *cj = s * kj - bj;
+    }
+    Ok(GainOutcome::Fuse {
+        report: report(FusionOutcome::Fused),
+        k,
+        c,
+    })
+}
+
+/// Refuses the update if a diagonal element of P⁺ would be negative or non-finite.
+#[inline(always)]
+fn check_diagonal<T: Real, const N: usize>(
+    p: &SMatrix<T, N, N>,
+    k: &SVector<T, N>,
+    b: &SVector<T, N>,
+    c: &SVector<T, N>,
+) -> Result<(), NavError> {
+    let ([ks], [bs], [cs]) = (&k.data.0, &b.data.0, &c.data.0);
+    // One compare per element; ±∞ and NaN make the sum non-finite.
+    let mut negative = false;
+    let mut sum = T::zero();
+    for (i, col) in p.data.0.iter().enumerate() {
+        if let (Some(&ki), Some(&bi), Some(&ci), Some(&pii)) =
+            (ks.get(i), bs.get(i), cs.get(i), col.get(i))
+        {
+            let d = pii + ki * ci - bi * ki;
+            // `d < 0` misses NaN, but NaN also makes `sum` non-finite.
+            negative |= d < T::zero();
+            sum += d;
+        }
+    }
+    if negative || !all_finite(&[sum]) {
+        return Err(NavError::CovarianceNotPositiveSemiDefinite);
+    }
+    Ok(())
+}
+
+/// `true` for a finite value (NaN fails the comparison); cheaper on the target than the
+/// generic `is_finite`.
+#[inline(always)]
+fn finite<T: Real>(v: T) -> bool {
+    v.abs() < T::lit(f64::INFINITY)
 }
 
 /// Copies the upper triangle of a square matrix onto its lower triangle.
@@ -329,6 +615,70 @@ mod tests {
             fuse_scalar(&mut x, &mut bad, &h, 1.0, 1.0, Gate::Off),
             Err(NavError::InnovationVarianceNotPositive)
         );
+    }
+
+    fn sparse_matches_dense<T: Real>(tol: f64) {
+        use nalgebra::{SMatrix, SVector};
+        // A full SPD 7×7 P and a row with 3 non-zeros.
+        let a = SMatrix::<f64, 7, 7>::from_fn(|i, j| ((i * 7 + j) as f64 * 0.37).sin());
+        let p64 = a * a.transpose() + SMatrix::<f64, 7, 7>::identity() * 0.5;
+        let p0: SMatrix<T, 7, 7> = p64.map(T::lit);
+        let x0 = SVector::<T, 7>::from_fn(|i, _| T::lit(0.1 * i as f64));
+        let mut row = SparseRow::<T, 4>::new();
+        row.push(1, T::lit(0.7)).unwrap();
+        row.push(4, T::lit(-1.3)).unwrap();
+        row.push(6, T::lit(2.0)).unwrap();
+        let hd: SVector<T, 7> = row.to_dense();
+        let (mut xd, mut pd) = (x0, p0);
+        let (mut xs, mut ps) = (x0, p0);
+        let rd = fuse_scalar(&mut xd, &mut pd, &hd, T::lit(0.3), T::lit(0.2), Gate::Off).unwrap();
+        let rs = fuse_scalar_sparse(&mut xs, &mut ps, &row, T::lit(0.3), T::lit(0.2), Gate::Off)
+            .unwrap();
+        assert_eq!(rs.outcome, FusionOutcome::Fused);
+        let rel = |a: T, b: T| ((a - b).abs() / (a.abs() + T::lit(1e-30))).to_f64();
+        assert!(rel(rd.innovation_variance, rs.innovation_variance) < tol);
+        assert!((pd - ps).abs().max().to_f64() < tol * 10.0);
+        assert!((xd - xs).abs().max().to_f64() < tol);
+        assert_eq!(asymmetry(&ps), T::zero());
+        // Gate rejection and bad rows leave the state untouched.
+        let (x1, p1) = (xs, ps);
+        let rep = fuse_scalar_sparse(
+            &mut xs,
+            &mut ps,
+            &row,
+            T::lit(100.0),
+            T::lit(0.2),
+            Gate::Nis(T::lit(9.0)),
+        )
+        .unwrap();
+        assert_eq!(rep.outcome, FusionOutcome::Rejected);
+        let mut bad = row;
+        bad.index[1] = 0; // not ascending
+        assert!(fuse_scalar_sparse(&mut xs, &mut ps, &bad, T::one(), T::one(), Gate::Off).is_err());
+        let mut bad = row;
+        bad.index[2] = 7; // out of range
+        assert!(fuse_scalar_sparse(&mut xs, &mut ps, &bad, T::one(), T::one(), Gate::Off).is_err());
+        let mut bad = row;
+        bad.value[0] = T::lit(f64::NAN);
+        assert!(fuse_scalar_sparse(&mut xs, &mut ps, &bad, T::one(), T::one(), Gate::Off).is_err());
+        assert!(
+            fuse_scalar_sparse(&mut xs, &mut ps, &row, T::one(), T::zero(), Gate::Off).is_err()
+        );
+        let mut neg = ps;
+        neg[(1, 1)] = T::lit(-1e3);
+        assert!(
+            fuse_scalar_sparse(&mut xs, &mut neg, &row, T::one(), T::one(), Gate::Off).is_err()
+        );
+        assert_eq!((xs, ps), (x1, p1));
+        let mut full = SparseRow::<T, 1>::new();
+        full.push(0, T::one()).unwrap();
+        assert_eq!(full.push(1, T::one()), Err(NavError::CapacityExceeded));
+    }
+
+    #[test]
+    fn sparse_update_matches_dense_f32_f64() {
+        sparse_matches_dense::<f64>(1e-13);
+        sparse_matches_dense::<f32>(2e-5);
     }
 
     #[test]

@@ -13,10 +13,12 @@
 //!   blocks, upper triangle only, mirrored;
 //! - H rows are sparse (fuse_scalar skips the zero columns);
 //! - all work is done on copies and committed at the end: an error leaves the filter untouched.
-use super::measurement::{h_row, measurement, MasterSample, SlaveSample};
+use super::measurement::{h_row_sparse, measurement, MasterSample, SlaveSample};
 use super::model::{axis_chains, axis_index, to_spec_order, AxisChain, AxisFlexure, FlexureModel};
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
-use crate::math::kalman::{fuse_scalar, FusionReport, Gate};
+#[allow(unused_imports)]
+use crate::math::kalman::fuse_scalar;
+use crate::math::kalman::{fuse_scalar_sparse, FusionOutcome, FusionReport, Gate};
 use crate::math::rotation::exp_so3;
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
@@ -93,27 +95,199 @@ pub struct StepReport<T> {
     pub updates: [FusionReport<T>; 6],
 }
 
+/// Largest |ω_m|, |ω_s| accepted per axis, rad/s (≈ 2 900 °/s, above any tactical gyro's range).
+pub const MAX_ANGULAR_RATE_RAD_S: f64 = 50.0;
+/// Largest |ω̇_m| accepted per axis, rad/s².
+pub const MAX_ANGULAR_ACCEL_RAD_S2: f64 = 1.0e4;
+/// Largest |f_m|, |f_s| accepted per axis, m/s² (≈ 200 g).
+pub const MAX_SPECIFIC_FORCE_M_S2: f64 = 2.0e3;
+
+/// Recovery from measurement starvation by the χ² gate (see [`TransferAlignment::health`]).
+///
+/// When one measurement channel has been rejected by the gate at `reset_after_rejections`
+/// consecutive epochs, the filter concludes that its covariance is too small for what it sees
+/// (a fault it did not model, or a transient that left it overconfident) and re-inflates it:
+/// P ← P0 (the initial covariance: σ_m² on θ_m, the stationary flexure covariance), the flexure
+/// states are reset to their prior mean 0, θ_m keeps its estimate. The reset is counted in
+/// [`TaHealth::covariance_resets`]. `None` disables it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct RecoveryPolicy {
+    /// Consecutive gated epochs of one channel that trigger the covariance reset (≥ 1).
+    pub reset_after_rejections: Option<u32>,
+}
+
+impl Default for RecoveryPolicy {
+    /// Reset after 50 consecutive rejections of a channel (0.5 s at 100 Hz).
+    fn default() -> Self {
+        Self {
+            reset_after_rejections: Some(50),
+        }
+    }
+}
+
+/// Counters of what the gate and the recovery did (channels dω_X..Z, df_X..Z).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TaHealth {
+    /// Measurements rejected by the χ² gate since construction, per channel.
+    pub rejected: [u32; 6],
+    /// Current run of consecutive rejections, per channel.
+    pub consecutive_rejected: [u32; 6],
+    /// Covariance resets done by the [`RecoveryPolicy`].
+    pub covariance_resets: u32,
+}
+
 /// Transfer-alignment filter with `K` states per axis chain and `N = 3 K` states.
 /// Use [`ConventionalFilter`] (K = 3) or [`ProposedFilter`] (K = 4).
-#[derive(Debug, Clone)]
+///
+/// The covariance is double-buffered: a step predicts from the current buffer into the other
+/// one, fuses there, and only then makes it current, so an error leaves the filter untouched
+/// without copying P. The `Debug` output shows the state (current buffer only).
+#[derive(Clone)]
 pub struct TransferAlignment<T: Real, const K: usize, const N: usize> {
     cfg: TaConfig<T>,
     model: FlexureModel,
     chains: [AxisChain<T, K>; 3],
     /// State, axis-major.
     x: SVector<T, N>,
-    /// Covariance, axis-major.
-    p: SMatrix<T, N, N>,
+    /// Covariance, axis-major: `p[cur]` is current, the other one scratch.
+    p: [SMatrix<T, N, N>; 2],
+    second: bool,
     r_rate: T,
     r_accel: T,
     inv_dt: T,
     time_s: Option<T>,
+    recovery: RecoveryPolicy,
+    health: TaHealth,
+}
+
+impl<T: Real, const K: usize, const N: usize> core::fmt::Debug for TransferAlignment<T, K, N> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("TransferAlignment")
+            .field("cfg", &self.cfg)
+            .field("model", &self.model)
+            .field("chains", &self.chains)
+            .field("x", &self.x)
+            .field("p", self.p_cur())
+            .field("r_rate", &self.r_rate)
+            .field("r_accel", &self.r_accel)
+            .field("inv_dt", &self.inv_dt)
+            .field("time_s", &self.time_s)
+            .field("recovery", &self.recovery)
+            .field("health", &self.health)
+            .finish()
+    }
 }
 
 /// The conventional 9-state filter (2nd-order Markov flexure, seed eq. 5).
 pub type ConventionalFilter<T> = TransferAlignment<T, 3, 9>;
 /// The proposed 12-state filter (3rd-order Markov flexure with θ̈_f, seed eqs. 12-14).
 pub type ProposedFilter<T> = TransferAlignment<T, 4, 12>;
+
+#[inline(always)]
+fn at<T: Real, const K: usize>(m: &SMatrix<T, K, K>, r: usize, c: usize) -> T {
+    m.get((r, c)).copied().unwrap_or_else(T::zero)
+}
+
+#[inline(always)]
+fn put<T: Real, const K: usize>(m: &mut SMatrix<T, K, K>, r: usize, c: usize, v: T) {
+    if let Some(e) = m.get_mut((r, c)) {
+        *e = v;
+    }
+}
+
+/// `Φ_a S Φ_bᵀ` for one K×K block, using Φ = blockdiag(1, Φ_f) (θ_m is a random constant: the
+/// first row and column of every chain's Φ are e₁, exactly, since F has a zero first row and
+/// column). `upper` computes only the upper triangle of the flexure part and mirrors it (for a
+/// diagonal block, which is symmetric).
+#[inline(always)]
+fn propagate_block<T: Real, const K: usize>(
+    pa: &SMatrix<T, K, K>,
+    pb: &SMatrix<T, K, K>,
+    s: &SMatrix<T, K, K>,
+    upper: bool,
+) -> SMatrix<T, K, K> {
+    // t_mj = Σ_{n≥1} S_mn Φb_jn (j ≥ 1): S Φ_bᵀ without the θ_m column.
+    let mut t = SMatrix::<T, K, K>::zeros();
+    for j in 1..K {
+        for m in 0..K {
+            let mut acc = T::zero();
+            for n in 1..K {
+                acc += at(s, m, n) * at(pb, j, n);
+            }
+            put(&mut t, m, j, acc);
+        }
+    }
+    let mut d = SMatrix::<T, K, K>::zeros();
+    put(&mut d, 0, 0, at(s, 0, 0));
+    for j in 1..K {
+        put(&mut d, 0, j, at(&t, 0, j));
+    }
+    for i in 1..K {
+        if upper {
+            put(&mut d, i, 0, at(&t, 0, i));
+        } else {
+            let mut acc = T::zero();
+            for m in 1..K {
+                acc += at(pa, i, m) * at(s, m, 0);
+            }
+            put(&mut d, i, 0, acc);
+        }
+        let j0 = if upper { i } else { 1 };
+        for j in j0..K {
+            let mut acc = T::zero();
+            for m in 1..K {
+                acc += at(pa, i, m) * at(&t, m, j);
+            }
+            put(&mut d, i, j, acc);
+            if upper {
+                put(&mut d, j, i, acc);
+            }
+        }
+    }
+    d
+}
+
+/// Time stamp checks shared by [`TransferAlignment::step`] and
+/// [`TransferAlignment::propagate`]: the number of `dt_s` steps from `last` to `time_s`.
+fn steps_between<T: Real>(
+    cfg: &TaConfig<T>,
+    inv_dt: T,
+    last: Option<T>,
+    time_s: T,
+) -> Result<u32, NavError> {
+    let Some(t0) = last else {
+        return Ok(0);
+    };
+    let dt = time_s - t0;
+    if dt <= T::zero() {
+        return Err(NavError::TimeNotIncreasing);
+    }
+    let steps = (dt * inv_dt).round();
+    if !steps.is_finite()
+        || steps < T::one()
+        || steps > T::lit(f64::from(cfg.max_gap_steps))
+        || (dt - steps * cfg.dt_s).abs() > cfg.time_tolerance_s
+    {
+        return Err(NavError::InvalidTimeStep);
+    }
+    // 1 ≤ steps ≤ max_gap_steps (a u32): the loop ends and the conversion is exact.
+    let mut n = 0u32;
+    while T::lit(f64::from(n)) < steps {
+        n += 1;
+    }
+    Ok(n)
+}
+
+fn in_range3<T: Real>(input: &'static str, v: &Vector3<T>, limit: f64) -> Result<(), NavError> {
+    let lim = T::lit(limit);
+    if v.as_slice().iter().all(|c| c.abs() <= lim) {
+        Ok(())
+    } else {
+        Err(NavError::InputOutOfRange { input })
+    }
+}
 
 impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// Validates the configuration, discretises the per-axis chains at `dt_s` and starts from
@@ -122,21 +296,79 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         let model = FlexureModel::for_dims::<K, N>()?;
         cfg.validate()?;
         let chains = axis_chains::<T, K>(&cfg.flexure, &cfg.mount_sigma_rad, cfg.dt_s)?;
-        let mut p = SMatrix::<T, N, N>::zeros();
-        for (a, ch) in chains.iter().enumerate() {
-            p.fixed_view_mut::<K, K>(K * a, K * a).copy_from(&ch.p0);
+        let p = Self::initial_covariance(&chains);
+        let r_rate = cfg.rate_noise_sigma_rad_s * cfg.rate_noise_sigma_rad_s;
+        let r_accel = cfg.accel_noise_sigma_m_s2 * cfg.accel_noise_sigma_m_s2;
+        let inv_dt = T::one() / cfg.dt_s;
+        // Squares of tiny or huge σ can underflow or overflow: refuse rather than run with
+        // R = 0 or ∞.
+        for (field, v) in [
+            ("rate_noise_sigma_rad_s", r_rate),
+            ("accel_noise_sigma_m_s2", r_accel),
+            ("dt_s", inv_dt),
+        ] {
+            if !(v.is_finite() && v > T::zero()) {
+                return Err(NavError::InvalidConfig {
+                    field,
+                    issue: ConfigIssue::OutOfRange,
+                });
+            }
+        }
+        if !p.iter().all(|v| v.is_finite())
+            || !chains
+                .iter()
+                .all(|c| c.phi.iter().chain(c.q_d.iter()).all(|v| v.is_finite()))
+        {
+            return Err(NavError::InvalidConfig {
+                field: "flexure",
+                issue: ConfigIssue::OutOfRange,
+            });
         }
         Ok(Self {
             cfg,
             model,
             chains,
             x: SVector::zeros(),
-            p,
-            r_rate: cfg.rate_noise_sigma_rad_s * cfg.rate_noise_sigma_rad_s,
-            r_accel: cfg.accel_noise_sigma_m_s2 * cfg.accel_noise_sigma_m_s2,
-            inv_dt: T::one() / cfg.dt_s,
+            p: [p, p],
+            second: false,
+            r_rate,
+            r_accel,
+            inv_dt,
             time_s: None,
+            recovery: RecoveryPolicy::default(),
+            health: TaHealth::default(),
         })
+    }
+
+    fn initial_covariance(chains: &[AxisChain<T, K>; 3]) -> SMatrix<T, N, N> {
+        let mut p = SMatrix::<T, N, N>::zeros();
+        for (a, ch) in chains.iter().enumerate() {
+            p.fixed_view_mut::<K, K>(K * a, K * a).copy_from(&ch.p0);
+        }
+        p
+    }
+
+    /// Sets the recovery policy (default [`RecoveryPolicy::default`]); `InvalidConfig` for a
+    /// zero count.
+    pub fn set_recovery(&mut self, policy: RecoveryPolicy) -> Result<(), NavError> {
+        if policy.reset_after_rejections == Some(0) {
+            return Err(NavError::InvalidConfig {
+                field: "reset_after_rejections",
+                issue: ConfigIssue::NotPositive,
+            });
+        }
+        self.recovery = policy;
+        Ok(())
+    }
+
+    /// The recovery policy in force.
+    pub fn recovery(&self) -> RecoveryPolicy {
+        self.recovery
+    }
+
+    /// Gate rejection and reset counters.
+    pub fn health(&self) -> TaHealth {
+        self.health
     }
 
     /// The configuration in force.
@@ -159,37 +391,130 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         self.time_s
     }
 
-    /// One prediction over `dt_s` on (x, P) (axis-major): per axis `x_a ← Φ_a x_a`; per pair of
-    /// axes `P_ab ← Φ_a P_ab Φ_bᵀ (+ Q_d,a if a = b)`, upper triangle, mirrored.
-    fn predict_into(&self, x: &mut SVector<T, N>, p: &mut SMatrix<T, N, N>) {
-        for (a, ch) in self.chains.iter().enumerate() {
-            let xa = ch.phi * x.fixed_rows::<K>(K * a);
-            x.fixed_rows_mut::<K>(K * a).copy_from(&xa);
+    fn p_cur(&self) -> &SMatrix<T, N, N> {
+        let [a, b] = &self.p;
+        if self.second {
+            b
+        } else {
+            a
         }
-        for (a, ca) in self.chains.iter().enumerate() {
-            for (b, cb) in self.chains.iter().enumerate().skip(a) {
-                let blk = p.fixed_view::<K, K>(K * a, K * b);
-                let mut next = ca.phi * blk * cb.phi.transpose();
+    }
+
+    /// (current, scratch) covariance buffers.
+    fn buffers(&mut self) -> (&SMatrix<T, N, N>, &mut SMatrix<T, N, N>) {
+        let [a, b] = &mut self.p;
+        if self.second {
+            (&*b, a)
+        } else {
+            (&*a, b)
+        }
+    }
+
+    /// One prediction over `dt_s`: `x_a ← Φ_a x_a` per axis and, per pair of axes a ≤ b,
+    /// `P_ab ← Φ_a P_ab Φ_bᵀ (+ Q_d,a if a = b)` written to both (a, b) and (b, a) of `dst`,
+    /// reading `src` (which may hold the same values as `dst`: each block is read before it is
+    /// written and read only once).
+    fn predict_cov(
+        chains: &[AxisChain<T, K>; 3],
+        src: Option<&SMatrix<T, N, N>>,
+        dst: &mut SMatrix<T, N, N>,
+    ) {
+        for (a, ca) in chains.iter().enumerate() {
+            for (b, cb) in chains.iter().enumerate().skip(a) {
+                let s: SMatrix<T, K, K> = match src {
+                    Some(m) => m.fixed_view::<K, K>(K * a, K * b).into_owned(),
+                    None => dst.fixed_view::<K, K>(K * a, K * b).into_owned(),
+                };
+                let mut next = propagate_block(&ca.phi, &cb.phi, &s, a == b);
                 if a == b {
                     next += ca.q_d;
-                    next = (next + next.transpose()) * T::lit(0.5);
                 } else {
-                    p.fixed_view_mut::<K, K>(K * b, K * a)
+                    dst.fixed_view_mut::<K, K>(K * b, K * a)
                         .copy_from(&next.transpose());
                 }
-                p.fixed_view_mut::<K, K>(K * a, K * b).copy_from(&next);
+                dst.fixed_view_mut::<K, K>(K * a, K * b).copy_from(&next);
             }
         }
     }
 
+    fn predict_state(chains: &[AxisChain<T, K>; 3], x: &mut SVector<T, N>) {
+        for (a, ch) in chains.iter().enumerate() {
+            let xa = ch.phi * x.fixed_rows::<K>(K * a);
+            x.fixed_rows_mut::<K>(K * a).copy_from(&xa);
+        }
+    }
+
+    /// One prediction on (x, P) in place (tests).
+    #[cfg(test)]
+    fn predict_into(&self, x: &mut SVector<T, N>, p: &mut SMatrix<T, N, N>) {
+        Self::predict_state(&self.chains, x);
+        Self::predict_cov(&self.chains, None, p);
+    }
+
+    /// Predicts `n` steps from the current covariance into the scratch buffer (a copy if n = 0).
+    fn predict_to_scratch(&mut self, x: &mut SVector<T, N>, n: u32) {
+        // Borrow the fields separately: no copy of the chains.
+        let Self {
+            chains, p, second, ..
+        } = self;
+        let [a, b] = p;
+        let (cur, scratch) = if *second { (&*b, a) } else { (&*a, b) };
+        if n == 0 {
+            scratch.copy_from(cur);
+            return;
+        }
+        Self::predict_state(chains, x);
+        Self::predict_cov(chains, Some(cur), scratch);
+        for _ in 1..n {
+            Self::predict_state(chains, x);
+            Self::predict_cov(chains, None, scratch);
+        }
+    }
+
+    /// Checks the physical range of the inputs (`InputOutOfRange`; limits
+    /// [`MAX_ANGULAR_RATE_RAD_S`], [`MAX_ANGULAR_ACCEL_RAD_S2`], [`MAX_SPECIFIC_FORCE_M_S2`]).
+    fn check_ranges(master: &MasterSample<T>, slave: &SlaveSample<T>) -> Result<(), NavError> {
+        in_range3(
+            "master.angular_rate_rad_s",
+            &master.angular_rate_rad_s,
+            MAX_ANGULAR_RATE_RAD_S,
+        )?;
+        in_range3(
+            "master.angular_accel_rad_s2",
+            &master.angular_accel_rad_s2,
+            MAX_ANGULAR_ACCEL_RAD_S2,
+        )?;
+        in_range3(
+            "master.specific_force_m_s2",
+            &master.specific_force_m_s2,
+            MAX_SPECIFIC_FORCE_M_S2,
+        )?;
+        in_range3(
+            "slave.angular_rate_rad_s",
+            &slave.angular_rate_rad_s,
+            MAX_ANGULAR_RATE_RAD_S,
+        )?;
+        in_range3(
+            "slave.specific_force_m_s2",
+            &slave.specific_force_m_s2,
+            MAX_SPECIFIC_FORCE_M_S2,
+        )
+    }
+
     /// Processes one epoch: checks the inputs and time stamps, predicts from the previous epoch
     /// (once per elapsed `dt_s`; none at the first epoch), then fuses the six scalar
-    /// measurements. On error the filter is unchanged.
+    /// measurements ([`fuse_scalar_sparse`], the sparse form of [`fuse_scalar`]). On error the
+    /// filter is unchanged (bit for bit).
     ///
-    /// Errors: `NonFiniteInput`, `TimeNotIncreasing`, `InvalidTimeStep` (step not a whole
-    /// number of `dt_s` within the tolerance, or a gap above `max_gap_steps`),
-    /// `MeasurementTimeOutOfWindow` (master and slave time stamps differ by more than the
-    /// tolerance), and the errors of [`fuse_scalar`].
+    /// Errors: `NonFiniteInput`, `InputOutOfRange` (an input beyond the `MAX_*` limits),
+    /// `TimeNotIncreasing`, `InvalidTimeStep` (step not a whole number of `dt_s` within the
+    /// tolerance, or a gap above `max_gap_steps`; bridge longer master dropouts with
+    /// [`Self::propagate`]), `MeasurementTimeOutOfWindow` (master and slave time stamps differ
+    /// by more than the tolerance; match delayed master data with a
+    /// [`super::SlaveHistory`]), and the numerical refusals of [`fuse_scalar`].
+    ///
+    /// A measurement rejected by the χ² gate is reported (`Rejected`) and counted in
+    /// [`Self::health`]; see [`RecoveryPolicy`] for what happens when a channel is starved.
     pub fn step(
         &mut self,
         master: &MasterSample<T>,
@@ -197,38 +522,22 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     ) -> Result<StepReport<T>, NavError> {
         master.validate()?;
         slave.validate()?;
-        let tol = self.cfg.time_tolerance_s;
-        if (master.time_s - slave.time_s).abs() > tol {
+        Self::check_ranges(master, slave)?;
+        if (master.time_s - slave.time_s).abs() > self.cfg.time_tolerance_s {
             return Err(NavError::MeasurementTimeOutOfWindow);
         }
-        let predictions = match self.time_s {
-            None => 0,
-            Some(t0) => {
-                let dt = slave.time_s - t0;
-                if dt <= T::zero() {
-                    return Err(NavError::TimeNotIncreasing);
-                }
-                let steps = (dt * self.inv_dt).round();
-                if steps < T::one()
-                    || steps > T::lit(f64::from(self.cfg.max_gap_steps))
-                    || (dt - steps * self.cfg.dt_s).abs() > tol
-                {
-                    return Err(NavError::InvalidTimeStep);
-                }
-                // steps ≤ max_gap_steps (a u32), so the conversion is exact.
-                let mut n = 0u32;
-                while T::lit(f64::from(n)) < steps {
-                    n += 1;
-                }
-                n
-            }
-        };
-        let mut x = self.x;
-        let mut p = self.p;
-        for _ in 0..predictions {
-            self.predict_into(&mut x, &mut p);
-        }
+        let predictions = steps_between(&self.cfg, self.inv_dt, self.time_s, slave.time_s)?;
         let (z, f_comp) = measurement(master, slave, &self.cfg.lever_arm_m);
+        if !z
+            .as_slice()
+            .iter()
+            .chain(f_comp.as_slice().iter())
+            .all(|v| v.is_finite())
+        {
+            return Err(NavError::InputOutOfRange {
+                input: "measurement",
+            });
+        }
         let f_h = match self.model {
             FlexureModel::Conventional => f_comp,
             FlexureModel::Proposed => slave.specific_force_m_s2,
@@ -237,36 +546,97 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             Some(g) => Gate::Nis(g),
             None => Gate::Off,
         };
-        let idx = |d: usize, a: usize| axis_index::<K>(d, a);
+        let (model, lever, r_rate, r_accel) =
+            (self.model, self.cfg.lever_arm_m, self.r_rate, self.r_accel);
+        let mut x = self.x;
+        self.predict_to_scratch(&mut x, predictions);
+        let (_, p) = self.buffers();
         let empty = FusionReport {
             innovation: T::zero(),
             innovation_variance: T::zero(),
             nis: T::zero(),
             test_ratio: T::zero(),
-            outcome: crate::math::kalman::FusionOutcome::Rejected,
+            outcome: FusionOutcome::Rejected,
         };
         let mut updates = [empty; 6];
-        for (row, (rep, zi)) in updates.iter_mut().zip(z.iter()).enumerate() {
-            let h: SVector<T, N> = h_row(
-                self.model,
-                row,
-                &master.angular_rate_rad_s,
-                &f_h,
-                &self.cfg.lever_arm_m,
-                idx,
-            );
-            let r = if row < 3 { self.r_rate } else { self.r_accel };
+        for (row, (rep, zi)) in updates.iter_mut().zip(z.as_slice().iter()).enumerate() {
+            let h = h_row_sparse::<T, K>(model, row, &master.angular_rate_rad_s, &f_h, &lever);
+            let r = if row < 3 { r_rate } else { r_accel };
             let innovation = *zi - h.dot(&x);
-            *rep = fuse_scalar(&mut x, &mut p, &h, innovation, r, gate)?;
+            *rep = fuse_scalar_sparse(&mut x, p, &h, innovation, r, gate)?;
         }
+        // Commit: counters, recovery, state, buffer swap, time.
+        let mut health = self.health;
+        let mut starved = false;
+        for ((rep, total), run) in updates
+            .iter()
+            .zip(health.rejected.iter_mut())
+            .zip(health.consecutive_rejected.iter_mut())
+        {
+            if rep.outcome == FusionOutcome::Rejected {
+                *total = total.saturating_add(1);
+                *run = run.saturating_add(1);
+                starved |= self
+                    .recovery
+                    .reset_after_rejections
+                    .is_some_and(|n| *run >= n);
+            } else {
+                *run = 0;
+            }
+        }
+        if starved {
+            health.covariance_resets = health.covariance_resets.saturating_add(1);
+            health.consecutive_rejected = [0; 6];
+            let p0 = Self::initial_covariance(&self.chains);
+            let (_, p) = self.buffers();
+            *p = p0;
+            for (i, v) in x.as_mut_slice().iter_mut().enumerate() {
+                if i % K != 0 {
+                    *v = T::zero();
+                }
+            }
+        }
+        self.health = health;
         self.x = x;
-        self.p = p;
+        self.second = !self.second;
         self.time_s = Some(slave.time_s);
         Ok(StepReport {
             time_s: slave.time_s,
             predictions,
             updates,
         })
+    }
+
+    /// Prediction only, to `time_s` (a whole number of `dt_s` after the last epoch, at most
+    /// `max_gap_steps`): how a firmware loop keeps the filter running through a master-data
+    /// dropout (call it at each slave epoch without master data). Returns the number of
+    /// predictions. Errors: `NonFiniteInput`, `TimeNotIncreasing`, `InvalidTimeStep`, and
+    /// `InvalidTimeStep` before the first [`Self::step`] (no epoch yet). On error the filter is
+    /// unchanged.
+    pub fn propagate(&mut self, time_s: T) -> Result<u32, NavError> {
+        crate::error::input_finite("time_s", time_s)?;
+        if self.time_s.is_none() {
+            return Err(NavError::InvalidTimeStep);
+        }
+        let n = steps_between(&self.cfg, self.inv_dt, self.time_s, time_s)?;
+        let mut x = self.x;
+        self.predict_to_scratch(&mut x, n);
+        self.x = x;
+        self.second = !self.second;
+        self.time_s = Some(time_s);
+        Ok(n)
+    }
+
+    /// Matches time-tagged (possibly delayed) master data with the slave sample of the same
+    /// epoch in `history` and runs [`Self::step`] on the pair. Errors: those of
+    /// [`super::SlaveHistory::find`] and of [`Self::step`]; on error the filter is unchanged.
+    pub fn step_delayed<const H: usize>(
+        &mut self,
+        master: &MasterSample<T>,
+        history: &super::SlaveHistory<T, H>,
+    ) -> Result<StepReport<T>, NavError> {
+        let slave = history.find(master.time_s, self.cfg.time_tolerance_s)?;
+        self.step(master, &slave)
     }
 
     fn block(&self, d: usize) -> Vector3<T> {
@@ -311,7 +681,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         for a in 0..3 {
             for b in 0..3 {
                 let g = |d: usize, e: usize| {
-                    self.p
+                    self.p_cur()
                         .get((axis_index::<K>(d, a), axis_index::<K>(e, b)))
                         .copied()
                         .unwrap_or_else(T::zero)
@@ -349,7 +719,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
 
     /// Covariance in the spec's ordering.
     pub fn covariance(&self) -> SMatrix<T, N, N> {
-        to_spec_order::<T, K, N>(&self.p)
+        to_spec_order::<T, K, N>(self.p_cur())
     }
 
     /// Estimated slave attitude `C_n^s = C_m^s C_n^m` given the master's `C_n^m`, with

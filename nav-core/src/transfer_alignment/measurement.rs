@@ -13,6 +13,7 @@
 //! the largest one, `L_0 × θ̈_f`).
 use super::model::FlexureModel;
 use crate::error::input_finite;
+use crate::math::kalman::SparseRow;
 use crate::{NavError, Real};
 use nalgebra::{SMatrix, SVector, Vector3};
 
@@ -62,7 +63,7 @@ impl<T: Real> SlaveSample<T> {
 }
 
 fn finite3<T: Real>(input: &'static str, v: &Vector3<T>) -> Result<(), NavError> {
-    if v.iter().all(|c| c.is_finite()) {
+    if v.as_slice().iter().all(|c| c.abs() < T::lit(f64::INFINITY)) {
         Ok(())
     } else {
         Err(NavError::NonFiniteInput { input })
@@ -160,6 +161,44 @@ pub fn h_row<T: Real, const N: usize>(
     h
 }
 
+/// Row `row` of H as a [`SparseRow`] in the filters' internal axis-major ordering (`K` states
+/// per axis chain): the same entries as [`h_row`] with `axis_index::<K>`, ascending, at most 6
+/// (two axes × θ_m, θ_f, plus −1 on θ̇_f or up to two L_0 terms on θ̈_f).
+pub fn h_row_sparse<T: Real, const K: usize>(
+    model: FlexureModel,
+    row: usize,
+    omega_m: &Vector3<T>,
+    f_h: &Vector3<T>,
+    lever_arm_m: &Vector3<T>,
+) -> SparseRow<T, 6> {
+    let mut h = SparseRow::<T, 6>::new();
+    let (i, gyro) = if row < 3 {
+        (row, true)
+    } else {
+        (row - 3, false)
+    };
+    let s = if gyro {
+        skew_row(omega_m, i)
+    } else {
+        skew_row(f_h, i)
+    };
+    let lever = skew_row(lever_arm_m, i);
+    // At most 2 (axes a ≠ i) × 2 + 2 ≤ 6 entries: `push` cannot fail.
+    for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
+        if a != i {
+            let _ = h.push(K * a, -v);
+            let _ = h.push(K * a + 1, -v);
+        }
+        if gyro && a == i {
+            let _ = h.push(K * a + 2, -T::one());
+        }
+        if !gyro && model == FlexureModel::Proposed && a != i {
+            let _ = h.push(K * a + 3, l);
+        }
+    }
+    h
+}
+
 /// H (6×N) in the spec's state ordering.
 pub fn h_matrix<T: Real, const K: usize, const N: usize>(
     omega_m: &Vector3<T>,
@@ -180,6 +219,101 @@ pub fn h_matrix<T: Real, const K: usize, const N: usize>(
         out.copy_from(&r.transpose());
     }
     Ok(h)
+}
+
+/// The last `H` slave samples, so that time-tagged master data arriving late (data-link
+/// latency) can be matched with the slave sample of its epoch
+/// ([`super::TransferAlignment::step_delayed`]). A fixed ring buffer: pushing into a full
+/// history drops the oldest sample. Capacity H must cover the master latency plus jitter in
+/// slave epochs (e.g. H = 16 covers 150 ms at 100 Hz).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SlaveHistory<T: Real, const H: usize> {
+    buf: [SlaveSample<T>; H],
+    /// Index of the next write.
+    head: usize,
+    len: usize,
+}
+
+impl<T: Real, const H: usize> Default for SlaveHistory<T, H> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<T: Real, const H: usize> SlaveHistory<T, H> {
+    /// An empty history.
+    pub fn new() -> Self {
+        let z = SlaveSample {
+            time_s: T::zero(),
+            angular_rate_rad_s: Vector3::zeros(),
+            specific_force_m_s2: Vector3::zeros(),
+        };
+        Self {
+            buf: [z; H],
+            head: 0,
+            len: 0,
+        }
+    }
+
+    /// Number of samples held.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// `true` when no sample is held.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Stores a slave sample. Errors (history unchanged): `NonFiniteInput`,
+    /// `TimeNotIncreasing` (time stamp not after the newest held), `CapacityExceeded` if H = 0.
+    pub fn push(&mut self, slave: &SlaveSample<T>) -> Result<(), NavError> {
+        slave.validate()?;
+        if let Some(last) = self.newest() {
+            if slave.time_s <= last.time_s {
+                return Err(NavError::TimeNotIncreasing);
+            }
+        }
+        let Some(slot) = self.buf.get_mut(self.head) else {
+            return Err(NavError::CapacityExceeded);
+        };
+        *slot = *slave;
+        self.head = if self.head + 1 >= H { 0 } else { self.head + 1 };
+        self.len = (self.len + 1).min(H);
+        Ok(())
+    }
+
+    /// The `i`-th newest sample (0 = newest).
+    fn back(&self, i: usize) -> Option<&SlaveSample<T>> {
+        if i >= self.len {
+            return None;
+        }
+        let idx = (self.head + H - 1 - i) % H;
+        self.buf.get(idx)
+    }
+
+    /// The newest sample held.
+    pub fn newest(&self) -> Option<&SlaveSample<T>> {
+        self.back(0)
+    }
+
+    /// The oldest sample held.
+    pub fn oldest(&self) -> Option<&SlaveSample<T>> {
+        self.back(self.len.wrapping_sub(1))
+    }
+
+    /// The held slave sample whose time stamp is within `tolerance_s` of `time_s`.
+    /// Errors: `NonFiniteInput` (time), `MeasurementTimeOutOfWindow` when `time_s` is older than
+    /// the oldest sample held (master data too late for the history), newer than the newest, or
+    /// falls between two samples, or the history is empty.
+    pub fn find(&self, time_s: T, tolerance_s: T) -> Result<SlaveSample<T>, NavError> {
+        input_finite("master.time_s", time_s)?;
+        (0..self.len)
+            .filter_map(|i| self.back(i))
+            .find(|s| (s.time_s - time_s).abs() <= tolerance_s)
+            .copied()
+            .ok_or(NavError::MeasurementTimeOutOfWindow)
+    }
 }
 
 #[cfg(test)]
@@ -211,6 +345,21 @@ mod tests {
         let h9 = h_matrix::<f64, 3, 9>(&w, &f, &l0).unwrap();
         assert_eq!(h9.fixed_view::<3, 3>(3, 0).into_owned(), -fx);
         assert!(h_matrix::<f64, 3, 12>(&w, &f, &l0).is_err());
+        // The sparse rows are the dense rows in axis-major order.
+        let l1 = Vector3::new(0.3, 5.0, -0.2);
+        for row in 0..6 {
+            let d: SVector<f64, 12> = h_row(FlexureModel::Proposed, row, &w, &f, &l1, |d, a| {
+                super::super::model::axis_index::<4>(d, a)
+            });
+            let sp = h_row_sparse::<f64, 4>(FlexureModel::Proposed, row, &w, &f, &l1);
+            assert_eq!(sp.to_dense::<12>(), d);
+            let d9: SVector<f64, 9> =
+                h_row(FlexureModel::Conventional, row, &w, &f, &l1, |d, a| {
+                    super::super::model::axis_index::<3>(d, a)
+                });
+            let sp9 = h_row_sparse::<f64, 3>(FlexureModel::Conventional, row, &w, &f, &l1);
+            assert_eq!(sp9.to_dense::<9>(), d9);
+        }
     }
 
     #[test]

@@ -12,6 +12,9 @@ pub mod measurement;
 pub mod model;
 pub mod observability;
 
-pub use filter::{ConventionalFilter, ProposedFilter, StepReport, TaConfig, TransferAlignment};
-pub use measurement::{MasterSample, SlaveSample};
+pub use filter::{
+    ConventionalFilter, ProposedFilter, RecoveryPolicy, StepReport, TaConfig, TaHealth,
+    TransferAlignment, MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_SPECIFIC_FORCE_M_S2,
+};
+pub use measurement::{MasterSample, SlaveHistory, SlaveSample};
 pub use model::{AxisFlexure, FlexureModel};

@@ -32,6 +32,18 @@ pub static KERNELS: &[Kernel] = &[
         check: ta12_check,
     },
     Kernel {
+        name: "ta9_propagate",
+        setup: ta9_setup,
+        run: ta9_propagate,
+        check: ta9_check,
+    },
+    Kernel {
+        name: "ta12_propagate",
+        setup: ta12_setup,
+        run: ta12_propagate,
+        check: ta12_check,
+    },
+    Kernel {
         name: "vc_classical_step",
         setup: vcc_setup,
         run: vcc_step,
@@ -221,7 +233,17 @@ static TA9: Mutex<RefCell<Option<Ta<ConventionalFilter<f32>>>>> = Mutex::new(Ref
 static TA12: Mutex<RefCell<Option<Ta<ProposedFilter<f32>>>>> = Mutex::new(RefCell::new(None));
 
 macro_rules! ta_kernel {
-    ($setup:ident, $step:ident, $check:ident, $cell:ident, $ty:ty) => {
+    ($setup:ident, $step:ident, $prop:ident, $check:ident, $cell:ident, $ty:ty) => {
+        /// Prediction only (a master-data dropout epoch).
+        fn $prop() {
+            interrupt::free(|cs| {
+                if let Some(s) = $cell.borrow(cs).borrow_mut().as_mut() {
+                    let t = core::hint::black_box(s.k as f32 * TA_DT_S);
+                    s.ok &= matches!(s.filter.propagate(t), Ok(1));
+                    s.k += 1;
+                }
+            });
+        }
         fn $setup() {
             let mut state = <$ty>::new(ta_config()).ok().map(|filter| Ta { filter, k: 0, ok: true });
             // Warm up so the measured call is a steady-state predict + 6 updates.
@@ -253,8 +275,8 @@ macro_rules! ta_kernel {
     };
 }
 
-ta_kernel!(ta9_setup, ta9_step, ta9_check, TA9, ConventionalFilter<f32>);
-ta_kernel!(ta12_setup, ta12_step, ta12_check, TA12, ProposedFilter<f32>);
+ta_kernel!(ta9_setup, ta9_step, ta9_propagate, ta9_check, TA9, ConventionalFilter<f32>);
+ta_kernel!(ta12_setup, ta12_step, ta12_propagate, ta12_check, TA12, ProposedFilter<f32>);
 
 // ---------------------------------------------------------------- vertical channel
 

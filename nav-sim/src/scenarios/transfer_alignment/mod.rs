@@ -8,6 +8,7 @@
 //!   constant segments and the stripped observability matrices (Tables 1 and 2).
 pub mod config;
 pub mod estimate;
+pub mod fault;
 pub mod truth;
 
 use crate::output::{sig, write_csv};

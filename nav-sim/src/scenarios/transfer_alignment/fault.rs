@@ -1,0 +1,310 @@
+//! `fault-transfer`: the proposed 12-state filter (f32, as on the target) with master data that
+//! arrives late (time-tagged, matched with the slave history) and drops out.
+//!
+//! At each slave epoch j the slave sample is pushed into a [`SlaveHistory`]; the master sample
+//! tagged t_{j−L} (latency L epochs) arrives and is matched with the slave sample of its epoch
+//! ([`TransferAlignment::step_delayed`]). During a dropout no master sample arrives and the
+//! filter is propagated to t_{j−L} ([`TransferAlignment::propagate`]), so it keeps the same lag
+//! and its covariance grows with the flexure process. The error of θ is taken at the filter's
+//! epoch. Recovery: after each dropout, the first epoch from which the ensemble RMS of |θ error|
+//! stays within the pre-fault bound (the largest RMS over the 2 s before the dropout) until
+//! the next dropout or the end.
+use super::config::CaseConfig;
+use super::truth::simulate;
+use crate::montecarlo::monte_carlo;
+use crate::output::{sig, write_csv};
+use crate::plot::{render, Figure, Panel, Series};
+use crate::scenario::{Context, Kind};
+use crate::stats::ensemble;
+use anyhow::{anyhow, Result};
+use nalgebra::Vector3;
+use nav_core::math::kalman::FusionOutcome;
+use nav_core::transfer_alignment::{
+    MasterSample, ProposedFilter, SlaveHistory, SlaveSample, TaConfig,
+};
+use serde::Deserialize;
+use serde_json::{json, Value};
+
+/// `fault-transfer` registry entry.
+pub const KIND_FAULT: Kind = Kind {
+    kind: "ta-fault",
+    about: "transfer alignment under master-data latency (time-tagged) and dropouts",
+    run: run_fault,
+};
+
+/// Slave history length (epochs): covers latencies up to 150 ms at 100 Hz.
+pub const HISTORY: usize = 16;
+
+/// Configuration: a `ta-case` configuration plus the faults (unknown keys are refused by the
+/// flattened `CaseConfig`).
+#[derive(Debug, Clone, Deserialize)]
+pub struct FaultConfig {
+    /// Master data latency, s (a whole number of `dt_s`).
+    pub master_latency_s: f64,
+    /// Dropouts `[start_s, duration_s]` of the master data (by time tag).
+    pub dropouts_s: Vec<[f64; 2]>,
+    /// Length of the pre-fault window defining the bound, s.
+    pub bound_window_s: f64,
+    /// The underlying case (truth, sensors, profile, filter).
+    #[serde(flatten)]
+    pub case: CaseConfig,
+}
+
+/// One run: error norm of θ (rad) and filter σ norm per epoch, and counters.
+#[derive(Debug, Clone, Default)]
+pub struct FaultRun {
+    /// |θ̂ − θ| per slave epoch (NaN before the filter starts), rad.
+    pub err_rad: Vec<f64>,
+    /// Filter 1σ norm of θ per epoch, rad.
+    pub sigma_rad: Vec<f64>,
+    /// Measurements rejected by the gate.
+    pub rejected: u64,
+    /// Covariance resets.
+    pub resets: u32,
+    /// Steps refused with an error (should be 0).
+    pub errors: u64,
+    /// Master samples that could not be matched with the slave history.
+    pub unmatched: u64,
+    /// Propagation-only epochs.
+    pub propagations: u64,
+}
+
+fn cast(c: &TaConfig<f64>) -> TaConfig<f32> {
+    let v = |x: &Vector3<f64>| x.map(|e| e as f32);
+    TaConfig {
+        lever_arm_m: v(&c.lever_arm_m),
+        flexure: c
+            .flexure
+            .map(|a| nav_core::transfer_alignment::AxisFlexure {
+                sigma_rad: a.sigma_rad as f32,
+                tau_s: a.tau_s as f32,
+            }),
+        mount_sigma_rad: v(&c.mount_sigma_rad),
+        rate_noise_sigma_rad_s: c.rate_noise_sigma_rad_s as f32,
+        accel_noise_sigma_m_s2: c.accel_noise_sigma_m_s2 as f32,
+        dt_s: c.dt_s as f32,
+        time_tolerance_s: c.time_tolerance_s as f32,
+        max_gap_steps: c.max_gap_steps,
+        nis_gate: c.nis_gate.map(|g| g as f32),
+    }
+}
+
+fn in_dropout(cfg: &FaultConfig, t: f64) -> bool {
+    cfg.dropouts_s
+        .iter()
+        .any(|[s, d]| t >= s - 1e-9 && t < s + d - 1e-9)
+}
+
+/// Runs one seeded realisation.
+pub fn run_once(cfg: &FaultConfig, rng: &mut crate::rng::SimRng) -> Result<FaultRun> {
+    let truth = simulate(&cfg.case, rng)?;
+    let mut fc = cast(&cfg.case.filter_config(0.0));
+    fc.nis_gate = Some(fc.nis_gate.unwrap_or(25.0));
+    let mut f = ProposedFilter::<f32>::new(fc).map_err(|e| anyhow!("{e}"))?;
+    let mut hist = SlaveHistory::<f32, HISTORY>::new();
+    let lag = (cfg.master_latency_s / cfg.case.dt_s).round() as usize;
+    let n = truth.t_s.len();
+    let mut out = FaultRun {
+        err_rad: vec![f64::NAN; n],
+        sigma_rad: vec![f64::NAN; n],
+        ..Default::default()
+    };
+    let v = |x: &Vector3<f64>| x.map(|e| e as f32);
+    for j in 0..n {
+        let s = &truth.slave[j];
+        hist.push(&SlaveSample {
+            time_s: s.time_s as f32,
+            angular_rate_rad_s: v(&s.angular_rate_rad_s),
+            specific_force_m_s2: v(&s.specific_force_m_s2),
+        })
+        .map_err(|e| anyhow!("slave history: {e}"))?;
+        let Some(k) = j.checked_sub(lag) else {
+            continue;
+        };
+        let m = &truth.master[k];
+        if in_dropout(cfg, m.time_s) {
+            if f.time_s().is_some() {
+                match f.propagate(m.time_s as f32) {
+                    Ok(_) => out.propagations += 1,
+                    Err(_) => out.errors += 1,
+                }
+            }
+        } else {
+            let mt = MasterSample {
+                time_s: m.time_s as f32,
+                angular_rate_rad_s: v(&m.angular_rate_rad_s),
+                angular_accel_rad_s2: v(&m.angular_accel_rad_s2),
+                specific_force_m_s2: v(&m.specific_force_m_s2),
+            };
+            match f.step_delayed(&mt, &hist) {
+                Ok(rep) => {
+                    out.rejected += rep
+                        .updates
+                        .iter()
+                        .filter(|u| u.outcome == FusionOutcome::Rejected)
+                        .count() as u64;
+                }
+                Err(nav_core::NavError::MeasurementTimeOutOfWindow) => out.unmatched += 1,
+                Err(_) => out.errors += 1,
+            }
+        }
+        if f.time_s().is_some() {
+            let e = f.theta().map(f64::from) - truth.theta_rad[k];
+            out.err_rad[j] = e.norm();
+            out.sigma_rad[j] = f.theta_sigma_rad().map(f64::from).norm();
+        }
+    }
+    out.resets = f.health().covariance_resets;
+    Ok(out)
+}
+
+/// Recovery of one dropout.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Recovery {
+    /// Dropout start (master time tag), s.
+    pub start_s: f64,
+    /// Dropout length, s.
+    pub duration_s: f64,
+    /// Pre-fault bound: largest ensemble RMS |θ error| in the window before, mrad.
+    pub pre_fault_bound_mrad: f64,
+    /// Largest ensemble RMS during the dropout and until recovery, mrad.
+    pub peak_mrad: f64,
+    /// Whether the RMS came back within the bound (and stayed until the next fault / end).
+    pub recovered: bool,
+    /// Time from the end of the dropout to recovery, s (`None` if not recovered).
+    pub recovery_time_s: Option<f64>,
+}
+
+/// Ensemble analysis: per dropout, bound, peak and recovery time. `t_tag` are the master time
+/// tags of the epochs, `rms` the ensemble RMS of |θ error| per epoch (mrad).
+pub fn recoveries(cfg: &FaultConfig, t_tag: &[f64], rms: &[f64]) -> Vec<Recovery> {
+    let mut out = vec![];
+    for (i, [start, dur]) in cfg.dropouts_s.iter().enumerate() {
+        let end = start + dur;
+        let next = cfg.dropouts_s.get(i + 1).map_or(f64::INFINITY, |d| d[0]);
+        let bound = t_tag
+            .iter()
+            .zip(rms)
+            .filter(|(t, r)| **t >= start - cfg.bound_window_s && **t < *start && r.is_finite())
+            .map(|(_, r)| *r)
+            .fold(0.0, f64::max);
+        let window: Vec<(f64, f64)> = t_tag
+            .iter()
+            .zip(rms)
+            .filter(|(t, _)| **t >= *start && **t < next)
+            .map(|(t, r)| (*t, *r))
+            .collect();
+        // Last epoch after the dropout at which the RMS is above the bound.
+        let last_bad = window
+            .iter()
+            .filter(|(t, r)| *t >= end - 1e-9 && *r > bound)
+            .map(|(t, _)| *t)
+            .fold(f64::NEG_INFINITY, f64::max);
+        let after: Vec<f64> = window
+            .iter()
+            .filter(|(t, _)| *t >= end - 1e-9)
+            .map(|(t, _)| *t)
+            .collect();
+        let rec_t = if last_bad == f64::NEG_INFINITY {
+            after.first().copied()
+        } else {
+            after.iter().copied().find(|t| *t > last_bad)
+        };
+        let peak = window
+            .iter()
+            .filter(|(t, _)| rec_t.is_none_or(|rt| *t <= rt))
+            .map(|(_, r)| *r)
+            .fold(0.0, f64::max);
+        out.push(Recovery {
+            start_s: *start,
+            duration_s: *dur,
+            pre_fault_bound_mrad: bound,
+            peak_mrad: peak,
+            recovered: rec_t.is_some(),
+            recovery_time_s: rec_t.map(|t| (t - end).max(0.0)),
+        });
+    }
+    out
+}
+
+/// Summary, master time tags (s), ensemble RMS of |θ error| and mean filter σ (mrad).
+pub type FaultAnalysis = (Value, Vec<f64>, Vec<f64>, Vec<f64>);
+
+/// Runs the Monte Carlo and the analysis; returns the summary, `t_tag` and the RMS / σ series.
+pub fn analyse(cfg: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Result<FaultAnalysis> {
+    let res: Vec<Result<FaultRun>> =
+        monte_carlo("fault-transfer", runs, seed, progress, |_, rng| {
+            run_once(cfg, rng)
+        });
+    let res: Vec<FaultRun> = res.into_iter().collect::<Result<_>>()?;
+    let lag = (cfg.master_latency_s / cfg.case.dt_s).round();
+    let n = res.first().map_or(0, |r| r.err_rad.len());
+    let t_tag: Vec<f64> = (0..n).map(|j| (j as f64 - lag) * cfg.case.dt_s).collect();
+    let e: Vec<Vec<f64>> = res
+        .iter()
+        .map(|r| r.err_rad.iter().map(|v| v * 1e3).collect())
+        .collect();
+    let s: Vec<Vec<f64>> = res
+        .iter()
+        .map(|r| r.sigma_rad.iter().map(|v| v * 1e3).collect())
+        .collect();
+    let rms = ensemble(&e).rms;
+    let sigma = ensemble(&s).mean;
+    let rec = recoveries(cfg, &t_tag, &rms);
+    let sum = |f: fn(&FaultRun) -> u64| res.iter().map(f).sum::<u64>();
+    let summary = json!({
+        "filter": "proposed 12-state, f32",
+        "master_latency_s": cfg.master_latency_s,
+        "slave_history_epochs": HISTORY,
+        "dropouts_s": cfg.dropouts_s,
+        "rejections": sum(|r| r.rejected),
+        "covariance_resets": res.iter().map(|r| u64::from(r.resets)).sum::<u64>(),
+        "step_errors": sum(|r| r.errors),
+        "unmatched_master_samples": sum(|r| r.unmatched),
+        "propagation_only_epochs": sum(|r| r.propagations),
+        "recoveries": rec.iter().map(|r| json!({
+            "start_s": r.start_s,
+            "duration_s": r.duration_s,
+            "pre_fault_bound_mrad": sig(r.pre_fault_bound_mrad, 4),
+            "peak_mrad": sig(r.peak_mrad, 4),
+            "recovered": r.recovered,
+            "recovery_time_s": r.recovery_time_s.map(|t| sig(t, 4)),
+        })).collect::<Vec<_>>(),
+        "all_recovered": rec.iter().all(|r| r.recovered),
+        "final_rms_mrad": sig(rms.last().copied().unwrap_or(f64::NAN), 4),
+    });
+    Ok((summary, t_tag, rms, sigma))
+}
+
+fn run_fault(ctx: &Context) -> Result<Value> {
+    let cfg: FaultConfig = ctx.config()?;
+    let (summary, t, rms, sigma) = analyse(&cfg, ctx.runs, ctx.seed, ctx.progress)?;
+    write_csv(
+        &ctx.out_dir.join("error.csv"),
+        &["t_master_s", "rms_theta_err_mrad", "mean_filter_sigma_mrad"],
+        &[&t, &rms, &sigma],
+    )?;
+    let fin: Vec<usize> = (0..t.len()).filter(|&i| rms[i].is_finite()).collect();
+    let tx: Vec<f64> = fin.iter().map(|&i| t[i]).collect();
+    let ry: Vec<f64> = fin.iter().map(|&i| rms[i]).collect();
+    let sy: Vec<f64> = fin.iter().map(|&i| sigma[i]).collect();
+    let fig = Figure {
+        title: format!(
+            "{}: |θ error|, master latency {} s, dropouts {:?}",
+            ctx.name, cfg.master_latency_s, cfg.dropouts_s
+        ),
+        x_label: "master time tag, s".into(),
+        panels: vec![Panel {
+            title: "ensemble RMS of |θ̂ − θ| and filter σ".into(),
+            y_label: "mrad".into(),
+            series: vec![
+                Series::line("RMS error", &tx, &ry, 0),
+                Series::dashed("filter σ (mean)", &tx, &sy, 1),
+            ],
+            y_range: Some((0.0, 20.0)),
+        }],
+        columns: 1,
+    };
+    render(&fig, &ctx.out_dir.join("error.png"), 1000, 500)?;
+    Ok(summary)
+}
