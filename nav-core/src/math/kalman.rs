@@ -316,31 +316,28 @@ fn joseph_pass<T: Real, const N: usize>(
     b: &SVector<T, N>,
     c: &SVector<T, N>,
 ) {
-    let ([ks], [bs], [cs]) = (&k.data.0, &b.data.0, &c.data.0);
-    // Column arrays ([[T; N]; N], column-major): indices below N are provably in range.
-    let cols = &mut p.data.0;
-    for j in 0..N {
-        let (Some(&kj), Some(&cj), Some(&bj)) = (ks.get(j), cs.get(j), bs.get(j)) else {
+    let (ks, bs, cs) = (k.as_slice(), b.as_slice(), c.as_slice());
+    let flat = p.as_mut_slice();
+    for (j, ((&kj, &cj), &bj)) in ks.iter().zip(cs).zip(bs).enumerate() {
+        // `left` holds columns 0..j, `col_j` column j (column-major storage).
+        let (left, right) = flat.split_at_mut(j * N);
+        let Some(col_j) = right.get_mut(..N) else {
             break;
         };
-        // Rows i < j of column j (upper triangle), each value also written to row j of
-        // column i.
-        for i in 0..j {
-            let (Some(&ki), Some(&bi)) = (ks.get(i), bs.get(i)) else {
-                break;
-            };
-            let Some(pij) = cols.get(j).and_then(|c| c.get(i)).copied() else {
-                break;
-            };
-            let nv = pij + ki * cj - bi * kj;
-            if let Some(v) = cols.get_mut(j).and_then(|c| c.get_mut(i)) {
-                *v = nv;
-            }
-            if let Some(v) = cols.get_mut(i).and_then(|c| c.get_mut(j)) {
-                *v = nv;
+        // Rows i < j of column j (upper triangle); each value also goes to row j of column i.
+        for (((pij, &ki), &bi), col_i) in col_j
+            .iter_mut()
+            .zip(ks)
+            .zip(bs)
+            .zip(left.chunks_exact_mut(N))
+        {
+            let nv = *pij + ki * cj - bi * kj;
+            *pij = nv;
+            if let Some(mirror) = col_i.get_mut(j) {
+                *mirror = nv;
             }
         }
-        if let Some(pjj) = cols.get_mut(j).and_then(|c| c.get_mut(j)) {
+        if let Some(pjj) = col_j.get_mut(j) {
             *pjj = *pjj + kj * cj - bj * kj;
         }
     }
