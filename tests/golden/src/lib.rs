@@ -93,9 +93,10 @@ impl Case {
 
 /// Little-endian f32 values of a byte slice (a trailing partial value is ignored).
 pub fn f32s(bytes: &[u8]) -> impl Iterator<Item = f32> + '_ {
-    bytes
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+    bytes.chunks_exact(4).map(|c| match *c {
+        [a, b, c, d] => f32::from_le_bytes([a, b, c, d]),
+        _ => f32::NAN,
+    })
 }
 
 // ------------------------------------------------------------------ configurations
