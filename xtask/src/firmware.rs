@@ -227,6 +227,68 @@ const fn nav_golden_case_count() -> usize {
     5
 }
 
+/// Budgets of issue 6 (Cortex-M4F, f32, default thumbv7em codegen): instructions per step.
+const BUDGET_INSNS: [(&str, u64); 7] = [
+    ("eskf17_predict", 8_000),
+    ("eskf17_los_update", 12_000),
+    ("ins_mech_step", 3_000),
+    ("ta12_step", 10_000),
+    ("ta9_step", 6_000),
+    ("vc_classical_step", 400),
+    ("vc_aided_step", 400),
+];
+/// Peak stack budget of any step, bytes.
+const BUDGET_STACK_BYTES: u64 = 2048;
+/// `.text` budget of the image with all filters, bytes.
+const BUDGET_TEXT_BYTES: u64 = 64 * 1024;
+
+/// Markdown table of the M4F figures against the budgets (for the README).
+fn budget_table(report: &Map<String, Value>) -> String {
+    let mut md = String::from(
+        "| kernel | instructions (M4F = M7) | budget | peak stack, B |\n| --- | --- | --- | --- |\n",
+    );
+    let Some(m4) = report.get("cortex-m4f").and_then(Value::as_object) else {
+        return md;
+    };
+    let stacks = m4.get("max_stack_bytes").and_then(Value::as_object);
+    for (k, v) in m4 {
+        let Some(name) = k.strip_suffix("_insns") else {
+            continue;
+        };
+        let insns = v.as_u64().unwrap_or(0);
+        let budget = BUDGET_INSNS
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, b)| *b);
+        let stack = stacks
+            .and_then(|s| s.get(name))
+            .and_then(Value::as_u64)
+            .unwrap_or(0);
+        let budget_txt = match budget {
+            Some(b) if insns <= b => format!("{b} ✓"),
+            Some(b) => format!("{b} ✗"),
+            None => "—".into(),
+        };
+        let stack_txt = if stack <= BUDGET_STACK_BYTES {
+            format!("{stack}")
+        } else {
+            format!("{stack} ✗")
+        };
+        md.push_str(&format!(
+            "| `{name}` | {insns} | {budget_txt} | {stack_txt} |\n"
+        ));
+    }
+    let text = m4.get("text_bytes").and_then(Value::as_u64).unwrap_or(0);
+    md.push_str(&format!(
+        "\nImage: `.text` {text} B (budget {BUDGET_TEXT_BYTES} B {}), `.rodata` {} B, `.data` {} B, `.bss` {} B.\n",
+        if text <= BUDGET_TEXT_BYTES { "✓" } else { "✗" },
+        m4.get("rodata_bytes").and_then(Value::as_u64).unwrap_or(0),
+        m4.get("data_bytes").and_then(Value::as_u64).unwrap_or(0),
+        m4.get("bss_bytes").and_then(Value::as_u64).unwrap_or(0),
+    ));
+    md
+}
+
 /// Rate plan for the CPU-load table: (kernel, rate in Hz).
 const RATE_PLAN: [(&str, f64); 7] = [
     ("ins_mech_step", 100.0),
@@ -277,6 +339,9 @@ fn cpu_load(report: &Map<String, Value>) -> Value {
 /// `cargo xtask bench`.
 pub fn bench() -> Result<(), String> {
     let decoder = ensure_tools()?;
+    // The image also replays the golden vectors: record them from the current code first.
+    let golden = record_golden()?;
+    std::env::set_var("NAV_GOLDEN_DIR", &golden);
     let elf = build_firmware(&[])?;
     let (text, rodata, data, bss) = section_sizes(&elf)?;
     let mut report = Map::new();
@@ -328,7 +393,10 @@ pub fn bench() -> Result<(), String> {
             }
         }
     }
-    eprintln!("xtask: bench: wrote {}", path.display());
+    let md = budget_table(&report);
+    std::fs::write(dir.join("report.md"), &md).map_err(|e| e.to_string())?;
+    println!("\n{md}");
+    eprintln!("xtask: bench: wrote {} and report.md", path.display());
     Ok(())
 }
 
