@@ -245,7 +245,7 @@ pub fn recovery(t: &[f64], rms: &[f64], start: f64, end: f64, next: f64, window:
         .collect();
     let last_bad = span
         .iter()
-        .filter(|(t, r)| *t >= end - 1e-9 && !(*r <= bound))
+        .filter(|(t, r)| *t >= end - 1e-9 && (r.is_nan() || *r > bound))
         .map(|(t, _)| *t)
         .fold(f64::NEG_INFINITY, f64::max);
     let rec_t = span
