@@ -65,6 +65,7 @@ pub static REGISTRY: &[Kind] = &[
     crate::scenarios::transfer_alignment::KIND_OBSERVABILITY,
     crate::scenarios::transfer_alignment::fault::KIND_FAULT,
     crate::scenarios::seeker_ins::KIND,
+    crate::scenarios::seeker_ins::fault::KIND,
     crate::scenarios::vertical_channel::KIND_RESPONSE,
     crate::scenarios::vertical_channel::KIND_MONTECARLO,
     crate::scenarios::vertical_channel::KIND_TAU_SWEEP,

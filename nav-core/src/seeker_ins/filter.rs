@@ -86,6 +86,11 @@ pub struct SeekerIns<T> {
     config: SeekerInsConfig<T>,
     counters: LosCounters,
     recovery: RecoveryPolicy<T>,
+    imu_policy: ImuFaultPolicy<T>,
+    imu_counters: ImuFaultCounters,
+    /// Consecutive IMU samples bridged by the hold / clipped (fully correlated inflation).
+    held_run: u16,
+    clipped_run: u16,
 }
 
 /// Counts of what the LOS updates did (each scalar component counts once).
@@ -128,6 +133,72 @@ impl<T: Real> Default for RecoveryPolicy<T> {
     }
 }
 
+/// IMU fault handling: bridging of missing samples ([`SeekerIns::propagate_gap`]) and of
+/// samples the IMU flags as clipped at its measurement range ([`SeekerIns::propagate_clipped`]).
+///
+/// In both cases the INS integrates an increment known to be wrong by an unknown amount:
+/// the held increment misses the change of specific force / rate since the last good sample,
+/// the clipped one the excess beyond the range. That error is modelled as a random constant
+/// over a run of consecutive degraded samples (fully correlated: a manoeuvre or a clipped
+/// vibration does not average out over 10 ms), per NED axis, with σ `*_accel_sigma_m_s2`
+/// and `*_rate_sigma_rad_s`. After `c` consecutive degraded samples of interval Δt it has put
+/// `c σ_a Δt` into the velocity error and `c σ_ω Δt` into the misalignment, so sample `c`
+/// adds `(2c − 1)(σ Δt)²` to the diagonal of the velocity (states 3..6) and attitude (6..9)
+/// blocks of P (the sum over `c = 1..n` is `(n σ Δt)²`); the position follows through Φ.
+/// Adding to the diagonal keeps P symmetric PSD. Isotropic in NED (the clipped body axis is
+/// not resolved: conservative by at most the two other axes).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ImuFaultPolicy<T> {
+    /// Longest gap [`SeekerIns::propagate_gap`] bridges, IMU samples (≥ 1); a longer one is
+    /// refused (`InvalidTimeStep`): the hold is no model for it and the caller must re-align.
+    pub max_gap_samples: u16,
+    /// σ of the specific-force change the hold misses during a gap, m/s² (per NED axis).
+    pub gap_accel_sigma_m_s2: T,
+    /// σ of the angular-rate change the hold misses during a gap, rad/s (per axis).
+    pub gap_rate_sigma_rad_s: T,
+    /// σ of the unknown specific-force excess beyond the range in a clipped sample, m/s².
+    pub clip_accel_sigma_m_s2: T,
+    /// σ of the unknown rate excess beyond the range in a clipped sample, rad/s.
+    pub clip_rate_sigma_rad_s: T,
+}
+
+impl<T: Real> Default for ImuFaultPolicy<T> {
+    /// 50 samples (0.5 s at 100 Hz); gap: 2 m/s², 0.01 rad/s; clipping: 10 m/s² (≈ 1 g beyond
+    /// the range), 0.5 rad/s.
+    fn default() -> Self {
+        Self {
+            max_gap_samples: 50,
+            gap_accel_sigma_m_s2: T::lit(2.0),
+            gap_rate_sigma_rad_s: T::lit(0.01),
+            clip_accel_sigma_m_s2: T::lit(10.0),
+            clip_rate_sigma_rad_s: T::lit(0.5),
+        }
+    }
+}
+
+/// Which sensor of an IMU sample is clipped ([`SeekerIns::propagate_clipped`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ClipFlags {
+    /// An accelerometer axis is at its range.
+    pub accel: bool,
+    /// A gyro axis is at its range.
+    pub gyro: bool,
+}
+
+/// What the IMU fault handling did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ImuFaultCounters {
+    /// Gaps bridged by [`SeekerIns::propagate_gap`].
+    pub gaps: u32,
+    /// IMU samples bridged by the hold (sum of the gap lengths).
+    pub held_samples: u32,
+    /// Clipped samples integrated by [`SeekerIns::propagate_clipped`].
+    pub clipped_samples: u32,
+}
+
 impl<T: Real> PartialEq for SeekerIns<T> {
     fn eq(&self, o: &Self) -> bool {
         self.ins == o.ins
@@ -140,6 +211,10 @@ impl<T: Real> PartialEq for SeekerIns<T> {
             && self.config == o.config
             && self.counters == o.counters
             && self.recovery == o.recovery
+            && self.imu_policy == o.imu_policy
+            && self.imu_counters == o.imu_counters
+            && self.held_run == o.held_run
+            && self.clipped_run == o.clipped_run
     }
 }
 
@@ -213,6 +288,10 @@ impl<T: Real> SeekerIns<T> {
             config,
             counters: LosCounters::default(),
             recovery: RecoveryPolicy::default(),
+            imu_policy: ImuFaultPolicy::default(),
+            imu_counters: ImuFaultCounters::default(),
+            held_run: 0,
+            clipped_run: 0,
         })
     }
 
@@ -236,6 +315,38 @@ impl<T: Real> SeekerIns<T> {
             });
         }
         self.recovery = policy;
+        Ok(())
+    }
+
+    /// The IMU fault policy in force.
+    pub fn imu_fault_policy(&self) -> ImuFaultPolicy<T> {
+        self.imu_policy
+    }
+
+    /// Counters of bridged gaps and clipped samples.
+    pub fn imu_fault_counters(&self) -> ImuFaultCounters {
+        self.imu_counters
+    }
+
+    /// Replaces the IMU fault policy. Errors (filter unchanged): `InvalidConfig` when
+    /// `max_gap_samples` is 0 or a σ is negative or not finite.
+    pub fn set_imu_fault_policy(&mut self, policy: ImuFaultPolicy<T>) -> Result<(), NavError> {
+        use crate::error::require_non_negative;
+        if policy.max_gap_samples == 0 {
+            return Err(NavError::InvalidConfig {
+                field: "max_gap_samples",
+                issue: ConfigIssue::NotPositive,
+            });
+        }
+        for (field, v) in [
+            ("gap_accel_sigma_m_s2", policy.gap_accel_sigma_m_s2),
+            ("gap_rate_sigma_rad_s", policy.gap_rate_sigma_rad_s),
+            ("clip_accel_sigma_m_s2", policy.clip_accel_sigma_m_s2),
+            ("clip_rate_sigma_rad_s", policy.clip_rate_sigma_rad_s),
+        ] {
+            require_non_negative(field, v)?;
+        }
+        self.imu_policy = policy;
         Ok(())
     }
 
@@ -282,10 +393,120 @@ impl<T: Real> SeekerIns<T> {
             delta_theta_rad: inc.delta_theta_rad - self.gyro_bias_rad_s * dt,
             delta_v_m_s: inc.delta_v_m_s - self.accel_bias_m_s2 * dt,
         };
+        self.propagate_compensated(&compensated)?;
+        self.held_run = 0;
+        self.clipped_run = 0;
+        Ok(())
+    }
+
+    /// One IMU sample that the IMU flags as clipped (over-range on at least one axis of the
+    /// sensors in `clipped`; the driver knows it from the status word or from a component at
+    /// full scale). Only the flagged sensor's block of P is inflated (accelerometer →
+    /// velocity, gyro → attitude).
+    ///
+    /// Design: the sample is integrated as delivered: its unclipped axes are exact and a
+    /// clipped axis reads the range, the value closest to the truth that is known (a hold of
+    /// the previous sample is further off in a burst that grows past the range, and dropping
+    /// the sample loses the unclipped axes). The unknown excess is accounted for in P per
+    /// [`ImuFaultPolicy`] (`clip_*_sigma`, fully correlated over a burst of consecutive clipped
+    /// samples). Errors (filter unchanged): as [`SeekerIns::propagate`].
+    pub fn propagate_clipped(
+        &mut self,
+        inc: &ImuIncrement<T>,
+        clipped: ClipFlags,
+    ) -> Result<(), NavError> {
+        let dt = self.config.imu_dt_s;
+        let compensated = ImuIncrement {
+            delta_theta_rad: inc.delta_theta_rad - self.gyro_bias_rad_s * dt,
+            delta_v_m_s: inc.delta_v_m_s - self.accel_bias_m_s2 * dt,
+        };
+        self.propagate_compensated(&compensated)?;
+        self.held_run = 0;
+        self.clipped_run = self.clipped_run.saturating_add(1);
+        let zero = T::zero();
+        let pol = &self.imu_policy;
+        let sa = if clipped.accel {
+            pol.clip_accel_sigma_m_s2
+        } else {
+            zero
+        };
+        let sw = if clipped.gyro {
+            pol.clip_rate_sigma_rad_s
+        } else {
+            zero
+        };
+        self.inflate_degraded(self.clipped_run, sa, sw);
+        self.imu_counters.clipped_samples = self.imu_counters.clipped_samples.saturating_add(1);
+        Ok(())
+    }
+
+    /// Bridges a gap of `missing_samples` whole IMU intervals (samples lost on the bus, a
+    /// sensor reset), to be called before the first sample after the gap so that the INS
+    /// and P are back on the IMU time grid.
+    ///
+    /// Design: zero-order hold. The INS integrates the last compensated increment
+    /// ([`Ins::last_increment`]; body rate and specific force held constant in the body
+    /// frame, so coning/sculling terms vanish), P is propagated as for real samples, and the
+    /// error of the hold is accounted for in P per [`ImuFaultPolicy`] (`gap_*_sigma`, fully
+    /// correlated over the gap: after a gap of duration T, velocity σ grows by σ_a T and
+    /// misalignment σ by σ_ω T, plus what Φ carries into position). Seeker measurements
+    /// taken during the gap are best dropped (the INS was not at their time).
+    ///
+    /// Errors (filter unchanged, nothing counted): `InvalidTimeStep` if `missing_samples` is
+    /// 0 or exceeds [`ImuFaultPolicy::max_gap_samples`]; `InputOutOfRange` before the first
+    /// IMU sample (nothing to hold); any error of the INS step or covariance propagation.
+    /// The bridge works on a copy of the filter and commits at the end.
+    pub fn propagate_gap(&mut self, missing_samples: u16) -> Result<(), NavError> {
+        if missing_samples == 0 || missing_samples > self.imu_policy.max_gap_samples {
+            return Err(NavError::InvalidTimeStep);
+        }
+        let held = self.ins.last_increment().ok_or(NavError::InputOutOfRange {
+            input: "IMU gap before the first sample (nothing to hold)",
+        })?;
+        let mut next = *self;
+        let (sa, sw) = (
+            self.imu_policy.gap_accel_sigma_m_s2,
+            self.imu_policy.gap_rate_sigma_rad_s,
+        );
+        next.clipped_run = 0;
+        for _ in 0..missing_samples {
+            next.propagate_compensated(&held)?;
+            next.held_run = next.held_run.saturating_add(1);
+            next.inflate_degraded(next.held_run, sa, sw);
+        }
+        next.imu_counters.gaps = next.imu_counters.gaps.saturating_add(1);
+        next.imu_counters.held_samples = next
+            .imu_counters
+            .held_samples
+            .saturating_add(u32::from(missing_samples));
+        *self = next;
+        Ok(())
+    }
+
+    /// Adds `(2c − 1)(σ Δt)²` to the velocity and attitude variances ([`ImuFaultPolicy`]).
+    fn inflate_degraded(&mut self, c: u16, accel_sigma: T, rate_sigma: T) {
+        let dt = self.config.imu_dt_s;
+        let w = T::lit(2.0 * f64::from(c) - 1.0) * dt * dt;
+        let (qa, qw) = (w * accel_sigma * accel_sigma, w * rate_sigma * rate_sigma);
+        for i in VEL..VEL + 3 {
+            if let Some(v) = self.p.get_mut((i, i)) {
+                *v += qa;
+            }
+        }
+        for i in ATT..ATT + 3 {
+            if let Some(v) = self.p.get_mut((i, i)) {
+                *v += qw;
+            }
+        }
+    }
+
+    /// INS step with a bias-compensated increment and the covariance step when due; atomic.
+    fn propagate_compensated(&mut self, compensated: &ImuIncrement<T>) -> Result<(), NavError> {
+        let dt = self.config.imu_dt_s;
         // The INS steps on a copy (P, the large part, is not copied: the covariance step below
         // is atomic), and everything is committed only when both succeeded.
         let mut ins = self.ins;
-        ins.step(&compensated)?;
+        ins.step(compensated)?;
         let dv_pending = self.dv_ned_pending_m_s + ins.specific_force_ned_m_s2() * dt;
         let steps = self.steps_pending.saturating_add(1);
         if steps >= self.config.covariance_interval_steps {

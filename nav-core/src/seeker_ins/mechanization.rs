@@ -271,6 +271,12 @@ impl<T: Real> Ins<T> {
         self.f_ned_m_s2
     }
 
+    /// The last increment integrated by [`Ins::step`] (`None` before the first sample); the
+    /// zero-order hold of the filter's IMU-gap bridging.
+    pub fn last_increment(&self) -> Option<ImuIncrement<T>> {
+        self.has_prev.then_some(self.prev)
+    }
+
     /// Advances the INS by one IMU interval.
     ///
     /// Errors (state unchanged): `NonFiniteInput`, `InputOutOfRange` (|Δθ| >

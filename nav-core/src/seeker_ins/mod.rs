@@ -31,6 +31,9 @@ pub mod measurement;
 pub mod mechanization;
 
 pub use error_model::STATES;
-pub use filter::{LosCounters, LosReport, LosResidual, RecoveryPolicy, SeekerIns, SeekerInsConfig};
+pub use filter::{
+    ClipFlags, ImuFaultCounters, ImuFaultPolicy, LosCounters, LosReport, LosResidual,
+    RecoveryPolicy, SeekerIns, SeekerInsConfig,
+};
 pub use measurement::{GimbalAngles, Landmark, LosModel};
 pub use mechanization::{ImuIncrement, Ins, InsState, Position};

@@ -8,6 +8,7 @@
 //! the Table 4 initial errors, then flies the truth trajectory of [`trajectory`] twice with
 //! the same random numbers: once with seeker updates (aided) and once without (free INS).
 
+pub mod fault;
 pub mod trajectory;
 
 use crate::output::{sig, write_csv};
@@ -181,6 +182,16 @@ pub struct RunOutput {
     pub errors: usize,
     /// True gimbal angles at the seeker epochs (pitch, yaw), deg (first run only used).
     pub gimbal_deg: Vec<(f64, f64, f64)>,
+    /// Filter counters at the end of the run: LOS gate re-inflations.
+    pub inflations: u32,
+    /// IMU fault counters at the end of the run.
+    pub imu_faults: nav_core::seeker_ins::ImuFaultCounters,
+    /// Seeker epochs without a measurement because of an injected fault (loss of lock, IMU gap).
+    pub seeker_dropped: usize,
+    /// Seeker updates during an injected false lock, components fused / rejected.
+    pub false_lock_fused: usize,
+    /// As `false_lock_fused`, rejected.
+    pub false_lock_rejected: usize,
 }
 
 /// Loads the configuration of a shipped scenario file (`nav-sim/scenarios/<name>.toml`).
@@ -258,6 +269,19 @@ pub fn simulate_run<T: Real>(
     epochs: &[usize],
     rng: &mut SimRng,
     aided: bool,
+) -> Result<RunOutput> {
+    simulate_run_faulted::<T>(cfg, truth, epochs, rng, aided, &fault::Faults::default())
+}
+
+/// [`simulate_run`] with injected faults ([`fault::Faults`]); with none it is the same run,
+/// number for number (the fault models draw no random numbers).
+pub fn simulate_run_faulted<T: Real>(
+    cfg: &Config,
+    truth: &Truth,
+    epochs: &[usize],
+    rng: &mut SimRng,
+    aided: bool,
+    faults: &fault::Faults,
 ) -> Result<RunOutput> {
     let s = &cfg.sensors;
     let dt = truth.dt_s;
@@ -356,15 +380,25 @@ pub fn simulate_run<T: Real>(
     };
     let mut filter = SeekerIns::new(config, init, &p0m.cast::<T>())
         .map_err(|e| anyhow::anyhow!("filter init: {e}"))?;
+    if let Some(pol) = &faults.policy {
+        filter
+            .set_imu_fault_policy(fault::policy_cast::<T>(pol))
+            .map_err(|e| anyhow::anyhow!("IMU fault policy: {e}"))?;
+    }
+    let mut missing: u16 = 0;
     let lm64 = Landmark::<f64>::new(lm_pos).map_err(|e| anyhow::anyhow!("{e}"))?;
     let limit = cfg.rates.gimbal_limit_deg.to_radians();
     let mut out = RunOutput::default();
     let mut next_epoch = epochs.iter().peekable();
     let n = truth.t_s.len();
     for k in 0..n {
+        let in_gap = k > 0 && faults.in_imu_gap(truth.t_s[k]);
         if k > 0 {
             let inc = &truth.imu[k];
-            let dv = acc_m * inc.delta_v_m_s
+            let t_k = truth.t_s[k];
+            // The sensed increment of the true motion, clipped at the range in a burst.
+            let (true_dv, clipped) = faults.accel_increment(t_k, dt, &inc.delta_v_m_s);
+            let dv = acc_m * true_dv
                 + acc_b * dt
                 + Vector3::new(normal(rng, sd_dv), normal(rng, sd_dv), normal(rng, sd_dv));
             let dth = gyr_m * inc.delta_theta_rad
@@ -374,35 +408,59 @@ pub fn simulate_run<T: Real>(
                     normal(rng, sd_dth),
                     normal(rng, sd_dth),
                 );
-            filter
-                .propagate(&ImuIncrement {
-                    delta_theta_rad: dth.cast::<T>(),
-                    delta_v_m_s: dv.cast::<T>(),
-                })
+            let sample = ImuIncrement {
+                delta_theta_rad: dth.cast::<T>(),
+                delta_v_m_s: dv.cast::<T>(),
+            };
+            if in_gap {
+                missing = missing.saturating_add(1);
+            } else {
+                if missing > 0 {
+                    filter
+                        .propagate_gap(missing)
+                        .map_err(|e| anyhow::anyhow!("gap of {missing} at k = {k}: {e}"))?;
+                    missing = 0;
+                }
+                if clipped && faults.flag_clipped {
+                    filter.propagate_clipped(
+                        &sample,
+                        nav_core::seeker_ins::ClipFlags {
+                            accel: true,
+                            gyro: false,
+                        },
+                    )
+                } else {
+                    filter.propagate(&sample)
+                }
                 .map_err(|e| anyhow::anyhow!("propagate at k = {k}: {e}"))?;
+            }
             if k % imu_per_seeker == 0 {
                 let noise = Vector2::new(normal(rng, seeker_sd), normal(rng, seeker_sd));
                 let d = landmark_vector_ned(&truth.position[k], &lm64);
                 let g = gimbal_angles_of(&(truth.c_b_n[k].transpose() * d));
-                out.gimbal_deg.push((
-                    truth.t_s[k],
-                    g.pitch_rad.to_degrees(),
-                    g.yaw_rad.to_degrees(),
-                ));
+                out.gimbal_deg
+                    .push((t_k, g.pitch_rad.to_degrees(), g.yaw_rad.to_degrees()));
                 if g.pitch_rad.abs() > limit || g.yaw_rad.abs() > limit {
                     out.out_of_field += 1;
+                } else if aided && (in_gap || faults.loss_of_lock(t_k)) {
+                    out.seeker_dropped += 1;
                 } else if aided {
+                    let false_yaw = faults.false_lock_yaw_rad(t_k);
                     let meas = GimbalAngles {
                         pitch_rad: T::lit(g.pitch_rad + seeker_bias.x + noise.x),
-                        yaw_rad: T::lit(g.yaw_rad + seeker_bias.y + noise.y),
+                        yaw_rad: T::lit(
+                            g.yaw_rad + seeker_bias.y + noise.y + false_yaw.unwrap_or(0.0),
+                        ),
                     };
                     match filter.update_los(&meas) {
                         Ok(rep) => {
                             for c in [rep.pitch, rep.yaw] {
                                 out.nis_sum += c.nis.to_f64();
-                                match c.outcome {
-                                    FusionOutcome::Fused => out.fused += 1,
-                                    FusionOutcome::Rejected => out.rejected += 1,
+                                match (c.outcome, false_yaw.is_some()) {
+                                    (FusionOutcome::Fused, false) => out.fused += 1,
+                                    (FusionOutcome::Rejected, false) => out.rejected += 1,
+                                    (FusionOutcome::Fused, true) => out.false_lock_fused += 1,
+                                    (FusionOutcome::Rejected, true) => out.false_lock_rejected += 1,
                                 }
                             }
                         }
@@ -413,19 +471,25 @@ pub fn simulate_run<T: Real>(
         }
         if next_epoch.peek() == Some(&&k) {
             next_epoch.next();
-            if !aided {
-                // Same covariance epoch as the aided run.
-                filter
-                    .predict_covariance()
-                    .map_err(|e| anyhow::anyhow!("{e}"))?;
+            filter
+                .predict_covariance()
+                .map_err(|e| anyhow::anyhow!("{e}"))?;
+            if missing > 0 {
+                // Inside an IMU gap: the output a flight computer would give, the INS bridged
+                // by the hold up to this epoch (on a copy; the filter bridges at the gap end).
+                let mut bridged = filter;
+                bridged
+                    .propagate_gap(missing)
+                    .and_then(|()| bridged.predict_covariance())
+                    .map_err(|e| anyhow::anyhow!("gap output at k = {k}: {e}"))?;
+                record(&mut out, &bridged, truth, k, &acc_b, &gyr_b, &seeker_bias);
             } else {
-                filter
-                    .predict_covariance()
-                    .map_err(|e| anyhow::anyhow!("{e}"))?;
+                record(&mut out, &filter, truth, k, &acc_b, &gyr_b, &seeker_bias);
             }
-            record(&mut out, &filter, truth, k, &acc_b, &gyr_b, &seeker_bias);
         }
     }
+    out.inflations = filter.counters().inflations;
+    out.imu_faults = filter.imu_fault_counters();
     Ok(out)
 }
 
