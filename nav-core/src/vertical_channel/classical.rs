@@ -67,6 +67,12 @@ impl ClassicalGains {
     pub fn pole_placement(tau_s: f64, c4_s: f64, c_per_s2: f64) -> Result<Self, NavError> {
         require_positive("tau_s", tau_s)?;
         require_non_negative("baro_lag_s", c4_s)?;
+        if tau_s > super::MAX_TAU_S {
+            return Err(NavError::InvalidConfig {
+                field: "tau_s",
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
         require_non_negative("c_per_s2", c_per_s2)?;
         let den0 = 1.0 - c_per_s2 * c4_s * c4_s;
         if den0 <= 0.0 {
@@ -149,7 +155,7 @@ impl<T: Real> ClassicalLoop<T> {
     /// Errors: `InvalidConfig` (field named), `NonFiniteInput`/`InputOutOfRange` for the
     /// initial state, `NotConverged` if the discretisation fails.
     pub fn new(config: &ClassicalConfig, init: &InitialState<T>) -> Result<Self, NavError> {
-        require_positive("imu_dt_s", config.imu_dt_s)?;
+        super::check_imu_dt(config.imu_dt_s)?;
         config
             .baro_timeouts
             .validate("baro_timeouts.stale_after_s", "baro_timeouts.lost_after_s")?;
@@ -201,6 +207,15 @@ impl<T: Real> ClassicalLoop<T> {
     /// Time of the estimate, s.
     pub fn time_s(&self) -> T {
         self.core.time_s
+    }
+    /// Installs the χ² innovation gate ([`super::InnovationGate`]), or removes it with `None`
+    /// (then every valid sample is accepted). Counters are kept. On error nothing changes.
+    pub fn set_gate(&mut self, gate: Option<&super::InnovationGate>) -> Result<(), NavError> {
+        self.core.set_gate(gate)
+    }
+    /// Gate counters of the baro.
+    pub fn baro_counters(&self) -> &super::GateCounters {
+        &self.core.baro_counters
     }
     /// Discrete transition matrix with the baro in use (for analysis).
     pub fn phi_with_baro(&self) -> Matrix3<T> {

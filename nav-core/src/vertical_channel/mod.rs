@@ -29,8 +29,9 @@ pub mod aided;
 pub mod classical;
 pub mod riccati;
 
-use crate::error::{require_positive, ConfigIssue};
+use crate::error::{require_non_negative, require_positive, ConfigIssue};
 use crate::math::discretize::discretize;
+pub use crate::math::kalman::FusionOutcome;
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, Matrix3x2, SMatrix, Vector3};
 
@@ -42,6 +43,17 @@ pub const ALTITUDE_RANGE_M: (f64, f64) = (-2_000.0, 60_000.0);
 pub const MAX_VERTICAL_SPEED_M_S: f64 = 1_500.0;
 /// Accepted IMU interval relative to the configured one: `|Δt − dt| ≤ 0.25 dt`.
 pub const IMU_DT_TOLERANCE: f64 = 0.25;
+/// Largest accepted configured IMU interval `imu_dt_s`, s.
+pub const MAX_IMU_DT_S: f64 = 1.0;
+/// Largest accepted classical time constant `tau_s`, s.
+pub const MAX_TAU_S: f64 = 1.0e4;
+/// Accepted range of the aided design's PSDs and periods (squares of the noise densities,
+/// `σ² T` of the aids, the periods): `[MIN_DESIGN_VALUE, MAX_DESIGN_VALUE]`.
+pub const MIN_DESIGN_VALUE: f64 = 1.0e-24;
+/// Upper end of the aided design's accepted range, see [`MIN_DESIGN_VALUE`].
+pub const MAX_DESIGN_VALUE: f64 = 1.0e12;
+/// Largest accepted aid timeout (`stale_after_s`, `lost_after_s`), s.
+pub const MAX_TIMEOUT_S: f64 = 1.0e6;
 
 /// One IMU sample: the vertical component of the specific force, averaged over the interval
 /// that ends at `time_s`.
@@ -118,6 +130,126 @@ pub struct AidReport<T> {
     /// Innovation variance of a fresh sample under the steady-state design,
     /// `C P Cᵀ + σ²` (unit²); `None` for the classical loop (no covariance) or an unused aid.
     pub innovation_variance: Option<T>,
+    /// The χ² gate's verdict on a sample that arrived in this step (`None`: no new sample).
+    pub new_sample: Option<SampleCheck<T>>,
+}
+
+/// What happened to a newly arrived aid sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SampleCheck<T> {
+    /// Innovation of the new sample, extrapolated to mid-interval (measurement unit).
+    pub innovation: T,
+    /// Gate variance `S = σ₀² + d(gap)²` (unit²), `None` when no gate is configured.
+    pub gate_variance: Option<T>,
+    /// Normalised innovation squared `ν² / S` (χ², 1 dof), `None` when no gate is configured.
+    pub nis: Option<T>,
+    /// `Fused` (the sample replaces the held one) or `Rejected` (discarded; the previously
+    /// accepted sample keeps ageing and the aid eventually goes `Lost`).
+    pub outcome: FusionOutcome,
+    /// `true` when this accepted sample ended a `Lost` period (re-acquisition).
+    pub reacquired: bool,
+}
+
+/// Gate counters of one aid (saturating).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GateCounters {
+    /// Samples accepted.
+    pub accepted: u32,
+    /// Samples rejected by the gate.
+    pub rejected: u32,
+    /// Rejections since the last accepted sample.
+    pub consecutive_rejected: u32,
+    /// Accepted samples that ended a `Lost` period (re-acquisitions).
+    pub reacquisitions: u32,
+}
+
+/// χ² innovation gate of the aid samples, with re-inflation while an aid is starved.
+///
+/// A new sample with innovation ν (against the estimate at mid-interval, the same innovation
+/// the loop corrects with) is rejected when `ν² > nis_threshold · S`, where
+///
+/// ```text
+/// baro:      S = σ_h² + (gap · (σ_v0 + ½ σ_a0 · gap))²
+/// velocity:  S = σ_v² + (σ_a0 · gap)²
+/// ```
+///
+/// and `gap` is the time since the last **accepted** sample of that aid. σ₀ is the innovation
+/// σ of a tracking loop; the second term is the open-loop (inertial-only) error growth from a
+/// velocity uncertainty σ_v0 and an acceleration uncertainty σ_a0 — the loops are fixed-gain
+/// observers without a running covariance, so the **recovery path is re-inflation of the gate**:
+/// while an aid is starved (dropout, or every sample rejected) the gate widens as the inertial
+/// solution's plausible drift, until a sample consistent with it is accepted. Re-acquisition is
+/// then through the loop's own fixed, stable gains: no state reset, no jump (the estimate moves
+/// by at most `Γ`-weighted innovation per step). A persistent wrong reading that departs from
+/// the inertial solution faster than the drift model (a frozen baro in a climb, a spike) stays
+/// rejected. The first sample an aid ever delivers is accepted ungated (acquisition).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct InnovationGate {
+    /// χ² threshold on ν²/S (1 dof; e.g. 10.83 for a 0.1 % false-alarm rate).
+    pub nis_threshold: f64,
+    /// Baro innovation σ₀ of a tracking loop, m.
+    pub baro_sigma_m: f64,
+    /// Velocity-aid innovation σ₀ of a tracking loop, m/s (unused by the classical loop).
+    pub velocity_sigma_m_s: f64,
+    /// Velocity uncertainty σ_v0 of the inertial solution driving the re-inflation, m/s (≥ 0).
+    pub starved_velocity_sigma_m_s: f64,
+    /// Acceleration uncertainty σ_a0 driving the re-inflation, m/s² (≥ 0).
+    pub starved_accel_sigma_m_s2: f64,
+}
+
+impl InnovationGate {
+    /// Validates the gate and converts it to the loop's float type.
+    pub(crate) fn compile<T: Real>(&self) -> Result<GateParams<T>, NavError> {
+        let thr = require_positive("gate.nis_threshold", self.nis_threshold)?;
+        let sh = require_positive("gate.baro_sigma_m", self.baro_sigma_m)?;
+        let sv = require_positive("gate.velocity_sigma_m_s", self.velocity_sigma_m_s)?;
+        let gv = require_non_negative(
+            "gate.starved_velocity_sigma_m_s",
+            self.starved_velocity_sigma_m_s,
+        )?;
+        let ga = require_non_negative(
+            "gate.starved_accel_sigma_m_s2",
+            self.starved_accel_sigma_m_s2,
+        )?;
+        for (field, v) in [
+            ("gate.nis_threshold", thr),
+            ("gate.baro_sigma_m", sh * sh),
+            ("gate.velocity_sigma_m_s", sv * sv),
+            ("gate.starved_velocity_sigma_m_s", gv * gv),
+            ("gate.starved_accel_sigma_m_s2", ga * ga),
+        ] {
+            // Squares must stay finite and (for σ₀) normal in f32.
+            let ok = v.is_finite() && v < 1.0e30 && (v == 0.0 || v > 1.0e-30);
+            if !ok {
+                return Err(NavError::InvalidConfig {
+                    field,
+                    issue: ConfigIssue::OutOfRange,
+                });
+            }
+        }
+        Ok(GateParams {
+            nis_threshold: T::lit(thr),
+            baro_var: T::lit(sh * sh),
+            velocity_var: T::lit(sv * sv),
+            growth_v: T::lit(gv),
+            growth_half_a: T::lit(0.5 * ga),
+            growth_a: T::lit(ga),
+        })
+    }
+}
+
+/// [`InnovationGate`] in the loop's float type.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct GateParams<T> {
+    nis_threshold: T,
+    baro_var: T,
+    velocity_var: T,
+    growth_v: T,
+    growth_half_a: T,
+    growth_a: T,
 }
 
 /// Timeouts of one aid.
@@ -134,6 +266,14 @@ impl AidTimeouts {
     fn validate(&self, stale: &'static str, lost: &'static str) -> Result<(), NavError> {
         require_positive(stale, self.stale_after_s)?;
         require_positive(lost, self.lost_after_s)?;
+        for (field, v) in [(stale, self.stale_after_s), (lost, self.lost_after_s)] {
+            if v > MAX_TIMEOUT_S {
+                return Err(NavError::InvalidConfig {
+                    field,
+                    issue: ConfigIssue::OutOfRange,
+                });
+            }
+        }
         if self.lost_after_s < self.stale_after_s {
             return Err(NavError::InvalidConfig {
                 field: lost,
@@ -277,6 +417,9 @@ pub(crate) fn discretise_modes<T: Real>(
         let (phi_aug, _) = discretize(&aug, &SMatrix::<f64, 6, 6>::zeros(), dt_s)?;
         let phi: Matrix3<f64> = phi_aug.fixed_view::<3, 3>(0, 0).into_owned();
         let gamma: Matrix3<f64> = phi_aug.fixed_view::<3, 3>(0, 3).into_owned();
+        if !phi.iter().chain(gamma.iter()).all(|v| v.is_finite()) {
+            return Err(NavError::NotConverged { iterations: 0 });
+        }
         Ok(Mode {
             phi: phi.cast::<T>(),
             gamma: gamma.cast::<T>(),
@@ -410,6 +553,77 @@ pub(crate) fn check_initial<T: Real>(init: &InitialState<T>) -> Result<(), NavEr
     Ok(())
 }
 
+/// Gate of one new sample: returns the channel to use, the verdict and the counters.
+/// `rate` extrapolates the sample to mid-interval, `pred` is the predicted measurement;
+/// `gate = (σ₀², growth₁, growth₂, threshold)` with the drift `d = gap (growth₁ + growth₂ gap)`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn admit<T: Real>(
+    old: &AidChannel<T>,
+    cand: Option<AidChannel<T>>,
+    counters: GateCounters,
+    now: T,
+    mid: T,
+    rate: T,
+    pred: T,
+    gate: Option<(T, T, T, T)>,
+) -> (AidChannel<T>, Option<SampleCheck<T>>, GateCounters) {
+    let Some(cand) = cand else {
+        return (*old, None, counters);
+    };
+    let innovation = cand.last_value + (mid - cand.last_time_s) * rate - pred;
+    let (gate_variance, nis, pass) = match gate {
+        Some((var0, g1, g2, thr)) if old.received => {
+            let gap = cand.last_time_s - old.last_time_s;
+            let d = gap * (g1 + g2 * gap);
+            let s = var0 + d * d;
+            let nu2 = innovation * innovation;
+            (Some(s), Some(nu2 / s), nu2 <= thr * s)
+        }
+        _ => (None, None, true),
+    };
+    let mut c = counters;
+    if pass {
+        let reacquired = matches!(old.status(now), AidStatus::Lost { .. });
+        c.accepted = c.accepted.saturating_add(1);
+        c.consecutive_rejected = 0;
+        if reacquired {
+            c.reacquisitions = c.reacquisitions.saturating_add(1);
+        }
+        let check = SampleCheck {
+            innovation,
+            gate_variance,
+            nis,
+            outcome: FusionOutcome::Fused,
+            reacquired,
+        };
+        (cand, Some(check), c)
+    } else {
+        c.rejected = c.rejected.saturating_add(1);
+        c.consecutive_rejected = c.consecutive_rejected.saturating_add(1);
+        let check = SampleCheck {
+            innovation,
+            gate_variance,
+            nis,
+            outcome: FusionOutcome::Rejected,
+            reacquired: false,
+        };
+        (*old, Some(check), c)
+    }
+}
+
+/// Checks the configured IMU interval.
+pub(crate) fn check_imu_dt(imu_dt_s: f64) -> Result<(), NavError> {
+    require_positive("imu_dt_s", imu_dt_s)?;
+    if imu_dt_s > MAX_IMU_DT_S {
+        return Err(NavError::InvalidConfig {
+            field: "imu_dt_s",
+            issue: ConfigIssue::OutOfRange,
+        });
+    }
+    Ok(())
+}
+
 /// The state and machinery shared by both loops.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct LoopCore<T: Real> {
@@ -426,6 +640,10 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) baro_lag_s: T,
     /// +1 when `V̇_z = A_z + b` (aided loop, spec's A), −1 when `V̇_z = A_z − b` (classical).
     pub(crate) bias_sign: T,
+    /// Innovation gate (`None`: every valid sample is accepted).
+    pub(crate) gate: Option<GateParams<T>>,
+    pub(crate) baro_counters: GateCounters,
+    pub(crate) velocity_counters: GateCounters,
 }
 
 impl<T: Real> LoopCore<T> {
@@ -456,6 +674,9 @@ impl<T: Real> LoopCore<T> {
             velocity: AidChannel::new(velocity),
             baro_lag_s: T::lit(baro_lag_s),
             bias_sign: T::lit(bias_sign),
+            gate: None,
+            baro_counters: GateCounters::default(),
+            velocity_counters: GateCounters::default(),
         })
     }
 
@@ -470,43 +691,71 @@ impl<T: Real> LoopCore<T> {
     ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
         check_imu(imu, self.time_s, self.dt_s)?;
         let now = imu.time_s;
-        let baro_ch = match baro {
-            Some(s) => self.baro.with_sample(
+        let (h, v, b) = (self.x.x, self.x.y, self.x.z);
+        let az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h);
+        let mid = now - self.half_dt_s;
+        // Predicted measurements at mid-interval and the rate a held sample is extrapolated with.
+        let h_pred = h - self.baro_lag_s * v;
+        let v_rate = az + self.bias_sign * b;
+
+        // Validate the new samples (nothing is committed before all checks pass).
+        let baro_cand = match baro {
+            Some(s) => Some(self.baro.with_sample(
                 s.time_s,
                 s.altitude_m,
                 now,
                 "altitude_m",
                 ALTITUDE_RANGE_M,
-            )?,
-            None => self.baro,
+            )?),
+            None => None,
         };
-        let vel_ch = match velocity {
-            Some(s) => self.velocity.with_sample(
+        let vel_cand = match velocity {
+            Some(s) => Some(self.velocity.with_sample(
                 s.time_s,
                 s.vz_up_m_s,
                 now,
                 "vz_up_m_s",
                 (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
-            )?,
-            None => self.velocity,
+            )?),
+            None => None,
         };
+        // χ² gate on the new samples.
+        let gate = self.gate.as_ref();
+        let (baro_ch, baro_check, baro_counters) = admit(
+            &self.baro,
+            baro_cand,
+            self.baro_counters,
+            now,
+            mid,
+            v,
+            h_pred,
+            gate.map(|g| (g.baro_var, g.growth_v, g.growth_half_a, g.nis_threshold)),
+        );
+        let (vel_ch, vel_check, vel_counters) = admit(
+            &self.velocity,
+            vel_cand,
+            self.velocity_counters,
+            now,
+            mid,
+            v_rate,
+            v,
+            gate.map(|g| (g.velocity_var, g.growth_a, T::zero(), g.nis_threshold)),
+        );
+
         let baro_status = baro_ch.status(now);
         let vel_status = vel_ch.status(now);
         let use_baro = baro_status.in_use();
         let use_vel = vel_status.in_use();
 
-        let (h, v, b) = (self.x.x, self.x.y, self.x.z);
-        let az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h);
-        let mid = now - self.half_dt_s;
         // Held samples extrapolated to the middle of the interval (ZOH of the continuous loop).
         let (z_h, nu_h) = if use_baro {
             let z = baro_ch.last_value + (mid - baro_ch.last_time_s) * v;
-            (z, Some(z - (h - self.baro_lag_s * v)))
+            (z, Some(z - h_pred))
         } else {
             (T::zero(), None)
         };
         let (z_v, nu_v) = if use_vel {
-            let z = vel_ch.last_value + (mid - vel_ch.last_time_s) * (az + self.bias_sign * b);
+            let z = vel_ch.last_value + (mid - vel_ch.last_time_s) * v_rate;
             (z, Some(z - v))
         } else {
             (T::zero(), None)
@@ -528,18 +777,31 @@ impl<T: Real> LoopCore<T> {
         self.time_s = now;
         self.baro = baro_ch;
         self.velocity = vel_ch;
+        self.baro_counters = baro_counters;
+        self.velocity_counters = vel_counters;
         Ok((
             AidReport {
                 status: baro_status,
                 innovation: nu_h,
                 innovation_variance: if use_baro { variances.0 } else { None },
+                new_sample: baro_check,
             },
             AidReport {
                 status: vel_status,
                 innovation: nu_v,
                 innovation_variance: if use_vel { variances.1 } else { None },
+                new_sample: vel_check,
             },
         ))
+    }
+
+    /// Installs (or removes, `None`) the innovation gate. On error nothing changes.
+    pub(crate) fn set_gate(&mut self, gate: Option<&InnovationGate>) -> Result<(), NavError> {
+        self.gate = match gate {
+            Some(g) => Some(g.compile()?),
+            None => None,
+        };
+        Ok(())
     }
 
     /// Accelerometer bias estimate (measured − true), m/s².
@@ -549,6 +811,7 @@ impl<T: Real> LoopCore<T> {
 }
 
 pub use aided::{AidedConfig, AidedGains, AidedLoop, AidedReport};
+
 pub use classical::{ClassicalConfig, ClassicalGains, ClassicalLoop, ClassicalReport};
 
 #[cfg(test)]
