@@ -97,13 +97,13 @@ impl AidedGains {
         let sv = require_positive("velocity_noise_m_s", config.velocity_noise_m_s)?;
         let tv = require_positive("velocity_period_s", config.velocity_period_s)?;
         for (field, v) in [
+            ("baro_period_s", th),
+            ("velocity_period_s", tv),
+            ("baro_lag_s", lag),
             ("accel_noise_m_s2_rt_hz", sa * sa),
             ("accel_bias_rw_m_s2_rt_s", sb * sb),
             ("baro_noise_m", sh * sh * th),
-            ("baro_period_s", th),
-            ("baro_lag_s", lag),
             ("velocity_noise_m_s", sv * sv * tv),
-            ("velocity_period_s", tv),
         ] {
             if !(v.is_finite()
                 && v <= super::MAX_DESIGN_VALUE

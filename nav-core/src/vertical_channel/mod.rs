@@ -39,6 +39,10 @@ use nalgebra::{Matrix3, Matrix3x2, SMatrix, Vector3};
 pub const MAX_SPECIFIC_FORCE_M_S2: f64 = 196.0;
 /// Accepted altitude range of the estimate and the baro, m.
 pub const ALTITUDE_RANGE_M: (f64, f64) = (-2_000.0, 60_000.0);
+/// Range the altitude **estimate** must stay in, m (wider than [`ALTITUDE_RANGE_M`] so a loop
+/// coasting through a long outage keeps running and can re-acquire; leaving it means the loop
+/// has diverged: the step is refused with `InputOutOfRange { input: "altitude estimate" }`).
+pub const ESTIMATE_RANGE_M: (f64, f64) = (-50_000.0, 500_000.0);
 /// Largest accepted |vertical velocity| of the aid, m/s.
 pub const MAX_VERTICAL_SPEED_M_S: f64 = 1_500.0;
 /// Accepted IMU interval relative to the configured one: `|Δt − dt| ≤ 0.25 dt`.
@@ -140,15 +144,23 @@ pub struct AidReport<T> {
 pub struct SampleCheck<T> {
     /// Innovation of the new sample, extrapolated to mid-interval (measurement unit).
     pub innovation: T,
-    /// Gate variance `S = σ₀² + d(gap)²` (unit²), `None` when no gate is configured.
-    pub gate_variance: Option<T>,
-    /// Normalised innovation squared `ν² / S` (χ², 1 dof), `None` when no gate is configured.
-    pub nis: Option<T>,
+    /// Gate variance `S = σ₀² + d(gap)²` (unit²); `+∞` when no gate is configured or for the
+    /// first sample of an aid (accepted ungated).
+    pub gate_variance: T,
     /// `Fused` (the sample replaces the held one) or `Rejected` (discarded; the previously
     /// accepted sample keeps ageing and the aid eventually goes `Lost`).
     pub outcome: FusionOutcome,
     /// `true` when this accepted sample ended a `Lost` period (re-acquisition).
     pub reacquired: bool,
+    /// `true` when the re-acquisition reset the measured state (see [`InnovationGate`]).
+    pub reset: bool,
+}
+
+impl<T: Real> SampleCheck<T> {
+    /// Normalised innovation squared `ν² / S` (χ², 1 dof); 0 when ungated.
+    pub fn nis(&self) -> T {
+        self.innovation * self.innovation / self.gate_variance
+    }
 }
 
 /// Gate counters of one aid (saturating).
@@ -163,9 +175,12 @@ pub struct GateCounters {
     pub consecutive_rejected: u32,
     /// Accepted samples that ended a `Lost` period (re-acquisitions).
     pub reacquisitions: u32,
+    /// Re-acquisitions that reset the measured state (innovation beyond the tracking gate).
+    pub resets: u32,
 }
 
-/// χ² innovation gate of the aid samples, with re-inflation while an aid is starved.
+/// χ² innovation gate of the aid samples, with re-inflation while an aid is starved and a
+/// reset on re-acquisition.
 ///
 /// A new sample with innovation ν (against the estimate at mid-interval, the same innovation
 /// the loop corrects with) is rejected when `ν² > nis_threshold · S`, where
@@ -177,14 +192,27 @@ pub struct GateCounters {
 ///
 /// and `gap` is the time since the last **accepted** sample of that aid. σ₀ is the innovation
 /// σ of a tracking loop; the second term is the open-loop (inertial-only) error growth from a
-/// velocity uncertainty σ_v0 and an acceleration uncertainty σ_a0 — the loops are fixed-gain
-/// observers without a running covariance, so the **recovery path is re-inflation of the gate**:
-/// while an aid is starved (dropout, or every sample rejected) the gate widens as the inertial
-/// solution's plausible drift, until a sample consistent with it is accepted. Re-acquisition is
-/// then through the loop's own fixed, stable gains: no state reset, no jump (the estimate moves
-/// by at most `Γ`-weighted innovation per step). A persistent wrong reading that departs from
-/// the inertial solution faster than the drift model (a frozen baro in a climb, a spike) stays
-/// rejected. The first sample an aid ever delivers is accepted ungated (acquisition).
+/// velocity uncertainty σ_v0 and an acceleration uncertainty σ_a0. A rejected sample is
+/// discarded: the last accepted one keeps ageing (`Stale`, then `Lost`, the loop coasting on
+/// the IMU).
+///
+/// Recovery path when a loop is starved (dropout, or every sample rejected). The loops are
+/// fixed-gain observers without a running covariance, so:
+///
+/// 1. **Re-inflation of the gate**: while starved, S grows as the inertial solution's plausible
+///    drift, until a sample consistent with it is accepted. A persistent wrong reading that
+///    departs from the inertial solution faster than the drift model (a frozen baro in a climb,
+///    a spike) stays rejected.
+/// 2. **Reset on re-acquisition**: when the accepted sample ends a `Lost` period and its
+///    innovation fails the *tracking* gate (`ν² > nis_threshold · σ₀²`), the measured state
+///    (ĥ for the baro, V̂_z for the velocity aid) is moved by ν so the innovation is zero; the
+///    other states are kept. The loop then removes the remaining (velocity, bias) error at its
+///    own bandwidth instead of converting a large altitude error into a large velocity and
+///    bias transient (with τ = 2 s, a 600 m coast error would otherwise drive V̂_z 200 m/s
+///    off). A small re-acquisition innovation is absorbed by the loop (no reset, no jump).
+///
+/// The first sample an aid ever delivers is accepted ungated (acquisition). Without a gate
+/// (`set_gate(None)`) every valid sample is accepted and there is no reset.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct InnovationGate {
@@ -553,62 +581,67 @@ pub(crate) fn check_initial<T: Real>(init: &InitialState<T>) -> Result<(), NavEr
     Ok(())
 }
 
-/// Gate of one new sample: returns the channel to use, the verdict and the counters.
-/// `rate` extrapolates the sample to mid-interval, `pred` is the predicted measurement;
+/// Gate of one new sample: returns the channel to use and the verdict.
+/// `rate = (r₁, r₂)` extrapolates the sample to mid-interval, `z + age (r₁ − r₂ age)`; `pred` is the predicted measurement;
 /// `gate = (σ₀², growth₁, growth₂, threshold)` with the drift `d = gap (growth₁ + growth₂ gap)`.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn admit<T: Real>(
     old: &AidChannel<T>,
     cand: Option<AidChannel<T>>,
-    counters: GateCounters,
     now: T,
     mid: T,
-    rate: T,
+    rate: (T, T),
     pred: T,
     gate: Option<(T, T, T, T)>,
-) -> (AidChannel<T>, Option<SampleCheck<T>>, GateCounters) {
+) -> (AidChannel<T>, Option<SampleCheck<T>>) {
     let Some(cand) = cand else {
-        return (*old, None, counters);
+        return (*old, None);
     };
-    let innovation = cand.last_value + (mid - cand.last_time_s) * rate - pred;
-    let (gate_variance, nis, pass) = match gate {
+    let age = mid - cand.last_time_s;
+    let innovation = cand.last_value + age * (rate.0 - rate.1 * age) - pred;
+    let (gate_variance, pass) = match gate {
         Some((var0, g1, g2, thr)) if old.received => {
             let gap = cand.last_time_s - old.last_time_s;
             let d = gap * (g1 + g2 * gap);
             let s = var0 + d * d;
-            let nu2 = innovation * innovation;
-            (Some(s), Some(nu2 / s), nu2 <= thr * s)
+            (s, innovation * innovation <= thr * s)
         }
-        _ => (None, None, true),
+        _ => (T::lit(f64::INFINITY), true),
     };
-    let mut c = counters;
-    if pass {
-        let reacquired = matches!(old.status(now), AidStatus::Lost { .. });
-        c.accepted = c.accepted.saturating_add(1);
-        c.consecutive_rejected = 0;
-        if reacquired {
-            c.reacquisitions = c.reacquisitions.saturating_add(1);
+    let reacquired = pass && old.received && now - old.last_time_s > old.lost_after_s;
+    let check = SampleCheck {
+        innovation,
+        gate_variance,
+        outcome: if pass {
+            FusionOutcome::Fused
+        } else {
+            FusionOutcome::Rejected
+        },
+        reacquired,
+        reset: false,
+    };
+    (if pass { cand } else { *old }, Some(check))
+}
+
+impl GateCounters {
+    #[inline(always)]
+    fn count<T>(&mut self, check: &Option<SampleCheck<T>>) {
+        if let Some(c) = check {
+            if c.outcome == FusionOutcome::Fused {
+                self.accepted = self.accepted.saturating_add(1);
+                self.consecutive_rejected = 0;
+                if c.reacquired {
+                    self.reacquisitions = self.reacquisitions.saturating_add(1);
+                    if c.reset {
+                        self.resets = self.resets.saturating_add(1);
+                    }
+                }
+            } else {
+                self.rejected = self.rejected.saturating_add(1);
+                self.consecutive_rejected = self.consecutive_rejected.saturating_add(1);
+            }
         }
-        let check = SampleCheck {
-            innovation,
-            gate_variance,
-            nis,
-            outcome: FusionOutcome::Fused,
-            reacquired,
-        };
-        (cand, Some(check), c)
-    } else {
-        c.rejected = c.rejected.saturating_add(1);
-        c.consecutive_rejected = c.consecutive_rejected.saturating_add(1);
-        let check = SampleCheck {
-            innovation,
-            gate_variance,
-            nis,
-            outcome: FusionOutcome::Rejected,
-            reacquired: false,
-        };
-        (*old, Some(check), c)
     }
 }
 
@@ -682,6 +715,9 @@ impl<T: Real> LoopCore<T> {
 
     /// One IMU step with optional new aid samples. On error nothing changes.
     /// `variances`: innovation variances to report for (baro, velocity) when used.
+    /// Inlined into each loop's `step` (the classical loop's velocity path then folds away and
+    /// the reports are built in place).
+    #[inline(always)]
     pub(crate) fn step(
         &mut self,
         imu: &ImuSample<T>,
@@ -691,12 +727,15 @@ impl<T: Real> LoopCore<T> {
     ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
         check_imu(imu, self.time_s, self.dt_s)?;
         let now = imu.time_s;
-        let (h, v, b) = (self.x.x, self.x.y, self.x.z);
-        let az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h);
+        let mut x = self.x;
+        let (h, v, b) = (x.x, x.y, x.z);
+        let mut az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h);
         let mid = now - self.half_dt_s;
-        // Predicted measurements at mid-interval and the rate a held sample is extrapolated with.
-        let h_pred = h - self.baro_lag_s * v;
-        let v_rate = az + self.bias_sign * b;
+        // Predicted measurements at mid-interval and the rates a held sample is extrapolated
+        // with (baro: second order, h(mid) = h(t) + age (V̂ − ½ a age); velocity: first order).
+        let mut h_pred = h - self.baro_lag_s * v;
+        let mut v_rate = az + self.bias_sign * b;
+        let half = T::lit(0.5);
 
         // Validate the new samples (nothing is committed before all checks pass).
         let baro_cand = match baro {
@@ -721,26 +760,50 @@ impl<T: Real> LoopCore<T> {
         };
         // χ² gate on the new samples.
         let gate = self.gate.as_ref();
-        let (baro_ch, baro_check, baro_counters) = admit(
+        let (baro_ch, mut baro_check) = admit(
             &self.baro,
             baro_cand,
-            self.baro_counters,
             now,
             mid,
-            v,
+            (v, half * v_rate),
             h_pred,
             gate.map(|g| (g.baro_var, g.growth_v, g.growth_half_a, g.nis_threshold)),
         );
-        let (vel_ch, vel_check, vel_counters) = admit(
+        let (vel_ch, mut vel_check) = admit(
             &self.velocity,
             vel_cand,
-            self.velocity_counters,
             now,
             mid,
-            v_rate,
+            (v_rate, T::zero()),
             v,
             gate.map(|g| (g.velocity_var, g.growth_a, T::zero(), g.nis_threshold)),
         );
+        // Recovery: a re-acquiring sample (accepted thanks to the re-inflated gate) whose
+        // innovation fails the tracking gate resets the measured state so that its innovation
+        // is zero (baro: ĥ; velocity: V̂_z); the other states are kept.
+        let (mut reset_baro, mut reset_vel) = (false, false);
+        if let Some(g) = gate {
+            if let Some(c) = baro_check.as_mut().filter(|c| c.reacquired) {
+                if c.innovation * c.innovation > g.nis_threshold * g.baro_var {
+                    x.x += c.innovation;
+                    reset_baro = true;
+                    c.reset = true;
+                }
+            }
+            if let Some(c) = vel_check.as_mut().filter(|c| c.reacquired) {
+                if c.innovation * c.innovation > g.nis_threshold * g.velocity_var {
+                    x.y += c.innovation;
+                    reset_vel = true;
+                    c.reset = true;
+                }
+            }
+            if reset_baro || reset_vel {
+                az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(x.x);
+                h_pred = x.x - self.baro_lag_s * x.y;
+                v_rate = az + self.bias_sign * x.z;
+            }
+        }
+        let v = x.y;
 
         let baro_status = baro_ch.status(now);
         let vel_status = vel_ch.status(now);
@@ -749,7 +812,8 @@ impl<T: Real> LoopCore<T> {
 
         // Held samples extrapolated to the middle of the interval (ZOH of the continuous loop).
         let (z_h, nu_h) = if use_baro {
-            let z = baro_ch.last_value + (mid - baro_ch.last_time_s) * v;
+            let age = mid - baro_ch.last_time_s;
+            let z = baro_ch.last_value + age * (v - half * v_rate * age);
             (z, Some(z - h_pred))
         } else {
             (T::zero(), None)
@@ -762,13 +826,13 @@ impl<T: Real> LoopCore<T> {
         };
         let mode = self.modes.select(use_baro, use_vel);
         let u = Vector3::new(az, z_h, z_v);
-        let x_new = mode.phi * self.x + mode.gamma * u;
+        let x_new = mode.phi * x + mode.gamma * u;
         if !x_new.iter().all(|v| v.is_finite()) {
             return Err(NavError::NonFiniteInput {
                 input: "state after step",
             });
         }
-        if x_new.x < T::lit(ALTITUDE_RANGE_M.0) || x_new.x > T::lit(ALTITUDE_RANGE_M.1) {
+        if x_new.x < T::lit(ESTIMATE_RANGE_M.0) || x_new.x > T::lit(ESTIMATE_RANGE_M.1) {
             return Err(NavError::InputOutOfRange {
                 input: "altitude estimate",
             });
@@ -777,8 +841,8 @@ impl<T: Real> LoopCore<T> {
         self.time_s = now;
         self.baro = baro_ch;
         self.velocity = vel_ch;
-        self.baro_counters = baro_counters;
-        self.velocity_counters = vel_counters;
+        self.baro_counters.count(&baro_check);
+        self.velocity_counters.count(&vel_check);
         Ok((
             AidReport {
                 status: baro_status,
