@@ -219,6 +219,6 @@ impl<T: Real> ClassicalLoop<T> {
     }
     /// Discrete transition matrix with the baro in use (for analysis).
     pub fn phi_with_baro(&self) -> Matrix3<T> {
-        self.core.modes.baro.phi
+        self.core.modes.phi_baro
     }
 }

@@ -14,7 +14,7 @@
 //! error dynamics contain the destabilising term `c δh` (`c = 2ω_s²`) of the spec. The
 //! continuous loop is **discretised exactly at the IMU rate**: with the aids held over one
 //! IMU interval (zero-order hold; a held sample is extrapolated to the middle of the interval
-//! with `V̂_z · age`), `x̂_{k+1} = Φ_m x̂_k + Γ_m u_k`, `u = [A_z, z_h, z_v]`, where
+//! with `V̂_z · age`), `x̂_{k+1} = Φ_m x̂_k + Γ_m u_k`, evaluated in innovation form (see `Mode`), `u = [A_z, z_h, z_v]`, where
 //! `[Φ_m Γ_m]` comes from the exponential of the augmented matrix `[[F_m, G_m], [0, 0]]`
 //! (computed once at configuration in `f64`) for each of the four aid modes `m` (which aids are
 //! in use). A step costs two 3×3 matrix-vector products and the gravity polynomial.
@@ -33,7 +33,7 @@ use crate::error::{require_non_negative, require_positive, ConfigIssue};
 use crate::math::discretize::discretize;
 pub use crate::math::kalman::FusionOutcome;
 use crate::{NavError, Real};
-use nalgebra::{Matrix3, Matrix3x2, SMatrix, Vector3};
+use nalgebra::{Matrix3, Matrix3x2, SMatrix, Vector2, Vector3};
 
 /// Largest accepted |specific force|, m/s² (20 g).
 pub const MAX_SPECIFIC_FORCE_M_S2: f64 = 196.0;
@@ -387,16 +387,28 @@ impl<T: Real> GravityModel<T> {
     }
 }
 
-/// One aid mode of the discretised loop: `x̂⁺ = Φ x̂ + Γ [A_z, z_h, z_v]ᵀ`.
+/// One aid mode of the discretised loop in **innovation (delta) form**:
+///
+/// ```text
+/// x̂⁺ = x̂ + N [V̂_z, A_z ± b̂]ᵀ + G [ν_h, ν_v]ᵀ,   N = M [e₁ e₂],  G = M K_m,
+/// M = ∫₀^Δt exp(F_m s) ds,   F_m = A₀ − K_m C
+/// ```
+///
+/// which is exactly `Φ x̂ + Γ u` (Φ = I + M F_m, Γ = M [e₂ K_m]) but never multiplies the
+/// altitude itself by a coefficient: in f32, `Φ x̂ + Γ z` at 40 km cancels two terms of
+/// 40 km · K Δt, and the diagonal of Φ = 1 − O(Δt/τ) keeps only a few digits of its small
+/// part. It also costs 12 multiply-adds instead of 18.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Mode<T: Real> {
-    pub(crate) phi: Matrix3<T>,
-    pub(crate) gamma: Matrix3<T>,
+    pub(crate) n: Matrix3x2<T>,
+    pub(crate) g: Matrix3x2<T>,
 }
 
 /// The four modes (none / baro / velocity / both) and the continuous gains they come from.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Modes<T: Real> {
+    /// Φ of the baro-only mode (analysis only, not used by the step).
+    pub(crate) phi_baro: Matrix3<T>,
     pub(crate) none: Mode<T>,
     pub(crate) baro: Mode<T>,
     pub(crate) velocity: Mode<T>,
@@ -429,7 +441,7 @@ pub(crate) fn discretise_modes<T: Real>(
     c: &SMatrix<f64, 2, 3>,
     dt_s: f64,
 ) -> Result<Modes<T>, NavError> {
-    let one = |use_baro: bool, use_vel: bool| -> Result<Mode<T>, NavError> {
+    let one = |use_baro: bool, use_vel: bool| -> Result<(Mode<T>, Matrix3<T>), NavError> {
         let mut km = *k;
         if !use_baro {
             km.set_column(0, &Vector3::zeros());
@@ -438,26 +450,42 @@ pub(crate) fn discretise_modes<T: Real>(
             km.set_column(1, &Vector3::zeros());
         }
         let f = a0 - km * c;
-        let mut aug = SMatrix::<f64, 6, 6>::zeros();
+        let mut aug = SMatrix::<f64, 7, 7>::zeros();
         aug.fixed_view_mut::<3, 3>(0, 0).copy_from(&f);
-        aug.m24 = 1.0; // A_z drives V̇_z (row 1, input column 0 = aug column 3)
-        aug.fixed_view_mut::<3, 2>(0, 4).copy_from(&km);
-        let (phi_aug, _) = discretize(&aug, &SMatrix::<f64, 6, 6>::zeros(), dt_s)?;
+        // e₁ and e₂ as inputs (aug columns 3 and 4).
+        for (r, col) in [(0, 3), (1, 4)] {
+            if let Some(e) = aug.get_mut((r, col)) {
+                *e = 1.0;
+            }
+        }
+        aug.fixed_view_mut::<3, 2>(0, 5).copy_from(&km);
+        let (phi_aug, _) = discretize(&aug, &SMatrix::<f64, 7, 7>::zeros(), dt_s)?;
         let phi: Matrix3<f64> = phi_aug.fixed_view::<3, 3>(0, 0).into_owned();
-        let gamma: Matrix3<f64> = phi_aug.fixed_view::<3, 3>(0, 3).into_owned();
-        if !phi.iter().chain(gamma.iter()).all(|v| v.is_finite()) {
+        let n: Matrix3x2<f64> = phi_aug.fixed_view::<3, 2>(0, 3).into_owned();
+        let g: Matrix3x2<f64> = phi_aug.fixed_view::<3, 2>(0, 5).into_owned();
+        if !phi
+            .iter()
+            .chain(n.iter())
+            .chain(g.iter())
+            .all(|v| v.is_finite())
+        {
             return Err(NavError::NotConverged { iterations: 0 });
         }
-        Ok(Mode {
-            phi: phi.cast::<T>(),
-            gamma: gamma.cast::<T>(),
-        })
+        Ok((
+            Mode {
+                n: n.cast::<T>(),
+                g: g.cast::<T>(),
+            },
+            phi.cast::<T>(),
+        ))
     };
+    let (baro, phi_baro) = one(true, false)?;
     Ok(Modes {
-        none: one(false, false)?,
-        baro: one(true, false)?,
-        velocity: one(false, true)?,
-        both: one(true, true)?,
+        phi_baro,
+        none: one(false, false)?.0,
+        baro,
+        velocity: one(false, true)?.0,
+        both: one(true, true)?.0,
     })
 }
 
@@ -811,22 +839,15 @@ impl<T: Real> LoopCore<T> {
         let use_vel = vel_status.in_use();
 
         // Held samples extrapolated to the middle of the interval (ZOH of the continuous loop).
-        let (z_h, nu_h) = if use_baro {
+        let nu_h = use_baro.then(|| {
             let age = mid - baro_ch.last_time_s;
-            let z = baro_ch.last_value + age * (v - half * v_rate * age);
-            (z, Some(z - h_pred))
-        } else {
-            (T::zero(), None)
-        };
-        let (z_v, nu_v) = if use_vel {
-            let z = vel_ch.last_value + (mid - vel_ch.last_time_s) * v_rate;
-            (z, Some(z - v))
-        } else {
-            (T::zero(), None)
-        };
+            baro_ch.last_value + age * (v - half * v_rate * age) - h_pred
+        });
+        let nu_v = use_vel.then(|| vel_ch.last_value + (mid - vel_ch.last_time_s) * v_rate - v);
         let mode = self.modes.select(use_baro, use_vel);
-        let u = Vector3::new(az, z_h, z_v);
-        let x_new = mode.phi * x + mode.gamma * u;
+        let x_new = x
+            + (mode.n * Vector2::new(v, v_rate)
+                + mode.g * Vector2::new(nu_h.unwrap_or(T::zero()), nu_v.unwrap_or(T::zero())));
         if !x_new.iter().all(|v| v.is_finite()) {
             return Err(NavError::NonFiniteInput {
                 input: "state after step",
