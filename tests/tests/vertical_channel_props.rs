@@ -434,3 +434,347 @@ fn agreement(x32: &[[f64; 3]], x64: &[[f64; 3]], ins: &[Inputs], s: &Setup) -> [
     let floor = [0.01 + 1e-6 * hmax, 1e-3, 1e-4];
     core::array::from_fn(|j| (d2[j] / n).sqrt() / ((e2[j] / n).sqrt() + floor[j]))
 }
+
+// ------------------------------------------------------------------ bad input
+
+fn nominal_setup() -> Setup {
+    Setup {
+        dt_s: 0.01,
+        lat_rad: 0.6,
+        tau_s: 20.0,
+        lag_s: 0.2,
+        accel_noise: 1e-3,
+        bias_rw: 1e-5,
+        baro_every: 4,
+        vel_every: 10,
+        baro_noise_m: 1.0,
+        vel_noise_m_s: 0.1,
+        h0_m: 1000.0,
+        amp_m: 0.0,
+        omega: 0.0,
+        phase: 0.0,
+        accel_bias_m_s2: 0.0,
+        init_err_m: 0.0,
+        init_err_m_s: 0.0,
+        drop_p: 0.0,
+        outage: (0.0, 0.0),
+        gate: true,
+        seed: 1,
+    }
+}
+
+/// Runs 100 good steps (aids received, gate on) so that every channel holds data.
+fn warmed<T: Real, L: Loop<T>>(mut lp: L, s: &Setup) -> (L, f64) {
+    lp.gate(s.gate_config().as_ref()).unwrap();
+    let ins = inputs(s, 100);
+    for i in &ins {
+        feed(&mut lp, i).unwrap();
+    }
+    (lp, ins.last().unwrap().t)
+}
+
+type Case = (
+    &'static str,
+    [f64; 2],
+    Option<[f64; 2]>,
+    Option<[f64; 2]>,
+    NavError,
+);
+
+/// Every bad value of every step input, with the error it must produce. `t` is the loop time,
+/// the last accepted aid samples are at `t`.
+fn bad_step_cases(t: f64, dt: f64) -> Vec<Case> {
+    use NavError::*;
+    let n = t + dt; // a good IMU time
+    let imu_t = |v: f64, e| ("imu time_s", [v, 9.8], None, None, e);
+    let sf = |v: f64, e| ("specific force", [n, v], None, None, e);
+    let nf = |input| NonFiniteInput { input };
+    let oor = |input| InputOutOfRange { input };
+    let mut c: Vec<Case> = vec![
+        imu_t(f64::NAN, nf("imu time_s")),
+        imu_t(f64::INFINITY, nf("imu time_s")),
+        imu_t(f64::NEG_INFINITY, nf("imu time_s")),
+        imu_t(1e30, InvalidTimeStep),
+        imu_t(t, TimeNotIncreasing),          // repeating (Δt = 0)
+        imu_t(t - dt, TimeNotIncreasing),     // backwards (Δt < 0)
+        imu_t(-1e30, TimeNotIncreasing),      // hugely backwards
+        imu_t(t + 2.0 * dt, InvalidTimeStep), // Δt too large
+        imu_t(t + 1e3, InvalidTimeStep),      // huge Δt
+        imu_t(t + 0.5 * dt, InvalidTimeStep), // Δt too small
+        sf(f64::NAN, nf("specific_force_up_m_s2")),
+        sf(f64::INFINITY, nf("specific_force_up_m_s2")),
+        sf(f64::NEG_INFINITY, nf("specific_force_up_m_s2")),
+        sf(1e30, oor("specific_force_up_m_s2")),
+        sf(-1e30, oor("specific_force_up_m_s2")),
+        sf(197.0, oor("specific_force_up_m_s2")),
+        sf(-197.0, oor("specific_force_up_m_s2")),
+    ];
+    // Both aids: bad time stamps and values.
+    for (aid, value, good, lo, hi) in [
+        ("baro", "altitude_m", 1000.0, -2_001.0, 60_001.0),
+        ("velocity", "vz_up_m_s", 0.0, -1_501.0, 1_501.0),
+    ] {
+        let mk = |tt: f64, v: f64| -> (Option<[f64; 2]>, Option<[f64; 2]>) {
+            if aid == "baro" {
+                (Some([tt, v]), None)
+            } else {
+                (None, Some([tt, v]))
+            }
+        };
+        for (tt, e) in [
+            (f64::NAN, nf("aid time_s")),
+            (f64::INFINITY, nf("aid time_s")),
+            (f64::NEG_INFINITY, nf("aid time_s")),
+            (n + dt, MeasurementTimeOutOfWindow), // from the future
+            (1e30, MeasurementTimeOutOfWindow),
+            (t, TimeNotIncreasing),            // repeating
+            (t - 0.5 * dt, TimeNotIncreasing), // backwards
+            (-1e30, TimeNotIncreasing),
+        ] {
+            let (b, v) = mk(tt, good);
+            c.push((aid, [n, 9.8], b, v, e));
+        }
+        for (v, e) in [
+            (f64::NAN, nf(value)),
+            (f64::INFINITY, nf(value)),
+            (f64::NEG_INFINITY, nf(value)),
+            (1e30, oor(value)),
+            (-1e30, oor(value)),
+            (lo, oor(value)),
+            (hi, oor(value)),
+        ] {
+            let (b, vv) = mk(n, v);
+            c.push((aid, [n, 9.8], b, vv, e));
+        }
+    }
+    c
+}
+
+fn check_bad_steps<T: Real, L: Loop<T> + Clone>(lp: L, t: f64, dt: f64, has_velocity: bool) {
+    let mut lp = lp;
+    for (what, imu, b, v, want) in bad_step_cases(t, dt) {
+        if what == "velocity" && !has_velocity {
+            continue;
+        }
+        let before = format!("{lp:?}");
+        let imu = ImuSample {
+            time_s: T::lit(imu[0]),
+            specific_force_up_m_s2: T::lit(imu[1]),
+        };
+        let b = b.map(|[t, z]| BaroSample {
+            time_s: T::lit(t),
+            altitude_m: T::lit(z),
+        });
+        let v = v.map(|[t, z]| VelocitySample {
+            time_s: T::lit(t),
+            vz_up_m_s: T::lit(z),
+        });
+        let r = lp.step_all(&imu, b.as_ref(), v.as_ref());
+        assert_eq!(r, Err(want), "{what}: {imu:?} {b:?} {v:?}");
+        assert_eq!(format!("{lp:?}"), before, "{what}: state changed");
+    }
+    // A good step still works afterwards.
+    let imu = ImuSample {
+        time_s: T::lit(t + dt),
+        specific_force_up_m_s2: T::lit(9.8),
+    };
+    lp.step_all(&imu, None, None).unwrap();
+}
+
+fn bad_steps<T: Real>() {
+    let s = nominal_setup();
+    let (c, t) = warmed(
+        ClassicalLoop::<T>::new(&s.classical(), &s.init()).unwrap(),
+        &s,
+    );
+    check_bad_steps::<T, _>(c, t, s.dt_s, false);
+    let (a, t) = warmed(AidedLoop::<T>::new(&s.aided(), &s.init()).unwrap(), &s);
+    check_bad_steps::<T, _>(a, t, s.dt_s, true);
+}
+
+#[test]
+fn every_bad_step_input_is_refused_and_changes_nothing_f32() {
+    bad_steps::<f32>();
+}
+
+#[test]
+fn every_bad_step_input_is_refused_and_changes_nothing_f64() {
+    bad_steps::<f64>();
+}
+
+const BAD: [f64; 6] = [0.0, -1.0, f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 1e300];
+
+fn expect_field<X: core::fmt::Debug>(r: Result<X, NavError>, field: &str, v: f64) {
+    match r {
+        Err(NavError::InvalidConfig { field: f, .. }) => assert_eq!(f, field, "value {v}"),
+        other => panic!("{field} = {v}: expected InvalidConfig, got {other:?}"),
+    }
+}
+
+fn bad_configs<T: Real>() {
+    let s = nominal_setup();
+    let init = s.init::<T>();
+    // Classical: every field.
+    type CSet = fn(&mut ClassicalConfig, f64);
+    let fields: [(&str, CSet, &[f64]); 6] = [
+        ("imu_dt_s", |c, v| c.imu_dt_s = v, &[2.0]),
+        ("latitude_rad", |c, v| c.latitude_rad = v, &[2.0, -2.0]),
+        ("tau_s", |c, v| c.tau_s = v, &[1e5]),
+        ("baro_lag_s", |c, v| c.baro_lag_s = v, &[]),
+        (
+            "baro_timeouts.stale_after_s",
+            |c, v| c.baro_timeouts.stale_after_s = v,
+            &[],
+        ),
+        (
+            "baro_timeouts.lost_after_s",
+            |c, v| c.baro_timeouts.lost_after_s = v,
+            &[0.01],
+        ),
+    ];
+    for (field, set, extra) in fields {
+        for &v in BAD.iter().chain(extra) {
+            // Zero is legal for the latitude and the lag compensation; −1 rad is a latitude.
+            if (field == "latitude_rad" && (v == 0.0 || v == -1.0))
+                || (field == "baro_lag_s" && v == 0.0)
+            {
+                continue;
+            }
+            let mut c = s.classical();
+            set(&mut c, v);
+            expect_field(ClassicalLoop::<T>::new(&c, &init), field, v);
+        }
+    }
+    // Aided: every field.
+    type ASet = fn(&mut AidedConfig, f64);
+    let fields: [(&str, ASet, &[f64]); 13] = [
+        ("imu_dt_s", |c, v| c.imu_dt_s = v, &[2.0]),
+        ("latitude_rad", |c, v| c.latitude_rad = v, &[2.0]),
+        (
+            "accel_noise_m_s2_rt_hz",
+            |c, v| c.accel_noise_m_s2_rt_hz = v,
+            &[1e-300],
+        ),
+        (
+            "accel_bias_rw_m_s2_rt_s",
+            |c, v| c.accel_bias_rw_m_s2_rt_s = v,
+            &[1e-300],
+        ),
+        ("baro_noise_m", |c, v| c.baro_noise_m = v, &[1e-300]),
+        ("baro_period_s", |c, v| c.baro_period_s = v, &[1e13]),
+        ("baro_lag_s", |c, v| c.baro_lag_s = v, &[]),
+        (
+            "velocity_noise_m_s",
+            |c, v| c.velocity_noise_m_s = v,
+            &[1e-300],
+        ),
+        ("velocity_period_s", |c, v| c.velocity_period_s = v, &[1e13]),
+        (
+            "baro_timeouts.stale_after_s",
+            |c, v| c.baro_timeouts.stale_after_s = v,
+            &[],
+        ),
+        (
+            "baro_timeouts.lost_after_s",
+            |c, v| c.baro_timeouts.lost_after_s = v,
+            &[],
+        ),
+        (
+            "velocity_timeouts.stale_after_s",
+            |c, v| c.velocity_timeouts.stale_after_s = v,
+            &[],
+        ),
+        (
+            "velocity_timeouts.lost_after_s",
+            |c, v| c.velocity_timeouts.lost_after_s = v,
+            &[0.01],
+        ),
+    ];
+    for (field, set, extra) in fields {
+        for &v in BAD.iter().chain(extra) {
+            if (field == "latitude_rad" && (v == 0.0 || v == -1.0))
+                || (field == "baro_lag_s" && v == 0.0)
+            {
+                continue;
+            }
+            let mut c = s.aided();
+            set(&mut c, v);
+            expect_field(AidedLoop::<T>::new(&c, &init), field, v);
+        }
+    }
+    // Initial state: non-finite or out-of-range values.
+    for (i, v) in [
+        (0usize, f64::NAN),
+        (1, f64::INFINITY),
+        (2, f64::NAN),
+        (3, f64::NEG_INFINITY),
+        (1, 1e30),
+    ] {
+        let mut init = s.init::<T>();
+        match i {
+            0 => init.time_s = T::lit(v),
+            1 => init.altitude_m = T::lit(v),
+            2 => init.vz_up_m_s = T::lit(v),
+            _ => init.accel_bias_m_s2 = T::lit(v),
+        }
+        let rc = ClassicalLoop::<T>::new(&s.classical(), &init);
+        let ra = AidedLoop::<T>::new(&s.aided(), &init);
+        for r in [rc.err(), ra.err()] {
+            assert!(
+                matches!(
+                    r,
+                    Some(NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. })
+                ),
+                "initial field {i} = {v}: {r:?}"
+            );
+        }
+    }
+    // Gate: every field, refused by set_gate with the loop unchanged.
+    type GSet = fn(&mut InnovationGate, f64);
+    let fields: [(&str, GSet, &[f64]); 5] = [
+        ("gate.nis_threshold", |g, v| g.nis_threshold = v, &[]),
+        ("gate.baro_sigma_m", |g, v| g.baro_sigma_m = v, &[1e-300]),
+        (
+            "gate.velocity_sigma_m_s",
+            |g, v| g.velocity_sigma_m_s = v,
+            &[1e-300],
+        ),
+        (
+            "gate.starved_velocity_sigma_m_s",
+            |g, v| g.starved_velocity_sigma_m_s = v,
+            &[],
+        ),
+        (
+            "gate.starved_accel_sigma_m_s2",
+            |g, v| g.starved_accel_sigma_m_s2 = v,
+            &[],
+        ),
+    ];
+    let (mut c, _) = warmed(ClassicalLoop::<T>::new(&s.classical(), &init).unwrap(), &s);
+    let (mut a, _) = warmed(AidedLoop::<T>::new(&s.aided(), &init).unwrap(), &s);
+    for (field, set, extra) in fields {
+        for &v in BAD.iter().chain(extra) {
+            // Zero drift is legal (a gate that never re-inflates).
+            if field.starts_with("gate.starved") && v == 0.0 {
+                continue;
+            }
+            let mut g = s.gate_config().unwrap();
+            set(&mut g, v);
+            let (bc, ba) = (format!("{c:?}"), format!("{a:?}"));
+            expect_field(c.set_gate(Some(&g)), field, v);
+            expect_field(a.set_gate(Some(&g)), field, v);
+            assert_eq!(format!("{c:?}"), bc);
+            assert_eq!(format!("{a:?}"), ba);
+        }
+    }
+}
+
+#[test]
+fn every_bad_config_field_is_refused_by_name_f32() {
+    bad_configs::<f32>();
+}
+
+#[test]
+fn every_bad_config_field_is_refused_by_name_f64() {
+    bad_configs::<f64>();
+}

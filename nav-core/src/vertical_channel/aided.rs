@@ -105,9 +105,10 @@ impl AidedGains {
             ("baro_noise_m", sh * sh * th),
             ("velocity_noise_m_s", sv * sv * tv),
         ] {
+            let zero_ok = field == "baro_lag_s" && v == 0.0;
             if !(v.is_finite()
                 && v <= super::MAX_DESIGN_VALUE
-                && (v == 0.0 || v >= super::MIN_DESIGN_VALUE))
+                && (zero_ok || v >= super::MIN_DESIGN_VALUE))
             {
                 return Err(NavError::InvalidConfig {
                     field,

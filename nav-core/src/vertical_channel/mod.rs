@@ -250,7 +250,8 @@ impl InnovationGate {
             ("gate.starved_accel_sigma_m_s2", ga * ga),
         ] {
             // Squares must stay finite and (for σ₀) normal in f32.
-            let ok = v.is_finite() && v < 1.0e30 && (v == 0.0 || v > 1.0e-30);
+            let zero_ok = field.starts_with("gate.starved") && v == 0.0;
+            let ok = v.is_finite() && v < 1.0e30 && (zero_ok || v > 1.0e-30);
             if !ok {
                 return Err(NavError::InvalidConfig {
                     field,
