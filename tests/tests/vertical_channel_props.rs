@@ -231,6 +231,7 @@ impl Setup {
             velocity_sigma_m_s: 3.0 * self.vel_noise_m_s + 0.5,
             starved_velocity_sigma_m_s: 1.0,
             starved_accel_sigma_m_s2: 0.5,
+            recovery_hold_s: 60.0,
         })
     }
     fn truth(&self, t: f64) -> (f64, f64, f64) {
@@ -731,7 +732,7 @@ fn bad_configs<T: Real>() {
     }
     // Gate: every field, refused by set_gate with the loop unchanged.
     type GSet = fn(&mut InnovationGate, f64);
-    let fields: [(&str, GSet, &[f64]); 5] = [
+    let fields: [(&str, GSet, &[f64]); 6] = [
         ("gate.nis_threshold", |g, v| g.nis_threshold = v, &[]),
         ("gate.baro_sigma_m", |g, v| g.baro_sigma_m = v, &[1e-300]),
         (
@@ -749,6 +750,7 @@ fn bad_configs<T: Real>() {
             |g, v| g.starved_accel_sigma_m_s2 = v,
             &[],
         ),
+        ("gate.recovery_hold_s", |g, v| g.recovery_hold_s = v, &[1e7]),
     ];
     let (mut c, _) = warmed(ClassicalLoop::<T>::new(&s.classical(), &init).unwrap(), &s);
     let (mut a, _) = warmed(AidedLoop::<T>::new(&s.aided(), &init).unwrap(), &s);

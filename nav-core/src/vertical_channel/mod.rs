@@ -203,7 +203,12 @@ pub struct GateCounters {
 ///    drift, until a sample consistent with it is accepted. A persistent wrong reading that
 ///    departs from the inertial solution faster than the drift model (a frozen baro in a climb,
 ///    a spike) stays rejected.
-/// 2. **Reset on re-acquisition**: when the accepted sample ends a `Lost` period and its
+/// 2. **Recovery gate**: the gate variance that admitted the re-acquiring sample is held
+///    (S = max(S(gap), S_reacq)) until the innovations have stayed inside the *tracking* gate
+///    (`ν² ≤ nis_threshold · σ₀²`) for `recovery_hold_s`; then tracking gating resumes. Without it
+///    the velocity error left by a long coast makes the next samples fail the tracking gate,
+///    the aid goes `Lost` again and the loop cycles between coasting and re-acquiring.
+/// 3. **Reset on re-acquisition**: when the accepted sample ends a `Lost` period and its
 ///    innovation fails the *tracking* gate (`ν² > nis_threshold · σ₀²`), the measured state
 ///    (ĥ for the baro, V̂_z for the velocity aid) is moved by ν so the innovation is zero; the
 ///    other states are kept. The loop then removes the remaining (velocity, bias) error at its
@@ -226,6 +231,9 @@ pub struct InnovationGate {
     pub starved_velocity_sigma_m_s: f64,
     /// Acceleration uncertainty σ_a0 driving the re-inflation, m/s² (≥ 0).
     pub starved_accel_sigma_m_s2: f64,
+    /// How long the innovations must stay inside the tracking gate after a re-acquisition
+    /// before the recovery gate is released, s (> 0; a few loop time constants, e.g. 3τ).
+    pub recovery_hold_s: f64,
 }
 
 impl InnovationGate {
@@ -242,6 +250,13 @@ impl InnovationGate {
             "gate.starved_accel_sigma_m_s2",
             self.starved_accel_sigma_m_s2,
         )?;
+        let hold = require_positive("gate.recovery_hold_s", self.recovery_hold_s)?;
+        if hold > MAX_TIMEOUT_S {
+            return Err(NavError::InvalidConfig {
+                field: "gate.recovery_hold_s",
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
         for (field, v) in [
             ("gate.nis_threshold", thr),
             ("gate.baro_sigma_m", sh * sh),
@@ -266,6 +281,7 @@ impl InnovationGate {
             growth_v: T::lit(gv),
             growth_half_a: T::lit(0.5 * ga),
             growth_a: T::lit(ga),
+            recovery_hold_s: T::lit(hold),
         })
     }
 }
@@ -279,6 +295,7 @@ pub(crate) struct GateParams<T> {
     growth_v: T,
     growth_half_a: T,
     growth_a: T,
+    recovery_hold_s: T,
 }
 
 /// Timeouts of one aid.
@@ -498,6 +515,12 @@ pub(crate) struct AidChannel<T> {
     pub(crate) received: bool,
     pub(crate) stale_after_s: T,
     pub(crate) lost_after_s: T,
+    /// Gate variance held after a re-acquisition until the innovations have stayed inside
+    /// the tracking gate for `recovery_hold_s` (0: tracking).
+    pub(crate) recovery_var: T,
+    /// Time since which the innovations are inside the tracking gate during a recovery.
+    pub(crate) recovery_clear_since_s: T,
+    pub(crate) recovery_clear: bool,
 }
 
 impl<T: Real> AidChannel<T> {
@@ -508,6 +531,9 @@ impl<T: Real> AidChannel<T> {
             received: false,
             stale_after_s: T::lit(t.stale_after_s),
             lost_after_s: T::lit(t.lost_after_s),
+            recovery_var: T::zero(),
+            recovery_clear_since_s: T::zero(),
+            recovery_clear: false,
         }
     }
 
@@ -612,7 +638,7 @@ pub(crate) fn check_initial<T: Real>(init: &InitialState<T>) -> Result<(), NavEr
 
 /// Gate of one new sample: returns the channel to use and the verdict.
 /// `rate = (r₁, r₂)` extrapolates the sample to mid-interval, `z + age (r₁ − r₂ age)`; `pred` is the predicted measurement;
-/// `gate = (σ₀², growth₁, growth₂, threshold)` with the drift `d = gap (growth₁ + growth₂ gap)`.
+/// `gate = (σ₀², growth₁, growth₂, threshold, recovery hold)` with the drift `d = gap (growth₁ + growth₂ gap)`.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn admit<T: Real>(
@@ -622,23 +648,44 @@ fn admit<T: Real>(
     mid: T,
     rate: (T, T),
     pred: T,
-    gate: Option<(T, T, T, T)>,
+    gate: Option<(T, T, T, T, T)>,
 ) -> (AidChannel<T>, Option<SampleCheck<T>>) {
-    let Some(cand) = cand else {
+    let Some(mut cand) = cand else {
         return (*old, None);
     };
     let age = mid - cand.last_time_s;
     let innovation = cand.last_value + age * (rate.0 - rate.1 * age) - pred;
+    let nu2 = innovation * innovation;
+    let lost = old.received && now - old.last_time_s > old.lost_after_s;
     let (gate_variance, pass) = match gate {
-        Some((var0, g1, g2, thr)) if old.received => {
+        Some((var0, g1, g2, thr, hold)) if old.received => {
             let gap = cand.last_time_s - old.last_time_s;
             let d = gap * (g1 + g2 * gap);
-            let s = var0 + d * d;
-            (s, innovation * innovation <= thr * s)
+            let mut s = var0 + d * d;
+            if old.recovery_var > s {
+                s = old.recovery_var;
+            }
+            let pass = nu2 <= thr * s;
+            if pass && lost {
+                // Re-acquisition: hold this gate while the loop absorbs the coast error.
+                cand.recovery_var = s;
+                cand.recovery_clear = false;
+            } else if pass && old.recovery_var > T::zero() {
+                if nu2 > thr * var0 {
+                    cand.recovery_clear = false;
+                } else if !old.recovery_clear {
+                    cand.recovery_clear = true;
+                    cand.recovery_clear_since_s = cand.last_time_s;
+                } else if cand.last_time_s - old.recovery_clear_since_s >= hold {
+                    cand.recovery_var = T::zero();
+                    cand.recovery_clear = false;
+                }
+            }
+            (s, pass)
         }
         _ => (T::lit(f64::INFINITY), true),
     };
-    let reacquired = pass && old.received && now - old.last_time_s > old.lost_after_s;
+    let reacquired = pass && lost;
     let check = SampleCheck {
         innovation,
         gate_variance,
@@ -796,7 +843,15 @@ impl<T: Real> LoopCore<T> {
             mid,
             (v, half * v_rate),
             h_pred,
-            gate.map(|g| (g.baro_var, g.growth_v, g.growth_half_a, g.nis_threshold)),
+            gate.map(|g| {
+                (
+                    g.baro_var,
+                    g.growth_v,
+                    g.growth_half_a,
+                    g.nis_threshold,
+                    g.recovery_hold_s,
+                )
+            }),
         );
         let (vel_ch, mut vel_check) = admit(
             &self.velocity,
@@ -805,7 +860,15 @@ impl<T: Real> LoopCore<T> {
             mid,
             (v_rate, T::zero()),
             v,
-            gate.map(|g| (g.velocity_var, g.growth_a, T::zero(), g.nis_threshold)),
+            gate.map(|g| {
+                (
+                    g.velocity_var,
+                    g.growth_a,
+                    T::zero(),
+                    g.nis_threshold,
+                    g.recovery_hold_s,
+                )
+            }),
         );
         // Recovery: a re-acquiring sample (accepted thanks to the re-inflated gate) whose
         // innovation fails the tracking gate resets the measured state so that its innovation

@@ -271,6 +271,7 @@ fn vc_gate() -> InnovationGate {
         velocity_sigma_m_s: 3.0,
         starved_velocity_sigma_m_s: 0.5,
         starved_accel_sigma_m_s2: 0.02,
+        recovery_hold_s: 60.0,
     }
 }
 
