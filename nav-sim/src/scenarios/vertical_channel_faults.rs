@@ -268,16 +268,21 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
             lost[slot] = matches!(r.baro.status, AidStatus::Lost { .. });
             out.counters[slot] = *lp.baro_counters();
         }
-        for s in 0..6 {
-            out.abs_err[s].push((est[s] - h).abs());
-            out.lost_steps[s] += usize::from(lost[s]);
+        for ((a, n), (e, l)) in out
+            .abs_err
+            .iter_mut()
+            .zip(out.lost_steps.iter_mut())
+            .zip(est.iter().zip(&lost))
+        {
+            a.push((e - h).abs());
+            *n += usize::from(*l);
         }
         if k % out_every == 0 {
             out.t.push(t);
             out.h_true.push(h);
             out.h_baro.push(faulty.unwrap_or(f64::NAN));
-            for s in 0..6 {
-                out.err_h[s].push(est[s] - h);
+            for (series, e) in out.err_h.iter_mut().zip(&est) {
+                series.push(e - h);
             }
         }
         h_prev = h;
