@@ -377,6 +377,21 @@ fn check_setup<T: Real>(s: &Setup) {
     assert!(is_psd_sym(&p), "{p}");
     assert!(p.m11 < 1e6 && p.m22 < 1e4 && p.m33 < 1e2, "{p}");
     run_checked(&mut a, &ins, s);
+    // Gate bookkeeping: every delivered sample is counted once, accepted or rejected;
+    // without a gate nothing is rejected; a reset only happens on a re-acquisition.
+    let nb = ins.iter().filter(|i| i.baro.is_some()).count() as u32;
+    let nv = ins.iter().filter(|i| i.vel.is_some()).count() as u32;
+    for (g, n) in [
+        (*c.baro_counters(), nb),
+        (*a.baro_counters(), nb),
+        (*a.velocity_counters(), nv),
+    ] {
+        assert_eq!(g.accepted + g.rejected, n, "{g:?}");
+        assert!(g.resets <= g.reacquisitions && g.consecutive_rejected <= g.rejected);
+        if !s.gate {
+            assert_eq!((g.rejected, g.resets), (0, 0), "{g:?}");
+        }
+    }
 }
 
 proptest! {

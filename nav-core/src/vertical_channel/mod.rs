@@ -513,27 +513,38 @@ pub(crate) struct AidChannel<T> {
     pub(crate) last_time_s: T,
     pub(crate) last_value: T,
     pub(crate) received: bool,
-    pub(crate) stale_after_s: T,
-    pub(crate) lost_after_s: T,
     /// Gate variance held after a re-acquisition until the innovations have stayed inside
     /// the tracking gate for `recovery_hold_s` (0: tracking).
     pub(crate) recovery_var: T,
-    /// Time since which the innovations are inside the tracking gate during a recovery.
+    /// Time since which the innovations are inside the tracking gate during a recovery
+    /// (+∞: not inside).
     pub(crate) recovery_clear_since_s: T,
-    pub(crate) recovery_clear: bool,
+}
+
+/// Timeouts of one aid in the loop's float type.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Timeouts<T> {
+    pub(crate) stale_after_s: T,
+    pub(crate) lost_after_s: T,
+}
+
+impl<T: Real> Timeouts<T> {
+    pub(crate) fn new(t: &AidTimeouts) -> Self {
+        Self {
+            stale_after_s: T::lit(t.stale_after_s),
+            lost_after_s: T::lit(t.lost_after_s),
+        }
+    }
 }
 
 impl<T: Real> AidChannel<T> {
-    pub(crate) fn new(t: &AidTimeouts) -> Self {
+    pub(crate) fn new() -> Self {
         Self {
             last_time_s: T::zero(),
             last_value: T::zero(),
             received: false,
-            stale_after_s: T::lit(t.stale_after_s),
-            lost_after_s: T::lit(t.lost_after_s),
             recovery_var: T::zero(),
-            recovery_clear_since_s: T::zero(),
-            recovery_clear: false,
+            recovery_clear_since_s: T::lit(f64::INFINITY),
         }
     }
 
@@ -573,14 +584,14 @@ impl<T: Real> AidChannel<T> {
     }
 
     #[inline(always)]
-    pub(crate) fn status(&self, now_s: T) -> AidStatus<T> {
+    pub(crate) fn status(&self, now_s: T, to: &Timeouts<T>) -> AidStatus<T> {
         if !self.received {
             return AidStatus::NoData;
         }
         let age_s = now_s - self.last_time_s;
-        if age_s > self.lost_after_s {
+        if age_s > to.lost_after_s {
             AidStatus::Lost { age_s }
-        } else if age_s > self.stale_after_s {
+        } else if age_s > to.stale_after_s {
             AidStatus::Stale { age_s }
         } else {
             AidStatus::Fresh { age_s }
@@ -641,10 +652,11 @@ pub(crate) fn check_initial<T: Real>(init: &InitialState<T>) -> Result<(), NavEr
 /// `gate = (σ₀², growth₁, growth₂, threshold, recovery hold)` with the drift `d = gap (growth₁ + growth₂ gap)`.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
-fn admit<T: Real>(
+fn admit<T: Real, const SECOND_ORDER: bool>(
     old: &AidChannel<T>,
     cand: Option<AidChannel<T>>,
     now: T,
+    lost_after_s: T,
     mid: T,
     rate: (T, T),
     pred: T,
@@ -654,9 +666,14 @@ fn admit<T: Real>(
         return (*old, None);
     };
     let age = mid - cand.last_time_s;
-    let innovation = cand.last_value + age * (rate.0 - rate.1 * age) - pred;
+    let r = if SECOND_ORDER {
+        rate.0 - rate.1 * age
+    } else {
+        rate.0
+    };
+    let innovation = cand.last_value + age * r - pred;
     let nu2 = innovation * innovation;
-    let lost = old.received && now - old.last_time_s > old.lost_after_s;
+    let lost = old.received && now - old.last_time_s > lost_after_s;
     let (gate_variance, pass) = match gate {
         Some((var0, g1, g2, thr, hold)) if old.received => {
             let gap = cand.last_time_s - old.last_time_s;
@@ -669,16 +686,15 @@ fn admit<T: Real>(
             if pass && lost {
                 // Re-acquisition: hold this gate while the loop absorbs the coast error.
                 cand.recovery_var = s;
-                cand.recovery_clear = false;
+                cand.recovery_clear_since_s = T::lit(f64::INFINITY);
             } else if pass && old.recovery_var > T::zero() {
                 if nu2 > thr * var0 {
-                    cand.recovery_clear = false;
-                } else if !old.recovery_clear {
-                    cand.recovery_clear = true;
-                    cand.recovery_clear_since_s = cand.last_time_s;
+                    cand.recovery_clear_since_s = T::lit(f64::INFINITY);
                 } else if cand.last_time_s - old.recovery_clear_since_s >= hold {
                     cand.recovery_var = T::zero();
-                    cand.recovery_clear = false;
+                    cand.recovery_clear_since_s = T::lit(f64::INFINITY);
+                } else if old.recovery_clear_since_s > cand.last_time_s {
+                    cand.recovery_clear_since_s = cand.last_time_s;
                 }
             }
             (s, pass)
@@ -745,6 +761,8 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) gravity: GravityModel<T>,
     pub(crate) baro: AidChannel<T>,
     pub(crate) velocity: AidChannel<T>,
+    pub(crate) baro_timeouts: Timeouts<T>,
+    pub(crate) velocity_timeouts: Timeouts<T>,
     /// Baro lag compensation (the classical loop's C4), s.
     pub(crate) baro_lag_s: T,
     /// +1 when `V̇_z = A_z + b` (aided loop, spec's A), −1 when `V̇_z = A_z − b` (classical).
@@ -779,8 +797,10 @@ impl<T: Real> LoopCore<T> {
             half_dt_s: T::lit(0.5 * dt_s),
             modes,
             gravity: gravity.cast(),
-            baro: AidChannel::new(baro),
-            velocity: AidChannel::new(velocity),
+            baro: AidChannel::new(),
+            velocity: AidChannel::new(),
+            baro_timeouts: Timeouts::new(baro),
+            velocity_timeouts: Timeouts::new(velocity),
             baro_lag_s: T::lit(baro_lag_s),
             bias_sign: T::lit(bias_sign),
             gate: None,
@@ -836,10 +856,11 @@ impl<T: Real> LoopCore<T> {
         };
         // χ² gate on the new samples.
         let gate = self.gate.as_ref();
-        let (baro_ch, mut baro_check) = admit(
+        let (baro_ch, mut baro_check) = admit::<T, true>(
             &self.baro,
             baro_cand,
             now,
+            self.baro_timeouts.lost_after_s,
             mid,
             (v, half * v_rate),
             h_pred,
@@ -853,10 +874,11 @@ impl<T: Real> LoopCore<T> {
                 )
             }),
         );
-        let (vel_ch, mut vel_check) = admit(
+        let (vel_ch, mut vel_check) = admit::<T, false>(
             &self.velocity,
             vel_cand,
             now,
+            self.velocity_timeouts.lost_after_s,
             mid,
             (v_rate, T::zero()),
             v,
@@ -897,8 +919,8 @@ impl<T: Real> LoopCore<T> {
         }
         let v = x.y;
 
-        let baro_status = baro_ch.status(now);
-        let vel_status = vel_ch.status(now);
+        let baro_status = baro_ch.status(now, &self.baro_timeouts);
+        let vel_status = vel_ch.status(now, &self.velocity_timeouts);
         let use_baro = baro_status.in_use();
         let use_vel = vel_status.in_use();
 
