@@ -24,6 +24,21 @@
 //! time-stamped, and may be missing. Each aid has an [`AidStatus`]: `Fresh` and `Stale` samples
 //! are used, a `Lost` (or never received) aid is dropped and the loop runs on the IMU alone
 //! (pure inertial in that channel), which the per-step [`AidReport`] says.
+//!
+//! Innovation gating (issue 7): with [`InnovationGate`] installed (`set_gate`), every newly
+//! arrived sample is χ²-tested against the estimate before it replaces the held one; the
+//! verdict (innovation, gate variance, NIS, fused/rejected, re-acquisition, reset) is in
+//! [`AidReport::new_sample`] and [`GateCounters`] count them. The recovery path of a starved
+//! loop (re-inflated gate, recovery gate, reset of the measured state on re-acquisition) is
+//! described at [`InnovationGate`].
+//!
+//! Numerics: the step is evaluated in innovation form (see `Mode`), exact and well
+//! conditioned in f32. Bad input (non-finite or out-of-range values, time stamps not
+//! increasing, an IMU interval off by more than [`IMU_DT_TOLERANCE`], aid samples from the
+//! future) returns a typed [`NavError`] and leaves the loop unchanged, bit for bit. A held
+//! (`Stale`) sample is extrapolated at constant acceleration: choose `lost_after_s` so that
+//! ½ · jerk · age² stays below the aid's noise (with high jerk, a long stale window feeds the
+//! loop a wrong reading).
 
 pub mod aided;
 pub mod classical;
