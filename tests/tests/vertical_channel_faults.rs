@@ -271,3 +271,87 @@ fn soak_vertical_channel_f32() {
         worst[0], worst[1]
     );
 }
+
+/// The gate's variance and verdict follow the documented formula, for both aids:
+/// baro S = σ_h² + (gap (σ_v0 + ½ σ_a0 gap))², velocity S = σ_v² + (σ_a0 gap)², rejected iff
+/// ν²/S > threshold; a rejected sample is not adopted (the held one keeps ageing).
+#[test]
+fn gate_variance_and_verdict_follow_the_formula() {
+    let cfg = load_config("vc-response").unwrap();
+    let (_, acfg) = loop_configs(&cfg, 20.0);
+    let gate = InnovationGate {
+        nis_threshold: 9.0,
+        baro_sigma_m: 2.0,
+        velocity_sigma_m_s: 0.3,
+        starved_velocity_sigma_m_s: 0.5,
+        starved_accel_sigma_m_s2: 0.1,
+        recovery_hold_s: 60.0,
+    };
+    let init = InitialState::<f64> {
+        time_s: 0.0,
+        altitude_m: 500.0,
+        vz_up_m_s: 0.0,
+        accel_bias_m_s2: 0.0,
+    };
+    let mut lp = AidedLoop::new(&acfg, &init).unwrap();
+    lp.set_gate(Some(&gate)).unwrap();
+    let g = nav_core::earth::normal_gravity_m_s2(cfg.latitude_deg.to_radians(), 500.0);
+    let mut rng = run_rng(5, 0);
+    let (mut last_b, mut last_v) = (None::<f64>, None::<f64>);
+    let (mut n_rej, mut n_pass) = (0, 0);
+    for k in 1..=3000u32 {
+        let t = f64::from(k) * 0.01;
+        // Samples with occasional gaps and outliers of random size.
+        let gap_b = k % 4 == 0 && !(1000..1300).contains(&k);
+        let gap_v = k % 10 == 0 && !(2000..2200).contains(&k);
+        let out = normal(&mut rng, 1.0).abs() > 1.5;
+        let b = gap_b.then(|| BaroSample {
+            time_s: t,
+            altitude_m: 500.0 + normal(&mut rng, if out { 20.0 } else { 1.0 }),
+        });
+        let v = gap_v.then(|| VelocitySample {
+            time_s: t,
+            vz_up_m_s: normal(&mut rng, if out { 3.0 } else { 0.1 }),
+        });
+        let imu = ImuSample {
+            time_s: t,
+            specific_force_up_m_s2: g,
+        };
+        let r = lp.step(&imu, b.as_ref(), v.as_ref()).unwrap();
+        for (rep, last, sig0, is_baro) in [
+            (r.baro, &mut last_b, 2.0, true),
+            (r.velocity, &mut last_v, 0.3, false),
+        ] {
+            let Some(c) = rep.new_sample else { continue };
+            let Some(prev) = *last else {
+                // First sample: acquisition, ungated.
+                assert!(c.gate_variance.is_infinite());
+                *last = Some(t);
+                continue;
+            };
+            let gap = t - prev;
+            let d = if is_baro {
+                gap * (0.5 + 0.5 * 0.1 * gap)
+            } else {
+                0.1 * gap
+            };
+            let s = sig0 * sig0 + d * d;
+            assert!(
+                (c.gate_variance - s).abs() <= 1e-9 * s || c.gate_variance > s,
+                "{is_baro} t {t}: S {} vs {s}",
+                c.gate_variance
+            );
+            let pass = c.nis() <= 9.0;
+            assert_eq!(c.outcome == FusionOutcome::Fused, pass, "t {t}: {c:?}");
+            if pass {
+                *last = Some(t);
+                n_pass += 1;
+                // The accepted sample is the one the loop now corrects with.
+                assert!((rep.innovation.unwrap() - c.innovation).abs() < 1e-9 || c.reset);
+            } else {
+                n_rej += 1;
+            }
+        }
+    }
+    assert!(n_rej > 20 && n_pass > 500, "{n_rej} {n_pass}");
+}
