@@ -355,3 +355,107 @@ fn gate_variance_and_verdict_follow_the_formula() {
     }
     assert!(n_rej > 20 && n_pass > 500, "{n_rej} {n_pass}");
 }
+
+/// Documents a limit of f32 time stamps (a property of the caller's clock, not of the loop):
+/// 100 Hz stamps counted from 0 pass the IMU interval check (|Δt − n dt| ≤ 0.25 dt) up to
+/// 2¹⁶ s ≈ 18 h (f32 resolution 3.9 ms below); beyond, stamp rounding alone exceeds the
+/// tolerance for some samples, which are refused (`InvalidTimeStep`) — the loop does not get
+/// stuck: the next stamps are bridged as a gap. Firmware running longer should stamp relative
+/// to a recent epoch (or use the f64 loop).
+#[test]
+fn f32_time_stamps_limit_the_run_length_at_100_hz() {
+    let cfg = load_config("vc-response").unwrap();
+    let (ccfg, _) = loop_configs(&cfg, 20.0);
+    let g = nav_core::earth::normal_gravity_m_s2(cfg.latitude_deg.to_radians(), 500.0) as f32;
+    let run_near = |t0: f64| {
+        let init = InitialState::<f32> {
+            time_s: t0 as f32,
+            altitude_m: 500.0,
+            vz_up_m_s: 0.0,
+            accel_bias_m_s2: 0.0,
+        };
+        let mut lp = ClassicalLoop::new(&ccfg, &init).unwrap();
+        let mut refused = 0;
+        for k in 1..=2000u32 {
+            let t = (t0 + f64::from(k) * 0.01) as f32;
+            let imu = ImuSample {
+                time_s: t,
+                specific_force_up_m_s2: g,
+            };
+            if lp.step(&imu, None).is_err() {
+                refused += 1;
+            }
+        }
+        (refused, lp.time_s().to_f64() - t0)
+    };
+    assert_eq!(run_near(30_000.0).0, 0);
+    assert_eq!(run_near(60_000.0).0, 0);
+    let (refused, advanced) = run_near(70_000.0);
+    assert!(refused > 0, "{refused}");
+    assert!(advanced > 19.9, "stuck at {advanced} s");
+}
+
+/// Missing IMU samples: a gap of n − 1 samples (n ≤ 100 intervals) is bridged by coasting,
+/// and reported; a longer gap is refused with the loop unchanged, and `reinitialise` restarts.
+#[test]
+fn imu_gaps_are_bridged_or_refused_and_reinitialise_restarts() {
+    let cfg = load_config("vc-response").unwrap();
+    let (ccfg, acfg) = loop_configs(&cfg, 20.0);
+    let g = nav_core::earth::normal_gravity_m_s2(cfg.latitude_deg.to_radians(), 500.0);
+    let init = InitialState::<f64> {
+        time_s: 0.0,
+        altitude_m: 500.0,
+        vz_up_m_s: 0.0,
+        accel_bias_m_s2: 0.0,
+    };
+    let mut c = ClassicalLoop::new(&ccfg, &init).unwrap();
+    let mut a = AidedLoop::new(&acfg, &init).unwrap();
+    let mut t = 0.0;
+    for n in [1u32, 2, 3, 10, 100] {
+        t += f64::from(n) * 0.01;
+        let imu = ImuSample {
+            time_s: t,
+            specific_force_up_m_s2: g,
+        };
+        let baro = BaroSample {
+            time_s: t - 0.005,
+            altitude_m: 500.0,
+        };
+        assert_eq!(c.step(&imu, Some(&baro)).unwrap().imu_intervals, n);
+        assert_eq!(a.step(&imu, Some(&baro), None).unwrap().imu_intervals, n);
+        assert!((c.altitude_m() - 500.0).abs() < 0.5 && (a.altitude_m() - 500.0).abs() < 0.5);
+        assert!((c.time_s() - t).abs() < 1e-12);
+    }
+    // 101 intervals: refused, nothing changes; then a restart.
+    let (bc, ba) = (format!("{c:?}"), format!("{a:?}"));
+    let imu = ImuSample {
+        time_s: t + 1.01,
+        specific_force_up_m_s2: g,
+    };
+    assert_eq!(
+        c.step(&imu, None).err(),
+        Some(nav_core::NavError::InvalidTimeStep)
+    );
+    assert_eq!(
+        a.step(&imu, None, None).err(),
+        Some(nav_core::NavError::InvalidTimeStep)
+    );
+    assert_eq!(
+        (format!("{c:?}"), format!("{a:?}")),
+        (bc.clone(), ba.clone())
+    );
+    let bad = InitialState {
+        altitude_m: f64::NAN,
+        ..init
+    };
+    assert!(c.reinitialise(&bad).is_err() && a.reinitialise(&bad).is_err());
+    assert_eq!((format!("{c:?}"), format!("{a:?}")), (bc, ba));
+    let again = InitialState {
+        time_s: t + 1.0,
+        ..init
+    };
+    c.reinitialise(&again).unwrap();
+    a.reinitialise(&again).unwrap();
+    assert_eq!(c.step(&imu, None).unwrap().imu_intervals, 1);
+    assert_eq!(a.step(&imu, None, None).unwrap().imu_intervals, 1);
+}

@@ -411,7 +411,7 @@ proptest! {
     /// Stated tolerance, per loop and per state (h, V_z, b̂): the RMS over the run of
     /// f32 − f64 is at most 10 % of (the RMS of the f64 estimation error + a resolution floor
     /// of 0.01 m + 1e-6 |h|, 1e-3 m/s, 1e-4 m/s²) — f32 arithmetic adds well under a tenth
-    /// to the estimation error (worst seen over 40 random setups: 3.8 %, aided h). No gate, so
+    /// to the estimation error (worst seen over 200 random setups: 3.9 %, aided V_z). No gate, so
     /// both take the same samples.
     #[test]
     fn f32_agrees_with_f64_over_a_long_run(mut s in setup_strategy()) {
@@ -511,12 +511,13 @@ fn bad_step_cases(t: f64, dt: f64) -> Vec<Case> {
         imu_t(f64::INFINITY, nf("imu time_s")),
         imu_t(f64::NEG_INFINITY, nf("imu time_s")),
         imu_t(1e30, InvalidTimeStep),
-        imu_t(t, TimeNotIncreasing),          // repeating (Δt = 0)
-        imu_t(t - dt, TimeNotIncreasing),     // backwards (Δt < 0)
-        imu_t(-1e30, TimeNotIncreasing),      // hugely backwards
-        imu_t(t + 2.0 * dt, InvalidTimeStep), // Δt too large
-        imu_t(t + 1e3, InvalidTimeStep),      // huge Δt
-        imu_t(t + 0.5 * dt, InvalidTimeStep), // Δt too small
+        imu_t(t, TimeNotIncreasing),            // repeating (Δt = 0)
+        imu_t(t - dt, TimeNotIncreasing),       // backwards (Δt < 0)
+        imu_t(-1e30, TimeNotIncreasing),        // hugely backwards
+        imu_t(t + 1.6 * dt, InvalidTimeStep),   // Δt neither 1 nor 2 intervals
+        imu_t(t + 101.0 * dt, InvalidTimeStep), // gap longer than 100 intervals
+        imu_t(t + 1e3, InvalidTimeStep),        // huge Δt
+        imu_t(t + 0.5 * dt, InvalidTimeStep),   // Δt too small
         sf(f64::NAN, nf("specific_force_up_m_s2")),
         sf(f64::INFINITY, nf("specific_force_up_m_s2")),
         sf(f64::NEG_INFINITY, nf("specific_force_up_m_s2")),

@@ -148,6 +148,9 @@ pub struct AidedReport<T> {
     pub baro: AidReport<T>,
     /// Velocity aid: status, innovation `V_ref − V̂_z` (m/s) and its design variance.
     pub velocity: AidReport<T>,
+    /// IMU intervals covered by this step: 1, or n for a bridged gap of n − 1 missing
+    /// samples (see [`super::MAX_IMU_GAP_INTERVALS`]).
+    pub imu_intervals: u32,
 }
 
 /// The velocity-aided loop, discretised exactly at the IMU rate.
@@ -202,7 +205,7 @@ impl<T: Real> AidedLoop<T> {
         baro: Option<&BaroSample<T>>,
         velocity: Option<&VelocitySample<T>>,
     ) -> Result<AidedReport<T>, NavError> {
-        let (baro, velocity) = self.core.step(
+        let (baro, velocity, imu_intervals) = self.core.step(
             imu,
             baro,
             velocity,
@@ -211,7 +214,11 @@ impl<T: Real> AidedLoop<T> {
                 Some(self.velocity_innovation_variance),
             ),
         )?;
-        Ok(AidedReport { baro, velocity })
+        Ok(AidedReport {
+            baro,
+            velocity,
+            imu_intervals,
+        })
     }
 
     /// The Riccati design in use.
@@ -220,7 +227,7 @@ impl<T: Real> AidedLoop<T> {
     }
     /// Altitude estimate, m (up).
     pub fn altitude_m(&self) -> T {
-        self.core.x.x
+        self.core.altitude_m()
     }
     /// Vertical velocity estimate, m/s (up).
     pub fn vz_up_m_s(&self) -> T {
@@ -238,6 +245,12 @@ impl<T: Real> AidedLoop<T> {
     /// (then every valid sample is accepted). Counters are kept. On error nothing changes.
     pub fn set_gate(&mut self, gate: Option<&super::InnovationGate>) -> Result<(), NavError> {
         self.core.set_gate(gate)
+    }
+    /// Restarts the state and clock from `init` (e.g. after a refused IMU gap longer than
+    /// [`super::MAX_IMU_GAP_INTERVALS`] or a diverged estimate), keeping the design, the gate
+    /// and the counters; held aid samples are dropped. On error nothing changes.
+    pub fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
+        self.core.reinitialise(init)
     }
     /// Gate counters of the baro.
     pub fn baro_counters(&self) -> &super::GateCounters {

@@ -140,6 +140,9 @@ impl ClassicalGains {
 pub struct ClassicalReport<T> {
     /// The baro: status and innovation `h_baro − (ĥ − C4 V̂_z)` (= −e), m.
     pub baro: AidReport<T>,
+    /// IMU intervals covered by this step: 1, or n for a bridged gap of n − 1 missing
+    /// samples (see [`super::MAX_IMU_GAP_INTERVALS`]).
+    pub imu_intervals: u32,
 }
 
 /// The classical damping loop, discretised exactly at the IMU rate.
@@ -184,8 +187,11 @@ impl<T: Real> ClassicalLoop<T> {
         imu: &ImuSample<T>,
         baro: Option<&BaroSample<T>>,
     ) -> Result<ClassicalReport<T>, NavError> {
-        let (baro, _) = self.core.step(imu, baro, None, (None, None))?;
-        Ok(ClassicalReport { baro })
+        let (baro, _, imu_intervals) = self.core.step(imu, baro, None, (None, None))?;
+        Ok(ClassicalReport {
+            baro,
+            imu_intervals,
+        })
     }
 
     /// The gains in use.
@@ -194,7 +200,7 @@ impl<T: Real> ClassicalLoop<T> {
     }
     /// Altitude estimate, m (up).
     pub fn altitude_m(&self) -> T {
-        self.core.x.x
+        self.core.altitude_m()
     }
     /// Vertical velocity estimate, m/s (up).
     pub fn vz_up_m_s(&self) -> T {
@@ -212,6 +218,12 @@ impl<T: Real> ClassicalLoop<T> {
     /// (then every valid sample is accepted). Counters are kept. On error nothing changes.
     pub fn set_gate(&mut self, gate: Option<&super::InnovationGate>) -> Result<(), NavError> {
         self.core.set_gate(gate)
+    }
+    /// Restarts the state and clock from `init` (e.g. after a refused IMU gap longer than
+    /// [`super::MAX_IMU_GAP_INTERVALS`] or a diverged estimate), keeping the design, the gate
+    /// and the counters; held aid samples are dropped. On error nothing changes.
+    pub fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
+        self.core.reinitialise(init)
     }
     /// Gate counters of the baro.
     pub fn baro_counters(&self) -> &super::GateCounters {

@@ -62,6 +62,14 @@ pub const ESTIMATE_RANGE_M: (f64, f64) = (-50_000.0, 500_000.0);
 pub const MAX_VERTICAL_SPEED_M_S: f64 = 1_500.0;
 /// Accepted IMU interval relative to the configured one: `|Δt − dt| ≤ 0.25 dt`.
 pub const IMU_DT_TOLERANCE: f64 = 0.25;
+/// Longest IMU gap bridged by a step, in IMU intervals: a sample whose interval is
+/// `n · dt` (±[`IMU_DT_TOLERANCE`] dt, 2 ≤ n ≤ this) is accepted and the loop first coasts
+/// the `n − 1` missing intervals on its specific force (no aid), then steps normally. A longer
+/// gap is refused (`InvalidTimeStep`); the caller then re-initialises (`reinitialise`).
+pub const MAX_IMU_GAP_INTERVALS: u32 = 100;
+/// The loops keep the altitude relative to a reference that is moved to the estimate when
+/// they differ by more than this, m (f32 resolution 2⁻¹⁶ m here).
+pub const RECENTRE_M: f64 = 256.0;
 /// Largest accepted configured IMU interval `imu_dt_s`, s.
 pub const MAX_IMU_DT_S: f64 = 1.0;
 /// Largest accepted classical time constant `tau_s`, s.
@@ -178,7 +186,8 @@ impl<T: Real> SampleCheck<T> {
     }
 }
 
-/// Gate counters of one aid (saturating).
+/// Gate counters of one aid. `accepted`, `rejected` and `consecutive_rejected` wrap after
+/// 2³² samples (≈ 1.4 years at 100 Hz); `reacquisitions` and `resets` saturate.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct GateCounters {
@@ -614,8 +623,9 @@ impl<T: Real> AidChannel<T> {
     }
 }
 
-/// Checks an IMU sample against the loop time; returns Δt.
-pub(crate) fn check_imu<T: Real>(imu: &ImuSample<T>, time_s: T, dt_s: T) -> Result<(), NavError> {
+/// Checks an IMU sample against the loop time; returns the number of missing IMU intervals
+/// before it (0 normally, up to [`MAX_IMU_GAP_INTERVALS`] − 1 for a bridged gap).
+pub(crate) fn check_imu<T: Real>(imu: &ImuSample<T>, time_s: T, dt_s: T) -> Result<u32, NavError> {
     if !imu.time_s.is_finite() {
         return Err(NavError::NonFiniteInput {
             input: "imu time_s",
@@ -635,10 +645,30 @@ pub(crate) fn check_imu<T: Real>(imu: &ImuSample<T>, time_s: T, dt_s: T) -> Resu
         return Err(NavError::TimeNotIncreasing);
     }
     let dt = imu.time_s - time_s;
-    if (dt - dt_s).abs() > T::lit(IMU_DT_TOLERANCE) * dt_s {
-        return Err(NavError::InvalidTimeStep);
+    let tol = T::lit(IMU_DT_TOLERANCE) * dt_s;
+    if (dt - dt_s).abs() <= tol {
+        return Ok(0);
     }
-    Ok(())
+    gap_intervals(dt, dt_s, tol)
+}
+
+/// A gap of `n` IMU intervals (rare path): `Ok(n − 1)` when bridgeable.
+#[cold]
+#[inline(never)]
+fn gap_intervals<T: Real>(dt: T, dt_s: T, tol: T) -> Result<u32, NavError> {
+    let n = (dt / dt_s).round();
+    if n >= T::lit(2.0)
+        && n <= T::lit(f64::from(MAX_IMU_GAP_INTERVALS))
+        && (dt - n * dt_s).abs() <= tol
+    {
+        // n is an integer in [2, MAX_IMU_GAP_INTERVALS].
+        let n_u32 = (1..=MAX_IMU_GAP_INTERVALS)
+            .find(|&k| T::lit(f64::from(k)) >= n)
+            .unwrap_or(MAX_IMU_GAP_INTERVALS);
+        Ok(n_u32 - 1)
+    } else {
+        Err(NavError::InvalidTimeStep)
+    }
 }
 
 /// Validates an initial state.
@@ -672,6 +702,7 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
     cand: Option<AidChannel<T>>,
     now: T,
     lost_after_s: T,
+    offset: T,
     mid: T,
     rate: (T, T),
     pred: T,
@@ -686,7 +717,12 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
     } else {
         rate.0
     };
-    let innovation = cand.last_value + age * r - pred;
+    let value = if SECOND_ORDER {
+        cand.last_value - offset
+    } else {
+        cand.last_value
+    };
+    let innovation = value + age * r - pred;
     let nu2 = innovation * innovation;
     let lost = old.received && now - old.last_time_s > lost_after_s;
     let (gate_variance, pass) = match gate {
@@ -736,7 +772,7 @@ impl GateCounters {
     fn count<T>(&mut self, check: &Option<SampleCheck<T>>) {
         if let Some(c) = check {
             if c.outcome == FusionOutcome::Fused {
-                self.accepted = self.accepted.saturating_add(1);
+                self.accepted = self.accepted.wrapping_add(1);
                 self.consecutive_rejected = 0;
                 if c.reacquired {
                     self.reacquisitions = self.reacquisitions.saturating_add(1);
@@ -745,8 +781,8 @@ impl GateCounters {
                     }
                 }
             } else {
-                self.rejected = self.rejected.saturating_add(1);
-                self.consecutive_rejected = self.consecutive_rejected.saturating_add(1);
+                self.rejected = self.rejected.wrapping_add(1);
+                self.consecutive_rejected = self.consecutive_rejected.wrapping_add(1);
             }
         }
     }
@@ -767,8 +803,12 @@ pub(crate) fn check_imu_dt(imu_dt_s: f64) -> Result<(), NavError> {
 /// The state and machinery shared by both loops.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct LoopCore<T: Real> {
-    /// `[ĥ (m), V̂_z (m/s), b̂ (m/s²)]`.
+    /// `[ĥ − h_ref (m), V̂_z (m/s), b̂ (m/s²)]`: the altitude relative to `h_ref_m`, so that
+    /// in f32 the per-step increments V̂_z Δt (µm to mm) are not lost to the altitude's
+    /// resolution (4 mm at 40 km).
     pub(crate) x: Vector3<T>,
+    /// Reference altitude, m (moved to the estimate when |ĥ − h_ref| > [`RECENTRE_M`]).
+    pub(crate) h_ref_m: T,
     pub(crate) time_s: T,
     pub(crate) dt_s: T,
     pub(crate) half_dt_s: T,
@@ -802,8 +842,9 @@ impl<T: Real> LoopCore<T> {
     ) -> Result<Self, NavError> {
         check_initial(init)?;
         Ok(Self {
+            h_ref_m: init.altitude_m,
             x: Vector3::new(
-                init.altitude_m,
+                T::zero(),
                 init.vz_up_m_s,
                 -init.accel_bias_m_s2 * T::lit(bias_sign),
             ),
@@ -835,15 +876,33 @@ impl<T: Real> LoopCore<T> {
         baro: Option<&BaroSample<T>>,
         velocity: Option<&VelocitySample<T>>,
         variances: (Option<T>, Option<T>),
-    ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
-        check_imu(imu, self.time_s, self.dt_s)?;
+    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
+        let missing = check_imu(imu, self.time_s, self.dt_s)?;
+        if missing > 0 {
+            return self.step_after_gap(missing, imu, baro, velocity, variances);
+        }
+        self.advance(imu, baro, velocity, variances)
+    }
+
+    /// The step after the IMU time check: aid checks, gate, propagation. On error nothing
+    /// changes.
+    #[inline(always)]
+    fn advance(
+        &mut self,
+        imu: &ImuSample<T>,
+        baro: Option<&BaroSample<T>>,
+        velocity: Option<&VelocitySample<T>>,
+        variances: (Option<T>, Option<T>),
+    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
         let now = imu.time_s;
         let mut x = self.x;
+        let h_ref = self.h_ref_m;
         let (h, v, b) = (x.x, x.y, x.z);
-        let mut az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h);
+        let mut az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h_ref + h);
         let mid = now - self.half_dt_s;
-        // Predicted measurements at mid-interval and the rates a held sample is extrapolated
-        // with (baro: second order, h(mid) = h(t) + age (V̂ − ½ a age); velocity: first order).
+        // Predicted measurements at mid-interval (the baro's relative to h_ref) and the rates
+        // a held sample is extrapolated with (baro: second order, h(mid) = h(t) + age (V̂ −
+        // ½ a age); velocity: first order).
         let mut h_pred = h - self.baro_lag_s * v;
         let mut v_rate = az + self.bias_sign * b;
         let half = T::lit(0.5);
@@ -876,6 +935,7 @@ impl<T: Real> LoopCore<T> {
             baro_cand,
             now,
             self.baro_timeouts.lost_after_s,
+            h_ref,
             mid,
             (v, half * v_rate),
             h_pred,
@@ -894,6 +954,7 @@ impl<T: Real> LoopCore<T> {
             vel_cand,
             now,
             self.velocity_timeouts.lost_after_s,
+            T::zero(),
             mid,
             (v_rate, T::zero()),
             v,
@@ -927,7 +988,7 @@ impl<T: Real> LoopCore<T> {
                 }
             }
             if reset_baro || reset_vel {
-                az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(x.x);
+                az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h_ref + x.x);
                 h_pred = x.x - self.baro_lag_s * x.y;
                 v_rate = az + self.bias_sign * x.z;
             }
@@ -942,24 +1003,33 @@ impl<T: Real> LoopCore<T> {
         // Held samples extrapolated to the middle of the interval (ZOH of the continuous loop).
         let nu_h = use_baro.then(|| {
             let age = mid - baro_ch.last_time_s;
-            baro_ch.last_value + age * (v - half * v_rate * age) - h_pred
+            (baro_ch.last_value - h_ref) + age * (v - half * v_rate * age) - h_pred
         });
         let nu_v = use_vel.then(|| vel_ch.last_value + (mid - vel_ch.last_time_s) * v_rate - v);
         let mode = self.modes.select(use_baro, use_vel);
-        let x_new = x
+        let mut x_new = x
             + (mode.n * Vector2::new(v, v_rate)
                 + mode.g * Vector2::new(nu_h.unwrap_or(T::zero()), nu_v.unwrap_or(T::zero())));
-        if !x_new.iter().all(|v| v.is_finite()) {
+        // One test for all three: a sum of finite values is finite unless it overflows, which
+        // is refused as well.
+        if !(x_new.x + x_new.y + x_new.z).is_finite() {
             return Err(NavError::NonFiniteInput {
                 input: "state after step",
             });
         }
-        if x_new.x < T::lit(ESTIMATE_RANGE_M.0) || x_new.x > T::lit(ESTIMATE_RANGE_M.1) {
-            return Err(NavError::InputOutOfRange {
-                input: "altitude estimate",
-            });
+        // Re-centre the relative altitude (and range-check the estimate) when it has moved.
+        let mut h_ref_new = h_ref;
+        if x_new.x.abs() > T::lit(RECENTRE_M) {
+            h_ref_new = h_ref + x_new.x;
+            if h_ref_new < T::lit(ESTIMATE_RANGE_M.0) || h_ref_new > T::lit(ESTIMATE_RANGE_M.1) {
+                return Err(NavError::InputOutOfRange {
+                    input: "altitude estimate",
+                });
+            }
+            x_new.x = T::zero();
         }
         self.x = x_new;
+        self.h_ref_m = h_ref_new;
         self.time_s = now;
         self.baro = baro_ch;
         self.velocity = vel_ch;
@@ -978,7 +1048,55 @@ impl<T: Real> LoopCore<T> {
                 innovation_variance: if use_vel { variances.1 } else { None },
                 new_sample: vel_check,
             },
+            1,
         ))
+    }
+
+    /// Bridges a gap of `missing` IMU intervals: coasts them on the new sample's specific
+    /// force without aid samples, then steps normally. All-or-nothing (works on a copy).
+    #[cold]
+    #[inline(never)]
+    fn step_after_gap(
+        &mut self,
+        missing: u32,
+        imu: &ImuSample<T>,
+        baro: Option<&BaroSample<T>>,
+        velocity: Option<&VelocitySample<T>>,
+        variances: (Option<T>, Option<T>),
+    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
+        let mut tmp = *self;
+        // The gap (already checked to be n intervals) is split evenly; the sub-steps use the
+        // loop's fixed Φ and skip the interval check (f32 stamps may not resolve dt).
+        let n = T::lit(f64::from(missing + 1));
+        let step_s = (imu.time_s - self.time_s) / n;
+        let mut k = T::zero();
+        for _ in 0..missing {
+            k += T::one();
+            let sub = ImuSample {
+                time_s: self.time_s + step_s * k,
+                specific_force_up_m_s2: imu.specific_force_up_m_s2,
+            };
+            tmp.advance(&sub, None, None, variances)?;
+        }
+        let (b, v, _) = tmp.advance(imu, baro, velocity, variances)?;
+        *self = tmp;
+        Ok((b, v, missing + 1))
+    }
+
+    /// Restarts the state and clock from `init`, keeping the design, the gate and the
+    /// counters (held aid samples are dropped). On error nothing changes.
+    pub(crate) fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
+        check_initial(init)?;
+        self.h_ref_m = init.altitude_m;
+        self.x = Vector3::new(
+            T::zero(),
+            init.vz_up_m_s,
+            -init.accel_bias_m_s2 * self.bias_sign,
+        );
+        self.time_s = init.time_s;
+        self.baro = AidChannel::new();
+        self.velocity = AidChannel::new();
+        Ok(())
     }
 
     /// Installs (or removes, `None`) the innovation gate. On error nothing changes.
@@ -988,6 +1106,11 @@ impl<T: Real> LoopCore<T> {
             None => None,
         };
         Ok(())
+    }
+
+    /// Altitude estimate, m.
+    pub(crate) fn altitude_m(&self) -> T {
+        self.h_ref_m + self.x.x
     }
 
     /// Accelerometer bias estimate (measured − true), m/s².
