@@ -410,9 +410,9 @@ proptest! {
     /// f32 and f64 runs of the same inputs agree over a long run (6 000 steps, up to 300 s).
     /// Stated tolerance, per loop and per state (h, V_z, b̂): the RMS over the run of
     /// f32 − f64 is at most 10 % of (the RMS of the f64 estimation error + a resolution floor
-    /// of 0.01 m + 1e-6 |h|, 1e-3 m/s, 1e-4 m/s²) — f32 arithmetic adds well under a tenth
-    /// to the estimation error (worst seen over 200 random setups: 3.9 %, aided V_z). No gate, so
-    /// both take the same samples.
+    /// of 0.01 m + 1e-6 |h|, 5 mm/s, 5e-4 m/s²: f32 inputs at 40 km are quantised to 4 mm).
+    /// f32 arithmetic adds well under a tenth to the estimation error (worst over 200 random
+    /// setups: < 4 %, aided V_z). No gate, so both take the same samples.
     #[test]
     fn f32_agrees_with_f64_over_a_long_run(mut s in setup_strategy()) {
         s.gate = false;
@@ -447,7 +447,7 @@ fn agreement(x32: &[[f64; 3]], x64: &[[f64; 3]], ins: &[Inputs], s: &Setup) -> [
         }
         hmax = hmax.max(i.truth.0.abs());
     }
-    let floor = [0.01 + 1e-6 * hmax, 1e-3, 1e-4];
+    let floor = [0.01 + 1e-6 * hmax, 5e-3, 5e-4];
     core::array::from_fn(|j| (d2[j] / n).sqrt() / ((e2[j] / n).sqrt() + floor[j]))
 }
 
@@ -795,4 +795,59 @@ fn every_bad_config_field_is_refused_by_name_f32() {
 #[test]
 fn every_bad_config_field_is_refused_by_name_f64() {
     bad_configs::<f64>();
+}
+
+/// Shrunk cases proptest found while this suite was written (kept explicitly: the
+/// regression files of those runs were from intermediate bounds).
+#[test]
+fn regression_cases_found_by_proptest() {
+    // 1. f32 at 37.9 km with 2.5 ms steps and a 5 cm baro: the per-step altitude increments
+    //    are below the f32 resolution of an absolute altitude (4 mm); fixed by keeping the
+    //    altitude relative to a re-centred reference.
+    let s = Setup {
+        dt_s: 0.0025,
+        lat_rad: 0.0,
+        tau_s: 5.0,
+        lag_s: 0.0,
+        accel_noise: 1e-4,
+        bias_rw: 2e-5,
+        baro_every: 2,
+        vel_every: 1,
+        baro_noise_m: 0.05,
+        vel_noise_m_s: 0.01,
+        h0_m: 37_901.474_639_416_105,
+        amp_m: 0.0,
+        omega: 0.0,
+        phase: 0.0,
+        accel_bias_m_s2: 0.0,
+        init_err_m: 0.0,
+        init_err_m_s: 0.0,
+        drop_p: 0.0,
+        outage: (0.0, 0.0),
+        gate: false,
+        seed: 0,
+    };
+    let ins = inputs(&s, STEPS);
+    let mut c32 = ClassicalLoop::<f32>::new(&s.classical(), &s.init()).unwrap();
+    let mut c64 = ClassicalLoop::<f64>::new(&s.classical(), &s.init()).unwrap();
+    let r = agreement(
+        &run_checked(&mut c32, &ins, &s),
+        &run_checked(&mut c64, &ins, &s),
+        &ins,
+        &s,
+    );
+    assert!(r.iter().all(|&v| v <= 0.1), "{r:?}");
+    // 2. Extreme noise ratios: the Riccati design refuses with a typed error (documented
+    //    limitation; the property tests draw accel noise ≥ 1e-4 and bias RW ≥ 1e-6).
+    let mut a = nominal_setup().aided();
+    a.accel_noise_m_s2_rt_hz = 1e-5;
+    a.accel_bias_rw_m_s2_rt_s = 1e-7;
+    a.baro_noise_m = 5.0;
+    a.velocity_noise_m_s = 1.0;
+    a.baro_period_s = a.imu_dt_s;
+    a.velocity_period_s = a.imu_dt_s;
+    assert!(matches!(
+        AidedLoop::<f32>::new(&a, &nominal_setup().init()),
+        Err(NavError::NotConverged { .. })
+    ));
 }
