@@ -459,3 +459,59 @@ fn imu_gaps_are_bridged_or_refused_and_reinitialise_restarts() {
     assert_eq!(c.step(&imu, None).unwrap().imu_intervals, 1);
     assert_eq!(a.step(&imu, None, None).unwrap().imu_intervals, 1);
 }
+
+/// The velocity aid has the same recovery path: after a 30 s velocity outage during which a
+/// 0.3 m/s² bias acts (no baro), the re-acquiring sample resets V̂_z, and the loop tracks again.
+#[test]
+fn velocity_aid_reacquisition_resets_the_velocity() {
+    let cfg = load_config("vc-response").unwrap();
+    let (_, acfg) = loop_configs(&cfg, 20.0);
+    let init = InitialState::<f32> {
+        time_s: 0.0,
+        altitude_m: 500.0,
+        vz_up_m_s: 0.0,
+        accel_bias_m_s2: 0.0,
+    };
+    let mut lp = AidedLoop::new(&acfg, &init).unwrap();
+    lp.set_gate(Some(&InnovationGate {
+        nis_threshold: 16.0,
+        baro_sigma_m: 2.0,
+        velocity_sigma_m_s: 0.3,
+        starved_velocity_sigma_m_s: 0.5,
+        starved_accel_sigma_m_s2: 0.5,
+        recovery_hold_s: 60.0,
+    }))
+    .unwrap();
+    let g = nav_core::earth::normal_gravity_m_s2(cfg.latitude_deg.to_radians(), 500.0);
+    let mut v_before_reacq = None;
+    for k in 1..=12_000u32 {
+        let t = f64::from(k) * 0.01;
+        let out = (30.0..60.0).contains(&t);
+        let b = if out { 0.3 } else { 0.0 };
+        let imu = ImuSample {
+            time_s: t as f32,
+            specific_force_up_m_s2: (g + b) as f32,
+        };
+        let vel = (k % 10 == 0 && !out).then_some(VelocitySample {
+            time_s: t as f32,
+            vz_up_m_s: 0.0,
+        });
+        let v0 = lp.vz_up_m_s();
+        let r = lp.step(&imu, None, vel.as_ref()).unwrap();
+        if let Some(c) = r.velocity.new_sample.filter(|c| c.reacquired) {
+            assert!(c.reset, "{c:?}");
+            assert!(
+                (c.innovation + v0).abs() < 0.5,
+                "ν {} vs −V̂ {}",
+                c.innovation,
+                v0
+            );
+            v_before_reacq = Some(v0);
+        }
+    }
+    let v0 = v_before_reacq.expect("a re-acquisition");
+    assert!(v0 > 5.0, "coast velocity error {v0}");
+    let c = lp.velocity_counters();
+    assert_eq!((c.reacquisitions, c.resets), (1, 1), "{c:?}");
+    assert!(lp.vz_up_m_s().abs() < 0.2, "V̂ {}", lp.vz_up_m_s());
+}
