@@ -68,6 +68,7 @@ pub static REGISTRY: &[Kind] = &[
     crate::scenarios::seeker_ins::fault::KIND,
     crate::scenarios::vertical_channel::KIND_RESPONSE,
     crate::scenarios::vertical_channel::KIND_MONTECARLO,
+    crate::scenarios::vertical_channel_faults::KIND,
     crate::scenarios::vertical_channel::KIND_TAU_SWEEP,
 ];
 

@@ -31,7 +31,7 @@ use super::{
     discretise_modes, open_loop, AidReport, AidTimeouts, BaroSample, GravityModel, ImuSample,
     InitialState, LoopCore, VelocitySample,
 };
-use crate::error::{require_non_negative, require_positive};
+use crate::error::{require_non_negative, require_positive, ConfigIssue};
 use crate::{NavError, Real};
 use nalgebra::{Matrix2x3, Matrix3, Matrix3x2, Vector2, Vector3};
 
@@ -96,6 +96,26 @@ impl AidedGains {
         let lag = require_non_negative("baro_lag_s", config.baro_lag_s)?;
         let sv = require_positive("velocity_noise_m_s", config.velocity_noise_m_s)?;
         let tv = require_positive("velocity_period_s", config.velocity_period_s)?;
+        for (field, v) in [
+            ("baro_period_s", th),
+            ("velocity_period_s", tv),
+            ("baro_lag_s", lag),
+            ("accel_noise_m_s2_rt_hz", sa * sa),
+            ("accel_bias_rw_m_s2_rt_s", sb * sb),
+            ("baro_noise_m", sh * sh * th),
+            ("velocity_noise_m_s", sv * sv * tv),
+        ] {
+            let zero_ok = field == "baro_lag_s" && v == 0.0;
+            if !(v.is_finite()
+                && v <= super::MAX_DESIGN_VALUE
+                && (zero_ok || v >= super::MIN_DESIGN_VALUE))
+            {
+                return Err(NavError::InvalidConfig {
+                    field,
+                    issue: ConfigIssue::OutOfRange,
+                });
+            }
+        }
         let c_grav = gravity.c_per_s2();
         let a = Matrix3::new(0.0, 1.0, 0.0, c_grav, 0.0, 1.0, 0.0, 0.0, 0.0);
         let q = Matrix3::from_diagonal(&Vector3::new(0.0, sa * sa, sb * sb));
@@ -128,6 +148,9 @@ pub struct AidedReport<T> {
     pub baro: AidReport<T>,
     /// Velocity aid: status, innovation `V_ref − V̂_z` (m/s) and its design variance.
     pub velocity: AidReport<T>,
+    /// IMU intervals covered by this step: 1, or n for a bridged gap of n − 1 missing
+    /// samples (see [`super::MAX_IMU_GAP_INTERVALS`]).
+    pub imu_intervals: u32,
 }
 
 /// The velocity-aided loop, discretised exactly at the IMU rate.
@@ -142,7 +165,7 @@ pub struct AidedLoop<T: Real> {
 impl<T: Real> AidedLoop<T> {
     /// Validates the configuration, designs the gains (continuous ARE) and discretises.
     pub fn new(config: &AidedConfig, init: &InitialState<T>) -> Result<Self, NavError> {
-        require_positive("imu_dt_s", config.imu_dt_s)?;
+        super::check_imu_dt(config.imu_dt_s)?;
         config
             .baro_timeouts
             .validate("baro_timeouts.stale_after_s", "baro_timeouts.lost_after_s")?;
@@ -182,7 +205,7 @@ impl<T: Real> AidedLoop<T> {
         baro: Option<&BaroSample<T>>,
         velocity: Option<&VelocitySample<T>>,
     ) -> Result<AidedReport<T>, NavError> {
-        let (baro, velocity) = self.core.step(
+        let (baro, velocity, imu_intervals) = self.core.step(
             imu,
             baro,
             velocity,
@@ -191,7 +214,11 @@ impl<T: Real> AidedLoop<T> {
                 Some(self.velocity_innovation_variance),
             ),
         )?;
-        Ok(AidedReport { baro, velocity })
+        Ok(AidedReport {
+            baro,
+            velocity,
+            imu_intervals,
+        })
     }
 
     /// The Riccati design in use.
@@ -200,7 +227,7 @@ impl<T: Real> AidedLoop<T> {
     }
     /// Altitude estimate, m (up).
     pub fn altitude_m(&self) -> T {
-        self.core.x.x
+        self.core.altitude_m()
     }
     /// Vertical velocity estimate, m/s (up).
     pub fn vz_up_m_s(&self) -> T {
@@ -213,5 +240,32 @@ impl<T: Real> AidedLoop<T> {
     /// Time of the estimate, s.
     pub fn time_s(&self) -> T {
         self.core.time_s
+    }
+    /// Installs the χ² innovation gate ([`super::InnovationGate`]), or removes it with `None`
+    /// (then every valid sample is accepted). Counters are kept. On error nothing changes.
+    pub fn set_gate(&mut self, gate: Option<&super::InnovationGate>) -> Result<(), NavError> {
+        self.core.set_gate(gate)
+    }
+    /// Restarts the state and clock from `init` (e.g. after a refused IMU gap longer than
+    /// [`super::MAX_IMU_GAP_INTERVALS`] or a diverged estimate), keeping the design, the gate
+    /// and the counters; held aid samples are dropped. On error nothing changes.
+    pub fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
+        self.core.reinitialise(init)
+    }
+    /// Gate counters of the baro.
+    pub fn baro_counters(&self) -> &super::GateCounters {
+        &self.core.baro_counters
+    }
+    /// Gate counters of the velocity aid.
+    pub fn velocity_counters(&self) -> &super::GateCounters {
+        &self.core.velocity_counters
+    }
+    /// Design innovation σ of (baro m, velocity m/s): `√(C P Cᵀ + σ²)` — a starting point for
+    /// [`super::InnovationGate`]'s σ₀ (the design ignores correlated baro errors).
+    pub fn design_innovation_sigmas(&self) -> (T, T) {
+        (
+            self.baro_innovation_variance.sqrt(),
+            self.velocity_innovation_variance.sqrt(),
+        )
     }
 }

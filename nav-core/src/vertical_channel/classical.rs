@@ -67,6 +67,12 @@ impl ClassicalGains {
     pub fn pole_placement(tau_s: f64, c4_s: f64, c_per_s2: f64) -> Result<Self, NavError> {
         require_positive("tau_s", tau_s)?;
         require_non_negative("baro_lag_s", c4_s)?;
+        if tau_s > super::MAX_TAU_S {
+            return Err(NavError::InvalidConfig {
+                field: "tau_s",
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
         require_non_negative("c_per_s2", c_per_s2)?;
         let den0 = 1.0 - c_per_s2 * c4_s * c4_s;
         if den0 <= 0.0 {
@@ -134,6 +140,9 @@ impl ClassicalGains {
 pub struct ClassicalReport<T> {
     /// The baro: status and innovation `h_baro − (ĥ − C4 V̂_z)` (= −e), m.
     pub baro: AidReport<T>,
+    /// IMU intervals covered by this step: 1, or n for a bridged gap of n − 1 missing
+    /// samples (see [`super::MAX_IMU_GAP_INTERVALS`]).
+    pub imu_intervals: u32,
 }
 
 /// The classical damping loop, discretised exactly at the IMU rate.
@@ -149,7 +158,7 @@ impl<T: Real> ClassicalLoop<T> {
     /// Errors: `InvalidConfig` (field named), `NonFiniteInput`/`InputOutOfRange` for the
     /// initial state, `NotConverged` if the discretisation fails.
     pub fn new(config: &ClassicalConfig, init: &InitialState<T>) -> Result<Self, NavError> {
-        require_positive("imu_dt_s", config.imu_dt_s)?;
+        super::check_imu_dt(config.imu_dt_s)?;
         config
             .baro_timeouts
             .validate("baro_timeouts.stale_after_s", "baro_timeouts.lost_after_s")?;
@@ -178,8 +187,11 @@ impl<T: Real> ClassicalLoop<T> {
         imu: &ImuSample<T>,
         baro: Option<&BaroSample<T>>,
     ) -> Result<ClassicalReport<T>, NavError> {
-        let (baro, _) = self.core.step(imu, baro, None, (None, None))?;
-        Ok(ClassicalReport { baro })
+        let (baro, _, imu_intervals) = self.core.step(imu, baro, None, (None, None))?;
+        Ok(ClassicalReport {
+            baro,
+            imu_intervals,
+        })
     }
 
     /// The gains in use.
@@ -188,7 +200,7 @@ impl<T: Real> ClassicalLoop<T> {
     }
     /// Altitude estimate, m (up).
     pub fn altitude_m(&self) -> T {
-        self.core.x.x
+        self.core.altitude_m()
     }
     /// Vertical velocity estimate, m/s (up).
     pub fn vz_up_m_s(&self) -> T {
@@ -202,8 +214,23 @@ impl<T: Real> ClassicalLoop<T> {
     pub fn time_s(&self) -> T {
         self.core.time_s
     }
+    /// Installs the χ² innovation gate ([`super::InnovationGate`]), or removes it with `None`
+    /// (then every valid sample is accepted). Counters are kept. On error nothing changes.
+    pub fn set_gate(&mut self, gate: Option<&super::InnovationGate>) -> Result<(), NavError> {
+        self.core.set_gate(gate)
+    }
+    /// Restarts the state and clock from `init` (e.g. after a refused IMU gap longer than
+    /// [`super::MAX_IMU_GAP_INTERVALS`] or a diverged estimate), keeping the design, the gate
+    /// and the counters; held aid samples are dropped. On error nothing changes.
+    pub fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
+        self.core.reinitialise(init)
+    }
+    /// Gate counters of the baro.
+    pub fn baro_counters(&self) -> &super::GateCounters {
+        &self.core.baro_counters
+    }
     /// Discrete transition matrix with the baro in use (for analysis).
     pub fn phi_with_baro(&self) -> Matrix3<T> {
-        self.core.modes.baro.phi
+        self.core.modes.phi_baro
     }
 }

@@ -14,7 +14,7 @@
 //! error dynamics contain the destabilising term `c δh` (`c = 2ω_s²`) of the spec. The
 //! continuous loop is **discretised exactly at the IMU rate**: with the aids held over one
 //! IMU interval (zero-order hold; a held sample is extrapolated to the middle of the interval
-//! with `V̂_z · age`), `x̂_{k+1} = Φ_m x̂_k + Γ_m u_k`, `u = [A_z, z_h, z_v]`, where
+//! with `V̂_z · age`), `x̂_{k+1} = Φ_m x̂_k + Γ_m u_k`, evaluated in innovation form (see `Mode`), `u = [A_z, z_h, z_v]`, where
 //! `[Φ_m Γ_m]` comes from the exponential of the augmented matrix `[[F_m, G_m], [0, 0]]`
 //! (computed once at configuration in `f64`) for each of the four aid modes `m` (which aids are
 //! in use). A step costs two 3×3 matrix-vector products and the gravity polynomial.
@@ -24,24 +24,63 @@
 //! time-stamped, and may be missing. Each aid has an [`AidStatus`]: `Fresh` and `Stale` samples
 //! are used, a `Lost` (or never received) aid is dropped and the loop runs on the IMU alone
 //! (pure inertial in that channel), which the per-step [`AidReport`] says.
+//!
+//! Innovation gating (issue 7): with [`InnovationGate`] installed (`set_gate`), every newly
+//! arrived sample is χ²-tested against the estimate before it replaces the held one; the
+//! verdict (innovation, gate variance, NIS, fused/rejected, re-acquisition, reset) is in
+//! [`AidReport::new_sample`] and [`GateCounters`] count them. The recovery path of a starved
+//! loop (re-inflated gate, recovery gate, reset of the measured state on re-acquisition) is
+//! described at [`InnovationGate`].
+//!
+//! Numerics: the step is evaluated in innovation form (see `Mode`), exact and well
+//! conditioned in f32. Bad input (non-finite or out-of-range values, time stamps not
+//! increasing, an IMU interval off by more than [`IMU_DT_TOLERANCE`], aid samples from the
+//! future) returns a typed [`NavError`] and leaves the loop unchanged, bit for bit. A held
+//! (`Stale`) sample is extrapolated at constant acceleration: choose `lost_after_s` so that
+//! ½ · jerk · age² stays below the aid's noise (with high jerk, a long stale window feeds the
+//! loop a wrong reading).
 
 pub mod aided;
 pub mod classical;
 pub mod riccati;
 
-use crate::error::{require_positive, ConfigIssue};
+use crate::error::{require_non_negative, require_positive, ConfigIssue};
 use crate::math::discretize::discretize;
+pub use crate::math::kalman::FusionOutcome;
 use crate::{NavError, Real};
-use nalgebra::{Matrix3, Matrix3x2, SMatrix, Vector3};
+use nalgebra::{Matrix3, Matrix3x2, SMatrix, Vector2, Vector3};
 
 /// Largest accepted |specific force|, m/s² (20 g).
 pub const MAX_SPECIFIC_FORCE_M_S2: f64 = 196.0;
 /// Accepted altitude range of the estimate and the baro, m.
 pub const ALTITUDE_RANGE_M: (f64, f64) = (-2_000.0, 60_000.0);
+/// Range the altitude **estimate** must stay in, m (wider than [`ALTITUDE_RANGE_M`] so a loop
+/// coasting through a long outage keeps running and can re-acquire; leaving it means the loop
+/// has diverged: the step is refused with `InputOutOfRange { input: "altitude estimate" }`).
+pub const ESTIMATE_RANGE_M: (f64, f64) = (-50_000.0, 500_000.0);
 /// Largest accepted |vertical velocity| of the aid, m/s.
 pub const MAX_VERTICAL_SPEED_M_S: f64 = 1_500.0;
 /// Accepted IMU interval relative to the configured one: `|Δt − dt| ≤ 0.25 dt`.
 pub const IMU_DT_TOLERANCE: f64 = 0.25;
+/// Longest IMU gap bridged by a step, in IMU intervals: a sample whose interval is
+/// `n · dt` (±[`IMU_DT_TOLERANCE`] dt, 2 ≤ n ≤ this) is accepted and the loop first coasts
+/// the `n − 1` missing intervals on its specific force (no aid), then steps normally. A longer
+/// gap is refused (`InvalidTimeStep`); the caller then re-initialises (`reinitialise`).
+pub const MAX_IMU_GAP_INTERVALS: u32 = 100;
+/// The loops keep the altitude relative to a reference that is moved to the estimate when
+/// they differ by more than this, m (f32 resolution 2⁻¹⁶ m here).
+pub const RECENTRE_M: f64 = 256.0;
+/// Largest accepted configured IMU interval `imu_dt_s`, s.
+pub const MAX_IMU_DT_S: f64 = 1.0;
+/// Largest accepted classical time constant `tau_s`, s.
+pub const MAX_TAU_S: f64 = 1.0e4;
+/// Accepted range of the aided design's PSDs and periods (squares of the noise densities,
+/// `σ² T` of the aids, the periods): `[MIN_DESIGN_VALUE, MAX_DESIGN_VALUE]`.
+pub const MIN_DESIGN_VALUE: f64 = 1.0e-24;
+/// Upper end of the aided design's accepted range, see [`MIN_DESIGN_VALUE`].
+pub const MAX_DESIGN_VALUE: f64 = 1.0e12;
+/// Largest accepted aid timeout (`stale_after_s`, `lost_after_s`), s.
+pub const MAX_TIMEOUT_S: f64 = 1.0e6;
 
 /// One IMU sample: the vertical component of the specific force, averaged over the interval
 /// that ends at `time_s`.
@@ -118,6 +157,169 @@ pub struct AidReport<T> {
     /// Innovation variance of a fresh sample under the steady-state design,
     /// `C P Cᵀ + σ²` (unit²); `None` for the classical loop (no covariance) or an unused aid.
     pub innovation_variance: Option<T>,
+    /// The χ² gate's verdict on a sample that arrived in this step (`None`: no new sample).
+    pub new_sample: Option<SampleCheck<T>>,
+}
+
+/// What happened to a newly arrived aid sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SampleCheck<T> {
+    /// Innovation of the new sample, extrapolated to mid-interval (measurement unit).
+    pub innovation: T,
+    /// Gate variance `S = σ₀² + d(gap)²` (unit²); `+∞` when no gate is configured or for the
+    /// first sample of an aid (accepted ungated).
+    pub gate_variance: T,
+    /// `Fused` (the sample replaces the held one) or `Rejected` (discarded; the previously
+    /// accepted sample keeps ageing and the aid eventually goes `Lost`).
+    pub outcome: FusionOutcome,
+    /// `true` when this accepted sample ended a `Lost` period (re-acquisition).
+    pub reacquired: bool,
+    /// `true` when the re-acquisition reset the measured state (see [`InnovationGate`]).
+    pub reset: bool,
+}
+
+impl<T: Real> SampleCheck<T> {
+    /// Normalised innovation squared `ν² / S` (χ², 1 dof); 0 when ungated.
+    pub fn nis(&self) -> T {
+        self.innovation * self.innovation / self.gate_variance
+    }
+}
+
+/// Gate counters of one aid. `accepted`, `rejected` and `consecutive_rejected` wrap after
+/// 2³² samples (≈ 1.4 years at 100 Hz); `reacquisitions` and `resets` saturate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GateCounters {
+    /// Samples accepted.
+    pub accepted: u32,
+    /// Samples rejected by the gate.
+    pub rejected: u32,
+    /// Rejections since the last accepted sample.
+    pub consecutive_rejected: u32,
+    /// Accepted samples that ended a `Lost` period (re-acquisitions).
+    pub reacquisitions: u32,
+    /// Re-acquisitions that reset the measured state (innovation beyond the tracking gate).
+    pub resets: u32,
+}
+
+/// χ² innovation gate of the aid samples, with re-inflation while an aid is starved and a
+/// reset on re-acquisition.
+///
+/// A new sample with innovation ν (against the estimate at mid-interval, the same innovation
+/// the loop corrects with) is rejected when `ν² > nis_threshold · S`, where
+///
+/// ```text
+/// baro:      S = σ_h² + (gap · (σ_v0 + ½ σ_a0 · gap))²
+/// velocity:  S = σ_v² + (σ_a0 · gap)²
+/// ```
+///
+/// and `gap` is the time since the last **accepted** sample of that aid. σ₀ is the innovation
+/// σ of a tracking loop; the second term is the open-loop (inertial-only) error growth from a
+/// velocity uncertainty σ_v0 and an acceleration uncertainty σ_a0. A rejected sample is
+/// discarded: the last accepted one keeps ageing (`Stale`, then `Lost`, the loop coasting on
+/// the IMU).
+///
+/// Recovery path when a loop is starved (dropout, or every sample rejected). The loops are
+/// fixed-gain observers without a running covariance, so:
+///
+/// 1. **Re-inflation of the gate**: while starved, S grows as the inertial solution's plausible
+///    drift, until a sample consistent with it is accepted. A persistent wrong reading that
+///    departs from the inertial solution faster than the drift model (a frozen baro in a climb,
+///    a spike) stays rejected.
+/// 2. **Recovery gate**: the gate variance that admitted the re-acquiring sample is held
+///    (S = max(S(gap), S_reacq)) until the innovations have stayed inside the *tracking* gate
+///    (`ν² ≤ nis_threshold · σ₀²`) for `recovery_hold_s`; then tracking gating resumes. Without it
+///    the velocity error left by a long coast makes the next samples fail the tracking gate,
+///    the aid goes `Lost` again and the loop cycles between coasting and re-acquiring.
+/// 3. **Reset on re-acquisition**: when the accepted sample ends a `Lost` period and its
+///    innovation fails the *tracking* gate (`ν² > nis_threshold · σ₀²`), the measured state
+///    (ĥ for the baro, V̂_z for the velocity aid) is moved by ν so the innovation is zero; the
+///    other states are kept. The loop then removes the remaining (velocity, bias) error at its
+///    own bandwidth instead of converting a large altitude error into a large velocity and
+///    bias transient (with τ = 2 s, a 600 m coast error would otherwise drive V̂_z 200 m/s
+///    off). A small re-acquisition innovation is absorbed by the loop (no reset, no jump).
+///
+/// The first sample an aid ever delivers is accepted ungated (acquisition). Without a gate
+/// (`set_gate(None)`) every valid sample is accepted and there is no reset.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct InnovationGate {
+    /// χ² threshold on ν²/S (1 dof; e.g. 10.83 for a 0.1 % false-alarm rate).
+    pub nis_threshold: f64,
+    /// Baro innovation σ₀ of a tracking loop, m.
+    pub baro_sigma_m: f64,
+    /// Velocity-aid innovation σ₀ of a tracking loop, m/s (unused by the classical loop).
+    pub velocity_sigma_m_s: f64,
+    /// Velocity uncertainty σ_v0 of the inertial solution driving the re-inflation, m/s (≥ 0).
+    pub starved_velocity_sigma_m_s: f64,
+    /// Acceleration uncertainty σ_a0 driving the re-inflation, m/s² (≥ 0).
+    pub starved_accel_sigma_m_s2: f64,
+    /// How long the innovations must stay inside the tracking gate after a re-acquisition
+    /// before the recovery gate is released, s (> 0; a few loop time constants, e.g. 3τ).
+    pub recovery_hold_s: f64,
+}
+
+impl InnovationGate {
+    /// Validates the gate and converts it to the loop's float type.
+    pub(crate) fn compile<T: Real>(&self) -> Result<GateParams<T>, NavError> {
+        let thr = require_positive("gate.nis_threshold", self.nis_threshold)?;
+        let sh = require_positive("gate.baro_sigma_m", self.baro_sigma_m)?;
+        let sv = require_positive("gate.velocity_sigma_m_s", self.velocity_sigma_m_s)?;
+        let gv = require_non_negative(
+            "gate.starved_velocity_sigma_m_s",
+            self.starved_velocity_sigma_m_s,
+        )?;
+        let ga = require_non_negative(
+            "gate.starved_accel_sigma_m_s2",
+            self.starved_accel_sigma_m_s2,
+        )?;
+        let hold = require_positive("gate.recovery_hold_s", self.recovery_hold_s)?;
+        if hold > MAX_TIMEOUT_S {
+            return Err(NavError::InvalidConfig {
+                field: "gate.recovery_hold_s",
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
+        for (field, v) in [
+            ("gate.nis_threshold", thr),
+            ("gate.baro_sigma_m", sh * sh),
+            ("gate.velocity_sigma_m_s", sv * sv),
+            ("gate.starved_velocity_sigma_m_s", gv * gv),
+            ("gate.starved_accel_sigma_m_s2", ga * ga),
+        ] {
+            // Squares must stay finite and (for σ₀) normal in f32.
+            let zero_ok = field.starts_with("gate.starved") && v == 0.0;
+            let ok = v.is_finite() && v < 1.0e30 && (zero_ok || v > 1.0e-30);
+            if !ok {
+                return Err(NavError::InvalidConfig {
+                    field,
+                    issue: ConfigIssue::OutOfRange,
+                });
+            }
+        }
+        Ok(GateParams {
+            nis_threshold: T::lit(thr),
+            baro_var: T::lit(sh * sh),
+            velocity_var: T::lit(sv * sv),
+            growth_v: T::lit(gv),
+            growth_half_a: T::lit(0.5 * ga),
+            growth_a: T::lit(ga),
+            recovery_hold_s: T::lit(hold),
+        })
+    }
+}
+
+/// [`InnovationGate`] in the loop's float type.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct GateParams<T> {
+    nis_threshold: T,
+    baro_var: T,
+    velocity_var: T,
+    growth_v: T,
+    growth_half_a: T,
+    growth_a: T,
+    recovery_hold_s: T,
 }
 
 /// Timeouts of one aid.
@@ -134,6 +336,14 @@ impl AidTimeouts {
     fn validate(&self, stale: &'static str, lost: &'static str) -> Result<(), NavError> {
         require_positive(stale, self.stale_after_s)?;
         require_positive(lost, self.lost_after_s)?;
+        for (field, v) in [(stale, self.stale_after_s), (lost, self.lost_after_s)] {
+            if v > MAX_TIMEOUT_S {
+                return Err(NavError::InvalidConfig {
+                    field,
+                    issue: ConfigIssue::OutOfRange,
+                });
+            }
+        }
         if self.lost_after_s < self.stale_after_s {
             return Err(NavError::InvalidConfig {
                 field: lost,
@@ -219,16 +429,28 @@ impl<T: Real> GravityModel<T> {
     }
 }
 
-/// One aid mode of the discretised loop: `x̂⁺ = Φ x̂ + Γ [A_z, z_h, z_v]ᵀ`.
+/// One aid mode of the discretised loop in **innovation (delta) form**:
+///
+/// ```text
+/// x̂⁺ = x̂ + N [V̂_z, A_z ± b̂]ᵀ + G [ν_h, ν_v]ᵀ,   N = M [e₁ e₂],  G = M K_m,
+/// M = ∫₀^Δt exp(F_m s) ds,   F_m = A₀ − K_m C
+/// ```
+///
+/// which is exactly `Φ x̂ + Γ u` (Φ = I + M F_m, Γ = M [e₂ K_m]) but never multiplies the
+/// altitude itself by a coefficient: in f32, `Φ x̂ + Γ z` at 40 km cancels two terms of
+/// 40 km · K Δt, and the diagonal of Φ = 1 − O(Δt/τ) keeps only a few digits of its small
+/// part. It also costs 12 multiply-adds instead of 18.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Mode<T: Real> {
-    pub(crate) phi: Matrix3<T>,
-    pub(crate) gamma: Matrix3<T>,
+    pub(crate) n: Matrix3x2<T>,
+    pub(crate) g: Matrix3x2<T>,
 }
 
 /// The four modes (none / baro / velocity / both) and the continuous gains they come from.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Modes<T: Real> {
+    /// Φ of the baro-only mode (analysis only, not used by the step).
+    pub(crate) phi_baro: Matrix3<T>,
     pub(crate) none: Mode<T>,
     pub(crate) baro: Mode<T>,
     pub(crate) velocity: Mode<T>,
@@ -261,7 +483,7 @@ pub(crate) fn discretise_modes<T: Real>(
     c: &SMatrix<f64, 2, 3>,
     dt_s: f64,
 ) -> Result<Modes<T>, NavError> {
-    let one = |use_baro: bool, use_vel: bool| -> Result<Mode<T>, NavError> {
+    let one = |use_baro: bool, use_vel: bool| -> Result<(Mode<T>, Matrix3<T>), NavError> {
         let mut km = *k;
         if !use_baro {
             km.set_column(0, &Vector3::zeros());
@@ -270,23 +492,42 @@ pub(crate) fn discretise_modes<T: Real>(
             km.set_column(1, &Vector3::zeros());
         }
         let f = a0 - km * c;
-        let mut aug = SMatrix::<f64, 6, 6>::zeros();
+        let mut aug = SMatrix::<f64, 7, 7>::zeros();
         aug.fixed_view_mut::<3, 3>(0, 0).copy_from(&f);
-        aug.m24 = 1.0; // A_z drives V̇_z (row 1, input column 0 = aug column 3)
-        aug.fixed_view_mut::<3, 2>(0, 4).copy_from(&km);
-        let (phi_aug, _) = discretize(&aug, &SMatrix::<f64, 6, 6>::zeros(), dt_s)?;
+        // e₁ and e₂ as inputs (aug columns 3 and 4).
+        for (r, col) in [(0, 3), (1, 4)] {
+            if let Some(e) = aug.get_mut((r, col)) {
+                *e = 1.0;
+            }
+        }
+        aug.fixed_view_mut::<3, 2>(0, 5).copy_from(&km);
+        let (phi_aug, _) = discretize(&aug, &SMatrix::<f64, 7, 7>::zeros(), dt_s)?;
         let phi: Matrix3<f64> = phi_aug.fixed_view::<3, 3>(0, 0).into_owned();
-        let gamma: Matrix3<f64> = phi_aug.fixed_view::<3, 3>(0, 3).into_owned();
-        Ok(Mode {
-            phi: phi.cast::<T>(),
-            gamma: gamma.cast::<T>(),
-        })
+        let n: Matrix3x2<f64> = phi_aug.fixed_view::<3, 2>(0, 3).into_owned();
+        let g: Matrix3x2<f64> = phi_aug.fixed_view::<3, 2>(0, 5).into_owned();
+        if !phi
+            .iter()
+            .chain(n.iter())
+            .chain(g.iter())
+            .all(|v| v.is_finite())
+        {
+            return Err(NavError::NotConverged { iterations: 0 });
+        }
+        Ok((
+            Mode {
+                n: n.cast::<T>(),
+                g: g.cast::<T>(),
+            },
+            phi.cast::<T>(),
+        ))
     };
+    let (baro, phi_baro) = one(true, false)?;
     Ok(Modes {
-        none: one(false, false)?,
-        baro: one(true, false)?,
-        velocity: one(false, true)?,
-        both: one(true, true)?,
+        phi_baro,
+        none: one(false, false)?.0,
+        baro,
+        velocity: one(false, true)?.0,
+        both: one(true, true)?.0,
     })
 }
 
@@ -296,18 +537,38 @@ pub(crate) struct AidChannel<T> {
     pub(crate) last_time_s: T,
     pub(crate) last_value: T,
     pub(crate) received: bool,
+    /// Gate variance held after a re-acquisition until the innovations have stayed inside
+    /// the tracking gate for `recovery_hold_s` (0: tracking).
+    pub(crate) recovery_var: T,
+    /// Time since which the innovations are inside the tracking gate during a recovery
+    /// (+∞: not inside).
+    pub(crate) recovery_clear_since_s: T,
+}
+
+/// Timeouts of one aid in the loop's float type.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Timeouts<T> {
     pub(crate) stale_after_s: T,
     pub(crate) lost_after_s: T,
 }
 
-impl<T: Real> AidChannel<T> {
+impl<T: Real> Timeouts<T> {
     pub(crate) fn new(t: &AidTimeouts) -> Self {
+        Self {
+            stale_after_s: T::lit(t.stale_after_s),
+            lost_after_s: T::lit(t.lost_after_s),
+        }
+    }
+}
+
+impl<T: Real> AidChannel<T> {
+    pub(crate) fn new() -> Self {
         Self {
             last_time_s: T::zero(),
             last_value: T::zero(),
             received: false,
-            stale_after_s: T::lit(t.stale_after_s),
-            lost_after_s: T::lit(t.lost_after_s),
+            recovery_var: T::zero(),
+            recovery_clear_since_s: T::lit(f64::INFINITY),
         }
     }
 
@@ -347,14 +608,14 @@ impl<T: Real> AidChannel<T> {
     }
 
     #[inline(always)]
-    pub(crate) fn status(&self, now_s: T) -> AidStatus<T> {
+    pub(crate) fn status(&self, now_s: T, to: &Timeouts<T>) -> AidStatus<T> {
         if !self.received {
             return AidStatus::NoData;
         }
         let age_s = now_s - self.last_time_s;
-        if age_s > self.lost_after_s {
+        if age_s > to.lost_after_s {
             AidStatus::Lost { age_s }
-        } else if age_s > self.stale_after_s {
+        } else if age_s > to.stale_after_s {
             AidStatus::Stale { age_s }
         } else {
             AidStatus::Fresh { age_s }
@@ -362,8 +623,9 @@ impl<T: Real> AidChannel<T> {
     }
 }
 
-/// Checks an IMU sample against the loop time; returns Δt.
-pub(crate) fn check_imu<T: Real>(imu: &ImuSample<T>, time_s: T, dt_s: T) -> Result<(), NavError> {
+/// Checks an IMU sample against the loop time; returns the number of missing IMU intervals
+/// before it (0 normally, up to [`MAX_IMU_GAP_INTERVALS`] − 1 for a bridged gap).
+pub(crate) fn check_imu<T: Real>(imu: &ImuSample<T>, time_s: T, dt_s: T) -> Result<u32, NavError> {
     if !imu.time_s.is_finite() {
         return Err(NavError::NonFiniteInput {
             input: "imu time_s",
@@ -383,10 +645,30 @@ pub(crate) fn check_imu<T: Real>(imu: &ImuSample<T>, time_s: T, dt_s: T) -> Resu
         return Err(NavError::TimeNotIncreasing);
     }
     let dt = imu.time_s - time_s;
-    if (dt - dt_s).abs() > T::lit(IMU_DT_TOLERANCE) * dt_s {
-        return Err(NavError::InvalidTimeStep);
+    let tol = T::lit(IMU_DT_TOLERANCE) * dt_s;
+    if (dt - dt_s).abs() <= tol {
+        return Ok(0);
     }
-    Ok(())
+    gap_intervals(dt, dt_s, tol)
+}
+
+/// A gap of `n` IMU intervals (rare path): `Ok(n − 1)` when bridgeable.
+#[cold]
+#[inline(never)]
+fn gap_intervals<T: Real>(dt: T, dt_s: T, tol: T) -> Result<u32, NavError> {
+    let n = (dt / dt_s).round();
+    if n >= T::lit(2.0)
+        && n <= T::lit(f64::from(MAX_IMU_GAP_INTERVALS))
+        && (dt - n * dt_s).abs() <= tol
+    {
+        // n is an integer in [2, MAX_IMU_GAP_INTERVALS].
+        let n_u32 = (1..=MAX_IMU_GAP_INTERVALS)
+            .find(|&k| T::lit(f64::from(k)) >= n)
+            .unwrap_or(MAX_IMU_GAP_INTERVALS);
+        Ok(n_u32 - 1)
+    } else {
+        Err(NavError::InvalidTimeStep)
+    }
 }
 
 /// Validates an initial state.
@@ -410,11 +692,123 @@ pub(crate) fn check_initial<T: Real>(init: &InitialState<T>) -> Result<(), NavEr
     Ok(())
 }
 
+/// Gate of one new sample: returns the channel to use and the verdict.
+/// `rate = (r₁, r₂)` extrapolates the sample to mid-interval, `z + age (r₁ − r₂ age)`; `pred` is the predicted measurement;
+/// `gate = (σ₀², growth₁, growth₂, threshold, recovery hold)` with the drift `d = gap (growth₁ + growth₂ gap)`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn admit<T: Real, const SECOND_ORDER: bool>(
+    old: &AidChannel<T>,
+    cand: Option<AidChannel<T>>,
+    now: T,
+    lost_after_s: T,
+    offset: T,
+    mid: T,
+    rate: (T, T),
+    pred: T,
+    gate: Option<(T, T, T, T, T)>,
+) -> (AidChannel<T>, Option<SampleCheck<T>>) {
+    let Some(mut cand) = cand else {
+        return (*old, None);
+    };
+    let age = mid - cand.last_time_s;
+    let r = if SECOND_ORDER {
+        rate.0 - rate.1 * age
+    } else {
+        rate.0
+    };
+    let value = if SECOND_ORDER {
+        cand.last_value - offset
+    } else {
+        cand.last_value
+    };
+    let innovation = value + age * r - pred;
+    let nu2 = innovation * innovation;
+    let lost = old.received && now - old.last_time_s > lost_after_s;
+    let (gate_variance, pass) = match gate {
+        Some((var0, g1, g2, thr, hold)) if old.received => {
+            let gap = cand.last_time_s - old.last_time_s;
+            let d = gap * (g1 + g2 * gap);
+            let mut s = var0 + d * d;
+            if old.recovery_var > s {
+                s = old.recovery_var;
+            }
+            let pass = nu2 <= thr * s;
+            if pass && lost {
+                // Re-acquisition: hold this gate while the loop absorbs the coast error.
+                cand.recovery_var = s;
+                cand.recovery_clear_since_s = T::lit(f64::INFINITY);
+            } else if pass && old.recovery_var > T::zero() {
+                if nu2 > thr * var0 {
+                    cand.recovery_clear_since_s = T::lit(f64::INFINITY);
+                } else if cand.last_time_s - old.recovery_clear_since_s >= hold {
+                    cand.recovery_var = T::zero();
+                    cand.recovery_clear_since_s = T::lit(f64::INFINITY);
+                } else if old.recovery_clear_since_s > cand.last_time_s {
+                    cand.recovery_clear_since_s = cand.last_time_s;
+                }
+            }
+            (s, pass)
+        }
+        _ => (T::lit(f64::INFINITY), true),
+    };
+    let reacquired = pass && lost;
+    let check = SampleCheck {
+        innovation,
+        gate_variance,
+        outcome: if pass {
+            FusionOutcome::Fused
+        } else {
+            FusionOutcome::Rejected
+        },
+        reacquired,
+        reset: false,
+    };
+    (if pass { cand } else { *old }, Some(check))
+}
+
+impl GateCounters {
+    #[inline(always)]
+    fn count<T>(&mut self, check: &Option<SampleCheck<T>>) {
+        if let Some(c) = check {
+            if c.outcome == FusionOutcome::Fused {
+                self.accepted = self.accepted.wrapping_add(1);
+                self.consecutive_rejected = 0;
+                if c.reacquired {
+                    self.reacquisitions = self.reacquisitions.saturating_add(1);
+                    if c.reset {
+                        self.resets = self.resets.saturating_add(1);
+                    }
+                }
+            } else {
+                self.rejected = self.rejected.wrapping_add(1);
+                self.consecutive_rejected = self.consecutive_rejected.wrapping_add(1);
+            }
+        }
+    }
+}
+
+/// Checks the configured IMU interval.
+pub(crate) fn check_imu_dt(imu_dt_s: f64) -> Result<(), NavError> {
+    require_positive("imu_dt_s", imu_dt_s)?;
+    if imu_dt_s > MAX_IMU_DT_S {
+        return Err(NavError::InvalidConfig {
+            field: "imu_dt_s",
+            issue: ConfigIssue::OutOfRange,
+        });
+    }
+    Ok(())
+}
+
 /// The state and machinery shared by both loops.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct LoopCore<T: Real> {
-    /// `[ĥ (m), V̂_z (m/s), b̂ (m/s²)]`.
+    /// `[ĥ − h_ref (m), V̂_z (m/s), b̂ (m/s²)]`: the altitude relative to `h_ref_m`, so that
+    /// in f32 the per-step increments V̂_z Δt (µm to mm) are not lost to the altitude's
+    /// resolution (4 mm at 40 km).
     pub(crate) x: Vector3<T>,
+    /// Reference altitude, m (moved to the estimate when |ĥ − h_ref| > [`RECENTRE_M`]).
+    pub(crate) h_ref_m: T,
     pub(crate) time_s: T,
     pub(crate) dt_s: T,
     pub(crate) half_dt_s: T,
@@ -422,10 +816,16 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) gravity: GravityModel<T>,
     pub(crate) baro: AidChannel<T>,
     pub(crate) velocity: AidChannel<T>,
+    pub(crate) baro_timeouts: Timeouts<T>,
+    pub(crate) velocity_timeouts: Timeouts<T>,
     /// Baro lag compensation (the classical loop's C4), s.
     pub(crate) baro_lag_s: T,
     /// +1 when `V̇_z = A_z + b` (aided loop, spec's A), −1 when `V̇_z = A_z − b` (classical).
     pub(crate) bias_sign: T,
+    /// Innovation gate (`None`: every valid sample is accepted).
+    pub(crate) gate: Option<GateParams<T>>,
+    pub(crate) baro_counters: GateCounters,
+    pub(crate) velocity_counters: GateCounters,
 }
 
 impl<T: Real> LoopCore<T> {
@@ -442,8 +842,9 @@ impl<T: Real> LoopCore<T> {
     ) -> Result<Self, NavError> {
         check_initial(init)?;
         Ok(Self {
+            h_ref_m: init.altitude_m,
             x: Vector3::new(
-                init.altitude_m,
+                T::zero(),
                 init.vz_up_m_s,
                 -init.accel_bias_m_s2 * T::lit(bias_sign),
             ),
@@ -452,94 +853,264 @@ impl<T: Real> LoopCore<T> {
             half_dt_s: T::lit(0.5 * dt_s),
             modes,
             gravity: gravity.cast(),
-            baro: AidChannel::new(baro),
-            velocity: AidChannel::new(velocity),
+            baro: AidChannel::new(),
+            velocity: AidChannel::new(),
+            baro_timeouts: Timeouts::new(baro),
+            velocity_timeouts: Timeouts::new(velocity),
             baro_lag_s: T::lit(baro_lag_s),
             bias_sign: T::lit(bias_sign),
+            gate: None,
+            baro_counters: GateCounters::default(),
+            velocity_counters: GateCounters::default(),
         })
     }
 
     /// One IMU step with optional new aid samples. On error nothing changes.
     /// `variances`: innovation variances to report for (baro, velocity) when used.
+    /// Inlined into each loop's `step` (the classical loop's velocity path then folds away and
+    /// the reports are built in place).
+    #[inline(always)]
     pub(crate) fn step(
         &mut self,
         imu: &ImuSample<T>,
         baro: Option<&BaroSample<T>>,
         velocity: Option<&VelocitySample<T>>,
         variances: (Option<T>, Option<T>),
-    ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
-        check_imu(imu, self.time_s, self.dt_s)?;
+    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
+        let missing = check_imu(imu, self.time_s, self.dt_s)?;
+        if missing > 0 {
+            return self.step_after_gap(missing, imu, baro, velocity, variances);
+        }
+        self.advance(imu, baro, velocity, variances)
+    }
+
+    /// The step after the IMU time check: aid checks, gate, propagation. On error nothing
+    /// changes.
+    #[inline(always)]
+    fn advance(
+        &mut self,
+        imu: &ImuSample<T>,
+        baro: Option<&BaroSample<T>>,
+        velocity: Option<&VelocitySample<T>>,
+        variances: (Option<T>, Option<T>),
+    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
         let now = imu.time_s;
-        let baro_ch = match baro {
-            Some(s) => self.baro.with_sample(
+        let mut x = self.x;
+        let h_ref = self.h_ref_m;
+        let (h, v, b) = (x.x, x.y, x.z);
+        let mut az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h_ref + h);
+        let mid = now - self.half_dt_s;
+        // Predicted measurements at mid-interval (the baro's relative to h_ref) and the rates
+        // a held sample is extrapolated with (baro: second order, h(mid) = h(t) + age (V̂ −
+        // ½ a age); velocity: first order).
+        let mut h_pred = h - self.baro_lag_s * v;
+        let mut v_rate = az + self.bias_sign * b;
+        let half = T::lit(0.5);
+
+        // Validate the new samples (nothing is committed before all checks pass).
+        let baro_cand = match baro {
+            Some(s) => Some(self.baro.with_sample(
                 s.time_s,
                 s.altitude_m,
                 now,
                 "altitude_m",
                 ALTITUDE_RANGE_M,
-            )?,
-            None => self.baro,
+            )?),
+            None => None,
         };
-        let vel_ch = match velocity {
-            Some(s) => self.velocity.with_sample(
+        let vel_cand = match velocity {
+            Some(s) => Some(self.velocity.with_sample(
                 s.time_s,
                 s.vz_up_m_s,
                 now,
                 "vz_up_m_s",
                 (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
-            )?,
-            None => self.velocity,
+            )?),
+            None => None,
         };
-        let baro_status = baro_ch.status(now);
-        let vel_status = vel_ch.status(now);
+        // χ² gate on the new samples.
+        let gate = self.gate.as_ref();
+        let (baro_ch, mut baro_check) = admit::<T, true>(
+            &self.baro,
+            baro_cand,
+            now,
+            self.baro_timeouts.lost_after_s,
+            h_ref,
+            mid,
+            (v, half * v_rate),
+            h_pred,
+            gate.map(|g| {
+                (
+                    g.baro_var,
+                    g.growth_v,
+                    g.growth_half_a,
+                    g.nis_threshold,
+                    g.recovery_hold_s,
+                )
+            }),
+        );
+        let (vel_ch, mut vel_check) = admit::<T, false>(
+            &self.velocity,
+            vel_cand,
+            now,
+            self.velocity_timeouts.lost_after_s,
+            T::zero(),
+            mid,
+            (v_rate, T::zero()),
+            v,
+            gate.map(|g| {
+                (
+                    g.velocity_var,
+                    g.growth_a,
+                    T::zero(),
+                    g.nis_threshold,
+                    g.recovery_hold_s,
+                )
+            }),
+        );
+        // Recovery: a re-acquiring sample (accepted thanks to the re-inflated gate) whose
+        // innovation fails the tracking gate resets the measured state so that its innovation
+        // is zero (baro: ĥ; velocity: V̂_z); the other states are kept.
+        let (mut reset_baro, mut reset_vel) = (false, false);
+        if let Some(g) = gate {
+            if let Some(c) = baro_check.as_mut().filter(|c| c.reacquired) {
+                if c.innovation * c.innovation > g.nis_threshold * g.baro_var {
+                    x.x += c.innovation;
+                    reset_baro = true;
+                    c.reset = true;
+                }
+            }
+            if let Some(c) = vel_check.as_mut().filter(|c| c.reacquired) {
+                if c.innovation * c.innovation > g.nis_threshold * g.velocity_var {
+                    x.y += c.innovation;
+                    reset_vel = true;
+                    c.reset = true;
+                }
+            }
+            if reset_baro || reset_vel {
+                az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h_ref + x.x);
+                h_pred = x.x - self.baro_lag_s * x.y;
+                v_rate = az + self.bias_sign * x.z;
+            }
+        }
+        let v = x.y;
+
+        let baro_status = baro_ch.status(now, &self.baro_timeouts);
+        let vel_status = vel_ch.status(now, &self.velocity_timeouts);
         let use_baro = baro_status.in_use();
         let use_vel = vel_status.in_use();
 
-        let (h, v, b) = (self.x.x, self.x.y, self.x.z);
-        let az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h);
-        let mid = now - self.half_dt_s;
         // Held samples extrapolated to the middle of the interval (ZOH of the continuous loop).
-        let (z_h, nu_h) = if use_baro {
-            let z = baro_ch.last_value + (mid - baro_ch.last_time_s) * v;
-            (z, Some(z - (h - self.baro_lag_s * v)))
-        } else {
-            (T::zero(), None)
-        };
-        let (z_v, nu_v) = if use_vel {
-            let z = vel_ch.last_value + (mid - vel_ch.last_time_s) * (az + self.bias_sign * b);
-            (z, Some(z - v))
-        } else {
-            (T::zero(), None)
-        };
+        let nu_h = use_baro.then(|| {
+            let age = mid - baro_ch.last_time_s;
+            (baro_ch.last_value - h_ref) + age * (v - half * v_rate * age) - h_pred
+        });
+        let nu_v = use_vel.then(|| vel_ch.last_value + (mid - vel_ch.last_time_s) * v_rate - v);
         let mode = self.modes.select(use_baro, use_vel);
-        let u = Vector3::new(az, z_h, z_v);
-        let x_new = mode.phi * self.x + mode.gamma * u;
-        if !x_new.iter().all(|v| v.is_finite()) {
+        let mut x_new = x
+            + (mode.n * Vector2::new(v, v_rate)
+                + mode.g * Vector2::new(nu_h.unwrap_or(T::zero()), nu_v.unwrap_or(T::zero())));
+        // One test for all three: a sum of finite values is finite unless it overflows, which
+        // is refused as well.
+        if !(x_new.x + x_new.y + x_new.z).is_finite() {
             return Err(NavError::NonFiniteInput {
                 input: "state after step",
             });
         }
-        if x_new.x < T::lit(ALTITUDE_RANGE_M.0) || x_new.x > T::lit(ALTITUDE_RANGE_M.1) {
-            return Err(NavError::InputOutOfRange {
-                input: "altitude estimate",
-            });
+        // Re-centre the relative altitude (and range-check the estimate) when it has moved.
+        let mut h_ref_new = h_ref;
+        if x_new.x.abs() > T::lit(RECENTRE_M) {
+            h_ref_new = h_ref + x_new.x;
+            if h_ref_new < T::lit(ESTIMATE_RANGE_M.0) || h_ref_new > T::lit(ESTIMATE_RANGE_M.1) {
+                return Err(NavError::InputOutOfRange {
+                    input: "altitude estimate",
+                });
+            }
+            x_new.x = T::zero();
         }
         self.x = x_new;
+        self.h_ref_m = h_ref_new;
         self.time_s = now;
         self.baro = baro_ch;
         self.velocity = vel_ch;
+        self.baro_counters.count(&baro_check);
+        self.velocity_counters.count(&vel_check);
         Ok((
             AidReport {
                 status: baro_status,
                 innovation: nu_h,
                 innovation_variance: if use_baro { variances.0 } else { None },
+                new_sample: baro_check,
             },
             AidReport {
                 status: vel_status,
                 innovation: nu_v,
                 innovation_variance: if use_vel { variances.1 } else { None },
+                new_sample: vel_check,
             },
+            1,
         ))
+    }
+
+    /// Bridges a gap of `missing` IMU intervals: coasts them on the new sample's specific
+    /// force without aid samples, then steps normally. All-or-nothing (works on a copy).
+    #[cold]
+    #[inline(never)]
+    fn step_after_gap(
+        &mut self,
+        missing: u32,
+        imu: &ImuSample<T>,
+        baro: Option<&BaroSample<T>>,
+        velocity: Option<&VelocitySample<T>>,
+        variances: (Option<T>, Option<T>),
+    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
+        let mut tmp = *self;
+        // The gap (already checked to be n intervals) is split evenly; the sub-steps use the
+        // loop's fixed Φ and skip the interval check (f32 stamps may not resolve dt).
+        let n = T::lit(f64::from(missing + 1));
+        let step_s = (imu.time_s - self.time_s) / n;
+        let mut k = T::zero();
+        for _ in 0..missing {
+            k += T::one();
+            let sub = ImuSample {
+                time_s: self.time_s + step_s * k,
+                specific_force_up_m_s2: imu.specific_force_up_m_s2,
+            };
+            tmp.advance(&sub, None, None, variances)?;
+        }
+        let (b, v, _) = tmp.advance(imu, baro, velocity, variances)?;
+        *self = tmp;
+        Ok((b, v, missing + 1))
+    }
+
+    /// Restarts the state and clock from `init`, keeping the design, the gate and the
+    /// counters (held aid samples are dropped). On error nothing changes.
+    pub(crate) fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
+        check_initial(init)?;
+        self.h_ref_m = init.altitude_m;
+        self.x = Vector3::new(
+            T::zero(),
+            init.vz_up_m_s,
+            -init.accel_bias_m_s2 * self.bias_sign,
+        );
+        self.time_s = init.time_s;
+        self.baro = AidChannel::new();
+        self.velocity = AidChannel::new();
+        Ok(())
+    }
+
+    /// Installs (or removes, `None`) the innovation gate. On error nothing changes.
+    pub(crate) fn set_gate(&mut self, gate: Option<&InnovationGate>) -> Result<(), NavError> {
+        self.gate = match gate {
+            Some(g) => Some(g.compile()?),
+            None => None,
+        };
+        Ok(())
+    }
+
+    /// Altitude estimate, m.
+    pub(crate) fn altitude_m(&self) -> T {
+        self.h_ref_m + self.x.x
     }
 
     /// Accelerometer bias estimate (measured − true), m/s².
@@ -549,6 +1120,7 @@ impl<T: Real> LoopCore<T> {
 }
 
 pub use aided::{AidedConfig, AidedGains, AidedLoop, AidedReport};
+
 pub use classical::{ClassicalConfig, ClassicalGains, ClassicalLoop, ClassicalReport};
 
 #[cfg(test)]

@@ -439,7 +439,7 @@ fn bad_input_leaves_state_unchanged() {
         ),
         (
             ImuSample {
-                time_s: 0.05,
+                time_s: 0.0365, // 2.65 intervals: neither 1 nor a bridgeable n
                 specific_force_up_m_s2: 9.8,
             },
             None,

@@ -4,3 +4,4 @@ pub mod flexure_process;
 pub mod seeker_ins;
 pub mod transfer_alignment;
 pub mod vertical_channel;
+pub mod vertical_channel_faults;

@@ -282,8 +282,20 @@ ta_kernel!(ta12_setup, ta12_step, ta12_propagate, ta12_check, TA12, ProposedFilt
 
 use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
-    InitialState, VelocitySample,
+    InitialState, InnovationGate, VelocitySample,
 };
+
+/// The χ² gate is on in the bench (its cost is part of the step): every sample is gated.
+fn vc_gate() -> InnovationGate {
+    InnovationGate {
+        nis_threshold: 10.83,
+        baro_sigma_m: 30.0,
+        velocity_sigma_m_s: 3.0,
+        starved_velocity_sigma_m_s: 0.5,
+        starved_accel_sigma_m_s2: 0.02,
+        recovery_hold_s: 60.0,
+    }
+}
 
 const VC_DT_S: f64 = 0.01;
 
@@ -341,10 +353,13 @@ fn vcc_setup() {
         baro_lag_s: 0.2,
         baro_timeouts: vc_timeouts(),
     };
-    let state = ClassicalLoop::new(&cfg, &vc_init()).ok().map(|filter| Vc {
-        filter,
-        k: 0,
-        ok: true,
+    let state = ClassicalLoop::new(&cfg, &vc_init()).ok().and_then(|mut filter| {
+        filter.set_gate(Some(&vc_gate())).ok()?;
+        Some(Vc {
+            filter,
+            k: 0,
+            ok: true,
+        })
     });
     interrupt::free(|cs| *VCC.borrow(cs).borrow_mut() = state);
     for _ in 0..3 {
@@ -388,10 +403,13 @@ fn vca_setup() {
             lost_after_s: 1.0,
         },
     };
-    let state = AidedLoop::new(&cfg, &vc_init()).ok().map(|filter| Vc {
-        filter,
-        k: 0,
-        ok: true,
+    let state = AidedLoop::new(&cfg, &vc_init()).ok().and_then(|mut filter| {
+        filter.set_gate(Some(&vc_gate())).ok()?;
+        Some(Vc {
+            filter,
+            k: 0,
+            ok: true,
+        })
     });
     interrupt::free(|cs| *VCA.borrow(cs).borrow_mut() = state);
     for _ in 0..3 {
