@@ -3,8 +3,8 @@
 //!
 //! At each slave epoch j the slave sample is pushed into a [`SlaveHistory`]; the master sample
 //! tagged t_{j−L} (latency L epochs) arrives and is matched with the slave sample of its epoch
-//! ([`TransferAlignment::step_delayed`]). During a dropout no master sample arrives and the
-//! filter is propagated to t_{j−L} ([`TransferAlignment::propagate`]), so it keeps the same lag
+//! ([`nav_core::transfer_alignment::TransferAlignment::step_delayed`]). During a dropout no master sample arrives and the
+//! filter is propagated to t_{j−L} ([`nav_core::transfer_alignment::TransferAlignment::propagate`]), so it keeps the same lag
 //! and its covariance grows with the flexure process. The error of θ is taken at the filter's
 //! epoch. Recovery: after each dropout, the first epoch from which the ensemble RMS of |θ error|
 //! stays within the pre-fault bound (the largest RMS over the 2 s before the dropout) until
