@@ -54,6 +54,8 @@ pub fn ensure_tools() -> Result<PathBuf, String> {
 }
 
 /// Builds the firmware image (release, LTO) with the given features; returns the ELF path.
+/// `qemu` and `bench` build with `panic-never`: the panic handler calls an undefined symbol, so
+/// the link fails if any panic in nav-core (or the harness) is reachable.
 pub fn build_firmware(features: &[&str]) -> Result<PathBuf, String> {
     let mut cmd = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
     cmd.current_dir(firmware_dir()).args(["build", "--release"]);
@@ -195,7 +197,7 @@ pub fn qemu() -> Result<(), String> {
     let decoder = ensure_tools()?;
     let dir = record_golden()?;
     std::env::set_var("NAV_GOLDEN_DIR", &dir);
-    let elf = build_firmware(&[])?;
+    let elf = build_firmware(&["panic-never"])?;
     let mut failures = Vec::new();
     for (label, machine) in MACHINES {
         match run_on_qemu(&elf, machine, &decoder) {
@@ -342,7 +344,7 @@ pub fn bench() -> Result<(), String> {
     // The image also replays the golden vectors: record them from the current code first.
     let golden = record_golden()?;
     std::env::set_var("NAV_GOLDEN_DIR", &golden);
-    let elf = build_firmware(&[])?;
+    let elf = build_firmware(&["panic-never"])?;
     let (text, rodata, data, bss) = section_sizes(&elf)?;
     let mut report = Map::new();
     for (label, machine) in MACHINES {
@@ -362,6 +364,8 @@ pub fn bench() -> Result<(), String> {
         m.insert("data_bytes".into(), json!(data));
         m.insert("bss_bytes".into(), json!(bss));
         m.insert("max_stack_bytes".into(), Value::Object(stacks));
+        // The image was linked with the panic-never handler: no panic is reachable.
+        m.insert("panic_never".into(), json!(true));
         report.insert(label.into(), Value::Object(m));
     }
     let load = cpu_load(&report);

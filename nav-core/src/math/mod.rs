@@ -3,5 +3,6 @@
 
 pub mod discretize;
 pub mod kalman;
+pub mod linalg;
 pub mod markov;
 pub mod rotation;

@@ -25,6 +25,7 @@
 //! Everything is fixed-size (nalgebra static matrices), nothing allocates; intended for
 //! configuration time (the loops call it in `f64` even when they run in `f32`).
 
+use crate::math::linalg::inverse_and_determinant;
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, SVector};
 
@@ -146,9 +147,9 @@ pub fn solve_filter_care<T: Real, const M: usize>(
     let mut scaling = true;
     while iterations < MAX_SIGN_ITERATIONS {
         iterations += 1;
-        let inv = z.try_inverse().ok_or(NavError::SingularMatrix)?;
+        let (inv, det) = inverse_and_determinant(&z).ok_or(NavError::SingularMatrix)?;
         let mu = if scaling {
-            let det = z.determinant().abs();
+            let det = det.abs();
             if !(det.is_finite() && det > T::zero()) {
                 return Err(NavError::SingularMatrix);
             }
@@ -186,11 +187,16 @@ pub fn solve_filter_care<T: Real, const M: usize>(
         return Err(NavError::NotConverged { iterations });
     }
     let w = z + SMatrix::<T, 6, 6>::identity();
-    let n = w.fixed_view::<6, 3>(0, 3).into_owned();
-    let rhs = -w.fixed_view::<6, 3>(0, 0).into_owned();
+    // copy_from rather than into_owned / try_inverse: no reachable panic on the target.
+    let mut n = SMatrix::<T, 6, 3>::zeros();
+    n.copy_from(&w.fixed_view::<6, 3>(0, 3));
+    let mut rhs = SMatrix::<T, 6, 3>::zeros();
+    rhs.copy_from(&w.fixed_view::<6, 3>(0, 0));
+    let rhs = -rhs;
     let ntn = n.transpose() * n;
     let ntr = n.transpose() * rhs;
-    let p = ntn.try_inverse().ok_or(NavError::SingularMatrix)? * ntr;
+    let (ntn_inv, _) = inverse_and_determinant(&ntn).ok_or(NavError::SingularMatrix)?;
+    let p = ntn_inv * ntr;
     let p = (p + p.transpose()) * T::lit(0.5);
     if !p.iter().all(|v| v.is_finite()) || p.diagonal().iter().any(|&v| v < T::zero()) {
         return Err(NavError::NotConverged { iterations });

@@ -109,19 +109,27 @@ fn k17_setup() {
     }
     let q = SMatrix::<f32, 17, 17>::identity() * 1e-4;
     interrupt::free(|cs| {
-        *S17_STATE.borrow(cs).borrow_mut() = Some(S17 {
-            x: SVector::zeros(),
-            p,
-            phi,
-            q,
-            fused: false,
-        });
+        if let Ok(mut slot) = S17_STATE.borrow(cs).try_borrow_mut() {
+            *slot = Some(S17 {
+                x: SVector::zeros(),
+                p,
+                phi,
+                q,
+                fused: false,
+            });
+        }
     });
 }
 
 fn k17_scalar() {
     interrupt::free(|cs| {
-        if let Some(s) = S17_STATE.borrow(cs).borrow_mut().as_mut() {
+        if let Some(s) = S17_STATE
+            .borrow(cs)
+            .try_borrow_mut()
+            .ok()
+            .as_deref_mut()
+            .and_then(Option::as_mut)
+        {
             let mut h = SVector::<f32, 17>::zeros();
             for (i, v) in [
                 (0usize, 1.0f32),
@@ -146,15 +154,23 @@ fn k17_check() -> bool {
     interrupt::free(|cs| {
         S17_STATE
             .borrow(cs)
-            .borrow()
-            .as_ref()
+            .try_borrow()
+            .ok()
+            .as_deref()
+            .and_then(Option::as_ref)
             .is_some_and(|s| s.fused && s.p[(0, 0)] < 1.0 && s.x[0] > 0.0)
     })
 }
 
 fn k17_dense_predict() {
     interrupt::free(|cs| {
-        if let Some(s) = S17_STATE.borrow(cs).borrow_mut().as_mut() {
+        if let Some(s) = S17_STATE
+            .borrow(cs)
+            .try_borrow_mut()
+            .ok()
+            .as_deref_mut()
+            .and_then(Option::as_mut)
+        {
             let phi = core::hint::black_box(s.phi);
             propagate_dense(&mut s.p, &phi, &s.q);
         }
@@ -165,8 +181,10 @@ fn k17_check_pred() -> bool {
     interrupt::free(|cs| {
         S17_STATE
             .borrow(cs)
-            .borrow()
-            .as_ref()
+            .try_borrow()
+            .ok()
+            .as_deref()
+            .and_then(Option::as_ref)
             .is_some_and(|s| s.p[(0, 0)] > 1.0)
     })
 }
@@ -237,7 +255,7 @@ macro_rules! ta_kernel {
         /// Prediction only (a master-data dropout epoch).
         fn $prop() {
             interrupt::free(|cs| {
-                if let Some(s) = $cell.borrow(cs).borrow_mut().as_mut() {
+                if let Some(s) = $cell.borrow(cs).try_borrow_mut().ok().as_deref_mut().and_then(Option::as_mut) {
                     let t = core::hint::black_box(s.k as f32 * TA_DT_S);
                     s.ok &= matches!(s.filter.propagate(t), Ok(1));
                     s.k += 1;
@@ -254,11 +272,15 @@ macro_rules! ta_kernel {
                     s.k += 1;
                 }
             }
-            interrupt::free(|cs| *$cell.borrow(cs).borrow_mut() = state);
+            interrupt::free(|cs| {
+        if let Ok(mut slot) = $cell.borrow(cs).try_borrow_mut() {
+            *slot = state;
+        }
+    });
         }
         fn $step() {
             interrupt::free(|cs| {
-                if let Some(s) = $cell.borrow(cs).borrow_mut().as_mut() {
+                if let Some(s) = $cell.borrow(cs).try_borrow_mut().ok().as_deref_mut().and_then(Option::as_mut) {
                     let (m, sl) = ta_samples(s.k);
                     s.ok &= matches!(s.filter.step(&m, &sl), Ok(r) if r.predictions == 1);
                     s.k += 1;
@@ -267,7 +289,7 @@ macro_rules! ta_kernel {
         }
         fn $check() -> bool {
             interrupt::free(|cs| {
-                $cell.borrow(cs).borrow().as_ref().is_some_and(|s| {
+                $cell.borrow(cs).try_borrow().ok().as_deref().and_then(Option::as_ref).is_some_and(|s| {
                     s.ok && s.filter.theta().iter().all(|v| v.is_finite())
                 })
             })
@@ -275,8 +297,22 @@ macro_rules! ta_kernel {
     };
 }
 
-ta_kernel!(ta9_setup, ta9_step, ta9_propagate, ta9_check, TA9, ConventionalFilter<f32>);
-ta_kernel!(ta12_setup, ta12_step, ta12_propagate, ta12_check, TA12, ProposedFilter<f32>);
+ta_kernel!(
+    ta9_setup,
+    ta9_step,
+    ta9_propagate,
+    ta9_check,
+    TA9,
+    ConventionalFilter<f32>
+);
+ta_kernel!(
+    ta12_setup,
+    ta12_step,
+    ta12_propagate,
+    ta12_check,
+    TA12,
+    ProposedFilter<f32>
+);
 
 // ---------------------------------------------------------------- vertical channel
 
@@ -353,15 +389,21 @@ fn vcc_setup() {
         baro_lag_s: 0.2,
         baro_timeouts: vc_timeouts(),
     };
-    let state = ClassicalLoop::new(&cfg, &vc_init()).ok().and_then(|mut filter| {
-        filter.set_gate(Some(&vc_gate())).ok()?;
-        Some(Vc {
-            filter,
-            k: 0,
-            ok: true,
-        })
+    let state = ClassicalLoop::new(&cfg, &vc_init())
+        .ok()
+        .and_then(|mut filter| {
+            filter.set_gate(Some(&vc_gate())).ok()?;
+            Some(Vc {
+                filter,
+                k: 0,
+                ok: true,
+            })
+        });
+    interrupt::free(|cs| {
+        if let Ok(mut slot) = VCC.borrow(cs).try_borrow_mut() {
+            *slot = state;
+        }
     });
-    interrupt::free(|cs| *VCC.borrow(cs).borrow_mut() = state);
     for _ in 0..3 {
         vcc_step();
     }
@@ -369,7 +411,13 @@ fn vcc_setup() {
 
 fn vcc_step() {
     interrupt::free(|cs| {
-        if let Some(s) = VCC.borrow(cs).borrow_mut().as_mut() {
+        if let Some(s) = VCC
+            .borrow(cs)
+            .try_borrow_mut()
+            .ok()
+            .as_deref_mut()
+            .and_then(Option::as_mut)
+        {
             let (imu, baro, _) = vc_imu(s.k);
             s.ok &= s.filter.step(&imu, Some(&baro)).is_ok();
             s.k += 1;
@@ -380,8 +428,10 @@ fn vcc_step() {
 fn vcc_check() -> bool {
     interrupt::free(|cs| {
         VCC.borrow(cs)
-            .borrow()
-            .as_ref()
+            .try_borrow()
+            .ok()
+            .as_deref()
+            .and_then(Option::as_ref)
             .is_some_and(|s| s.ok && s.filter.altitude_m().is_finite())
     })
 }
@@ -403,15 +453,21 @@ fn vca_setup() {
             lost_after_s: 1.0,
         },
     };
-    let state = AidedLoop::new(&cfg, &vc_init()).ok().and_then(|mut filter| {
-        filter.set_gate(Some(&vc_gate())).ok()?;
-        Some(Vc {
-            filter,
-            k: 0,
-            ok: true,
-        })
+    let state = AidedLoop::new(&cfg, &vc_init())
+        .ok()
+        .and_then(|mut filter| {
+            filter.set_gate(Some(&vc_gate())).ok()?;
+            Some(Vc {
+                filter,
+                k: 0,
+                ok: true,
+            })
+        });
+    interrupt::free(|cs| {
+        if let Ok(mut slot) = VCA.borrow(cs).try_borrow_mut() {
+            *slot = state;
+        }
     });
-    interrupt::free(|cs| *VCA.borrow(cs).borrow_mut() = state);
     for _ in 0..3 {
         vca_step();
     }
@@ -419,7 +475,13 @@ fn vca_setup() {
 
 fn vca_step() {
     interrupt::free(|cs| {
-        if let Some(s) = VCA.borrow(cs).borrow_mut().as_mut() {
+        if let Some(s) = VCA
+            .borrow(cs)
+            .try_borrow_mut()
+            .ok()
+            .as_deref_mut()
+            .and_then(Option::as_mut)
+        {
             let (imu, baro, vel) = vc_imu(s.k);
             s.ok &= s.filter.step(&imu, Some(&baro), Some(&vel)).is_ok();
             s.k += 1;
@@ -430,8 +492,10 @@ fn vca_step() {
 fn vca_check() -> bool {
     interrupt::free(|cs| {
         VCA.borrow(cs)
-            .borrow()
-            .as_ref()
+            .try_borrow()
+            .ok()
+            .as_deref()
+            .and_then(Option::as_ref)
             .is_some_and(|s| s.ok && s.filter.altitude_m().is_finite())
     })
 }
@@ -489,12 +553,22 @@ static SEEKER: Mutex<RefCell<Option<Seeker>>> = Mutex::new(RefCell::new(None));
 
 fn ins_setup() {
     let ins = Ins::new(ins_initial(), INS_DT_S).ok().map(|i| (i, true));
-    interrupt::free(|cs| *INS.borrow(cs).borrow_mut() = ins);
+    interrupt::free(|cs| {
+        if let Ok(mut slot) = INS.borrow(cs).try_borrow_mut() {
+            *slot = ins;
+        }
+    });
 }
 
 fn ins_step() {
     interrupt::free(|cs| {
-        if let Some((ins, ok)) = INS.borrow(cs).borrow_mut().as_mut() {
+        if let Some((ins, ok)) = INS
+            .borrow(cs)
+            .try_borrow_mut()
+            .ok()
+            .as_deref_mut()
+            .and_then(Option::as_mut)
+        {
             *ok &= ins.step(&ins_increment()).is_ok();
         }
     });
@@ -503,8 +577,10 @@ fn ins_step() {
 fn ins_check() -> bool {
     interrupt::free(|cs| {
         INS.borrow(cs)
-            .borrow()
-            .as_ref()
+            .try_borrow()
+            .ok()
+            .as_deref()
+            .and_then(Option::as_ref)
             .is_some_and(|(ins, ok)| *ok && ins.state().vel_ned_m_s.iter().all(|v| v.is_finite()))
     })
 }
@@ -560,7 +636,11 @@ fn seeker_setup() {
             s.ok &= s.filter.propagate(&ins_increment()).is_ok();
         }
     }
-    interrupt::free(|cs| *SEEKER.borrow(cs).borrow_mut() = state);
+    interrupt::free(|cs| {
+        if let Ok(mut slot) = SEEKER.borrow(cs).try_borrow_mut() {
+            *slot = state;
+        }
+    });
 }
 
 /// As [`seeker_setup`], with P already propagated: the LOS update is measured alone (the
@@ -572,7 +652,13 @@ fn seeker_setup_predicted() {
 
 fn eskf_predict() {
     interrupt::free(|cs| {
-        if let Some(s) = SEEKER.borrow(cs).borrow_mut().as_mut() {
+        if let Some(s) = SEEKER
+            .borrow(cs)
+            .try_borrow_mut()
+            .ok()
+            .as_deref_mut()
+            .and_then(Option::as_mut)
+        {
             s.ok &= s.filter.predict_covariance().is_ok();
         }
     });
@@ -580,7 +666,13 @@ fn eskf_predict() {
 
 fn eskf_los_update() {
     interrupt::free(|cs| {
-        if let Some(s) = SEEKER.borrow(cs).borrow_mut().as_mut() {
+        if let Some(s) = SEEKER
+            .borrow(cs)
+            .try_borrow_mut()
+            .ok()
+            .as_deref_mut()
+            .and_then(Option::as_mut)
+        {
             let Some(lm) = landmark() else {
                 s.ok = false;
                 return;
@@ -596,10 +688,15 @@ fn eskf_los_update() {
 
 fn seeker_check() -> bool {
     interrupt::free(|cs| {
-        SEEKER.borrow(cs).borrow().as_ref().is_some_and(|s| {
-            s.ok && s.filter.covariance().iter().all(|v| v.is_finite())
-                && s.filter.gimbal_bias_rad() != Vector2::new(f32::NAN, 0.0)
-        })
+        SEEKER
+            .borrow(cs)
+            .try_borrow()
+            .ok()
+            .as_deref()
+            .and_then(Option::as_ref)
+            .is_some_and(|s| {
+                s.ok && s.filter.covariance().iter().all(|v| v.is_finite())
+                    && s.filter.gimbal_bias_rad() != Vector2::new(f32::NAN, 0.0)
+            })
     })
 }
-
