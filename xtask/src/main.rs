@@ -32,6 +32,7 @@ fn main() -> ExitCode {
         "ci" => ci(),
         "bench" => firmware::bench(),
         "qemu" => firmware::qemu(),
+        "soak" => soak(),
         "-h" | "--help" | "help" => {
             usage();
             Ok(())
@@ -53,6 +54,7 @@ fn usage() {
          \n  sim <scenario>|all [--runs N] [--seed S] [--out DIR]   run simulator scenarios\
          \n  thumb                                               build nav-core for Cortex-M4F/M7\
          \n  ci                                                  fmt, clippy, thumb, tests, docs\
+         \n  soak                                                full 10^6-step soak of every filter (f32)\
          \n  qemu                                                firmware on QEMU: golden-vector replay\
          \n  bench                                               firmware on QEMU: instructions, stack, sizes"
     );
@@ -203,6 +205,25 @@ fn thumb() -> Result<(), String> {
     } else {
         Err(failures.join("; "))
     }
+}
+
+/// `cargo xtask soak`: the full 10⁶-step soak of every filter (f32). `cargo xtask ci` runs the
+/// same tests at their default, smaller `NAV_SOAK_STEPS`.
+fn soak() -> Result<(), String> {
+    run(
+        "soak (NAV_SOAK_STEPS=1000000)",
+        cargo()
+            .args([
+                "test",
+                "--release",
+                "-p",
+                "nav-tests",
+                "soak",
+                "--",
+                "--nocapture",
+            ])
+            .env("NAV_SOAK_STEPS", "1000000"),
+    )
 }
 
 fn ci() -> Result<(), String> {
