@@ -837,8 +837,9 @@ fn regression_cases_found_by_proptest() {
         &s,
     );
     assert!(r.iter().all(|&v| v <= 0.1), "{r:?}");
-    // 2. Extreme noise ratios: the Riccati design refuses with a typed error (documented
-    //    limitation; the property tests draw accel noise ≥ 1e-4 and bias RW ≥ 1e-6).
+    // 2. Extreme noise ratios: the Riccati design either refuses with a typed error or returns
+    //    a solution that meets its own residual bound with a stable closed loop — never a wrong
+    //    design silently (the property tests draw accel noise ≥ 1e-4 and bias RW ≥ 1e-6).
     let mut a = nominal_setup().aided();
     a.accel_noise_m_s2_rt_hz = 1e-5;
     a.accel_bias_rw_m_s2_rt_s = 1e-7;
@@ -846,6 +847,22 @@ fn regression_cases_found_by_proptest() {
     a.velocity_noise_m_s = 1.0;
     a.baro_period_s = a.imu_dt_s;
     a.velocity_period_s = a.imu_dt_s;
+    match nav_core::vertical_channel::AidedGains::design(&a) {
+        Err(e) => assert!(matches!(e, NavError::NotConverged { .. }), "{e:?}"),
+        Ok(g) => {
+            assert!(
+                g.relative_residual <= f64::EPSILON.sqrt(),
+                "{}",
+                g.relative_residual
+            );
+            let closed = g.a - g.k * g.c;
+            let eig = closed.complex_eigenvalues();
+            assert!(eig.iter().all(|e| e.re < 0.0), "{eig}");
+        }
+    }
+    //    Two decades further the design is refused with a typed error.
+    a.accel_noise_m_s2_rt_hz = 1e-7;
+    a.accel_bias_rw_m_s2_rt_s = 1e-9;
     assert!(matches!(
         AidedLoop::<f32>::new(&a, &nominal_setup().init()),
         Err(NavError::NotConverged { .. })
