@@ -262,6 +262,11 @@ pub fn fuse_scalar_sparse<T: Real, const N: usize, const M: usize>(
     gate: Gate<T>,
 ) -> Result<FusionReport<T>, NavError> {
     check_scalar_inputs(innovation, r)?;
+    // One pass over the stored entries: validate each, and accumulate b = P h from its column
+    // (P is column-major: column j is the fixed-size array `p.data.0[j]`, so the inner loop
+    // has a constant trip count and no bounds checks). b is a temporary: an error below
+    // leaves x and P untouched.
+    let mut b = [T::zero(); N];
     let mut prev: Option<usize> = None;
     for (j, hj) in h.entries() {
         if !finite(hj) {
@@ -269,24 +274,22 @@ pub fn fuse_scalar_sparse<T: Real, const N: usize, const M: usize>(
                 input: "measurement row h",
             });
         }
-        if j >= N || prev.is_some_and(|q| q >= j) {
-            return Err(NavError::InputOutOfRange {
-                input: "measurement row index",
-            });
-        }
+        let col = match p.data.0.get(j) {
+            Some(col) if !prev.is_some_and(|q| q >= j) => col,
+            _ => {
+                return Err(NavError::InputOutOfRange {
+                    input: "measurement row index",
+                })
+            }
+        };
         prev = Some(j);
-    }
-    // b = P h from the stored columns (P is column-major: column j is contiguous).
-    let mut b = SVector::<T, N>::zeros();
-    for (j, hj) in h.entries() {
         if hj != T::zero() {
-            if let Some(col) = p.as_slice().get(j * N..j * N + N) {
-                for (bi, &pij) in b.as_mut_slice().iter_mut().zip(col) {
-                    *bi += hj * pij;
-                }
+            for (bi, &pij) in b.iter_mut().zip(col) {
+                *bi += hj * pij;
             }
         }
     }
+    let b = SVector::<T, N>::from_array_storage(nalgebra::ArrayStorage([b]));
     let hph = h.dot(&b);
     let s = hph + r;
     let (report, k, c) = match gain(innovation, hph, s, &b, gate)? {
@@ -295,8 +298,7 @@ pub fn fuse_scalar_sparse<T: Real, const N: usize, const M: usize>(
     };
     check_diagonal(p, &k, &b, &c)?;
     let dx = k * innovation;
-    let inf = T::lit(f64::INFINITY);
-    if !dx.as_slice().iter().all(|v| v.abs() < inf) {
+    if !all_finite(dx.as_slice()) {
         return Err(NavError::NonFiniteInput {
             input: "state correction",
         });
