@@ -275,7 +275,7 @@ pub fn fuse_scalar_sparse<T: Real, const N: usize, const M: usize>(
             });
         }
         let col = match p.data.0.get(j) {
-            Some(col) if !prev.is_some_and(|q| q >= j) => col,
+            Some(col) if prev.is_none_or(|q| q < j) => col,
             _ => {
                 return Err(NavError::InputOutOfRange {
                     input: "measurement row index",
