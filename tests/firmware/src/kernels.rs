@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 use nalgebra::{SMatrix, SVector};
 use nav_core::math::kalman::{fuse_scalar, propagate_dense, FusionOutcome, Gate};
 use nav_core::transfer_alignment::{
-    AxisFlexure, ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig,
+    ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig,
 };
 
 /// One measured kernel.
@@ -193,32 +193,9 @@ fn k17_check_pred() -> bool {
 
 const TA_DT_S: f32 = 0.01;
 
+/// The same configuration the golden-vector replay uses.
 fn ta_config() -> TaConfig<f32> {
-    let deg = core::f32::consts::PI / 180.0;
-    TaConfig {
-        lever_arm_m: Vector3::new(0.0, 5.0, 0.0),
-        flexure: [
-            AxisFlexure {
-                sigma_rad: 0.5 * deg,
-                tau_s: 0.358,
-            },
-            AxisFlexure {
-                sigma_rad: 0.1 * deg,
-                tau_s: 2.146,
-            },
-            AxisFlexure {
-                sigma_rad: 0.1 * deg,
-                tau_s: 2.146,
-            },
-        ],
-        mount_sigma_rad: Vector3::new(0.5 * deg, 0.5 * deg, 0.5 * deg),
-        rate_noise_sigma_rad_s: 2.0e-4,
-        accel_noise_sigma_m_s2: 5.0e-3,
-        dt_s: TA_DT_S,
-        time_tolerance_s: 0.001,
-        max_gap_steps: 5,
-        nis_gate: Some(25.0),
-    }
+    nav_golden::ta_config()
 }
 
 fn ta_samples(k: u32) -> (MasterSample<f32>, SlaveSample<f32>) {
@@ -317,8 +294,7 @@ ta_kernel!(
 // ---------------------------------------------------------------- vertical channel
 
 use nav_core::vertical_channel::{
-    AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
-    InitialState, InnovationGate, VelocitySample,
+    AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState, InnovationGate, VelocitySample,
 };
 
 /// The χ² gate is on in the bench (its cost is part of the step): every sample is gated.
@@ -335,20 +311,8 @@ fn vc_gate() -> InnovationGate {
 
 const VC_DT_S: f64 = 0.01;
 
-fn vc_timeouts() -> AidTimeouts {
-    AidTimeouts {
-        stale_after_s: 0.06,
-        lost_after_s: 0.5,
-    }
-}
-
 fn vc_init() -> InitialState<f32> {
-    InitialState {
-        time_s: 0.0,
-        altitude_m: 520.0,
-        vz_up_m_s: 2.0,
-        accel_bias_m_s2: 0.0,
-    }
+    nav_golden::vc_initial()
 }
 
 fn vc_imu(k: u32) -> (ImuSample<f32>, BaroSample<f32>, VelocitySample<f32>) {
@@ -382,13 +346,7 @@ static VCC: Mutex<RefCell<Option<Vc<ClassicalLoop<f32>>>>> = Mutex::new(RefCell:
 static VCA: Mutex<RefCell<Option<Vc<AidedLoop<f32>>>>> = Mutex::new(RefCell::new(None));
 
 fn vcc_setup() {
-    let cfg = ClassicalConfig {
-        imu_dt_s: VC_DT_S,
-        latitude_rad: 0.6458,
-        tau_s: 20.0,
-        baro_lag_s: 0.2,
-        baro_timeouts: vc_timeouts(),
-    };
+    let cfg = nav_golden::vc_classical_config();
     let state = ClassicalLoop::new(&cfg, &vc_init())
         .ok()
         .and_then(|mut filter| {
@@ -437,22 +395,7 @@ fn vcc_check() -> bool {
 }
 
 fn vca_setup() {
-    let cfg = AidedConfig {
-        imu_dt_s: VC_DT_S,
-        latitude_rad: 0.6458,
-        accel_noise_m_s2_rt_hz: 1e-3,
-        accel_bias_rw_m_s2_rt_s: 1e-5,
-        baro_noise_m: 1.0,
-        baro_period_s: 0.04,
-        baro_lag_s: 0.2,
-        velocity_noise_m_s: 0.1,
-        velocity_period_s: 0.1,
-        baro_timeouts: vc_timeouts(),
-        velocity_timeouts: AidTimeouts {
-            stale_after_s: 0.15,
-            lost_after_s: 1.0,
-        },
-    };
+    let cfg = nav_golden::vc_aided_config();
     let state = AidedLoop::new(&cfg, &vc_init())
         .ok()
         .and_then(|mut filter| {
