@@ -586,12 +586,37 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             outcome: FusionOutcome::Rejected,
         };
         let mut updates = [empty; 6];
-        for (row, (rep, zi)) in updates.iter_mut().zip(z.as_slice().iter()).enumerate() {
-            let h = h_row_sparse::<T, K>(model, row, &master.angular_rate_rad_s, &f_h, &lever);
-            let r = if row < 3 { r_rate } else { r_accel };
-            let innovation = *zi - h.dot(&x);
-            *rep = fuse_scalar_sparse(&mut x, p, &h, innovation, r, gate)?;
+        // The six rows are written out with constant row indices (and the model follows from K
+        // at compile time), so each row's sparsity pattern is known to the compiler: the
+        // index-driven loops of the sparse update become straight-line code.
+        let model_k = if K == 4 {
+            FlexureModel::Proposed
+        } else {
+            FlexureModel::Conventional
+        };
+        debug_assert!(model_k == model);
+        macro_rules! fuse_row {
+            ($row:literal) => {
+                if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
+                    let h = h_row_sparse::<T, K>(
+                        model_k,
+                        $row,
+                        &master.angular_rate_rad_s,
+                        &f_h,
+                        &lever,
+                    );
+                    let r = if $row < 3 { r_rate } else { r_accel };
+                    let innovation = zi - h.dot(&x);
+                    *rep = fuse_scalar_sparse(&mut x, p, &h, innovation, r, gate)?;
+                }
+            };
         }
+        fuse_row!(0);
+        fuse_row!(1);
+        fuse_row!(2);
+        fuse_row!(3);
+        fuse_row!(4);
+        fuse_row!(5);
         // Commit: counters, recovery, state, buffer swap, time.
         let mut health = self.health;
         let mut starved = false;
