@@ -189,6 +189,7 @@ pub struct SparseRow<T, const M: usize> {
 
 impl<T: Real, const M: usize> SparseRow<T, M> {
     /// An empty row (h = 0).
+    #[inline(always)]
     pub fn new() -> Self {
         Self {
             index: [0; M],
@@ -199,6 +200,7 @@ impl<T: Real, const M: usize> SparseRow<T, M> {
 
     /// Appends the entry `(index, value)`; `CapacityExceeded` when full. Indices must be pushed
     /// in strictly ascending order ([`fuse_scalar_sparse`] checks).
+    #[inline(always)]
     pub fn push(&mut self, index: usize, value: T) -> Result<(), NavError> {
         match (self.index.get_mut(self.len), self.value.get_mut(self.len)) {
             (Some(i), Some(v)) => {
@@ -212,6 +214,7 @@ impl<T: Real, const M: usize> SparseRow<T, M> {
     }
 
     /// The stored `(index, value)` pairs.
+    #[inline(always)]
     pub fn entries(&self) -> impl Iterator<Item = (usize, T)> + Clone + '_ {
         self.index
             .iter()
@@ -221,6 +224,7 @@ impl<T: Real, const M: usize> SparseRow<T, M> {
     }
 
     /// `hᵀ v`, summed in ascending index order.
+    #[inline(always)]
     pub fn dot<const N: usize>(&self, v: &SVector<T, N>) -> T {
         let mut acc = T::zero();
         for (j, hj) in self.entries() {
@@ -262,10 +266,23 @@ pub fn fuse_scalar_sparse<T: Real, const N: usize, const M: usize>(
     gate: Gate<T>,
 ) -> Result<FusionReport<T>, NavError> {
     check_scalar_inputs(innovation, r)?;
-    // One pass over the stored entries: validate each, and accumulate b = P h from its column
-    // (P is column-major: column j is the fixed-size array `p.data.0[j]`, so the inner loop
-    // has a constant trip count and no bounds checks). b is a temporary: an error below
-    // leaves x and P untouched.
+    let b = sparse_covariance_product(p, h)?;
+    let hph = h.dot(&b);
+    fuse_scalar_prepared(x, p, &b, hph, innovation, r, gate)
+}
+
+/// `b = P h` for a sparse row, from the `len` stored columns only (P is column-major: column
+/// j is the fixed-size array `p.data.0[j]`, so the inner loop has a constant trip count and no
+/// bounds checks). Inlined: when the caller's row pattern is a compile-time constant (the
+/// transfer-alignment rows) the column offsets are constants too.
+///
+/// Errors: `NonFiniteInput` for a non-finite entry, `InputOutOfRange` for an index ≥ N or
+/// indices not strictly ascending.
+#[inline(always)]
+pub fn sparse_covariance_product<T: Real, const N: usize, const M: usize>(
+    p: &SMatrix<T, N, N>,
+    h: &SparseRow<T, M>,
+) -> Result<SVector<T, N>, NavError> {
     let mut b = [T::zero(); N];
     let mut prev: Option<usize> = None;
     for (j, hj) in h.entries() {
@@ -289,22 +306,42 @@ pub fn fuse_scalar_sparse<T: Real, const N: usize, const M: usize>(
             }
         }
     }
-    let b = SVector::<T, N>::from_array_storage(nalgebra::ArrayStorage([b]));
-    let hph = h.dot(&b);
+    Ok(SVector::<T, N>::from_array_storage(nalgebra::ArrayStorage(
+        [b],
+    )))
+}
+
+/// The scalar Joseph update of [`fuse_scalar`] given `b = P h` and `hᵀ P h = hᵀ b` computed
+/// by the caller (e.g. with [`sparse_covariance_product`] and [`SparseRow::dot`]): checks,
+/// gate, report, exact symmetry, refusal without damage. `b` must be `P h` for the `p` passed.
+///
+/// Errors: those of [`fuse_scalar`] except the checks of h (done by the caller).
+pub fn fuse_scalar_prepared<T: Real, const N: usize>(
+    x: &mut SVector<T, N>,
+    p: &mut SMatrix<T, N, N>,
+    b: &SVector<T, N>,
+    hph: T,
+    innovation: T,
+    r: T,
+    gate: Gate<T>,
+) -> Result<FusionReport<T>, NavError> {
+    check_scalar_inputs(innovation, r)?;
     let s = hph + r;
-    let (report, k, c) = match gain(innovation, hph, s, &b, gate)? {
+    let (report, k, c) = match gain(innovation, hph, s, b, gate)? {
         GainOutcome::Rejected(rep) => return Ok(rep),
         GainOutcome::Fuse { report, k, c } => (report, k, c),
     };
-    check_diagonal(p, &k, &b, &c)?;
+    check_diagonal(p, &k, b, &c)?;
     let dx = k * innovation;
     if !all_finite(dx.as_slice()) {
         return Err(NavError::NonFiniteInput {
             input: "state correction",
         });
     }
-    joseph_pass(p, &k, &b, &c);
-    *x += dx;
+    joseph_pass(p, &k, b, &c);
+    for (xi, &di) in x.as_mut_slice().iter_mut().zip(dx.as_slice()) {
+        *xi += di;
+    }
     Ok(report)
 }
 
@@ -817,6 +854,43 @@ mod tests {
             fuse_scalar_sparse(&mut xs, &mut neg, &row, T::one(), T::one(), Gate::Off).is_err()
         );
         assert_eq!((xs, ps), (x1, p1));
+        // The prepared form (b = P h and hᵀ b by the caller) is the sparse update bit for bit.
+        let b = sparse_covariance_product(&ps, &row).unwrap();
+        assert_eq!(b, ps * hd);
+        let (mut xp, mut pp) = (xs, ps);
+        let (mut xq, mut pq) = (xs, ps);
+        let rp = fuse_scalar_prepared(
+            &mut xp,
+            &mut pp,
+            &b,
+            row.dot(&b),
+            T::lit(-0.2),
+            T::lit(0.3),
+            Gate::Nis(T::lit(25.0)),
+        )
+        .unwrap();
+        let rq = fuse_scalar_sparse(
+            &mut xq,
+            &mut pq,
+            &row,
+            T::lit(-0.2),
+            T::lit(0.3),
+            Gate::Nis(T::lit(25.0)),
+        )
+        .unwrap();
+        assert_eq!((rp, xp, pp), (rq, xq, pq));
+        assert_eq!(rp.outcome, FusionOutcome::Fused);
+        assert!(fuse_scalar_prepared(
+            &mut xp,
+            &mut pp,
+            &b,
+            T::lit(f64::NAN),
+            T::one(),
+            T::one(),
+            Gate::Off
+        )
+        .is_err());
+        assert_eq!((xp, pp), (xq, pq));
         let mut full = SparseRow::<T, 1>::new();
         full.push(0, T::one()).unwrap();
         assert_eq!(full.push(1, T::one()), Err(NavError::CapacityExceeded));

@@ -11,14 +11,19 @@
 //! - the state is stored axis-major, so Φ = blockdiag(Φ_X, Φ_Y, Φ_Z) (K×K each, computed once at
 //!   configuration, exact discretisation) and `P ← Φ P Φᵀ + Q_d` is done per 3×3 pair of axis
 //!   blocks, upper triangle only, mirrored;
-//! - H rows are sparse (fuse_scalar skips the zero columns);
+//! - H rows are sparse: each of the six rows is built with a constant row number, so its
+//!   pattern (at most 6 of the N columns) folds to constants and `b = P h`, `hᵀ x`, `hᵀ b`
+//!   become straight-line code; the Joseph update after that is shared
+//!   ([`fuse_scalar_prepared`], one out-of-line copy per N);
 //! - all work is done on copies and committed at the end: an error leaves the filter untouched.
 use super::measurement::{h_row_sparse, measurement, MasterSample, SlaveSample};
 use super::model::{axis_chains, axis_index, to_spec_order, AxisChain, AxisFlexure, FlexureModel};
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
 #[allow(unused_imports)]
 use crate::math::kalman::fuse_scalar;
-use crate::math::kalman::{fuse_scalar_sparse, FusionOutcome, FusionReport, Gate};
+use crate::math::kalman::{
+    fuse_scalar_prepared, sparse_covariance_product, FusionOutcome, FusionReport, Gate,
+};
 use crate::math::rotation::exp_so3;
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
@@ -521,7 +526,8 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
 
     /// Processes one epoch: checks the inputs and time stamps, predicts from the previous epoch
     /// (once per elapsed `dt_s`; none at the first epoch), then fuses the six scalar
-    /// measurements ([`fuse_scalar_sparse`], the sparse form of [`fuse_scalar`]). On error the
+    /// measurements (the sparse form of [`fuse_scalar`]: `b = P h` from the row's few columns,
+    /// [`sparse_covariance_product`], then [`fuse_scalar_prepared`]). On error the
     /// filter is unchanged (bit for bit).
     ///
     /// Errors: `NonFiniteInput`, `InputOutOfRange` (an input beyond the `MAX_*` limits),
@@ -607,7 +613,9 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
                     );
                     let r = if $row < 3 { r_rate } else { r_accel };
                     let innovation = zi - h.dot(&x);
-                    *rep = fuse_scalar_sparse(&mut x, p, &h, innovation, r, gate)?;
+                    let b = sparse_covariance_product(p, &h)?;
+                    let hph = h.dot(&b);
+                    *rep = fuse_scalar_prepared(&mut x, p, &b, hph, innovation, r, gate)?;
                 }
             };
         }

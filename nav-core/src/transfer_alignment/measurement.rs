@@ -164,6 +164,9 @@ pub fn h_row<T: Real, const N: usize>(
 /// Row `row` of H as a [`SparseRow`] in the filters' internal axis-major ordering (`K` states
 /// per axis chain): the same entries as [`h_row`] with `axis_index::<K>`, ascending, at most 6
 /// (two axes × θ_m, θ_f, plus −1 on θ̇_f or up to two L_0 terms on θ̈_f).
+///
+/// Inlined: with a constant `row` the pattern folds to constants in the caller.
+#[inline(always)]
 pub fn h_row_sparse<T: Real, const K: usize>(
     model: FlexureModel,
     row: usize,

@@ -17,13 +17,27 @@ use cortex_m_semihosting::debug;
 fn main() -> ! {
     defmt::println!("nav-firmware start");
     let mut failures = 0u32;
-    let golden_failures = golden::check_all();
-    for k in kernels::KERNELS {
+    // NAV_PROFILE_KERNEL=<name> at build time: run only that kernel, once, without the golden
+    // replay and the stack measurement (a short, clean trace for `qemu -d exec` profiling).
+    let only = option_env!("NAV_PROFILE_KERNEL");
+    let golden_failures = if only.is_some() {
+        0
+    } else {
+        golden::check_all()
+    };
+    for k in kernels::KERNELS
+        .iter()
+        .filter(|k| only.is_none_or(|name| name == k.name))
+    {
         let mut run = || (k.run)();
         (k.setup)();
         let insns = measure::instructions(&mut run);
-        (k.setup)();
-        let stack = measure::stack_bytes(&mut run);
+        let stack = if only.is_some() {
+            0
+        } else {
+            (k.setup)();
+            measure::stack_bytes(&mut run)
+        };
         if !(k.check)() {
             defmt::println!("CHECK FAILED {=str}", k.name);
             failures += 1;
