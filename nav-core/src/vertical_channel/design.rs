@@ -407,3 +407,96 @@ impl<T: Real> DesignValues for AidedDesign<T> {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vertical_channel::{AidTimeouts, AidedLoop, ClassicalLoop, InitialState};
+
+    fn timeouts() -> AidTimeouts {
+        AidTimeouts {
+            stale_after_s: 0.1,
+            lost_after_s: 1.0,
+        }
+    }
+
+    fn classical() -> ClassicalConfig {
+        ClassicalConfig {
+            imu_dt_s: 0.01,
+            latitude_rad: 0.6,
+            tau_s: 10.0,
+            baro_lag_s: 0.0,
+            baro_timeouts: timeouts(),
+        }
+    }
+
+    fn aided() -> AidedConfig {
+        AidedConfig {
+            imu_dt_s: 0.01,
+            latitude_rad: 0.6,
+            accel_noise_m_s2_rt_hz: 1e-3,
+            accel_bias_rw_m_s2_rt_s: 1e-5,
+            baro_noise_m: 1.0,
+            baro_period_s: 0.04,
+            baro_lag_s: 0.1,
+            velocity_noise_m_s: 0.1,
+            velocity_period_s: 0.1,
+            baro_timeouts: timeouts(),
+            velocity_timeouts: timeouts(),
+        }
+    }
+
+    fn init<T: Real>() -> InitialState<T> {
+        InitialState {
+            time_s: T::zero(),
+            altitude_m: T::lit(100.0),
+            vz_up_m_s: T::zero(),
+            accel_bias_m_s2: T::zero(),
+        }
+    }
+
+    fn nan_refused<T: Real>() {
+        let nf = Err(not_finite());
+        let cc = classical();
+        let good = ClassicalDesign::<T>::compute(&cc).unwrap();
+        assert!(ClassicalLoop::from_design(&cc, &good, &init::<T>()).is_ok());
+        let mut d = good;
+        d.modes.both.g.m21 = T::lit(f64::NAN);
+        assert_eq!(
+            ClassicalLoop::from_design(&cc, &d, &init::<T>()).map(|_| ()),
+            nf
+        );
+        let mut d = good;
+        d.gravity.g1_per_s2 = T::lit(f64::INFINITY);
+        assert_eq!(
+            ClassicalLoop::from_design(&cc, &d, &init::<T>()).map(|_| ()),
+            nf
+        );
+        let mut d = good;
+        d.step.half_dt_s = T::zero();
+        assert!(ClassicalLoop::from_design(&cc, &d, &init::<T>()).is_err());
+
+        let ac = aided();
+        let good = AidedDesign::<T>::compute(&ac).unwrap();
+        assert!(AidedLoop::from_design(&ac, &good, &init::<T>()).is_ok());
+        for corrupt in 0..3 {
+            let mut d = good;
+            match corrupt {
+                0 => d.modes.none.n.m12 = T::lit(f64::NAN),
+                1 => d.modes.phi_baro.m33 = T::lit(f64::NAN),
+                _ => d.velocity_innovation_variance = T::lit(f64::NAN),
+            }
+            assert_eq!(
+                AidedLoop::from_design(&ac, &d, &init::<T>()).map(|_| ()),
+                nf,
+                "{corrupt}"
+            );
+        }
+    }
+
+    #[test]
+    fn from_design_refuses_non_finite_designs_f32_f64() {
+        nan_refused::<f32>();
+        nan_refused::<f64>();
+    }
+}
