@@ -52,6 +52,7 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod design;
 pub mod earth;
 pub mod error;
 pub mod math;

@@ -16,8 +16,9 @@
 //!   become straight-line code; the Joseph update after that is shared
 //!   ([`fuse_scalar_prepared`], one out-of-line copy per N);
 //! - all work is done on copies and committed at the end: an error leaves the filter untouched.
+use super::design::TaDesign;
 use super::measurement::{h_row_sparse, measurement, MasterSample, SlaveSample};
-use super::model::{axis_chains, axis_index, to_spec_order, AxisChain, AxisFlexure, FlexureModel};
+use super::model::{axis_index, to_spec_order, AxisChain, AxisFlexure, FlexureModel};
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
 #[allow(unused_imports)]
 use crate::math::kalman::fuse_scalar;
@@ -304,10 +305,28 @@ fn in_range3<T: Real>(input: &'static str, v: &Vector3<T>, limit: f64) -> Result
 impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// Validates the configuration, discretises the per-axis chains at `dt_s` and starts from
     /// x = 0 with P = blockdiag(σ_m², stationary flexure covariance).
+    ///
+    /// Same as `from_design(cfg, &TaDesign::compute(&cfg)?)`.
     pub fn new(cfg: TaConfig<T>) -> Result<Self, NavError> {
+        let design = TaDesign::<T, K>::compute(&cfg)?;
+        Self::from_design(cfg, &design)
+    }
+
+    /// Builds the filter from a precomputed design ([`TaDesign::compute`] of this
+    /// configuration, possibly stored as values, see [`crate::design`]) without running the
+    /// discretisation; starts from x = 0 with P = blockdiag(P0_X, P0_Y, P0_Z).
+    ///
+    /// Checks (cheap): the configuration ([`TaConfig::validate`]), R and 1/dt finite and
+    /// positive, every Φ, Q_d, P0 value finite (`InvalidConfig { field: "flexure" }` as
+    /// [`Self::new`]), then the design's structure (Q_d and P0 exactly symmetric with a
+    /// non-negative diagonal, Φ's θ_m row and column e₁, P0's θ_m variance equal to
+    /// `mount_sigma_rad²`: `InvalidConfig { field: "design.q_d" | "design.p0" |
+    /// "design.phi" }`). It cannot check that the design was computed for this `flexure` and
+    /// `dt_s`: that is the caller's contract.
+    pub fn from_design(cfg: TaConfig<T>, design: &TaDesign<T, K>) -> Result<Self, NavError> {
         let model = FlexureModel::for_dims::<K, N>()?;
         cfg.validate()?;
-        let chains = axis_chains::<T, K>(&cfg.flexure, &cfg.mount_sigma_rad, cfg.dt_s)?;
+        let chains = design.chains;
         let p = Self::initial_covariance(&chains);
         let r_rate = cfg.rate_noise_sigma_rad_s * cfg.rate_noise_sigma_rad_s;
         let r_accel = cfg.accel_noise_sigma_m_s2 * cfg.accel_noise_sigma_m_s2;
@@ -336,6 +355,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
                 issue: ConfigIssue::OutOfRange,
             });
         }
+        design.check_structure(&cfg)?;
         Ok(Self {
             cfg,
             model,

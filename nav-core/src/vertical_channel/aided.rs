@@ -26,10 +26,11 @@
 //! * `R = diag(σ_h² T_h, σ_v² T_v)`: the PSD equivalent of white noise of per-sample σ sampled
 //!   every T (m²·s and (m/s)²·s).
 
+use super::design::AidedDesign;
 use super::riccati::solve_filter_care;
 use super::{
-    discretise_modes, open_loop, AidReport, AidTimeouts, BaroSample, GravityModel, ImuSample,
-    InitialState, LoopCore, VelocitySample,
+    AidReport, AidTimeouts, BaroSample, GravityModel, ImuSample, InitialState, LoopCore,
+    VelocitySample,
 };
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
 use crate::{NavError, Real};
@@ -165,6 +166,25 @@ pub struct AidedLoop<T: Real> {
 impl<T: Real> AidedLoop<T> {
     /// Validates the configuration, designs the gains (continuous ARE) and discretises.
     pub fn new(config: &AidedConfig, init: &InitialState<T>) -> Result<Self, NavError> {
+        Self::from_design(config, &AidedDesign::compute(config)?, init)
+    }
+
+    /// Builds the loop from a precomputed design ([`AidedDesign::compute`] of this
+    /// configuration, possibly stored as values, see [`crate::design`]) without running any
+    /// design code (no Riccati, no discretisation, no f64 arithmetic: casts and compares
+    /// only).
+    ///
+    /// Checks: the IMU interval and both aids' timeouts as [`Self::new`]; that the design's
+    /// IMU interval and baro lag are the configuration's (`InvalidConfig { field:
+    /// "design.imu_dt_s" | "design.baro_lag_s" }`); that its values are finite
+    /// (`InvalidConfig { field: "design", issue: NotFinite }`) and its innovation variances
+    /// positive; the initial state. The noise parameters and latitude cannot be checked
+    /// without the design code: that the design belongs to them is the caller's contract.
+    pub fn from_design(
+        config: &AidedConfig,
+        design: &AidedDesign<T>,
+        init: &InitialState<T>,
+    ) -> Result<Self, NavError> {
         super::check_imu_dt(config.imu_dt_s)?;
         config
             .baro_timeouts
@@ -173,27 +193,23 @@ impl<T: Real> AidedLoop<T> {
             "velocity_timeouts.stale_after_s",
             "velocity_timeouts.lost_after_s",
         )?;
-        let gains = AidedGains::design(config)?;
-        let gravity = GravityModel::at_latitude(config.latitude_rad)?;
-        let modes = discretise_modes::<T>(&open_loop(1.0), &gains.k, &gains.c, config.imu_dt_s)?;
+        design.check(config)?;
+        let (gains, modes, gravity) = design.parts();
         let core = LoopCore::new(
             init,
             1.0,
-            config.imu_dt_s,
-            modes,
-            &gravity,
+            design.step_values(),
+            *modes,
+            gravity,
             &config.baro_timeouts,
             &config.velocity_timeouts,
-            config.baro_lag_s,
         )?;
-        let cb = gains.c.row(0).transpose();
-        let bv = (cb.transpose() * gains.p * cb).x + config.baro_noise_m * config.baro_noise_m;
-        let vv = gains.p.m22 + config.velocity_noise_m_s * config.velocity_noise_m_s;
+        let (bv, vv) = design.innovation_variances();
         Ok(Self {
             core,
-            gains,
-            baro_innovation_variance: T::lit(bv),
-            velocity_innovation_variance: T::lit(vv),
+            gains: *gains,
+            baro_innovation_variance: bv,
+            velocity_innovation_variance: vv,
         })
     }
 

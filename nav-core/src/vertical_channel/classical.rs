@@ -20,10 +20,8 @@
 //! misprint). C4 is the baro lag compensation: a first-order lag of time constant τ_b reads
 //! `h_baro ≈ h − τ_b V_z`, so C4 = τ_b.
 
-use super::{
-    discretise_modes, open_loop, AidReport, AidTimeouts, BaroSample, GravityModel, ImuSample,
-    InitialState, LoopCore,
-};
+use super::design::ClassicalDesign;
+use super::{AidReport, AidTimeouts, BaroSample, ImuSample, InitialState, LoopCore};
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
 use crate::{NavError, Real};
 use nalgebra::{Matrix2x3, Matrix3, Matrix3x2};
@@ -158,26 +156,43 @@ impl<T: Real> ClassicalLoop<T> {
     /// Errors: `InvalidConfig` (field named), `NonFiniteInput`/`InputOutOfRange` for the
     /// initial state, `NotConverged` if the discretisation fails.
     pub fn new(config: &ClassicalConfig, init: &InitialState<T>) -> Result<Self, NavError> {
+        Self::from_design(config, &ClassicalDesign::compute(config)?, init)
+    }
+
+    /// Builds the loop from a precomputed design ([`ClassicalDesign::compute`] of this
+    /// configuration, possibly stored as values, see [`crate::design`]) without running any
+    /// design code or f64 arithmetic (casts and compares only).
+    ///
+    /// Checks: the IMU interval and the timeouts as [`Self::new`]; that the design's IMU
+    /// interval and baro lag are the configuration's (`InvalidConfig { field:
+    /// "design.imu_dt_s" | "design.baro_lag_s" }`); that its values are finite
+    /// (`InvalidConfig { field: "design", issue: NotFinite }`); the initial state. The latitude
+    /// and τ cannot be checked without the design code: that the design belongs to them is the
+    /// caller's contract.
+    pub fn from_design(
+        config: &ClassicalConfig,
+        design: &ClassicalDesign<T>,
+        init: &InitialState<T>,
+    ) -> Result<Self, NavError> {
         super::check_imu_dt(config.imu_dt_s)?;
         config
             .baro_timeouts
             .validate("baro_timeouts.stale_after_s", "baro_timeouts.lost_after_s")?;
-        let gravity = GravityModel::at_latitude(config.latitude_rad)?;
-        let gains =
-            ClassicalGains::pole_placement(config.tau_s, config.baro_lag_s, gravity.c_per_s2())?;
-        let (k, c) = gains.observer();
-        let modes = discretise_modes::<T>(&open_loop(-1.0), &k, &c, config.imu_dt_s)?;
+        design.check(config)?;
+        let (gains, modes, gravity) = design.parts();
         let core = LoopCore::new(
             init,
             -1.0,
-            config.imu_dt_s,
-            modes,
-            &gravity,
+            design.step_values(),
+            *modes,
+            gravity,
             &config.baro_timeouts,
             &config.baro_timeouts,
-            config.baro_lag_s,
         )?;
-        Ok(Self { core, gains })
+        Ok(Self {
+            core,
+            gains: *gains,
+        })
     }
 
     /// One IMU step, with a new baro sample if one arrived since the last step.

@@ -19,6 +19,10 @@
 //! (computed once at configuration in `f64`) for each of the four aid modes `m` (which aids are
 //! in use). A step costs two 3×3 matrix-vector products and the gravity polynomial.
 //!
+//! Design and run are separable ([`design`]): `new(config, init)` designs on board, while
+//! `from_design(config, &design, init)` takes a [`ClassicalDesign`] / [`AidedDesign`] computed
+//! elsewhere (ground, build time, stored as values) and runs no design code.
+//!
 //! Multi-rate: the IMU drives [`classical::ClassicalLoop::step`] /
 //! [`aided::AidedLoop::step`] at its rate; aid samples are passed when they arrive,
 //! time-stamped, and may be missing. Each aid has an [`AidStatus`]: `Fresh` and `Stale` samples
@@ -42,6 +46,7 @@
 
 pub mod aided;
 pub mod classical;
+pub mod design;
 pub mod riccati;
 
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
@@ -829,18 +834,19 @@ pub(crate) struct LoopCore<T: Real> {
 }
 
 impl<T: Real> LoopCore<T> {
-    #[allow(clippy::too_many_arguments)]
+    /// The loop at `init` with a design's values (copies only: no f64 arithmetic).
+    /// `step`: (IMU interval, half of it, baro lag), s.
     pub(crate) fn new(
         init: &InitialState<T>,
         bias_sign: f64,
-        dt_s: f64,
+        step: (T, T, T),
         modes: Modes<T>,
-        gravity: &GravityModel<f64>,
+        gravity: &GravityModel<T>,
         baro: &AidTimeouts,
         velocity: &AidTimeouts,
-        baro_lag_s: f64,
     ) -> Result<Self, NavError> {
         check_initial(init)?;
+        let (dt_s, half_dt_s, baro_lag_s) = step;
         Ok(Self {
             h_ref_m: init.altitude_m,
             x: Vector3::new(
@@ -849,15 +855,15 @@ impl<T: Real> LoopCore<T> {
                 -init.accel_bias_m_s2 * T::lit(bias_sign),
             ),
             time_s: init.time_s,
-            dt_s: T::lit(dt_s),
-            half_dt_s: T::lit(0.5 * dt_s),
+            dt_s,
+            half_dt_s,
             modes,
-            gravity: gravity.cast(),
+            gravity: *gravity,
             baro: AidChannel::new(),
             velocity: AidChannel::new(),
             baro_timeouts: Timeouts::new(baro),
             velocity_timeouts: Timeouts::new(velocity),
-            baro_lag_s: T::lit(baro_lag_s),
+            baro_lag_s,
             bias_sign: T::lit(bias_sign),
             gate: None,
             baro_counters: GateCounters::default(),
@@ -1122,6 +1128,8 @@ impl<T: Real> LoopCore<T> {
 pub use aided::{AidedConfig, AidedGains, AidedLoop, AidedReport};
 
 pub use classical::{ClassicalConfig, ClassicalGains, ClassicalLoop, ClassicalReport};
+
+pub use design::{AidedDesign, ClassicalDesign};
 
 #[cfg(test)]
 mod tests;

@@ -1,0 +1,167 @@
+//! Configuration-time designs as flat `f64` value lists.
+//!
+//! Every estimator that designs something at configuration (discretisation, Riccati gains,
+//! gravity fit …) splits it into a *design* value (`TaDesign`, `ClassicalDesign`,
+//! `AidedDesign`) computed by `compute(config)`, and a `from_design(config, &design, …)`
+//! constructor that only validates and copies it. A flight computer can store the design
+//! (flash, or generated at build time) and never link the design code.
+//!
+//! [`DesignValues`] writes a design to, and reads it back from, a flat list of `f64` of a fixed
+//! length [`DesignValues::COUNT`]. `f32 → f64 → f32` is exact, so
+//! `read_values(write_values(d)) == d` bit for bit for both float types. The value order of
+//! each design is documented at its implementation; matrices are written column by column
+//! (nalgebra's storage order).
+//!
+//! [`crate::transfer_alignment::TaDesign`]: `15 K²` values;
+//! [`crate::vertical_channel::ClassicalDesign`]: 68 values;
+//! [`crate::vertical_channel::AidedDesign`]: 108 values.
+use crate::error::ConfigIssue;
+use crate::{NavError, Real};
+use nalgebra::SMatrix;
+
+/// A design that can be stored as a flat list of exactly [`Self::COUNT`] `f64` values.
+pub trait DesignValues: Sized {
+    /// Number of values of the list.
+    const COUNT: usize;
+
+    /// Writes the design to `out`, which must hold exactly [`Self::COUNT`] values
+    /// (else `CapacityExceeded`, and `out` is not modified).
+    fn write_values(&self, out: &mut [f64]) -> Result<(), NavError>;
+
+    /// Reads a design from exactly [`Self::COUNT`] values. Errors:
+    /// `InvalidConfig { field: "design values", issue: OutOfRange }` for a wrong length or a
+    /// value out of its domain (e.g. a non-integer iteration count),
+    /// `InvalidConfig { field: "design values", issue: NotFinite }` for NaN or ±∞.
+    fn read_values(values: &[f64]) -> Result<Self, NavError>;
+}
+
+/// The error of a wrong-length or out-of-domain value list.
+pub(crate) const BAD_VALUES: NavError = NavError::InvalidConfig {
+    field: "design values",
+    issue: ConfigIssue::OutOfRange,
+};
+
+/// The error of a non-finite value in a value list.
+pub(crate) const NOT_FINITE: NavError = NavError::InvalidConfig {
+    field: "design values",
+    issue: ConfigIssue::NotFinite,
+};
+
+/// Sequential writer into a value list whose length has been checked.
+pub(crate) struct ValueWriter<'a> {
+    out: &'a mut [f64],
+    next: usize,
+}
+
+impl<'a> ValueWriter<'a> {
+    /// A writer over `out`, or `CapacityExceeded` if `out.len() != count`.
+    pub(crate) fn new(out: &'a mut [f64], count: usize) -> Result<Self, NavError> {
+        if out.len() != count {
+            return Err(NavError::CapacityExceeded);
+        }
+        Ok(Self { out, next: 0 })
+    }
+
+    /// Appends one value (ignored past the end, which the length check rules out).
+    pub(crate) fn push(&mut self, v: f64) {
+        if let Some(slot) = self.out.get_mut(self.next) {
+            *slot = v;
+        }
+        self.next += 1;
+    }
+
+    /// Appends one value of the float type.
+    pub(crate) fn real<T: Real>(&mut self, v: T) {
+        self.push(v.to_f64());
+    }
+
+    /// Appends a matrix of the float type, column by column.
+    pub(crate) fn matrix<T: Real, const R: usize, const C: usize>(&mut self, m: &SMatrix<T, R, C>) {
+        for v in m.iter() {
+            self.real(*v);
+        }
+    }
+
+    /// Appends an `f64` matrix, column by column.
+    pub(crate) fn matrix_f64<const R: usize, const C: usize>(&mut self, m: &SMatrix<f64, R, C>) {
+        for v in m.iter() {
+            self.push(*v);
+        }
+    }
+
+    /// `Ok` when exactly the checked number of values was written.
+    pub(crate) fn finish(self) -> Result<(), NavError> {
+        if self.next == self.out.len() {
+            Ok(())
+        } else {
+            Err(NavError::CapacityExceeded)
+        }
+    }
+}
+
+/// Sequential reader of a value list whose length and finiteness have been checked.
+pub(crate) struct ValueReader<'a> {
+    values: core::slice::Iter<'a, f64>,
+}
+
+impl<'a> ValueReader<'a> {
+    /// A reader over `values`: `BAD_VALUES` unless `values.len() == count`, `NOT_FINITE` if a
+    /// value is NaN or ±∞.
+    pub(crate) fn new(values: &'a [f64], count: usize) -> Result<Self, NavError> {
+        if values.len() != count {
+            return Err(BAD_VALUES);
+        }
+        if !values.iter().all(|v| v.is_finite()) {
+            return Err(NOT_FINITE);
+        }
+        Ok(Self {
+            values: values.iter(),
+        })
+    }
+
+    /// The next value (`BAD_VALUES` past the end, which the length check rules out).
+    pub(crate) fn value(&mut self) -> Result<f64, NavError> {
+        self.values.next().copied().ok_or(BAD_VALUES)
+    }
+
+    /// The next value in the float type; `NOT_FINITE` if it overflows it (f32).
+    pub(crate) fn real<T: Real>(&mut self) -> Result<T, NavError> {
+        let v = T::lit(self.value()?);
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(NOT_FINITE)
+        }
+    }
+
+    /// The next matrix in the float type, column by column.
+    pub(crate) fn matrix<T: Real, const R: usize, const C: usize>(
+        &mut self,
+    ) -> Result<SMatrix<T, R, C>, NavError> {
+        let mut m = SMatrix::<T, R, C>::zeros();
+        for v in m.iter_mut() {
+            *v = self.real()?;
+        }
+        Ok(m)
+    }
+
+    /// The next `f64` matrix, column by column.
+    pub(crate) fn matrix_f64<const R: usize, const C: usize>(
+        &mut self,
+    ) -> Result<SMatrix<f64, R, C>, NavError> {
+        let mut m = SMatrix::<f64, R, C>::zeros();
+        for v in m.iter_mut() {
+            *v = self.value()?;
+        }
+        Ok(m)
+    }
+
+    /// `Ok` when every value was read.
+    pub(crate) fn finish(mut self) -> Result<(), NavError> {
+        if self.values.next().is_none() {
+            Ok(())
+        } else {
+            Err(BAD_VALUES)
+        }
+    }
+}

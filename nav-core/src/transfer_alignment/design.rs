@@ -1,0 +1,114 @@
+//! The configuration-time design of a transfer-alignment filter: the three per-axis discrete
+//! chains (exact Φ_j, Q_d,j and the initial covariance P0_j), computed by
+//! [`TaDesign::compute`] and consumed by
+//! [`TransferAlignment::from_design`](super::TransferAlignment::from_design), which does not
+//! run the discretisation (see [`crate::design`]).
+use super::filter::TaConfig;
+use super::model::{axis_chains, AxisChain, FlexureModel};
+use crate::design::{DesignValues, ValueReader, ValueWriter};
+use crate::{NavError, Real};
+
+/// Precomputed design of a transfer-alignment filter with `K` states per axis chain
+/// (K = 3: [`super::ConventionalFilter`], K = 4: [`super::ProposedFilter`]).
+///
+/// It depends on the configuration's `flexure`, `mount_sigma_rad` and `dt_s` only.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TaDesign<T: Real, const K: usize> {
+    /// Per-axis chains X, Y, Z (F_j, Q_c,j, Φ_j, Q_d,j, P0_j; see [`AxisChain`]).
+    pub chains: [AxisChain<T, K>; 3],
+}
+
+impl<T: Real, const K: usize> TaDesign<T, K> {
+    /// Validates the configuration (as [`TaConfig::validate`]) and discretises the three axis
+    /// chains exactly at `dt_s` (spec "Flexure models": Φ_j = exp(F_j Δt), Van Loan Q_d,j,
+    /// stationary flexure covariance in P0_j).
+    ///
+    /// Errors: `InvalidConfig` for a chain length other than 3 or 4 or an invalid field,
+    /// the discretisation's errors.
+    pub fn compute(cfg: &TaConfig<T>) -> Result<Self, NavError> {
+        FlexureModel::for_chain::<K>()?;
+        cfg.validate()?;
+        let chains = axis_chains::<T, K>(&cfg.flexure, &cfg.mount_sigma_rad, cfg.dt_s)?;
+        Ok(Self { chains })
+    }
+}
+
+/// Value order: for each axis X, Y, Z in turn, the chain's five K×K matrices `f`, `q_c`,
+/// `phi`, `q_d`, `p0`, each column by column: `COUNT = 3 · 5 · K²` (135 for K = 3, 240 for
+/// K = 4). `read_values` checks the length and finiteness only; the structure (symmetry,
+/// non-negative variances) is checked by `from_design`.
+impl<T: Real, const K: usize> DesignValues for TaDesign<T, K> {
+    const COUNT: usize = 15 * K * K;
+
+    fn write_values(&self, out: &mut [f64]) -> Result<(), NavError> {
+        let mut w = ValueWriter::new(out, Self::COUNT)?;
+        for ch in &self.chains {
+            for m in [&ch.f, &ch.q_c, &ch.phi, &ch.q_d, &ch.p0] {
+                w.matrix(m);
+            }
+        }
+        w.finish()
+    }
+
+    fn read_values(values: &[f64]) -> Result<Self, NavError> {
+        let mut r = ValueReader::new(values, Self::COUNT)?;
+        let mut chain = || -> Result<AxisChain<T, K>, NavError> {
+            Ok(AxisChain {
+                f: r.matrix()?,
+                q_c: r.matrix()?,
+                phi: r.matrix()?,
+                q_d: r.matrix()?,
+                p0: r.matrix()?,
+            })
+        };
+        let chains = [chain()?, chain()?, chain()?];
+        r.finish()?;
+        Ok(Self { chains })
+    }
+}
+
+impl<T: Real, const K: usize> TaDesign<T, K> {
+    /// The structural checks of [`super::TransferAlignment::from_design`] (finiteness is
+    /// checked there): per chain, `q_d` and `p0` exactly symmetric with a non-negative
+    /// diagonal, Φ's first row and column `e₁` (θ_m is a random constant: the prediction
+    /// relies on it), and the θ_m variance `p0[0,0] = mount_sigma_rad²` of the configuration.
+    /// Errors: `InvalidConfig { field: "design.q_d" | "design.p0" | "design.phi", issue:
+    /// OutOfRange }`.
+    pub(super) fn check_structure(&self, cfg: &TaConfig<T>) -> Result<(), NavError> {
+        let mounts = [
+            cfg.mount_sigma_rad.x,
+            cfg.mount_sigma_rad.y,
+            cfg.mount_sigma_rad.z,
+        ];
+        for (ch, m) in self.chains.iter().zip(mounts) {
+            for (field, mat) in [("design.q_d", &ch.q_d), ("design.p0", &ch.p0)] {
+                let symmetric = mat == &mat.transpose();
+                let diag_ok = mat.diagonal().iter().all(|v| *v >= T::zero());
+                if !(symmetric && diag_ok) {
+                    return Err(bad(field));
+                }
+            }
+            if ch.p0.get((0, 0)).copied() != Some(m * m) {
+                return Err(bad("design.p0"));
+            }
+            let e1_row = ch
+                .phi
+                .row(0)
+                .iter()
+                .enumerate()
+                .all(|(j, v)| *v == if j == 0 { T::one() } else { T::zero() });
+            let e1_col = ch.phi.column(0).iter().skip(1).all(|v| *v == T::zero());
+            if !(e1_row && e1_col) {
+                return Err(bad("design.phi"));
+            }
+        }
+        Ok(())
+    }
+}
+
+fn bad(field: &'static str) -> NavError {
+    NavError::InvalidConfig {
+        field,
+        issue: crate::error::ConfigIssue::OutOfRange,
+    }
+}

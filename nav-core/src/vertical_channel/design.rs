@@ -1,0 +1,502 @@
+//! The configuration-time designs of the vertical-channel loops (see [`crate::design`]):
+//! gains (pole placement or continuous ARE, `f64`), the exact discretisation of the four aid
+//! modes, the gravity fit at the latitude and (aided loop) the design innovation variances.
+//!
+//! [`ClassicalDesign::compute`] / [`AidedDesign::compute`] run the design code (f64, `sin`,
+//! Riccati, matrix exponentials); [`super::ClassicalLoop::from_design`] /
+//! [`super::AidedLoop::from_design`] only check and copy the stored result, so a flight build
+//! that uses them links none of the design code and runs no f64 arithmetic.
+use super::aided::{AidedConfig, AidedGains};
+use super::classical::{ClassicalConfig, ClassicalGains};
+use super::{check_imu_dt, discretise_modes, open_loop, GravityModel, Mode, Modes};
+use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
+use crate::error::ConfigIssue;
+use crate::{NavError, Real};
+use nalgebra::Matrix3;
+
+/// Values of the loop's time step and baro lag in the loop's float type, fixed by the design.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct StepValues<T> {
+    /// IMU interval, s.
+    dt_s: T,
+    /// Half the IMU interval, s (rounded from the `f64` half interval).
+    half_dt_s: T,
+    /// Baro lag compensation, s.
+    baro_lag_s: T,
+}
+
+impl<T: Real> StepValues<T> {
+    fn new(imu_dt_s: f64, baro_lag_s: f64) -> Self {
+        Self {
+            dt_s: T::lit(imu_dt_s),
+            half_dt_s: T::lit(0.5 * imu_dt_s),
+            baro_lag_s: T::lit(baro_lag_s),
+        }
+    }
+
+    /// The design's step values must be those of the configuration (casts and compares
+    /// only), positive (lag non-negative).
+    fn check(&self, imu_dt_s: f64, baro_lag_s: f64) -> Result<(), NavError> {
+        if !(self.dt_s == T::lit(imu_dt_s) && self.dt_s > T::zero() && self.half_dt_s > T::zero()) {
+            return Err(NavError::InvalidConfig {
+                field: "design.imu_dt_s",
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
+        if !(self.baro_lag_s == T::lit(baro_lag_s) && self.baro_lag_s >= T::zero()) {
+            return Err(NavError::InvalidConfig {
+                field: "design.baro_lag_s",
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
+        Ok(())
+    }
+
+    fn write(&self, w: &mut ValueWriter<'_>) {
+        w.real(self.dt_s);
+        w.real(self.half_dt_s);
+        w.real(self.baro_lag_s);
+    }
+
+    fn read(r: &mut ValueReader<'_>) -> Result<Self, NavError> {
+        Ok(Self {
+            dt_s: r.real()?,
+            half_dt_s: r.real()?,
+            baro_lag_s: r.real()?,
+        })
+    }
+}
+
+fn write_gravity<T: Real>(w: &mut ValueWriter<'_>, g: &GravityModel<T>) {
+    w.real(g.g0_m_s2);
+    w.real(g.g1_per_s2);
+    w.real(g.g2_per_m_s2);
+}
+
+fn read_gravity<T: Real>(r: &mut ValueReader<'_>) -> Result<GravityModel<T>, NavError> {
+    Ok(GravityModel {
+        g0_m_s2: r.real()?,
+        g1_per_s2: r.real()?,
+        g2_per_m_s2: r.real()?,
+    })
+}
+
+/// Number of values of [`Modes`]: Φ_baro (9), then N and G (6 each) of the modes none, baro,
+/// velocity, both.
+const MODES_COUNT: usize = 9 + 4 * 12;
+
+fn write_modes<T: Real>(w: &mut ValueWriter<'_>, m: &Modes<T>) {
+    w.matrix(&m.phi_baro);
+    for mode in [&m.none, &m.baro, &m.velocity, &m.both] {
+        w.matrix(&mode.n);
+        w.matrix(&mode.g);
+    }
+}
+
+fn read_modes<T: Real>(r: &mut ValueReader<'_>) -> Result<Modes<T>, NavError> {
+    let phi_baro: Matrix3<T> = r.matrix()?;
+    let mut mode = || -> Result<Mode<T>, NavError> {
+        Ok(Mode {
+            n: r.matrix()?,
+            g: r.matrix()?,
+        })
+    };
+    Ok(Modes {
+        phi_baro,
+        none: mode()?,
+        baro: mode()?,
+        velocity: mode()?,
+        both: mode()?,
+    })
+}
+
+fn modes_finite<T: Real>(m: &Modes<T>) -> bool {
+    m.phi_baro.iter().all(|v| v.is_finite())
+        && [&m.none, &m.baro, &m.velocity, &m.both]
+            .iter()
+            .all(|mode| mode.n.iter().chain(mode.g.iter()).all(|v| v.is_finite()))
+}
+
+fn gravity_finite<T: Real>(g: &GravityModel<T>) -> bool {
+    g.g0_m_s2.is_finite() && g.g1_per_s2.is_finite() && g.g2_per_m_s2.is_finite()
+}
+
+fn not_finite() -> NavError {
+    NavError::InvalidConfig {
+        field: "design",
+        issue: ConfigIssue::NotFinite,
+    }
+}
+
+/// Precomputed design of a [`super::ClassicalLoop`]: pole-placement gains, the discretised
+/// aid modes, the gravity model and the step values, in the loop's float type `T` (the gains
+/// as `f64` data, for reporting only).
+///
+/// Obtained from [`ClassicalDesign::compute`] or [`DesignValues::read_values`] only.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClassicalDesign<T: Real> {
+    gains: ClassicalGains,
+    modes: Modes<T>,
+    gravity: GravityModel<T>,
+    step: StepValues<T>,
+}
+
+impl<T: Real> ClassicalDesign<T> {
+    /// Validates the configuration (IMU interval, timeouts, latitude, τ, C4; same errors and
+    /// order as [`super::ClassicalLoop::new`]), fits the gravity model at the latitude, places
+    /// the poles (seed eq. 1) and discretises the four aid modes exactly at `imu_dt_s`.
+    pub fn compute(config: &ClassicalConfig) -> Result<Self, NavError> {
+        check_imu_dt(config.imu_dt_s)?;
+        config
+            .baro_timeouts
+            .validate("baro_timeouts.stale_after_s", "baro_timeouts.lost_after_s")?;
+        let gravity = GravityModel::at_latitude(config.latitude_rad)?;
+        let gains =
+            ClassicalGains::pole_placement(config.tau_s, config.baro_lag_s, gravity.c_per_s2())?;
+        let (k, c) = gains.observer();
+        let modes = discretise_modes::<T>(&open_loop(-1.0), &k, &c, config.imu_dt_s)?;
+        Ok(Self {
+            gains,
+            modes,
+            gravity: gravity.cast(),
+            step: StepValues::new(config.imu_dt_s, config.baro_lag_s),
+        })
+    }
+
+    /// The pole-placement gains.
+    pub fn gains(&self) -> &ClassicalGains {
+        &self.gains
+    }
+    /// The gravity model in the loop's float type.
+    pub fn gravity(&self) -> &GravityModel<T> {
+        &self.gravity
+    }
+    /// The IMU interval the modes were discretised at, s.
+    pub fn imu_dt_s(&self) -> T {
+        self.step.dt_s
+    }
+    /// Discrete transition matrix with the baro in use (for analysis).
+    pub fn phi_with_baro(&self) -> Matrix3<T> {
+        self.modes.phi_baro
+    }
+
+    /// Checks the design against the configuration and its own finiteness (used by
+    /// `from_design`; casts and compares only).
+    pub(super) fn check(&self, config: &ClassicalConfig) -> Result<(), NavError> {
+        self.step.check(config.imu_dt_s, config.baro_lag_s)?;
+        if !(modes_finite(&self.modes) && gravity_finite(&self.gravity)) {
+            return Err(not_finite());
+        }
+        Ok(())
+    }
+
+    pub(super) fn parts(&self) -> (&ClassicalGains, &Modes<T>, &GravityModel<T>) {
+        (&self.gains, &self.modes, &self.gravity)
+    }
+
+    pub(super) fn step_values(&self) -> (T, T, T) {
+        (self.step.dt_s, self.step.half_dt_s, self.step.baro_lag_s)
+    }
+}
+
+/// Value order (68 values): the gains `c1_per_s, c2_per_s2, c3_per_s3, c4_s, c_per_s2` (5);
+/// gravity `g0_m_s2, g1_per_s2, g2_per_m_s2` (3); `imu_dt_s`, half of it, `baro_lag_s` (3);
+/// the modes (57): Φ_baro (3×3), then N and G (3×2 each) of the modes none, baro, velocity,
+/// both; matrices column by column.
+impl<T: Real> DesignValues for ClassicalDesign<T> {
+    const COUNT: usize = 5 + 3 + 3 + MODES_COUNT;
+
+    fn write_values(&self, out: &mut [f64]) -> Result<(), NavError> {
+        let mut w = ValueWriter::new(out, Self::COUNT)?;
+        let g = &self.gains;
+        for v in [g.c1_per_s, g.c2_per_s2, g.c3_per_s3, g.c4_s, g.c_per_s2] {
+            w.push(v);
+        }
+        write_gravity(&mut w, &self.gravity);
+        self.step.write(&mut w);
+        write_modes(&mut w, &self.modes);
+        w.finish()
+    }
+
+    fn read_values(values: &[f64]) -> Result<Self, NavError> {
+        let mut r = ValueReader::new(values, Self::COUNT)?;
+        let gains = ClassicalGains {
+            c1_per_s: r.value()?,
+            c2_per_s2: r.value()?,
+            c3_per_s3: r.value()?,
+            c4_s: r.value()?,
+            c_per_s2: r.value()?,
+        };
+        let gravity = read_gravity(&mut r)?;
+        let step = StepValues::read(&mut r)?;
+        let modes = read_modes(&mut r)?;
+        r.finish()?;
+        Ok(Self {
+            gains,
+            modes,
+            gravity,
+            step,
+        })
+    }
+}
+
+/// Precomputed design of an [`super::AidedLoop`]: the Riccati gains (`f64` data, for
+/// reporting), the discretised aid modes, the gravity model, the step values and the design
+/// innovation variances, in the loop's float type `T`.
+///
+/// Obtained from [`AidedDesign::compute`] or [`DesignValues::read_values`] only.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AidedDesign<T: Real> {
+    gains: AidedGains,
+    modes: Modes<T>,
+    gravity: GravityModel<T>,
+    step: StepValues<T>,
+    baro_innovation_variance: T,
+    velocity_innovation_variance: T,
+}
+
+impl<T: Real> AidedDesign<T> {
+    /// Validates the configuration (same errors and order as [`super::AidedLoop::new`]),
+    /// solves the continuous ARE for the gains (seed eqs. 8-9), fits the gravity model,
+    /// discretises the four aid modes exactly at `imu_dt_s` and computes the design innovation
+    /// variances `C P Cᵀ + σ²` of both aids.
+    pub fn compute(config: &AidedConfig) -> Result<Self, NavError> {
+        check_imu_dt(config.imu_dt_s)?;
+        config
+            .baro_timeouts
+            .validate("baro_timeouts.stale_after_s", "baro_timeouts.lost_after_s")?;
+        config.velocity_timeouts.validate(
+            "velocity_timeouts.stale_after_s",
+            "velocity_timeouts.lost_after_s",
+        )?;
+        let gains = AidedGains::design(config)?;
+        let gravity = GravityModel::at_latitude(config.latitude_rad)?;
+        let modes = discretise_modes::<T>(&open_loop(1.0), &gains.k, &gains.c, config.imu_dt_s)?;
+        let cb = gains.c.row(0).transpose();
+        let bv = (cb.transpose() * gains.p * cb).x + config.baro_noise_m * config.baro_noise_m;
+        let vv = gains.p.m22 + config.velocity_noise_m_s * config.velocity_noise_m_s;
+        Ok(Self {
+            gains,
+            modes,
+            gravity: gravity.cast(),
+            step: StepValues::new(config.imu_dt_s, config.baro_lag_s),
+            baro_innovation_variance: T::lit(bv),
+            velocity_innovation_variance: T::lit(vv),
+        })
+    }
+
+    /// The Riccati design.
+    pub fn gains(&self) -> &AidedGains {
+        &self.gains
+    }
+    /// The gravity model in the loop's float type.
+    pub fn gravity(&self) -> &GravityModel<T> {
+        &self.gravity
+    }
+    /// The IMU interval the modes were discretised at, s.
+    pub fn imu_dt_s(&self) -> T {
+        self.step.dt_s
+    }
+    /// Design innovation variances of (baro m², velocity (m/s)²): `C P Cᵀ + σ²`.
+    pub fn innovation_variances(&self) -> (T, T) {
+        (
+            self.baro_innovation_variance,
+            self.velocity_innovation_variance,
+        )
+    }
+    /// Discrete transition matrix with the baro in use (for analysis).
+    pub fn phi_with_baro(&self) -> Matrix3<T> {
+        self.modes.phi_baro
+    }
+
+    /// Checks the design against the configuration and its own values (used by
+    /// `from_design`; casts and compares only).
+    pub(super) fn check(&self, config: &AidedConfig) -> Result<(), NavError> {
+        self.step.check(config.imu_dt_s, config.baro_lag_s)?;
+        let (bv, vv) = self.innovation_variances();
+        if !(modes_finite(&self.modes)
+            && gravity_finite(&self.gravity)
+            && bv.is_finite()
+            && vv.is_finite())
+        {
+            return Err(not_finite());
+        }
+        if !(bv > T::zero() && vv > T::zero()) {
+            return Err(NavError::InvalidConfig {
+                field: "design.innovation_variances",
+                issue: ConfigIssue::NotPositive,
+            });
+        }
+        Ok(())
+    }
+
+    pub(super) fn parts(&self) -> (&AidedGains, &Modes<T>, &GravityModel<T>) {
+        (&self.gains, &self.modes, &self.gravity)
+    }
+
+    pub(super) fn step_values(&self) -> (T, T, T) {
+        (self.step.dt_s, self.step.half_dt_s, self.step.baro_lag_s)
+    }
+}
+
+/// Value order (108 values): the gains (43): `k` (3×2), `p` (3×3), `a` (3×3), `q` (3×3),
+/// `c` (2×3), `r` (2), `riccati_iterations` (an integer), `relative_residual`; gravity
+/// `g0_m_s2, g1_per_s2, g2_per_m_s2` (3); `imu_dt_s`, half of it, `baro_lag_s` (3); the
+/// design innovation variances baro, velocity (2); the modes (57): Φ_baro (3×3), then N and G
+/// (3×2 each) of the modes none, baro, velocity, both; matrices column by column.
+impl<T: Real> DesignValues for AidedDesign<T> {
+    const COUNT: usize = 43 + 3 + 3 + 2 + MODES_COUNT;
+
+    fn write_values(&self, out: &mut [f64]) -> Result<(), NavError> {
+        let mut w = ValueWriter::new(out, Self::COUNT)?;
+        let g = &self.gains;
+        w.matrix_f64(&g.k);
+        w.matrix_f64(&g.p);
+        w.matrix_f64(&g.a);
+        w.matrix_f64(&g.q);
+        w.matrix_f64(&g.c);
+        w.matrix_f64(&g.r);
+        w.push(f64::from(g.riccati_iterations));
+        w.push(g.relative_residual);
+        write_gravity(&mut w, &self.gravity);
+        self.step.write(&mut w);
+        w.real(self.baro_innovation_variance);
+        w.real(self.velocity_innovation_variance);
+        write_modes(&mut w, &self.modes);
+        w.finish()
+    }
+
+    fn read_values(values: &[f64]) -> Result<Self, NavError> {
+        let mut r = ValueReader::new(values, Self::COUNT)?;
+        let k = r.matrix_f64()?;
+        let p = r.matrix_f64()?;
+        let a = r.matrix_f64()?;
+        let q = r.matrix_f64()?;
+        let c = r.matrix_f64()?;
+        let rr = r.matrix_f64()?;
+        let it = r.value()?;
+        // An iteration count: a non-negative integer that fits a u32 (exact round trip).
+        let iterations = it as u32;
+        if f64::from(iterations) != it {
+            return Err(BAD_VALUES);
+        }
+        let relative_residual = r.value()?;
+        let gains = AidedGains {
+            k,
+            p,
+            a,
+            q,
+            c,
+            r: rr,
+            riccati_iterations: iterations,
+            relative_residual,
+        };
+        let gravity = read_gravity(&mut r)?;
+        let step = StepValues::read(&mut r)?;
+        let baro_innovation_variance = r.real()?;
+        let velocity_innovation_variance = r.real()?;
+        let modes = read_modes(&mut r)?;
+        r.finish()?;
+        Ok(Self {
+            gains,
+            modes,
+            gravity,
+            step,
+            baro_innovation_variance,
+            velocity_innovation_variance,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::vertical_channel::{AidTimeouts, AidedLoop, ClassicalLoop, InitialState};
+
+    fn timeouts() -> AidTimeouts {
+        AidTimeouts {
+            stale_after_s: 0.1,
+            lost_after_s: 1.0,
+        }
+    }
+
+    fn classical() -> ClassicalConfig {
+        ClassicalConfig {
+            imu_dt_s: 0.01,
+            latitude_rad: 0.6,
+            tau_s: 10.0,
+            baro_lag_s: 0.0,
+            baro_timeouts: timeouts(),
+        }
+    }
+
+    fn aided() -> AidedConfig {
+        AidedConfig {
+            imu_dt_s: 0.01,
+            latitude_rad: 0.6,
+            accel_noise_m_s2_rt_hz: 1e-3,
+            accel_bias_rw_m_s2_rt_s: 1e-5,
+            baro_noise_m: 1.0,
+            baro_period_s: 0.04,
+            baro_lag_s: 0.1,
+            velocity_noise_m_s: 0.1,
+            velocity_period_s: 0.1,
+            baro_timeouts: timeouts(),
+            velocity_timeouts: timeouts(),
+        }
+    }
+
+    fn init<T: Real>() -> InitialState<T> {
+        InitialState {
+            time_s: T::zero(),
+            altitude_m: T::lit(100.0),
+            vz_up_m_s: T::zero(),
+            accel_bias_m_s2: T::zero(),
+        }
+    }
+
+    fn nan_refused<T: Real>() {
+        let nf = Err(not_finite());
+        let cc = classical();
+        let good = ClassicalDesign::<T>::compute(&cc).unwrap();
+        assert!(ClassicalLoop::from_design(&cc, &good, &init::<T>()).is_ok());
+        let mut d = good;
+        d.modes.both.g.m21 = T::lit(f64::NAN);
+        assert_eq!(
+            ClassicalLoop::from_design(&cc, &d, &init::<T>()).map(|_| ()),
+            nf
+        );
+        let mut d = good;
+        d.gravity.g1_per_s2 = T::lit(f64::INFINITY);
+        assert_eq!(
+            ClassicalLoop::from_design(&cc, &d, &init::<T>()).map(|_| ()),
+            nf
+        );
+        let mut d = good;
+        d.step.half_dt_s = T::zero();
+        assert!(ClassicalLoop::from_design(&cc, &d, &init::<T>()).is_err());
+
+        let ac = aided();
+        let good = AidedDesign::<T>::compute(&ac).unwrap();
+        assert!(AidedLoop::from_design(&ac, &good, &init::<T>()).is_ok());
+        for corrupt in 0..3 {
+            let mut d = good;
+            match corrupt {
+                0 => d.modes.none.n.m12 = T::lit(f64::NAN),
+                1 => d.modes.phi_baro.m33 = T::lit(f64::NAN),
+                _ => d.velocity_innovation_variance = T::lit(f64::NAN),
+            }
+            assert_eq!(
+                AidedLoop::from_design(&ac, &d, &init::<T>()).map(|_| ()),
+                nf,
+                "{corrupt}"
+            );
+        }
+    }
+
+    #[test]
+    fn from_design_refuses_non_finite_designs_f32_f64() {
+        nan_refused::<f32>();
+        nan_refused::<f64>();
+    }
+}
