@@ -1,6 +1,7 @@
 //! Golden vectors for the firmware: short runs of every filter, generated from the simulator's
 //! truth, replayed on the host in f32 through [`nav_golden::replay`] (the same code the
-//! firmware runs) and written as little-endian f32 files `<case>.in.f32` / `<case>.out.f32`.
+//! firmware runs) and written as little-endian f32 files `<case>.in.f32` / `<case>.out.f32`,
+//! with the case's design computed on the host as `<case>.design.f64` (empty for the seeker).
 
 use crate::rng::{normal, run_rng};
 use crate::scenarios::seeker_ins::{self, trajectory};
@@ -9,7 +10,9 @@ use crate::scenarios::vertical_channel::{self, Profile};
 use anyhow::{anyhow, Context, Result};
 use nav_core::earth::normal_gravity_m_s2;
 use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned, Landmark};
-use nav_golden::{replay, Case, CASES, LOS_EVERY};
+use nav_golden::{
+    design_values, replay, replay_with, Case, Stored, CASES, LOS_EVERY, MAX_DESIGN_VALUES,
+};
 use std::path::Path;
 
 /// Steps recorded per case.
@@ -116,11 +119,41 @@ pub fn record(dir: &Path, seed: u64) -> Result<Vec<(Case, usize)>> {
             "{}: non-finite host output",
             case.name()
         );
-        std::fs::write(dir.join(format!("{}.in.f32", case.name())), in_bytes)?;
+        std::fs::write(dir.join(format!("{}.in.f32", case.name())), &in_bytes)?;
         std::fs::write(
             dir.join(format!("{}.out.f32", case.name())),
             to_bytes(&outputs),
         )?;
+        // The design computed on the host, replayed once more through `from_design` here
+        // (the firmware does the same on the target): the stored design must give the same
+        // outputs bit for bit.
+        let mut values = [0f64; MAX_DESIGN_VALUES];
+        let n = design_values(case, &mut values)
+            .map_err(|e| anyhow!("{}: design failed: {e}", case.name()))?;
+        let design: Vec<u8> = values
+            .iter()
+            .take(n)
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        if n > 0 {
+            let stored = Stored {
+                ta9: &design,
+                ta12: &design,
+                vc_classical: &design,
+                vc_aided: &design,
+            };
+            let mut again: Vec<f32> = Vec::new();
+            replay_with(case, &in_bytes, &stored, &mut |_, out| {
+                again.extend_from_slice(out)
+            })
+            .map_err(|e| anyhow!("{}: replay with the stored design failed: {e}", case.name()))?;
+            anyhow::ensure!(
+                to_bytes(&again) == to_bytes(&outputs),
+                "{}: the stored design does not reproduce the on-board design's outputs",
+                case.name()
+            );
+        }
+        std::fs::write(dir.join(format!("{}.design.f64", case.name())), design)?;
         done.push((case, steps));
     }
     Ok(done)
@@ -138,8 +171,8 @@ mod tests {
         let rb = record(&b, 5).unwrap();
         assert_eq!(ra, rb);
         for case in CASES {
-            for ext in ["in", "out"] {
-                let f = format!("{}.{ext}.f32", case.name());
+            for f in ["in.f32", "out.f32", "design.f64"] {
+                let f = format!("{}.{f}", case.name());
                 assert_eq!(
                     std::fs::read(a.join(&f)).unwrap(),
                     std::fs::read(b.join(&f)).unwrap()

@@ -18,8 +18,8 @@ fn main() {
         .map(PathBuf::from)
         .unwrap_or_else(|| manifest.join("../../target/golden"));
     for case in CASES {
-        for ext in ["in", "out"] {
-            let name = format!("{case}.{ext}.f32");
+        for ext in ["in.f32", "out.f32", "design.f64"] {
+            let name = format!("{case}.{ext}");
             let src = dir.join(&name);
             println!("cargo:rerun-if-changed={}", src.display());
             let bytes = fs::read(&src).unwrap_or_default();

@@ -224,9 +224,10 @@ pub fn qemu() -> Result<(), String> {
     }
 }
 
-/// Number of golden cases the firmware replays.
+/// Number of golden replays the firmware reports: five cases with designs computed on board,
+/// and the four with a configuration-time design once more with the design stored from the host.
 const fn nav_golden_case_count() -> usize {
-    5
+    9
 }
 
 /// Budgets of issue 6 (Cortex-M4F, f32, default thumbv7em codegen): instructions per step.
@@ -283,9 +284,12 @@ fn budget_table(report: &Map<String, Value>) -> String {
     let get = |k: &str| m4.get(k).and_then(Value::as_u64).unwrap_or(0);
     let f_text = get("filters_image_text_bytes");
     md.push_str(&format!(
-        "\nFilters image (`nav-size`: every filter's constructor and step path, no harness): \
+        "\nFilters image (`nav-size`: every filter built from designs computed on the host and \
+         stored in the image, `from_design`, and its step path; no harness): \
          `.text` {f_text} B (budget {BUDGET_TEXT_BYTES} B {}), `.rodata` {} B, `.data` {} B, \
-         `.bss` {} B. Bench image (harness, golden replay and recorded vectors included): \
+         `.bss` {} B. With the designs computed on board (`nav-size-onboard`: `new`, so the \
+         discretisation, Riccati solver and f64 gravity fit are linked): `.text` {} B. \
+         Bench image (harness, golden replay and recorded vectors included): \
          `.text` {} B, `.rodata` {} B.\n",
         if f_text <= BUDGET_TEXT_BYTES {
             "✓"
@@ -295,6 +299,7 @@ fn budget_table(report: &Map<String, Value>) -> String {
         get("filters_image_rodata_bytes"),
         get("filters_image_data_bytes"),
         get("filters_image_bss_bytes"),
+        get("onboard_design_image_text_bytes"),
         get("text_bytes"),
         get("rodata_bytes"),
     ));
@@ -356,9 +361,11 @@ pub fn bench() -> Result<(), String> {
     std::env::set_var("NAV_GOLDEN_DIR", &golden);
     let elf = build_firmware(&["panic-never"])?;
     let (text, rodata, data, bss) = section_sizes(&elf)?;
-    // The size image (same build): every filter's constructor and step path, no harness.
+    // The size images (same build): every filter's constructor and step path, no harness;
+    // designs stored (the flight image) or computed on board.
     let size_elf = elf.with_file_name("nav-size");
     let (f_text, f_rodata, f_data, f_bss) = section_sizes(&size_elf)?;
+    let (o_text, _, _, _) = section_sizes(&elf.with_file_name("nav-size-onboard"))?;
     let mut report = Map::new();
     for (label, machine) in MACHINES {
         let lines = run_on_qemu(&elf, machine, &decoder)?;
@@ -377,6 +384,7 @@ pub fn bench() -> Result<(), String> {
         m.insert("filters_image_rodata_bytes".into(), json!(f_rodata));
         m.insert("filters_image_data_bytes".into(), json!(f_data));
         m.insert("filters_image_bss_bytes".into(), json!(f_bss));
+        m.insert("onboard_design_image_text_bytes".into(), json!(o_text));
         m.insert("rodata_bytes".into(), json!(rodata));
         m.insert("data_bytes".into(), json!(data));
         m.insert("bss_bytes".into(), json!(bss));

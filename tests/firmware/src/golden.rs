@@ -1,7 +1,10 @@
-//! Golden-vector replay: the host's recorded inputs through the same `nav_golden::replay`
-//! code, outputs compared value by value with the host's f32 outputs.
+//! Golden-vector replay: the host's recorded inputs through the same `nav_golden` replay
+//! code, outputs compared value by value with the host's f32 outputs. Every case with a
+//! configuration-time design is replayed twice: with the design computed here, on the target
+//! (`OnBoard`: the filters' `new`), and with the design computed on the host and stored in the
+//! image (`Stored`: `from_design`, what a flight image without design code runs).
 
-use nav_golden::{f32s, replay, ulps, Case, CASES};
+use nav_golden::{f32s, replay_with, ulps, Case, DesignSource, OnBoard, Stored, CASES};
 
 macro_rules! golden_files {
     ($name:literal) => {
@@ -9,6 +12,12 @@ macro_rules! golden_files {
             &include_bytes!(concat!(env!("OUT_DIR"), "/", $name, ".in.f32"))[..],
             &include_bytes!(concat!(env!("OUT_DIR"), "/", $name, ".out.f32"))[..],
         )
+    };
+}
+
+macro_rules! design_file {
+    ($name:literal) => {
+        include_bytes!(concat!(env!("OUT_DIR"), "/", $name, ".design.f64")).as_slice()
     };
 }
 
@@ -22,42 +31,67 @@ fn files(case: Case) -> (&'static [u8], &'static [u8]) {
     }
 }
 
-/// Replays every recorded case; logs `GOLDEN <case> steps=… values=… mismatched=… max_ulps=…`
-/// and returns the number of cases with a mismatch or an error.
+/// The designs computed on the host (`nav-sim golden`), stored in the image.
+pub const STORED: Stored<'static> = Stored {
+    ta9: design_file!("ta9"),
+    ta12: design_file!("ta12"),
+    vc_classical: design_file!("vc_classical"),
+    vc_aided: design_file!("vc_aided"),
+};
+
+/// Replays one case with one design source; logs
+/// `GOLDEN <label> steps=… values=… mismatched=… max_ulps=… missing=…` and returns `true` when
+/// every value is bit-identical.
+fn check(case: Case, label: &str, designs: &dyn DesignSource) -> bool {
+    let (inputs, expected) = files(case);
+    if inputs.is_empty() {
+        defmt::println!("GOLDEN {=str} skipped (no recording)", label);
+        return true;
+    }
+    let mut want = f32s(expected);
+    let (mut values, mut mismatched, mut max_ulps) = (0u32, 0u32, 0u32);
+    let result = replay_with(case, inputs, designs, &mut |_, out| {
+        for &got in out {
+            let u = ulps(got, want.next().unwrap_or(f32::NAN));
+            values += 1;
+            if u != 0 {
+                mismatched += 1;
+                max_ulps = max_ulps.max(u);
+            }
+        }
+    });
+    let extra = want.count();
+    match result {
+        Ok(steps) => defmt::println!(
+            "GOLDEN {=str} steps={=usize} values={=u32} mismatched={=u32} max_ulps={=u32} missing={=usize}",
+            label,
+            steps,
+            values,
+            mismatched,
+            max_ulps,
+            extra
+        ),
+        Err(e) => defmt::println!("GOLDEN {=str} error {}", label, e),
+    }
+    result.is_ok() && mismatched == 0 && extra == 0
+}
+
+/// Replays every recorded case (on-board designs, then stored designs); returns the number of
+/// replays with a mismatch or an error.
 pub fn check_all() -> u32 {
     let mut failed = 0;
     for case in CASES {
-        let (inputs, expected) = files(case);
-        if inputs.is_empty() {
-            defmt::println!("GOLDEN {=str} skipped (no recording)", case.name());
-            continue;
+        if !check(case, case.name(), &OnBoard) {
+            failed += 1;
         }
-        let mut want = f32s(expected);
-        let (mut values, mut mismatched, mut max_ulps) = (0u32, 0u32, 0u32);
-        let result = replay(case, inputs, &mut |_, out| {
-            for &got in out {
-                let u = ulps(got, want.next().unwrap_or(f32::NAN));
-                values += 1;
-                if u != 0 {
-                    mismatched += 1;
-                    max_ulps = max_ulps.max(u);
-                }
-            }
-        });
-        let extra = want.count();
-        match result {
-            Ok(steps) => defmt::println!(
-                "GOLDEN {=str} steps={=usize} values={=u32} mismatched={=u32} max_ulps={=u32} missing={=usize}",
-                case.name(),
-                steps,
-                values,
-                mismatched,
-                max_ulps,
-                extra
-            ),
-            Err(e) => defmt::println!("GOLDEN {=str} error {}", case.name(), e),
-        }
-        if result.is_err() || mismatched != 0 || extra != 0 {
+        let stored_label = match case {
+            Case::Ta9 => "ta9/stored-design",
+            Case::Ta12 => "ta12/stored-design",
+            Case::VcClassical => "vc_classical/stored-design",
+            Case::VcAided => "vc_aided/stored-design",
+            Case::SeekerIns => continue,
+        };
+        if !check(case, stored_label, &STORED) {
             failed += 1;
         }
     }

@@ -6,21 +6,25 @@
 //! with the host's, value by value (bits, and the largest distance in units in the last place).
 //!
 //! Files are little-endian `f32` arrays: `<case>.in.f32` (records of [`Case::input_len`]
-//! values) and `<case>.out.f32` (records of [`Case::output_len`] values), one record per step.
+//! values) and `<case>.out.f32` (records of [`Case::output_len`] values), one record per step;
+//! `<case>.design.f64` holds the case's configuration-time design computed on the host
+//! ([`design_values`], little-endian `f64`), which the firmware replays through
+//! [`Stored`] as well as with its own on-board design ([`OnBoard`]).
 #![no_std]
 #![forbid(unsafe_code)]
 
 use nalgebra::Vector3;
+use nav_core::design::DesignValues;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm};
 use nav_core::seeker_ins::filter::{LosResidual, SeekerIns, SeekerInsConfig};
 use nav_core::seeker_ins::measurement::{GimbalAngles, Landmark};
 use nav_core::seeker_ins::mechanization::{ImuIncrement, InsState, Position};
 use nav_core::transfer_alignment::{
-    AxisFlexure, ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig,
+    AxisFlexure, ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig, TaDesign,
 };
 use nav_core::vertical_channel::{
-    AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
-    InitialState, VelocitySample,
+    AidTimeouts, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
+    ClassicalLoop, ImuSample, InitialState, VelocitySample,
 };
 use nav_core::NavError;
 
@@ -292,18 +296,164 @@ fn ta_samples(r: &[f32]) -> (MasterSample<f32>, SlaveSample<f32>) {
     )
 }
 
+/// `[t, f_up, baro_valid, h_baro, velocity_valid, v_ref]` → IMU sample and the aid samples
+/// that arrived.
+fn vc_samples(
+    r: &[f32],
+) -> (
+    ImuSample<f32>,
+    Option<BaroSample<f32>>,
+    Option<VelocitySample<f32>>,
+) {
+    let t = val(r, 0);
+    let imu = ImuSample {
+        time_s: t,
+        specific_force_up_m_s2: val(r, 1),
+    };
+    let baro = (val(r, 2) != 0.0).then_some(BaroSample {
+        time_s: t,
+        altitude_m: val(r, 3),
+    });
+    let vel = (val(r, 4) != 0.0).then_some(VelocitySample {
+        time_s: t,
+        vz_up_m_s: val(r, 5),
+    });
+    (imu, baro, vel)
+}
+
 fn ta_output(theta: Vector3<f32>, sigma: Vector3<f32>, out: &mut [f32; MAX_OUTPUT_LEN]) {
     for (o, v) in out.iter_mut().zip(theta.iter().chain(sigma.iter())) {
         *o = *v;
     }
 }
 
+/// Where the filters' configuration-time designs (discretised chains, loop gains and
+/// discretised modes) come from.
+pub trait DesignSource {
+    /// The conventional 9-state transfer-alignment filter for [`ta_config`].
+    fn ta9(&self) -> Result<ConventionalFilter<f32>, NavError>;
+    /// The proposed 12-state transfer-alignment filter for [`ta_config`].
+    fn ta12(&self) -> Result<ProposedFilter<f32>, NavError>;
+    /// The classical loop for [`vc_classical_config`], [`vc_initial`].
+    fn vc_classical(&self) -> Result<ClassicalLoop<f32>, NavError>;
+    /// The aided loop for [`vc_aided_config`], [`vc_initial`].
+    fn vc_aided(&self) -> Result<AidedLoop<f32>, NavError>;
+}
+
+/// Designs computed by the filters' own constructors (`new`): on board, at start-up.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct OnBoard;
+
+impl DesignSource for OnBoard {
+    fn ta9(&self) -> Result<ConventionalFilter<f32>, NavError> {
+        ConventionalFilter::new(ta_config())
+    }
+    fn ta12(&self) -> Result<ProposedFilter<f32>, NavError> {
+        ProposedFilter::new(ta_config())
+    }
+    fn vc_classical(&self) -> Result<ClassicalLoop<f32>, NavError> {
+        ClassicalLoop::new(&vc_classical_config(), &vc_initial())
+    }
+    fn vc_aided(&self) -> Result<AidedLoop<f32>, NavError> {
+        AidedLoop::new(&vc_aided_config(), &vc_initial())
+    }
+}
+
+/// Designs computed on the ground and stored as [`DesignValues`] lists (little-endian `f64`
+/// bytes, as written by [`design_values`] and `nav-sim golden` to `<case>.design.f64`): the
+/// filters are built with `from_design`, so an image that only uses this source links none of
+/// the design code (discretisation, Riccati solver, f64 gravity fit).
+#[derive(Debug, Clone, Copy)]
+pub struct Stored<'a> {
+    /// [`TaDesign<f32, 3>`] values.
+    pub ta9: &'a [u8],
+    /// [`TaDesign<f32, 4>`] values.
+    pub ta12: &'a [u8],
+    /// [`ClassicalDesign<f32>`] values.
+    pub vc_classical: &'a [u8],
+    /// [`AidedDesign<f32>`] values.
+    pub vc_aided: &'a [u8],
+}
+
+/// Reads a stored design of exactly `D::COUNT` little-endian f64 values.
+fn read_design<D: DesignValues>(bytes: &[u8]) -> Result<D, NavError> {
+    let mut v = [0f64; MAX_DESIGN_VALUES];
+    let n = bytes.len() / 8;
+    if bytes.len() % 8 != 0 || n != D::COUNT {
+        return Err(NavError::CapacityExceeded);
+    }
+    for (d, c) in v.iter_mut().zip(bytes.chunks_exact(8)) {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(c);
+        *d = f64::from_le_bytes(b);
+    }
+    D::read_values(v.get(..n).ok_or(NavError::CapacityExceeded)?)
+}
+
+impl DesignSource for Stored<'_> {
+    fn ta9(&self) -> Result<ConventionalFilter<f32>, NavError> {
+        ConventionalFilter::from_design(ta_config(), &read_design(self.ta9)?)
+    }
+    fn ta12(&self) -> Result<ProposedFilter<f32>, NavError> {
+        ProposedFilter::from_design(ta_config(), &read_design(self.ta12)?)
+    }
+    fn vc_classical(&self) -> Result<ClassicalLoop<f32>, NavError> {
+        ClassicalLoop::from_design(
+            &vc_classical_config(),
+            &read_design(self.vc_classical)?,
+            &vc_initial(),
+        )
+    }
+    fn vc_aided(&self) -> Result<AidedLoop<f32>, NavError> {
+        AidedLoop::from_design(
+            &vc_aided_config(),
+            &read_design(self.vc_aided)?,
+            &vc_initial(),
+        )
+    }
+}
+
+/// Largest [`DesignValues::COUNT`] of the stored designs (the 12-state TA design).
+pub const MAX_DESIGN_VALUES: usize = 240;
+
+/// Computes the design of `case` (on the host, in f32 like the filters) and writes its
+/// [`DesignValues`] to `out`; returns how many were written (0 for the seeker case, which has
+/// no configuration-time design).
+pub fn design_values(case: Case, out: &mut [f64; MAX_DESIGN_VALUES]) -> Result<usize, NavError> {
+    fn put<D: DesignValues>(d: &D, out: &mut [f64]) -> Result<usize, NavError> {
+        d.write_values(out.get_mut(..D::COUNT).ok_or(NavError::CapacityExceeded)?)?;
+        Ok(D::COUNT)
+    }
+    match case {
+        Case::Ta9 => put(&TaDesign::<f32, 3>::compute(&ta_config())?, out),
+        Case::Ta12 => put(&TaDesign::<f32, 4>::compute(&ta_config())?, out),
+        Case::VcClassical => put(
+            &ClassicalDesign::<f32>::compute(&vc_classical_config())?,
+            out,
+        ),
+        Case::VcAided => put(&AidedDesign::<f32>::compute(&vc_aided_config())?, out),
+        Case::SeekerIns => Ok(0),
+    }
+}
+
 /// Replays recorded inputs (little-endian f32 records of `case.input_len()`) through the
-/// case's filter in f32 and calls `sink(step, output record)` after every step. Returns the
-/// number of steps. A filter error is returned as is (the recording has none).
+/// case's filter in f32, built with designs computed on board ([`OnBoard`]), and calls
+/// `sink(step, output record)` after every step. Returns the number of steps. A filter error
+/// is returned as is (the recording has none).
 pub fn replay(
     case: Case,
     inputs: &[u8],
+    sink: &mut dyn FnMut(usize, &[f32]),
+) -> Result<usize, NavError> {
+    replay_with(case, inputs, &OnBoard, sink)
+}
+
+/// [`replay`] with the filters' designs taken from `designs` (dynamic, so the replay loop
+/// and the filters' steps are instantiated once whatever the source).
+pub fn replay_with(
+    case: Case,
+    inputs: &[u8],
+    designs: &dyn DesignSource,
     sink: &mut dyn FnMut(usize, &[f32]),
 ) -> Result<usize, NavError> {
     let n_in = case.input_len();
@@ -313,56 +463,56 @@ pub fn replay(
     let records = inputs.chunks_exact(4 * n_in);
     let mut steps = 0usize;
     match case {
-        Case::Ta9 | Case::Ta12 => {
-            let mut f9 = ConventionalFilter::<f32>::new(ta_config())?;
-            let mut f12 = ProposedFilter::<f32>::new(ta_config())?;
+        Case::Ta9 => {
+            let mut f = designs.ta9()?;
             for (k, bytes) in records.enumerate() {
                 for (d, v) in rec.iter_mut().zip(f32s(bytes)) {
                     *d = v;
                 }
                 let (m, s) = ta_samples(&rec);
-                if case == Case::Ta9 {
-                    f9.step(&m, &s)?;
-                    ta_output(f9.theta(), f9.theta_sigma_rad(), &mut out);
-                } else {
-                    f12.step(&m, &s)?;
-                    ta_output(f12.theta(), f12.theta_sigma_rad(), &mut out);
-                }
+                f.step(&m, &s)?;
+                ta_output(f.theta(), f.theta_sigma_rad(), &mut out);
                 sink(k, out.get(..n_out).unwrap_or(&[]));
                 steps = k + 1;
             }
         }
-        Case::VcClassical | Case::VcAided => {
-            let mut cl = ClassicalLoop::<f32>::new(&vc_classical_config(), &vc_initial())?;
-            let mut ai = AidedLoop::<f32>::new(&vc_aided_config(), &vc_initial())?;
+        Case::Ta12 => {
+            let mut f = designs.ta12()?;
             for (k, bytes) in records.enumerate() {
                 for (d, v) in rec.iter_mut().zip(f32s(bytes)) {
                     *d = v;
                 }
-                let t = val(&rec, 0);
-                let imu = ImuSample {
-                    time_s: t,
-                    specific_force_up_m_s2: val(&rec, 1),
-                };
-                let baro = BaroSample {
-                    time_s: t,
-                    altitude_m: val(&rec, 3),
-                };
-                let vel = VelocitySample {
-                    time_s: t,
-                    vz_up_m_s: val(&rec, 5),
-                };
-                let baro = (val(&rec, 2) != 0.0).then_some(&baro);
-                let vel = (val(&rec, 4) != 0.0).then_some(&vel);
-                let (h, v) = if case == Case::VcClassical {
-                    cl.step(&imu, baro)?;
-                    (cl.altitude_m(), cl.vz_up_m_s())
-                } else {
-                    ai.step(&imu, baro, vel)?;
-                    (ai.altitude_m(), ai.vz_up_m_s())
-                };
-                out[0] = h;
-                out[1] = v;
+                let (m, s) = ta_samples(&rec);
+                f.step(&m, &s)?;
+                ta_output(f.theta(), f.theta_sigma_rad(), &mut out);
+                sink(k, out.get(..n_out).unwrap_or(&[]));
+                steps = k + 1;
+            }
+        }
+        Case::VcClassical => {
+            let mut cl = designs.vc_classical()?;
+            for (k, bytes) in records.enumerate() {
+                for (d, v) in rec.iter_mut().zip(f32s(bytes)) {
+                    *d = v;
+                }
+                let (imu, baro, _) = vc_samples(&rec);
+                cl.step(&imu, baro.as_ref())?;
+                out[0] = cl.altitude_m();
+                out[1] = cl.vz_up_m_s();
+                sink(k, out.get(..n_out).unwrap_or(&[]));
+                steps = k + 1;
+            }
+        }
+        Case::VcAided => {
+            let mut ai = designs.vc_aided()?;
+            for (k, bytes) in records.enumerate() {
+                for (d, v) in rec.iter_mut().zip(f32s(bytes)) {
+                    *d = v;
+                }
+                let (imu, baro, vel) = vc_samples(&rec);
+                ai.step(&imu, baro.as_ref(), vel.as_ref())?;
+                out[0] = ai.altitude_m();
+                out[1] = ai.vz_up_m_s();
                 sink(k, out.get(..n_out).unwrap_or(&[]));
                 steps = k + 1;
             }

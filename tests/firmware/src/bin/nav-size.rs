@@ -1,39 +1,34 @@
-//! The size image: every filter's constructor and step path (through the golden-vector replay
-//! driver, fed an opaque empty input so nothing is optimised away), no bench harness and no
+//! The flight size image: every filter built from designs computed on the host and stored in
+//! the image (`from_design`: no design code linked) and its step path, no bench harness and no
 //! recorded vectors. `cargo xtask bench` reports its `.text` as the cost in flash of the
-//! filters.
+//! filters; `nav-size-onboard` is the same with the designs computed on board.
 #![no_std]
 #![no_main]
 
 #[path = "../logger.rs"]
 mod logger;
+#[path = "../size_image.rs"]
+mod size_image;
 
 use cortex_m_rt::{entry, exception, ExceptionFrame};
 use cortex_m_semihosting::debug;
 
+macro_rules! design_file {
+    ($name:literal) => {
+        include_bytes!(concat!(env!("OUT_DIR"), "/", $name, ".design.f64")).as_slice()
+    };
+}
+
 #[entry]
 fn main() -> ! {
-    let inputs: &[u8] = core::hint::black_box(&[]);
-    let mut values = 0usize;
-    let mut failed = 0u32;
-    for case in nav_golden::CASES {
-        match nav_golden::replay(case, inputs, &mut |_, out| values += out.len()) {
-            Ok(steps) => values += steps,
-            Err(_) => failed += 1,
-        }
-    }
-    defmt::println!(
-        "SIZE image ran: values={=usize} failed={=u32}",
-        values,
-        failed
-    );
-    debug::exit(if failed == 0 {
-        debug::EXIT_SUCCESS
-    } else {
-        debug::EXIT_FAILURE
-    });
-    #[allow(clippy::empty_loop)]
-    loop {}
+    // The stored designs are opaque to the optimiser (a flash parameter block).
+    let designs = nav_golden::Stored {
+        ta9: core::hint::black_box(design_file!("ta9")),
+        ta12: core::hint::black_box(design_file!("ta12")),
+        vc_classical: core::hint::black_box(design_file!("vc_classical")),
+        vc_aided: core::hint::black_box(design_file!("vc_aided")),
+    };
+    size_image::run(&designs)
 }
 
 #[exception]
