@@ -15,6 +15,33 @@
 //! [`crate::transfer_alignment::TaDesign`]: `15 K²` values;
 //! [`crate::vertical_channel::ClassicalDesign`]: 68 values;
 //! [`crate::vertical_channel::AidedDesign`]: 108 values.
+//!
+//! ```
+//! use nav_core::design::DesignValues;
+//! use nav_core::vertical_channel::{
+//!     AidTimeouts, ClassicalConfig, ClassicalDesign, ClassicalLoop, InitialState,
+//! };
+//!
+//! let cfg = ClassicalConfig {
+//!     imu_dt_s: 0.01,
+//!     latitude_rad: 0.65,
+//!     tau_s: 20.0,
+//!     baro_lag_s: 0.2,
+//!     baro_timeouts: AidTimeouts { stale_after_s: 0.06, lost_after_s: 0.5 },
+//! };
+//! let init = InitialState { time_s: 0.0_f32, altitude_m: 500.0, vz_up_m_s: 0.0, accel_bias_m_s2: 0.0 };
+//!
+//! // On the ground (or at build time): design and store.
+//! let design = ClassicalDesign::<f32>::compute(&cfg)?;
+//! let mut stored = [0.0_f64; ClassicalDesign::<f32>::COUNT];
+//! design.write_values(&mut stored)?;
+//!
+//! // On board: load and run, no design code.
+//! let loaded = ClassicalDesign::<f32>::read_values(&stored)?;
+//! let lp = ClassicalLoop::from_design(&cfg, &loaded, &init)?;
+//! assert_eq!(lp, ClassicalLoop::new(&cfg, &init)?);
+//! # Ok::<(), nav_core::NavError>(())
+//! ```
 use crate::error::ConfigIssue;
 use crate::{NavError, Real};
 use nalgebra::SMatrix;

@@ -227,7 +227,7 @@ fn ta_refusals<T: Real, const K: usize, const N: usize>() {
     );
     // A design for another mount σ.
     let mut other = cfg;
-    other.mount_sigma_rad.y = other.mount_sigma_rad.y * T::lit(2.0);
+    other.mount_sigma_rad.y *= T::lit(2.0);
     assert_eq!(
         TransferAlignment::<T, K, N>::from_design(other, &good).err(),
         Some(invalid("design.p0", ConfigIssue::OutOfRange))
