@@ -410,13 +410,17 @@ proptest! {
     /// f32 and f64 runs of the same inputs agree over a long run (6 000 steps, up to 300 s).
     /// Stated tolerance, per loop and per state (h, V_z, b̂): the RMS over the run of
     /// f32 − f64 is at most 10 % of (the RMS of the f64 estimation error + a resolution floor
-    /// of 0.01 m + 1e-6 |h|, 5 mm/s, 5e-4 m/s²: f32 inputs at 40 km are quantised to 4 mm).
-    /// f32 arithmetic adds well under a tenth to the estimation error (worst over 200 random
-    /// setups: < 4 %, aided V_z). No gate, so both take the same samples.
+    /// of 0.01 m + 1e-6 |h|, 5 mm/s, 5e-4 m/s²). Both loops get the same f32-representable
+    /// inputs (what a firmware receives), so the comparison isolates the f32 *arithmetic*,
+    /// which adds well under a tenth to the estimation error. No gate, so both take the same
+    /// samples. (Rounding the inputs themselves to f32 is a separate effect: with |V_z| near
+    /// 800 m/s, f32 time stamps at ~100 s resolve 7.6 µs, i.e. ~6 mm of altitude per sample,
+    /// which can reach a quarter of the f64 error with a 5 cm baro — the regression case
+    /// below; use time stamps relative to a recent epoch or integer ticks on the target.)
     #[test]
     fn f32_agrees_with_f64_over_a_long_run(mut s in setup_strategy()) {
         s.gate = false;
-        let ins = inputs(&s, STEPS);
+        let ins = f32_representable(&inputs(&s, STEPS));
         let mut c32 = ClassicalLoop::<f32>::new(&s.classical(), &s.init()).unwrap();
         let mut c64 = ClassicalLoop::<f64>::new(&s.classical(), &s.init()).unwrap();
         let mut a32 = AidedLoop::<f32>::new(&s.aided(), &s.init()).unwrap();
@@ -430,6 +434,20 @@ proptest! {
             prop_assert!(r.iter().all(|&v| v <= 0.1), "loop {}: {:?}", l, r);
         }
     }
+}
+
+/// The inputs rounded to f32 (the values an f32 firmware receives); the truth is kept.
+fn f32_representable(ins: &[Inputs]) -> Vec<Inputs> {
+    let r = |v: f64| f64::from(v as f32);
+    ins.iter()
+        .map(|i| Inputs {
+            t: r(i.t),
+            f: r(i.f),
+            baro: i.baro.map(|(t, z)| (r(t), r(z))),
+            vel: i.vel.map(|(t, z)| (r(t), r(z))),
+            truth: i.truth,
+        })
+        .collect()
 }
 
 /// RMS over the run of the f32 − f64 difference of (h, V_z, b̂) divided by
@@ -837,6 +855,48 @@ fn regression_cases_found_by_proptest() {
         &s,
     );
     assert!(r.iter().all(|&v| v <= 0.1), "{r:?}");
+    // 3. Extreme dynamics (4.5 km at 0.17 rad/s: |V_z| ≈ 790 m/s, 14 g) with a 5 cm baro and
+    //    a 0.34 s lag: the f32 arithmetic agrees with f64 (the property below), but rounding the
+    //    *inputs* to f32 moves the f64 loop itself by ~24 % of its error in h (time stamps:
+    //    7.6 µs resolution at ~100 s × 790 m/s). Both effects are pinned here.
+    let s3 = Setup {
+        dt_s: 0.02,
+        lat_rad: 0.0,
+        tau_s: 5.0,
+        lag_s: 0.339_881_794_859_098_7,
+        accel_noise: 0.049_411_033_227_448_53,
+        bias_rw: 1e-6,
+        baro_every: 2,
+        vel_every: 1,
+        baro_noise_m: 0.05,
+        vel_noise_m_s: 1.366_990_204_858_6,
+        h0_m: 5_587.235_864_863_554,
+        amp_m: 4_541.525_425_526_204,
+        omega: 0.174_916_445_572_401_82,
+        phase: 0.0,
+        accel_bias_m_s2: 0.0,
+        init_err_m: 0.0,
+        init_err_m_s: 0.0,
+        drop_p: 0.0,
+        outage: (0.437_389_618_671_904_3, 0.458_984_463_083_430_9),
+        gate: false,
+        seed: 0,
+    };
+    let exact = inputs(&s3, STEPS);
+    let rounded = f32_representable(&exact);
+    let mut a64 = AidedLoop::<f64>::new(&s3.aided(), &s3.init()).unwrap();
+    let mut a64r = AidedLoop::<f64>::new(&s3.aided(), &s3.init()).unwrap();
+    let mut a32 = AidedLoop::<f32>::new(&s3.aided(), &s3.init()).unwrap();
+    let x64 = run_checked(&mut a64, &exact, &s3);
+    let x64r = run_checked(&mut a64r, &rounded, &s3);
+    let x32 = run_checked(&mut a32, &rounded, &s3);
+    let arithmetic = agreement(&x32, &x64r, &rounded, &s3);
+    assert!(arithmetic.iter().all(|&v| v <= 0.1), "{arithmetic:?}");
+    let input_rounding = agreement(&x64r, &x64, &exact, &s3);
+    assert!(
+        input_rounding[0] > 0.1 && input_rounding[0] < 0.5,
+        "{input_rounding:?}"
+    );
     // 2. Extreme noise ratios: the Riccati design either refuses with a typed error or returns
     //    a solution that meets its own residual bound with a stable closed loop — never a wrong
     //    design silently (the property tests draw accel noise ≥ 1e-4 and bias RW ≥ 1e-6).

@@ -233,6 +233,27 @@ impl<T: Real, const M: usize> SparseRow<T, M> {
         acc
     }
 
+    /// Checks the row for use with an N-state vector: every stored value finite
+    /// (`NonFiniteInput`), indices strictly ascending and < N (`InputOutOfRange`).
+    #[inline(always)]
+    pub fn validate<const N: usize>(&self) -> Result<(), NavError> {
+        let mut prev: Option<usize> = None;
+        for (j, hj) in self.entries() {
+            if !finite(hj) {
+                return Err(NavError::NonFiniteInput {
+                    input: "measurement row h",
+                });
+            }
+            if j >= N || prev.is_some_and(|q| q >= j) {
+                return Err(NavError::InputOutOfRange {
+                    input: "measurement row index",
+                });
+            }
+            prev = Some(j);
+        }
+        Ok(())
+    }
+
     /// The dense row (for tests and analysis).
     pub fn to_dense<const N: usize>(&self) -> SVector<T, N> {
         let mut h = SVector::<T, N>::zeros();
@@ -283,32 +304,32 @@ pub fn sparse_covariance_product<T: Real, const N: usize, const M: usize>(
     p: &SMatrix<T, N, N>,
     h: &SparseRow<T, M>,
 ) -> Result<SVector<T, N>, NavError> {
+    h.validate::<N>()?;
+    Ok(covariance_times_row(p, h))
+}
+
+/// `b = P h` for a row already known valid ([`SparseRow::validate`], or built by the caller
+/// from validated inputs with in-range ascending indices): one pass over the `len` stored
+/// columns, each a fixed-size column of P (constant trip count, no bounds checks inside). An
+/// out-of-range index (impossible for a valid row) contributes nothing.
+///
+/// Not inlined: one compact copy per (N, M) serves every row of a filter (inlined with
+/// constant rows, the unrolled products cost kilobytes of flash per filter for a few tens of
+/// instructions per row).
+#[inline(never)]
+pub fn covariance_times_row<T: Real, const N: usize, const M: usize>(
+    p: &SMatrix<T, N, N>,
+    h: &SparseRow<T, M>,
+) -> SVector<T, N> {
     let mut b = [T::zero(); N];
-    let mut prev: Option<usize> = None;
-    for (j, hj) in h.entries() {
-        if !finite(hj) {
-            return Err(NavError::NonFiniteInput {
-                input: "measurement row h",
-            });
-        }
-        let col = match p.data.0.get(j) {
-            Some(col) if prev.is_none_or(|q| q < j) => col,
-            _ => {
-                return Err(NavError::InputOutOfRange {
-                    input: "measurement row index",
-                })
-            }
-        };
-        prev = Some(j);
-        if hj != T::zero() {
+    for (&j, &hj) in h.index.iter().zip(h.value.iter()).take(h.len) {
+        if let Some(col) = p.data.0.get(j) {
             for (bi, &pij) in b.iter_mut().zip(col) {
                 *bi += hj * pij;
             }
         }
     }
-    Ok(SVector::<T, N>::from_array_storage(nalgebra::ArrayStorage(
-        [b],
-    )))
+    SVector::<T, N>::from_array_storage(nalgebra::ArrayStorage([b]))
 }
 
 /// The scalar Joseph update of [`fuse_scalar`] given `b = P h` and `hᵀ P h = hᵀ b` computed

@@ -23,7 +23,7 @@ use crate::error::{require_non_negative, require_positive, ConfigIssue};
 #[allow(unused_imports)]
 use crate::math::kalman::fuse_scalar;
 use crate::math::kalman::{
-    fuse_scalar_prepared, sparse_covariance_product, FusionOutcome, FusionReport, Gate,
+    covariance_times_row, fuse_scalar_prepared, FusionOutcome, FusionReport, Gate,
 };
 use crate::math::rotation::exp_so3;
 use crate::{NavError, Real};
@@ -633,7 +633,9 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
                     );
                     let r = if $row < 3 { r_rate } else { r_accel };
                     let innovation = zi - h.dot(&x);
-                    let b = sparse_covariance_product(p, &h)?;
+                    // Built from validated, range-checked inputs with in-range ascending
+                    // indices by construction (tested): no per-entry validation.
+                    let b = covariance_times_row(p, &h);
                     let hph = h.dot(&b);
                     *rep = fuse_scalar_prepared(&mut x, p, &b, hph, innovation, r, gate)?;
                 }
