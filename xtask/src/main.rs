@@ -256,6 +256,30 @@ fn ci() -> Result<(), String> {
             ]),
         ),
     );
+    // nav-core as a flight build takes it: without its default (analysis) features.
+    step(
+        "clippy (nav-core, no default features)",
+        run(
+            "clippy nav-core --no-default-features",
+            cargo().args([
+                "clippy",
+                "-p",
+                "nav-core",
+                "--no-default-features",
+                "--all-targets",
+                "--",
+                "-D",
+                "warnings",
+            ]),
+        ),
+    );
+    step(
+        "test (nav-core, no default features)",
+        run(
+            "test nav-core --no-default-features",
+            cargo().args(["test", "-p", "nav-core", "--no-default-features"]),
+        ),
+    );
     // The thumb build first: it installs the targets the thumb clippy needs.
     let thumb_result = thumb();
     let thumb_ok = thumb_result.is_ok();

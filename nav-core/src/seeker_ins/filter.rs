@@ -16,10 +16,14 @@
 use super::error_model::{
     propagate_covariance_sparse, SparseF, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
 };
-use super::measurement::{los_model, los_model_3d, GimbalAngles, Landmark};
+#[cfg(feature = "los-residual-3d")]
+use super::measurement::los_model_3d;
+use super::measurement::{los_model, GimbalAngles, Landmark};
 use super::mechanization::{ImuIncrement, Ins, InsState};
 use crate::error::ConfigIssue;
-use crate::math::kalman::{fuse_scalar, FusionOutcome, FusionReport, Gate};
+#[cfg(feature = "los-residual-3d")]
+use crate::math::kalman::fuse_scalar;
+use crate::math::kalman::{FusionOutcome, FusionReport, Gate};
 use crate::{NavError, Real};
 use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 
@@ -55,7 +59,9 @@ pub enum LosResidual {
     Projected2d,
     /// The NED 3-vector with full-rank `R = σ² I₃` ([`super::measurement::los_model_3d`]);
     /// the report's `pitch`/`yaw` then hold the N and E components, the D component is fused
-    /// as well but reported only through the state.
+    /// as well but reported only through the state. Needs the crate feature
+    /// `los-residual-3d` (default); without it [`SeekerIns::new`] refuses it
+    /// (`InvalidConfig { field: "residual" }`).
     FullRank3d,
 }
 
@@ -243,6 +249,12 @@ impl<T: Real> SeekerIns<T> {
         )?;
         require_positive("seeker_noise_rad", config.seeker_noise_rad)?;
         require_positive("gate_nis", config.gate_nis)?;
+        if cfg!(not(feature = "los-residual-3d")) && config.residual == LosResidual::FullRank3d {
+            return Err(NavError::InvalidConfig {
+                field: "residual",
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
         if config.covariance_interval_steps == 0 {
             return Err(NavError::InvalidConfig {
                 field: "covariance_interval_steps",
@@ -604,6 +616,7 @@ impl<T: Real> SeekerIns<T> {
         let s = self.ins.state();
         let gate = Gate::Nis(self.config.gate_nis);
         let c_b_n = self.ins.c_b_n();
+        #[cfg(feature = "los-residual-3d")]
         if self.config.residual == LosResidual::FullRank3d {
             return self.update_los_3d(&corrected, &c_b_n, gate);
         }
@@ -747,6 +760,7 @@ impl<T: Real> SeekerIns<T> {
 
     /// The comparison variant: three scalar updates with the shared `fuse_scalar` on a copy
     /// (not inlined: its copy of the filter stays out of the 2-D path's stack frame).
+    #[cfg(feature = "los-residual-3d")]
     #[inline(never)]
     fn update_los_3d(
         &mut self,
@@ -857,4 +871,67 @@ fn scalar_report<T: Real>(
         },
         inv_s,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::seeker_ins::mechanization::Position;
+    use nalgebra::Quaternion;
+
+    fn setup(residual: LosResidual) -> (SeekerInsConfig<f32>, InsState<f32>, SMatrix<f32, 17, 17>) {
+        let start = Position {
+            lat_rad: 37f64.to_radians(),
+            lon_rad: 127f64.to_radians(),
+            alt_m: 1000.0,
+        };
+        let target = Position {
+            lat_rad: 37.05f64.to_radians(),
+            ..start
+        };
+        let cfg = SeekerInsConfig {
+            imu_dt_s: 0.01,
+            covariance_interval_steps: 10,
+            accel_noise_density_m_s2_rt_hz: 5e-5,
+            gyro_noise_density_rad_s_rt_hz: 3e-6,
+            seeker_noise_rad: 3e-3,
+            gate_nis: 16.0,
+            landmark: Landmark::new(target).unwrap(),
+            residual,
+        };
+        let init = InsState {
+            position: start,
+            vel_ned_m_s: Vector3::new(200.0, 0.0, 0.0),
+            q_b_n: Quaternion::new(1.0, 0.0, 0.0, 0.0),
+        };
+        let p0 = SMatrix::<f32, 17, 17>::from_diagonal_element(1e-8);
+        (cfg, init, p0)
+    }
+
+    /// Without the `los-residual-3d` feature (a flight build), the comparison residual is
+    /// refused at configuration and the design choice still works
+    /// (`cargo test -p nav-core --no-default-features`, run by `cargo xtask ci`).
+    #[cfg(not(feature = "los-residual-3d"))]
+    #[test]
+    fn full_rank_3d_needs_its_feature() {
+        let (cfg, init, p0) = setup(LosResidual::FullRank3d);
+        assert_eq!(
+            SeekerIns::new(cfg, init, &p0).err(),
+            Some(NavError::InvalidConfig {
+                field: "residual",
+                issue: ConfigIssue::OutOfRange,
+            })
+        );
+        let (cfg, init, p0) = setup(LosResidual::Projected2d);
+        assert!(SeekerIns::new(cfg, init, &p0).is_ok());
+    }
+
+    #[cfg(feature = "los-residual-3d")]
+    #[test]
+    fn both_residuals_configure_with_the_feature() {
+        for residual in [LosResidual::Projected2d, LosResidual::FullRank3d] {
+            let (cfg, init, p0) = setup(residual);
+            assert!(SeekerIns::new(cfg, init, &p0).is_ok());
+        }
+    }
 }
