@@ -161,14 +161,41 @@ impl<'a> ValueReader<'a> {
         }
     }
 
+    /// Fills `out` with the next `out.len()` values in the float type, in order ([`Self::real`]
+    /// for each; stops at the first error). One looping copy per float type, whatever the
+    /// matrix sizes read through it.
+    #[inline(never)]
+    pub(crate) fn fill<T: Real>(&mut self, out: &mut [T]) -> Result<(), NavError> {
+        for v in out.iter_mut() {
+            *v = self.real()?;
+        }
+        Ok(())
+    }
+
+    /// [`Self::fill`] for every slice of `parts`, in order.
+    #[inline(never)]
+    pub(crate) fn fill_parts<T: Real>(&mut self, parts: &mut [&mut [T]]) -> Result<(), NavError> {
+        for p in parts.iter_mut() {
+            self.fill(p)?;
+        }
+        Ok(())
+    }
+
+    /// Fills `out` with the next `out.len()` `f64` values, in order.
+    #[inline(never)]
+    pub(crate) fn fill_f64(&mut self, out: &mut [f64]) -> Result<(), NavError> {
+        for v in out.iter_mut() {
+            *v = self.value()?;
+        }
+        Ok(())
+    }
+
     /// The next matrix in the float type, column by column.
     pub(crate) fn matrix<T: Real, const R: usize, const C: usize>(
         &mut self,
     ) -> Result<SMatrix<T, R, C>, NavError> {
         let mut m = SMatrix::<T, R, C>::zeros();
-        for v in m.iter_mut() {
-            *v = self.real()?;
-        }
+        self.fill(m.as_mut_slice())?;
         Ok(m)
     }
 
@@ -177,9 +204,7 @@ impl<'a> ValueReader<'a> {
         &mut self,
     ) -> Result<SMatrix<f64, R, C>, NavError> {
         let mut m = SMatrix::<f64, R, C>::zeros();
-        for v in m.iter_mut() {
-            *v = self.value()?;
-        }
+        self.fill_f64(m.as_mut_slice())?;
         Ok(m)
     }
 

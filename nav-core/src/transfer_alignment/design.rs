@@ -6,7 +6,9 @@
 use super::filter::TaConfig;
 use super::model::{axis_chains, AxisChain, FlexureModel};
 use crate::design::{DesignValues, ValueReader, ValueWriter};
+use crate::math::checks::{first_row_and_column_unit, symmetric_non_negative_diagonal};
 use crate::{NavError, Real};
+use nalgebra::SMatrix;
 
 /// Precomputed design of a transfer-alignment filter with `K` states per axis chain
 /// (K = 3: [`super::ConventionalFilter`], K = 4: [`super::ProposedFilter`]).
@@ -52,16 +54,23 @@ impl<T: Real, const K: usize> DesignValues for TaDesign<T, K> {
 
     fn read_values(values: &[f64]) -> Result<Self, NavError> {
         let mut r = ValueReader::new(values, Self::COUNT)?;
-        let mut chain = || -> Result<AxisChain<T, K>, NavError> {
-            Ok(AxisChain {
-                f: r.matrix()?,
-                q_c: r.matrix()?,
-                phi: r.matrix()?,
-                q_d: r.matrix()?,
-                p0: r.matrix()?,
-            })
-        };
-        let chains = [chain()?, chain()?, chain()?];
+        let z = SMatrix::<T, K, K>::zeros();
+        let mut chains = [AxisChain {
+            f: z,
+            q_c: z,
+            phi: z,
+            q_d: z,
+            p0: z,
+        }; 3];
+        for ch in chains.iter_mut() {
+            r.fill_parts(&mut [
+                ch.f.as_mut_slice(),
+                ch.q_c.as_mut_slice(),
+                ch.phi.as_mut_slice(),
+                ch.q_d.as_mut_slice(),
+                ch.p0.as_mut_slice(),
+            ])?;
+        }
         r.finish()?;
         Ok(Self { chains })
     }
@@ -82,23 +91,15 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
         ];
         for (ch, m) in self.chains.iter().zip(mounts) {
             for (field, mat) in [("design.q_d", &ch.q_d), ("design.p0", &ch.p0)] {
-                let symmetric = mat == &mat.transpose();
-                let diag_ok = mat.diagonal().iter().all(|v| *v >= T::zero());
-                if !(symmetric && diag_ok) {
+                // `mat == matᵀ` and a non-negative diagonal (one looping copy).
+                if !symmetric_non_negative_diagonal(mat.as_slice(), K) {
                     return Err(bad(field));
                 }
             }
             if ch.p0.get((0, 0)).copied() != Some(m * m) {
                 return Err(bad("design.p0"));
             }
-            let e1_row = ch
-                .phi
-                .row(0)
-                .iter()
-                .enumerate()
-                .all(|(j, v)| *v == if j == 0 { T::one() } else { T::zero() });
-            let e1_col = ch.phi.column(0).iter().skip(1).all(|v| *v == T::zero());
-            if !(e1_row && e1_col) {
+            if !first_row_and_column_unit(ch.phi.as_slice(), K) {
                 return Err(bad("design.phi"));
             }
         }
@@ -106,6 +107,8 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
     }
 }
 
+#[cold]
+#[inline(never)]
 fn bad(field: &'static str) -> NavError {
     NavError::InvalidConfig {
         field,

@@ -25,6 +25,7 @@ use crate::math::kalman::fuse_scalar;
 use crate::math::kalman::{
     fuse_scalar_prepared, sparse_covariance_product, FusionOutcome, FusionReport, Gate,
 };
+use crate::math::checks::all_finite_parts;
 use crate::math::rotation::exp_so3;
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
@@ -345,11 +346,10 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
                 });
             }
         }
-        if !p.iter().all(|v| v.is_finite())
-            || !chains
-                .iter()
-                .all(|c| c.phi.iter().chain(c.q_d.iter()).all(|v| v.is_finite()))
-        {
+        // Every P0 (the blocks of `p`, zero elsewhere), Φ and Q_d value finite.
+        if !chains.iter().all(|c| {
+            all_finite_parts(&[c.p0.as_slice(), c.phi.as_slice(), c.q_d.as_slice()])
+        }) {
             return Err(NavError::InvalidConfig {
                 field: "flexure",
                 issue: ConfigIssue::OutOfRange,
