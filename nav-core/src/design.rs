@@ -166,6 +166,7 @@ impl<'a> ValueReader<'a> {
     /// matrix sizes read through it.
     #[inline(never)]
     pub(crate) fn fill<T: Real>(&mut self, out: &mut [T]) -> Result<(), NavError> {
+        let out = crate::math::checks::opaque(out);
         for v in out.iter_mut() {
             *v = self.real()?;
         }
@@ -175,6 +176,7 @@ impl<'a> ValueReader<'a> {
     /// [`Self::fill`] for every slice of `parts`, in order.
     #[inline(never)]
     pub(crate) fn fill_parts<T: Real>(&mut self, parts: &mut [&mut [T]]) -> Result<(), NavError> {
+        let parts = crate::math::checks::opaque(parts);
         for p in parts.iter_mut() {
             self.fill(p)?;
         }
@@ -184,19 +186,11 @@ impl<'a> ValueReader<'a> {
     /// Fills `out` with the next `out.len()` `f64` values, in order.
     #[inline(never)]
     pub(crate) fn fill_f64(&mut self, out: &mut [f64]) -> Result<(), NavError> {
+        let out = crate::math::checks::opaque(out);
         for v in out.iter_mut() {
             *v = self.value()?;
         }
         Ok(())
-    }
-
-    /// The next matrix in the float type, column by column.
-    pub(crate) fn matrix<T: Real, const R: usize, const C: usize>(
-        &mut self,
-    ) -> Result<SMatrix<T, R, C>, NavError> {
-        let mut m = SMatrix::<T, R, C>::zeros();
-        self.fill(m.as_mut_slice())?;
-        Ok(m)
     }
 
     /// The next `f64` matrix, column by column.

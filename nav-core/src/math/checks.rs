@@ -8,15 +8,25 @@
 //! with the exact expression it is equal to (same result, bit for bit, for any input).
 use crate::Real;
 
+/// The value, hidden from the optimiser: with LTO a helper called with one dimension only
+/// would be specialised to it (constant propagation into the out-of-line copy) and unrolled
+/// again. Costs a store and a load per call.
+#[inline(always)]
+pub(crate) fn opaque<V>(v: V) -> V {
+    core::hint::black_box(v)
+}
+
 /// `true` when every value is finite (not NaN or ±∞).
 #[inline(never)]
 pub fn all_finite<T: Real>(values: &[T]) -> bool {
+    let values = opaque(values);
     values.iter().all(|v| v.is_finite())
 }
 
 /// `true` when every slice of `parts` is [`all_finite`].
 #[inline(never)]
 pub fn all_finite_parts<T: Real>(parts: &[&[T]]) -> bool {
+    let parts = opaque(parts);
     parts.iter().all(|p| all_finite(p))
 }
 
@@ -32,6 +42,7 @@ fn at<T: Real>(m: &[T], n: usize, i: usize, j: usize) -> Option<T> {
 /// `false` if `m.len() != n²`.
 #[inline(never)]
 pub fn symmetric_non_negative_diagonal<T: Real>(m: &[T], n: usize) -> bool {
+    let (m, n) = opaque((m, n));
     if n.checked_mul(n) != Some(m.len()) {
         return false;
     }
@@ -42,6 +53,7 @@ pub fn symmetric_non_negative_diagonal<T: Real>(m: &[T], n: usize) -> bool {
             _ => return false,
         }
         for i in (j + 1)..n {
+            let i = opaque(i); // keeps the loop rolled
             if at(m, n, i, j) != at(m, n, j, i) {
                 return false;
             }
@@ -55,6 +67,7 @@ pub fn symmetric_non_negative_diagonal<T: Real>(m: &[T], n: usize) -> bool {
 /// zero). `false` if `m.len() != n²` or `n == 0`.
 #[inline(never)]
 pub fn first_row_and_column_unit<T: Real>(m: &[T], n: usize) -> bool {
+    let (m, n) = opaque((m, n));
     if n == 0 || n.checked_mul(n) != Some(m.len()) {
         return false;
     }
@@ -70,9 +83,11 @@ pub fn first_row_and_column_unit<T: Real>(m: &[T], n: usize) -> bool {
 /// empty matrix. Only the first `n²` values are used.
 #[inline(never)]
 pub fn max_asymmetry<T: Real>(m: &[T], n: usize) -> T {
+    let (m, n) = opaque((m, n));
     let mut acc: Option<T> = None;
     for j in 0..n {
         for i in 0..n {
+            let i = opaque(i); // keeps the loop rolled
             let d = match (at(m, n, i, j), at(m, n, j, i)) {
                 (Some(a), Some(b)) => (a - b).abs(),
                 _ => T::zero(),
@@ -92,12 +107,14 @@ pub fn max_asymmetry<T: Real>(m: &[T], n: usize) -> T {
 /// same answer for every input). `work` is overwritten. `false` if `work.len() != n²`.
 #[inline(never)]
 pub fn psd_in_place<T: Real>(work: &mut [T], n: usize, rel_eps: T) -> bool {
+    let (work, n) = opaque((work, n));
     if n.checked_mul(n) != Some(work.len()) || !all_finite(work) {
         return false;
     }
     // trace (nalgebra sums from zero, in index order).
     let mut trace = T::zero();
     for i in 0..n {
+        let i = opaque(i); // keeps the loop rolled
         trace += at(work, n, i, i).unwrap_or_else(T::zero);
     }
     let shift = rel_eps * trace.abs().max(T::lit(1e-30));
@@ -105,6 +122,7 @@ pub fn psd_in_place<T: Real>(work: &mut [T], n: usize, rel_eps: T) -> bool {
     let off = T::zero() * shift;
     for j in 0..n {
         for i in j..n {
+            let i = opaque(i); // keeps the loop rolled
             let (Some(a), Some(b)) = (at(work, n, i, j), at(work, n, j, i)) else {
                 return false;
             };
@@ -120,6 +138,7 @@ pub fn psd_in_place<T: Real>(work: &mut [T], n: usize, rel_eps: T) -> bool {
         for k in 0..j {
             let factor = -at(work, n, j, k).unwrap_or_else(T::zero);
             for i in j..n {
+                let i = opaque(i); // keeps the loop rolled
                 let x = at(work, n, i, k).unwrap_or_else(T::zero);
                 if let Some(y) = work.get_mut(j * n + i) {
                     // axpy(a, x, 1): y = a·x·1 + 1·y
@@ -137,6 +156,7 @@ pub fn psd_in_place<T: Real>(work: &mut [T], n: usize, rel_eps: T) -> bool {
             *e = denom;
         }
         for i in (j + 1)..n {
+            let i = opaque(i); // keeps the loop rolled
             if let Some(e) = work.get_mut(j * n + i) {
                 *e /= denom;
             }

@@ -303,6 +303,25 @@ fn in_range3<T: Real>(input: &'static str, v: &Vector3<T>, limit: f64) -> Result
     }
 }
 
+/// Writes the `k × k` blocks (column-major slices) on the block diagonal of the column-major
+/// `n × n` matrix `p` (block `a` at rows and columns `k·a ..`), leaving the rest of `p` as it
+/// is. Configuration time only: not generic over the dimensions and out of line.
+#[inline(never)]
+fn block_diagonal<T: Real>(p: &mut [T], n: usize, blocks: &[&[T]], k: usize) {
+    let (p, n, blocks, k) = crate::math::checks::opaque((p, n, blocks, k));
+    if k == 0 {
+        return;
+    }
+    for (a, block) in blocks.iter().enumerate() {
+        for (c, col) in block.chunks_exact(k).enumerate() {
+            let start = (k * a + c) * n + k * a;
+            if let Some(dst) = p.get_mut(start..start + k) {
+                dst.copy_from_slice(col);
+            }
+        }
+    }
+}
+
 impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// Validates the configuration, discretises the per-axis chains at `dt_s` and starts from
     /// x = 0 with P = blockdiag(σ_m², stationary flexure covariance).
@@ -328,7 +347,18 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         let model = FlexureModel::for_dims::<K, N>()?;
         cfg.validate()?;
         let chains = design.chains;
-        let p = Self::initial_covariance(&chains);
+        let mut p = SMatrix::<T, N, N>::zeros();
+        // = `initial_covariance(&chains)`, with one looping copy for both filters.
+        block_diagonal(
+            p.as_mut_slice(),
+            N,
+            &[
+                chains[0].p0.as_slice(),
+                chains[1].p0.as_slice(),
+                chains[2].p0.as_slice(),
+            ],
+            K,
+        );
         let r_rate = cfg.rate_noise_sigma_rad_s * cfg.rate_noise_sigma_rad_s;
         let r_accel = cfg.accel_noise_sigma_m_s2 * cfg.accel_noise_sigma_m_s2;
         let inv_dt = T::one() / cfg.dt_s;
@@ -1002,6 +1032,35 @@ mod tests {
         c.nis_gate = Some(0.0);
         assert!(ProposedFilter::new(c).is_err());
         assert!(TransferAlignment::<f32, 4, 9>::new(ok).is_err());
+    }
+
+    #[test]
+    fn block_diagonal_equals_initial_covariance() {
+        fn check<T: Real, const K: usize, const N: usize>() {
+            let f = TransferAlignment::<T, K, N>::new(cfg::<T>()).unwrap();
+            let mut chains = *f.chains();
+            // Distinct values everywhere, so a misplaced element shows.
+            for (a, ch) in chains.iter_mut().enumerate() {
+                for (i, v) in ch.p0.iter_mut().enumerate() {
+                    *v = T::lit((100 * a + i + 1) as f64);
+                }
+            }
+            let mut p = SMatrix::<T, N, N>::zeros();
+            let blocks = [
+                chains[0].p0.as_slice(),
+                chains[1].p0.as_slice(),
+                chains[2].p0.as_slice(),
+            ];
+            block_diagonal(p.as_mut_slice(), N, &blocks, K);
+            assert_eq!(
+                p,
+                TransferAlignment::<T, K, N>::initial_covariance(&chains)
+            );
+        }
+        check::<f32, 3, 9>();
+        check::<f64, 3, 9>();
+        check::<f32, 4, 12>();
+        check::<f64, 4, 12>();
     }
 
     #[test]
