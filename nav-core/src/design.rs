@@ -193,13 +193,14 @@ impl<'a> ValueReader<'a> {
         Ok(())
     }
 
-    /// The next `f64` matrix, column by column.
-    pub(crate) fn matrix_f64<const R: usize, const C: usize>(
-        &mut self,
-    ) -> Result<SMatrix<f64, R, C>, NavError> {
-        let mut m = SMatrix::<f64, R, C>::zeros();
-        self.fill_f64(m.as_mut_slice())?;
-        Ok(m)
+    /// [`Self::fill_f64`] for every slice of `parts`, in order.
+    #[inline(never)]
+    pub(crate) fn fill_parts_f64(&mut self, parts: &mut [&mut [f64]]) -> Result<(), NavError> {
+        let parts = crate::math::checks::opaque(parts);
+        for p in parts.iter_mut() {
+            self.fill_f64(p)?;
+        }
+        Ok(())
     }
 
     /// `Ok` when every value was read.

@@ -89,22 +89,45 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
             cfg.mount_sigma_rad.y,
             cfg.mount_sigma_rad.z,
         ];
-        for (ch, m) in self.chains.iter().zip(mounts) {
-            for (field, mat) in [("design.q_d", &ch.q_d), ("design.p0", &ch.p0)] {
-                // `mat == matᵀ` and a non-negative diagonal (one looping copy).
-                if !symmetric_non_negative_diagonal(mat.as_slice(), K) {
-                    return Err(bad(field));
-                }
-            }
-            if ch.p0.get((0, 0)).copied() != Some(m * m) {
-                return Err(bad("design.p0"));
-            }
-            if !first_row_and_column_unit(ch.phi.as_slice(), K) {
-                return Err(bad("design.phi"));
+        let [x, y, z] = &self.chains;
+        chains_structure(
+            &[
+                [x.q_d.as_slice(), x.p0.as_slice(), x.phi.as_slice()],
+                [y.q_d.as_slice(), y.p0.as_slice(), y.phi.as_slice()],
+                [z.q_d.as_slice(), z.p0.as_slice(), z.phi.as_slice()],
+            ],
+            &mounts,
+            K,
+        )
+    }
+}
+
+/// [`TaDesign::check_structure`] over the chains' `[q_d, p0, phi]` (column-major `k × k`
+/// slices) and the mount σ of each axis, in the same order (per chain: Q_d, P0 symmetry and
+/// diagonal, P0's θ_m variance, Φ's e₁ row and column). Not generic over `k` and out of line:
+/// one copy for both filters.
+#[inline(never)]
+fn chains_structure<T: Real>(
+    chains: &[[&[T]; 3]],
+    mounts: &[T],
+    k: usize,
+) -> Result<(), NavError> {
+    let (chains, mounts, k) = crate::math::checks::opaque((chains, mounts, k));
+    for ([q_d, p0, phi], m) in chains.iter().zip(mounts) {
+        for (field, mat) in [("design.q_d", q_d), ("design.p0", p0)] {
+            // `mat == matᵀ` and a non-negative diagonal.
+            if !symmetric_non_negative_diagonal(mat, k) {
+                return Err(bad(field));
             }
         }
-        Ok(())
+        if p0.first().copied() != Some(*m * *m) {
+            return Err(bad("design.p0"));
+        }
+        if !first_row_and_column_unit(phi, k) {
+            return Err(bad("design.phi"));
+        }
     }
+    Ok(())
 }
 
 #[cold]

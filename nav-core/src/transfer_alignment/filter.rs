@@ -57,14 +57,16 @@ pub struct TaConfig<T> {
 impl<T: Real> TaConfig<T> {
     /// Validates every field (typed `InvalidConfig` naming the field).
     pub fn validate(&self) -> Result<(), NavError> {
-        for v in self.lever_arm_m.iter() {
+        // (`opaque`: the loops stay rolled, configuration time only.)
+        use crate::math::checks::opaque;
+        for v in opaque(self.lever_arm_m.as_slice()) {
             crate::error::require_finite("lever_arm_m", *v)?;
         }
-        for fl in &self.flexure {
+        for fl in opaque(self.flexure.as_slice()) {
             require_positive("flexure.sigma_rad", fl.sigma_rad)?;
             require_positive("flexure.tau_s", fl.tau_s)?;
         }
-        for v in self.mount_sigma_rad.iter() {
+        for v in opaque(self.mount_sigma_rad.as_slice()) {
             require_non_negative("mount_sigma_rad", *v)?;
         }
         require_positive("rate_noise_sigma_rad_s", self.rate_noise_sigma_rad_s)?;
@@ -87,6 +89,34 @@ impl<T: Real> TaConfig<T> {
             require_positive("nis_gate", g)?;
         }
         Ok(())
+    }
+}
+
+impl<T: Real> TaConfig<T> {
+    /// [`Self::validate`], then `(R_rate, R_accel, 1/dt)` (`σ²` of the rate and specific-force
+    /// differences, (rad/s)² and (m/s²)², and 1/s), refused with `InvalidConfig { issue:
+    /// OutOfRange }` naming the σ (or `dt_s`) when one is not finite and positive (squares of
+    /// tiny or huge σ can underflow or overflow: refuse rather than run with R = 0 or ∞).
+    /// Shared by both filters' `from_design` (one out-of-line copy per float type).
+    #[inline(never)]
+    fn validated_noise(&self) -> Result<(T, T, T), NavError> {
+        self.validate()?;
+        let r_rate = self.rate_noise_sigma_rad_s * self.rate_noise_sigma_rad_s;
+        let r_accel = self.accel_noise_sigma_m_s2 * self.accel_noise_sigma_m_s2;
+        let inv_dt = T::one() / self.dt_s;
+        for (field, v) in [
+            ("rate_noise_sigma_rad_s", r_rate),
+            ("accel_noise_sigma_m_s2", r_accel),
+            ("dt_s", inv_dt),
+        ] {
+            if !(v.is_finite() && v > T::zero()) {
+                return Err(NavError::InvalidConfig {
+                    field,
+                    issue: ConfigIssue::OutOfRange,
+                });
+            }
+        }
+        Ok((r_rate, r_accel, inv_dt))
     }
 }
 
@@ -345,7 +375,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// `dt_s`: that is the caller's contract.
     pub fn from_design(cfg: TaConfig<T>, design: &TaDesign<T, K>) -> Result<Self, NavError> {
         let model = FlexureModel::for_dims::<K, N>()?;
-        cfg.validate()?;
+        let (r_rate, r_accel, inv_dt) = cfg.validated_noise()?;
         let chains = design.chains;
         let mut p = SMatrix::<T, N, N>::zeros();
         // = `initial_covariance(&chains)`, with one looping copy for both filters.
@@ -359,27 +389,19 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             ],
             K,
         );
-        let r_rate = cfg.rate_noise_sigma_rad_s * cfg.rate_noise_sigma_rad_s;
-        let r_accel = cfg.accel_noise_sigma_m_s2 * cfg.accel_noise_sigma_m_s2;
-        let inv_dt = T::one() / cfg.dt_s;
-        // Squares of tiny or huge σ can underflow or overflow: refuse rather than run with
-        // R = 0 or ∞.
-        for (field, v) in [
-            ("rate_noise_sigma_rad_s", r_rate),
-            ("accel_noise_sigma_m_s2", r_accel),
-            ("dt_s", inv_dt),
-        ] {
-            if !(v.is_finite() && v > T::zero()) {
-                return Err(NavError::InvalidConfig {
-                    field,
-                    issue: ConfigIssue::OutOfRange,
-                });
-            }
-        }
         // Every P0 (the blocks of `p`, zero elsewhere), Φ and Q_d value finite.
-        if !chains.iter().all(|c| {
-            all_finite_parts(&[c.p0.as_slice(), c.phi.as_slice(), c.q_d.as_slice()])
-        }) {
+        let [cx, cy, cz] = &chains;
+        if !all_finite_parts(&[
+            cx.p0.as_slice(),
+            cx.phi.as_slice(),
+            cx.q_d.as_slice(),
+            cy.p0.as_slice(),
+            cy.phi.as_slice(),
+            cy.q_d.as_slice(),
+            cz.p0.as_slice(),
+            cz.phi.as_slice(),
+            cz.q_d.as_slice(),
+        ]) {
             return Err(NavError::InvalidConfig {
                 field: "flexure",
                 issue: ConfigIssue::OutOfRange,

@@ -13,7 +13,7 @@ use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
 use crate::error::ConfigIssue;
 use crate::math::checks::all_finite_parts;
 use crate::{NavError, Real};
-use nalgebra::{Matrix3, Matrix3x2};
+use nalgebra::{Matrix2x3, Matrix3, Matrix3x2, Vector2};
 
 /// Values of the loop's time step and baro lag in the loop's float type, fixed by the design.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -386,29 +386,32 @@ impl<T: Real> DesignValues for AidedDesign<T> {
 
     fn read_values(values: &[f64]) -> Result<Self, NavError> {
         let mut r = ValueReader::new(values, Self::COUNT)?;
-        let k = r.matrix_f64()?;
-        let p = r.matrix_f64()?;
-        let a = r.matrix_f64()?;
-        let q = r.matrix_f64()?;
-        let c = r.matrix_f64()?;
-        let rr = r.matrix_f64()?;
+        let mut gains = AidedGains {
+            k: Matrix3x2::zeros(),
+            p: Matrix3::zeros(),
+            a: Matrix3::zeros(),
+            q: Matrix3::zeros(),
+            c: Matrix2x3::zeros(),
+            r: Vector2::zeros(),
+            riccati_iterations: 0,
+            relative_residual: 0.0,
+        };
+        r.fill_parts_f64(&mut [
+            gains.k.as_mut_slice(),
+            gains.p.as_mut_slice(),
+            gains.a.as_mut_slice(),
+            gains.q.as_mut_slice(),
+            gains.c.as_mut_slice(),
+            gains.r.as_mut_slice(),
+        ])?;
         let it = r.value()?;
         // An iteration count: a non-negative integer that fits a u32 (exact round trip).
         let iterations = it as u32;
         if f64::from(iterations) != it {
             return Err(BAD_VALUES);
         }
-        let relative_residual = r.value()?;
-        let gains = AidedGains {
-            k,
-            p,
-            a,
-            q,
-            c,
-            r: rr,
-            riccati_iterations: iterations,
-            relative_residual,
-        };
+        gains.riccati_iterations = iterations;
+        gains.relative_residual = r.value()?;
         let gravity = read_gravity(&mut r)?;
         let step = StepValues::read(&mut r)?;
         let baro_innovation_variance = r.real()?;
