@@ -62,7 +62,8 @@ impl<T: Real, const K: usize> DesignValues for TaDesign<T, K> {
             q_d: z,
             p0: z,
         }; 3];
-        for ch in chains.iter_mut() {
+        // (`opaque`: the loop stays rolled, one call site of `fill_parts`.)
+        for ch in crate::math::checks::opaque(chains.as_mut_slice()).iter_mut() {
             r.fill_parts(&mut [
                 ch.f.as_mut_slice(),
                 ch.q_c.as_mut_slice(),
@@ -107,11 +108,7 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
 /// diagonal, P0's θ_m variance, Φ's e₁ row and column). Not generic over `k` and out of line:
 /// one copy for both filters.
 #[inline(never)]
-fn chains_structure<T: Real>(
-    chains: &[[&[T]; 3]],
-    mounts: &[T],
-    k: usize,
-) -> Result<(), NavError> {
+fn chains_structure<T: Real>(chains: &[[&[T]; 3]], mounts: &[T], k: usize) -> Result<(), NavError> {
     let (chains, mounts, k) = crate::math::checks::opaque((chains, mounts, k));
     for ([q_d, p0, phi], m) in chains.iter().zip(mounts) {
         for (field, mat) in [("design.q_d", q_d), ("design.p0", p0)] {

@@ -20,12 +20,12 @@ use super::design::TaDesign;
 use super::measurement::{h_row_sparse, measurement, MasterSample, SlaveSample};
 use super::model::{axis_index, to_spec_order, AxisChain, AxisFlexure, FlexureModel};
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
+use crate::math::checks::all_finite_parts;
 #[allow(unused_imports)]
 use crate::math::kalman::fuse_scalar;
 use crate::math::kalman::{
     fuse_scalar_prepared, sparse_covariance_product, FusionOutcome, FusionReport, Gate,
 };
-use crate::math::checks::all_finite_parts;
 use crate::math::rotation::exp_so3;
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
@@ -1074,10 +1074,7 @@ mod tests {
                 chains[2].p0.as_slice(),
             ];
             block_diagonal(p.as_mut_slice(), N, &blocks, K);
-            assert_eq!(
-                p,
-                TransferAlignment::<T, K, N>::initial_covariance(&chains)
-            );
+            assert_eq!(p, TransferAlignment::<T, K, N>::initial_covariance(&chains));
         }
         check::<f32, 3, 9>();
         check::<f64, 3, 9>();
