@@ -148,7 +148,8 @@ pub fn psd_in_place<T: Real>(work: &mut [T], n: usize, rel_eps: T) -> bool {
         }
         let diag = at(work, n, j, j).unwrap_or_else(T::zero);
         // `is_zero`, then `try_sqrt` (`None` unless `diag >= 0`).
-        if diag == T::zero() || !(diag >= T::zero()) {
+        // (`diag == 0 || !(diag >= 0)` ⟺ not strictly positive, NaN included.)
+        if diag.partial_cmp(&T::zero()) != Some(core::cmp::Ordering::Greater) {
             return false;
         }
         let denom = diag.sqrt();
