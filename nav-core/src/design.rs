@@ -161,26 +161,46 @@ impl<'a> ValueReader<'a> {
         }
     }
 
-    /// The next matrix in the float type, column by column.
-    pub(crate) fn matrix<T: Real, const R: usize, const C: usize>(
-        &mut self,
-    ) -> Result<SMatrix<T, R, C>, NavError> {
-        let mut m = SMatrix::<T, R, C>::zeros();
-        for v in m.iter_mut() {
+    /// Fills `out` with the next `out.len()` values in the float type, in order ([`Self::real`]
+    /// for each; stops at the first error). One looping copy per float type, whatever the
+    /// matrix sizes read through it.
+    #[inline(never)]
+    pub(crate) fn fill<T: Real>(&mut self, out: &mut [T]) -> Result<(), NavError> {
+        let out = crate::math::checks::opaque(out);
+        for v in out.iter_mut() {
             *v = self.real()?;
         }
-        Ok(m)
+        Ok(())
     }
 
-    /// The next `f64` matrix, column by column.
-    pub(crate) fn matrix_f64<const R: usize, const C: usize>(
-        &mut self,
-    ) -> Result<SMatrix<f64, R, C>, NavError> {
-        let mut m = SMatrix::<f64, R, C>::zeros();
-        for v in m.iter_mut() {
+    /// [`Self::fill`] for every slice of `parts`, in order.
+    #[inline(never)]
+    pub(crate) fn fill_parts<T: Real>(&mut self, parts: &mut [&mut [T]]) -> Result<(), NavError> {
+        let parts = crate::math::checks::opaque(parts);
+        for p in parts.iter_mut() {
+            self.fill(p)?;
+        }
+        Ok(())
+    }
+
+    /// Fills `out` with the next `out.len()` `f64` values, in order.
+    #[inline(never)]
+    pub(crate) fn fill_f64(&mut self, out: &mut [f64]) -> Result<(), NavError> {
+        let out = crate::math::checks::opaque(out);
+        for v in out.iter_mut() {
             *v = self.value()?;
         }
-        Ok(m)
+        Ok(())
+    }
+
+    /// [`Self::fill_f64`] for every slice of `parts`, in order.
+    #[inline(never)]
+    pub(crate) fn fill_parts_f64(&mut self, parts: &mut [&mut [f64]]) -> Result<(), NavError> {
+        let parts = crate::math::checks::opaque(parts);
+        for p in parts.iter_mut() {
+            self.fill_f64(p)?;
+        }
+        Ok(())
     }
 
     /// `Ok` when every value was read.

@@ -92,6 +92,10 @@ impl fmt::Display for NavError {
 impl core::error::Error for NavError {}
 
 /// Checks a configuration value: finite and strictly positive.
+///
+/// The `require_*` checks are out of line (configuration time only): one copy per float type
+/// instead of one per call site.
+#[inline(never)]
 pub fn require_positive<T: crate::Real>(field: &'static str, v: T) -> Result<T, NavError> {
     if !v.is_finite() {
         Err(NavError::InvalidConfig {
@@ -109,6 +113,7 @@ pub fn require_positive<T: crate::Real>(field: &'static str, v: T) -> Result<T, 
 }
 
 /// Checks a configuration value: finite and non-negative.
+#[inline(never)]
 pub fn require_non_negative<T: crate::Real>(field: &'static str, v: T) -> Result<T, NavError> {
     if !v.is_finite() {
         Err(NavError::InvalidConfig {
@@ -126,6 +131,7 @@ pub fn require_non_negative<T: crate::Real>(field: &'static str, v: T) -> Result
 }
 
 /// Checks a configuration value: finite.
+#[inline(never)]
 pub fn require_finite<T: crate::Real>(field: &'static str, v: T) -> Result<T, NavError> {
     if v.is_finite() {
         Ok(v)

@@ -706,21 +706,19 @@ pub fn propagate_dense<T: Real, const N: usize>(
 
 /// Largest absolute asymmetry `max |P_ij − P_ji|`.
 pub fn asymmetry<T: Real, const N: usize>(p: &SMatrix<T, N, N>) -> T {
-    (p - p.transpose()).abs().max()
+    // `(p - pᵀ).abs().max()`, one looping copy per float type.
+    super::checks::max_asymmetry(p.as_slice(), N)
 }
 
 /// `true` if `P + ε·trace(P)·I` has a Cholesky factor (P is symmetric positive semi-definite to
 /// the relative tolerance `rel_eps`) and every element is finite.
-pub fn is_psd<T: Real, const N: usize>(p: &SMatrix<T, N, N>, rel_eps: T) -> bool
-where
-    nalgebra::Const<N>: nalgebra::DimMin<nalgebra::Const<N>, Output = nalgebra::Const<N>>,
-{
-    if !p.iter().all(|v| v.is_finite()) {
-        return false;
-    }
-    let shift = rel_eps * p.trace().abs().max(T::lit(1e-30));
-    let m = (p + p.transpose()) * T::lit(0.5) + SMatrix::<T, N, N>::identity() * shift;
-    nalgebra::linalg::Cholesky::new(m).is_some()
+///
+/// Precisely: every element finite and nalgebra's `Cholesky::new((P + Pᵀ)/2 +
+/// rel_eps·max(|trace P|, 1e-30)·I)` succeeds; computed by [`super::checks::psd_in_place`]
+/// (the same operations, one looping copy per float type) on a copy of `p`.
+pub fn is_psd<T: Real, const N: usize>(p: &SMatrix<T, N, N>, rel_eps: T) -> bool {
+    let mut work = *p;
+    super::checks::psd_in_place(work.as_mut_slice(), N, rel_eps)
 }
 
 #[cfg(test)]

@@ -1,6 +1,7 @@
 //! Shared math: rotations, discretisation of linear stochastic systems, Gauss-Markov processes
 //! and the Kalman measurement update.
 
+pub mod checks;
 pub mod discretize;
 pub mod kalman;
 pub mod linalg;

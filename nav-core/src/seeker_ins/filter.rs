@@ -261,7 +261,7 @@ impl<T: Real> SeekerIns<T> {
                 issue: ConfigIssue::NotPositive,
             });
         }
-        if !p0.iter().all(|v| v.is_finite()) {
+        if !crate::math::checks::all_finite(p0.as_slice()) {
             return Err(NavError::NonFiniteInput { input: "p0" });
         }
         // Physical bounds on the initial variances (units of the error state): position

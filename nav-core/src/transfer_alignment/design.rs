@@ -6,7 +6,9 @@
 use super::filter::TaConfig;
 use super::model::{axis_chains, AxisChain, FlexureModel};
 use crate::design::{DesignValues, ValueReader, ValueWriter};
+use crate::math::checks::{first_row_and_column_unit, symmetric_non_negative_diagonal};
 use crate::{NavError, Real};
+use nalgebra::SMatrix;
 
 /// Precomputed design of a transfer-alignment filter with `K` states per axis chain
 /// (K = 3: [`super::ConventionalFilter`], K = 4: [`super::ProposedFilter`]).
@@ -52,16 +54,24 @@ impl<T: Real, const K: usize> DesignValues for TaDesign<T, K> {
 
     fn read_values(values: &[f64]) -> Result<Self, NavError> {
         let mut r = ValueReader::new(values, Self::COUNT)?;
-        let mut chain = || -> Result<AxisChain<T, K>, NavError> {
-            Ok(AxisChain {
-                f: r.matrix()?,
-                q_c: r.matrix()?,
-                phi: r.matrix()?,
-                q_d: r.matrix()?,
-                p0: r.matrix()?,
-            })
-        };
-        let chains = [chain()?, chain()?, chain()?];
+        let z = SMatrix::<T, K, K>::zeros();
+        let mut chains = [AxisChain {
+            f: z,
+            q_c: z,
+            phi: z,
+            q_d: z,
+            p0: z,
+        }; 3];
+        // (`opaque`: the loop stays rolled, one call site of `fill_parts`.)
+        for ch in crate::math::checks::opaque(chains.as_mut_slice()).iter_mut() {
+            r.fill_parts(&mut [
+                ch.f.as_mut_slice(),
+                ch.q_c.as_mut_slice(),
+                ch.phi.as_mut_slice(),
+                ch.q_d.as_mut_slice(),
+                ch.p0.as_mut_slice(),
+            ])?;
+        }
         r.finish()?;
         Ok(Self { chains })
     }
@@ -80,32 +90,45 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
             cfg.mount_sigma_rad.y,
             cfg.mount_sigma_rad.z,
         ];
-        for (ch, m) in self.chains.iter().zip(mounts) {
-            for (field, mat) in [("design.q_d", &ch.q_d), ("design.p0", &ch.p0)] {
-                let symmetric = mat == &mat.transpose();
-                let diag_ok = mat.diagonal().iter().all(|v| *v >= T::zero());
-                if !(symmetric && diag_ok) {
-                    return Err(bad(field));
-                }
-            }
-            if ch.p0.get((0, 0)).copied() != Some(m * m) {
-                return Err(bad("design.p0"));
-            }
-            let e1_row = ch
-                .phi
-                .row(0)
-                .iter()
-                .enumerate()
-                .all(|(j, v)| *v == if j == 0 { T::one() } else { T::zero() });
-            let e1_col = ch.phi.column(0).iter().skip(1).all(|v| *v == T::zero());
-            if !(e1_row && e1_col) {
-                return Err(bad("design.phi"));
-            }
-        }
-        Ok(())
+        let [x, y, z] = &self.chains;
+        chains_structure(
+            &[
+                [x.q_d.as_slice(), x.p0.as_slice(), x.phi.as_slice()],
+                [y.q_d.as_slice(), y.p0.as_slice(), y.phi.as_slice()],
+                [z.q_d.as_slice(), z.p0.as_slice(), z.phi.as_slice()],
+            ],
+            &mounts,
+            K,
+        )
     }
 }
 
+/// [`TaDesign::check_structure`] over the chains' `[q_d, p0, phi]` (column-major `k × k`
+/// slices) and the mount σ of each axis, in the same order (per chain: Q_d, P0 symmetry and
+/// diagonal, P0's θ_m variance, Φ's e₁ row and column). Not generic over `k` and out of line:
+/// one copy for both filters.
+#[inline(never)]
+fn chains_structure<T: Real>(chains: &[[&[T]; 3]], mounts: &[T], k: usize) -> Result<(), NavError> {
+    let (chains, mounts, k) = crate::math::checks::opaque((chains, mounts, k));
+    for ([q_d, p0, phi], m) in chains.iter().zip(mounts) {
+        for (field, mat) in [("design.q_d", q_d), ("design.p0", p0)] {
+            // `mat == matᵀ` and a non-negative diagonal.
+            if !symmetric_non_negative_diagonal(mat, k) {
+                return Err(bad(field));
+            }
+        }
+        if p0.first().copied() != Some(*m * *m) {
+            return Err(bad("design.p0"));
+        }
+        if !first_row_and_column_unit(phi, k) {
+            return Err(bad("design.phi"));
+        }
+    }
+    Ok(())
+}
+
+#[cold]
+#[inline(never)]
 fn bad(field: &'static str) -> NavError {
     NavError::InvalidConfig {
         field,

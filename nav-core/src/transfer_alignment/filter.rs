@@ -20,6 +20,7 @@ use super::design::TaDesign;
 use super::measurement::{h_row_sparse, measurement, MasterSample, SlaveSample};
 use super::model::{axis_index, to_spec_order, AxisChain, AxisFlexure, FlexureModel};
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
+use crate::math::checks::all_finite_parts;
 #[allow(unused_imports)]
 use crate::math::kalman::fuse_scalar;
 use crate::math::kalman::{
@@ -56,14 +57,16 @@ pub struct TaConfig<T> {
 impl<T: Real> TaConfig<T> {
     /// Validates every field (typed `InvalidConfig` naming the field).
     pub fn validate(&self) -> Result<(), NavError> {
-        for v in self.lever_arm_m.iter() {
+        // (`opaque`: the loops stay rolled, configuration time only.)
+        use crate::math::checks::opaque;
+        for v in opaque(self.lever_arm_m.as_slice()) {
             crate::error::require_finite("lever_arm_m", *v)?;
         }
-        for fl in &self.flexure {
+        for fl in opaque(self.flexure.as_slice()) {
             require_positive("flexure.sigma_rad", fl.sigma_rad)?;
             require_positive("flexure.tau_s", fl.tau_s)?;
         }
-        for v in self.mount_sigma_rad.iter() {
+        for v in opaque(self.mount_sigma_rad.as_slice()) {
             require_non_negative("mount_sigma_rad", *v)?;
         }
         require_positive("rate_noise_sigma_rad_s", self.rate_noise_sigma_rad_s)?;
@@ -86,6 +89,34 @@ impl<T: Real> TaConfig<T> {
             require_positive("nis_gate", g)?;
         }
         Ok(())
+    }
+}
+
+impl<T: Real> TaConfig<T> {
+    /// [`Self::validate`], then `(R_rate, R_accel, 1/dt)` (`σ²` of the rate and specific-force
+    /// differences, (rad/s)² and (m/s²)², and 1/s), refused with `InvalidConfig { issue:
+    /// OutOfRange }` naming the σ (or `dt_s`) when one is not finite and positive (squares of
+    /// tiny or huge σ can underflow or overflow: refuse rather than run with R = 0 or ∞).
+    /// Shared by both filters' `from_design` (one out-of-line copy per float type).
+    #[inline(never)]
+    fn validated_noise(&self) -> Result<(T, T, T), NavError> {
+        self.validate()?;
+        let r_rate = self.rate_noise_sigma_rad_s * self.rate_noise_sigma_rad_s;
+        let r_accel = self.accel_noise_sigma_m_s2 * self.accel_noise_sigma_m_s2;
+        let inv_dt = T::one() / self.dt_s;
+        for (field, v) in [
+            ("rate_noise_sigma_rad_s", r_rate),
+            ("accel_noise_sigma_m_s2", r_accel),
+            ("dt_s", inv_dt),
+        ] {
+            if !(v.is_finite() && v > T::zero()) {
+                return Err(NavError::InvalidConfig {
+                    field,
+                    issue: ConfigIssue::OutOfRange,
+                });
+            }
+        }
+        Ok((r_rate, r_accel, inv_dt))
     }
 }
 
@@ -302,6 +333,25 @@ fn in_range3<T: Real>(input: &'static str, v: &Vector3<T>, limit: f64) -> Result
     }
 }
 
+/// Writes the `k × k` blocks (column-major slices) on the block diagonal of the column-major
+/// `n × n` matrix `p` (block `a` at rows and columns `k·a ..`), leaving the rest of `p` as it
+/// is. Configuration time only: not generic over the dimensions and out of line.
+#[inline(never)]
+fn block_diagonal<T: Real>(p: &mut [T], n: usize, blocks: &[&[T]], k: usize) {
+    let (p, n, blocks, k) = crate::math::checks::opaque((p, n, blocks, k));
+    if k == 0 {
+        return;
+    }
+    for (a, block) in blocks.iter().enumerate() {
+        for (c, col) in block.chunks_exact(k).enumerate() {
+            let start = (k * a + c) * n + k * a;
+            if let Some(dst) = p.get_mut(start..start + k) {
+                dst.copy_from_slice(col);
+            }
+        }
+    }
+}
+
 impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// Validates the configuration, discretises the per-axis chains at `dt_s` and starts from
     /// x = 0 with P = blockdiag(σ_m², stationary flexure covariance).
@@ -325,31 +375,33 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// `dt_s`: that is the caller's contract.
     pub fn from_design(cfg: TaConfig<T>, design: &TaDesign<T, K>) -> Result<Self, NavError> {
         let model = FlexureModel::for_dims::<K, N>()?;
-        cfg.validate()?;
+        let (r_rate, r_accel, inv_dt) = cfg.validated_noise()?;
         let chains = design.chains;
-        let p = Self::initial_covariance(&chains);
-        let r_rate = cfg.rate_noise_sigma_rad_s * cfg.rate_noise_sigma_rad_s;
-        let r_accel = cfg.accel_noise_sigma_m_s2 * cfg.accel_noise_sigma_m_s2;
-        let inv_dt = T::one() / cfg.dt_s;
-        // Squares of tiny or huge σ can underflow or overflow: refuse rather than run with
-        // R = 0 or ∞.
-        for (field, v) in [
-            ("rate_noise_sigma_rad_s", r_rate),
-            ("accel_noise_sigma_m_s2", r_accel),
-            ("dt_s", inv_dt),
-        ] {
-            if !(v.is_finite() && v > T::zero()) {
-                return Err(NavError::InvalidConfig {
-                    field,
-                    issue: ConfigIssue::OutOfRange,
-                });
-            }
-        }
-        if !p.iter().all(|v| v.is_finite())
-            || !chains
-                .iter()
-                .all(|c| c.phi.iter().chain(c.q_d.iter()).all(|v| v.is_finite()))
-        {
+        let mut p = SMatrix::<T, N, N>::zeros();
+        // = `initial_covariance(&chains)`, with one looping copy for both filters.
+        block_diagonal(
+            p.as_mut_slice(),
+            N,
+            &[
+                chains[0].p0.as_slice(),
+                chains[1].p0.as_slice(),
+                chains[2].p0.as_slice(),
+            ],
+            K,
+        );
+        // Every P0 (the blocks of `p`, zero elsewhere), Φ and Q_d value finite.
+        let [cx, cy, cz] = &chains;
+        if !all_finite_parts(&[
+            cx.p0.as_slice(),
+            cx.phi.as_slice(),
+            cx.q_d.as_slice(),
+            cy.p0.as_slice(),
+            cy.phi.as_slice(),
+            cy.q_d.as_slice(),
+            cz.p0.as_slice(),
+            cz.phi.as_slice(),
+            cz.q_d.as_slice(),
+        ]) {
             return Err(NavError::InvalidConfig {
                 field: "flexure",
                 issue: ConfigIssue::OutOfRange,
@@ -1004,6 +1056,32 @@ mod tests {
         c.nis_gate = Some(0.0);
         assert!(ProposedFilter::new(c).is_err());
         assert!(TransferAlignment::<f32, 4, 9>::new(ok).is_err());
+    }
+
+    #[test]
+    fn block_diagonal_equals_initial_covariance() {
+        fn check<T: Real, const K: usize, const N: usize>() {
+            let f = TransferAlignment::<T, K, N>::new(cfg::<T>()).unwrap();
+            let mut chains = *f.chains();
+            // Distinct values everywhere, so a misplaced element shows.
+            for (a, ch) in chains.iter_mut().enumerate() {
+                for (i, v) in ch.p0.iter_mut().enumerate() {
+                    *v = T::lit((100 * a + i + 1) as f64);
+                }
+            }
+            let mut p = SMatrix::<T, N, N>::zeros();
+            let blocks = [
+                chains[0].p0.as_slice(),
+                chains[1].p0.as_slice(),
+                chains[2].p0.as_slice(),
+            ];
+            block_diagonal(p.as_mut_slice(), N, &blocks, K);
+            assert_eq!(p, TransferAlignment::<T, K, N>::initial_covariance(&chains));
+        }
+        check::<f32, 3, 9>();
+        check::<f64, 3, 9>();
+        check::<f32, 4, 12>();
+        check::<f64, 4, 12>();
     }
 
     #[test]

@@ -11,8 +11,9 @@ use super::classical::{ClassicalConfig, ClassicalGains};
 use super::{check_imu_dt, discretise_modes, open_loop, GravityModel, Mode, Modes};
 use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
 use crate::error::ConfigIssue;
+use crate::math::checks::all_finite_parts;
 use crate::{NavError, Real};
-use nalgebra::Matrix3;
+use nalgebra::{Matrix2x3, Matrix3, Matrix3x2, Vector2};
 
 /// Values of the loop's time step and baro lag in the loop's float type, fixed by the design.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -94,33 +95,50 @@ fn write_modes<T: Real>(w: &mut ValueWriter<'_>, m: &Modes<T>) {
 }
 
 fn read_modes<T: Real>(r: &mut ValueReader<'_>) -> Result<Modes<T>, NavError> {
-    let phi_baro: Matrix3<T> = r.matrix()?;
-    let mut mode = || -> Result<Mode<T>, NavError> {
-        Ok(Mode {
-            n: r.matrix()?,
-            g: r.matrix()?,
-        })
+    let z = Matrix3x2::<T>::zeros();
+    let zm = Mode { n: z, g: z };
+    let mut m = Modes {
+        phi_baro: Matrix3::zeros(),
+        none: zm,
+        baro: zm,
+        velocity: zm,
+        both: zm,
     };
-    Ok(Modes {
-        phi_baro,
-        none: mode()?,
-        baro: mode()?,
-        velocity: mode()?,
-        both: mode()?,
-    })
+    // Same order as `write_modes` (one looping reader for all nine matrices).
+    r.fill_parts(&mut [
+        m.phi_baro.as_mut_slice(),
+        m.none.n.as_mut_slice(),
+        m.none.g.as_mut_slice(),
+        m.baro.n.as_mut_slice(),
+        m.baro.g.as_mut_slice(),
+        m.velocity.n.as_mut_slice(),
+        m.velocity.g.as_mut_slice(),
+        m.both.n.as_mut_slice(),
+        m.both.g.as_mut_slice(),
+    ])?;
+    Ok(m)
 }
 
 fn modes_finite<T: Real>(m: &Modes<T>) -> bool {
-    m.phi_baro.iter().all(|v| v.is_finite())
-        && [&m.none, &m.baro, &m.velocity, &m.both]
-            .iter()
-            .all(|mode| mode.n.iter().chain(mode.g.iter()).all(|v| v.is_finite()))
+    all_finite_parts(&[
+        m.phi_baro.as_slice(),
+        m.none.n.as_slice(),
+        m.none.g.as_slice(),
+        m.baro.n.as_slice(),
+        m.baro.g.as_slice(),
+        m.velocity.n.as_slice(),
+        m.velocity.g.as_slice(),
+        m.both.n.as_slice(),
+        m.both.g.as_slice(),
+    ])
 }
 
 fn gravity_finite<T: Real>(g: &GravityModel<T>) -> bool {
     g.g0_m_s2.is_finite() && g.g1_per_s2.is_finite() && g.g2_per_m_s2.is_finite()
 }
 
+#[cold]
+#[inline(never)]
 fn not_finite() -> NavError {
     NavError::InvalidConfig {
         field: "design",
@@ -368,29 +386,32 @@ impl<T: Real> DesignValues for AidedDesign<T> {
 
     fn read_values(values: &[f64]) -> Result<Self, NavError> {
         let mut r = ValueReader::new(values, Self::COUNT)?;
-        let k = r.matrix_f64()?;
-        let p = r.matrix_f64()?;
-        let a = r.matrix_f64()?;
-        let q = r.matrix_f64()?;
-        let c = r.matrix_f64()?;
-        let rr = r.matrix_f64()?;
+        let mut gains = AidedGains {
+            k: Matrix3x2::zeros(),
+            p: Matrix3::zeros(),
+            a: Matrix3::zeros(),
+            q: Matrix3::zeros(),
+            c: Matrix2x3::zeros(),
+            r: Vector2::zeros(),
+            riccati_iterations: 0,
+            relative_residual: 0.0,
+        };
+        r.fill_parts_f64(&mut [
+            gains.k.as_mut_slice(),
+            gains.p.as_mut_slice(),
+            gains.a.as_mut_slice(),
+            gains.q.as_mut_slice(),
+            gains.c.as_mut_slice(),
+            gains.r.as_mut_slice(),
+        ])?;
         let it = r.value()?;
         // An iteration count: a non-negative integer that fits a u32 (exact round trip).
         let iterations = it as u32;
         if f64::from(iterations) != it {
             return Err(BAD_VALUES);
         }
-        let relative_residual = r.value()?;
-        let gains = AidedGains {
-            k,
-            p,
-            a,
-            q,
-            c,
-            r: rr,
-            riccati_iterations: iterations,
-            relative_residual,
-        };
+        gains.riccati_iterations = iterations;
+        gains.relative_residual = r.value()?;
         let gravity = read_gravity(&mut r)?;
         let step = StepValues::read(&mut r)?;
         let baro_innovation_variance = r.real()?;

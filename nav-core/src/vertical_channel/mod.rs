@@ -338,6 +338,7 @@ pub struct AidTimeouts {
 }
 
 impl AidTimeouts {
+    #[inline(never)]
     fn validate(&self, stale: &'static str, lost: &'static str) -> Result<(), NavError> {
         require_positive(stale, self.stale_after_s)?;
         require_positive(lost, self.lost_after_s)?;
@@ -677,6 +678,7 @@ fn gap_intervals<T: Real>(dt: T, dt_s: T, tol: T) -> Result<u32, NavError> {
 }
 
 /// Validates an initial state.
+#[inline(never)]
 pub(crate) fn check_initial<T: Real>(init: &InitialState<T>) -> Result<(), NavError> {
     for (name, v) in [
         ("initial time_s", init.time_s),
@@ -794,6 +796,7 @@ impl GateCounters {
 }
 
 /// Checks the configured IMU interval.
+#[inline(never)]
 pub(crate) fn check_imu_dt(imu_dt_s: f64) -> Result<(), NavError> {
     require_positive("imu_dt_s", imu_dt_s)?;
     if imu_dt_s > MAX_IMU_DT_S {
