@@ -7,7 +7,9 @@
 //! 1. a Cody-Waite reduction by π/2: `k = round(x·2/π)`, `r = x − k·π/2` with π/2 split into
 //!    four `f32` parts `P1 + P2 + P3 + P4` (Cephes style); `P1`, `P2`, `P3` have at most 11
 //!    significant bits so `k·P1`, `k·P2`, `k·P3` are exact for |k| < 2¹³ and the subtractions are
-//!    exact (Sterbenz), only `k·P4` and the last subtraction round;
+//!    exact (Sterbenz), only `k·P4` and the last subtraction round, and the rounding error of
+//!    that subtraction is kept (`r_lo`, Fast2Sum) and fed to the polynomials to first order;
+//!    |x| ≤ π/4 skips the reduction (bit-identical, cheaper);
 //! 2. the Cephes `sinf`/`cosf` minimax polynomials on [−π/4, π/4] (degree 7 odd / degree 8
 //!    even), the cosine's leading `1 − r²/2` with the rounding error of the subtraction added
 //!    back (as FreeBSD's `k_cosf`);
@@ -15,9 +17,11 @@
 //!
 //! # Domain and accuracy (`f32`)
 //!
-//! * |x| ≤ [`F32_ACCURATE_DOMAIN_RAD`] = 8192 rad: error ≤ 2.5 ulp of the correctly rounded
-//!   result (measured exhaustively over every `f32` in [0, 8192] against `f64` libm: see the
-//!   module tests for the grid/random checks that guard it), odd/even symmetry exact
+//! * |x| ≤ [`F32_ACCURATE_DOMAIN_RAD`] = 8192 rad: error ≤ 2 ulp of the correctly rounded
+//!   result (measured exhaustively over every positive `f32` ≤ 8192 against `f64` libm: max
+//!   1.57 ulp for sin, 1.62 ulp for cos; 0.81 / 0.82 ulp on [0, π/4] where there is no
+//!   reduction; the module tests guard it with dense grids, random points and the neighbours
+//!   of every multiple of π/2), odd/even symmetry exact
 //!   (`sin(−x) = −sin x`, `cos(−x) = cos x` bit for bit for x ≠ 0), `sin ±0 = +0`, `cos ±0 = 1`
 //!   exactly,
 //!   |sin² + cos² − 1| < 2.5e-7.
@@ -32,8 +36,9 @@
 //! libm in `no_std`), bit-identical to the code before this module existed.
 
 use crate::real::Real;
+use core::f32::consts::FRAC_PI_4;
 
-/// Upper bound of |x| (rad) on which the `f32` implementation keeps its ≤ 2.5 ulp accuracy.
+/// Upper bound of |x| (rad) on which the `f32` implementation keeps its ≤ 2 ulp accuracy.
 pub const F32_ACCURATE_DOMAIN_RAD: f32 = 8192.0;
 
 /// `(sin x, cos x)`, x in rad. See the module documentation for the `f32` domain and accuracy.
@@ -83,28 +88,48 @@ const C3: f32 = 2.443_315_7e-5;
 
 /// `(sin x, cos x)` in `f32` arithmetic only (module documentation: method, domain, accuracy).
 pub fn sin_cos_f32(x: f32) -> (f32, f32) {
+    // |x| ≤ π/4 (latitudes below 45°, most attitude angles): no reduction. The general path
+    // gives bit-identical results there (k = 0, r = x); this only skips its cost. NaN fails.
+    if (-FRAC_PI_4..=FRAC_PI_4).contains(&x) {
+        return sin_cos_kernel(x, 0.0);
+    }
     // Nearest multiple of π/2. For |x| ≥ 2²²·π/2 the sum is already an integer; ∞ stays ∞.
     let kf = (x * TWO_OVER_PI + ROUND_MAGIC) - ROUND_MAGIC;
     // Saturating conversion (NaN → 0): only the two low bits are used.
     let quadrant = (kf as i32) & 3;
-    let mut r = (((x - kf * PIO2_1) - kf * PIO2_2) - kf * PIO2_3) - kf * PIO2_4;
+    // Exact for |k| < 2¹³ (short P1..P3, Sterbenz subtractions).
+    let t = ((x - kf * PIO2_1) - kf * PIO2_2) - kf * PIO2_3;
+    let p = kf * PIO2_4;
+    let mut r = t - p;
+    // Rounding error of r = t − p (Fast2Sum), fed to the polynomials to first order.
+    let mut r_lo = (t - r) - p;
     // Far outside the accurate domain r is garbage: keep the polynomials bounded. NaN passes.
     if r > R_MAX {
-        r = R_MAX;
+        (r, r_lo) = (R_MAX, 0.0);
     } else if r < -R_MAX {
-        r = -R_MAX;
+        (r, r_lo) = (-R_MAX, 0.0);
     }
-    let z = r * r;
-    let s = r + ((S3 * z + S2) * z + S1) * z * r;
-    let hz = 0.5 * z;
-    let w = 1.0 - hz;
-    let c = w + (((1.0 - w) - hz) + ((C3 * z + C2) * z + C1) * z * z);
+    let (s, c) = sin_cos_kernel(r, r_lo);
     match quadrant {
         0 => (s, c),
         1 => (c, -s),
         2 => (-s, -c),
         _ => (-c, s),
     }
+}
+
+/// `(sin(r + r_lo), cos(r + r_lo))` for |r| ≤ π/4, |r_lo| ≤ ulp(r) (accurate to ≈ 0.8 ulp;
+/// usable to [`R_MAX`]).
+#[inline(always)]
+fn sin_cos_kernel(r: f32, r_lo: f32) -> (f32, f32) {
+    let z = r * r;
+    // sin(r + r_lo) ≈ sin r + r_lo cos r ≈ sin r + r_lo.
+    let s = r + (((S3 * z + S2) * z + S1) * z * r + r_lo);
+    // cos r = 1 − z/2 + z²·p(z) − r·r_lo; the rounding error of w = 1 − z/2 is added back.
+    let hz = 0.5 * z;
+    let w = 1.0 - hz;
+    let c = w + (((1.0 - w) - hz) + (((C3 * z + C2) * z + C1) * z * z - r * r_lo));
+    (s, c)
 }
 
 #[cfg(test)]
@@ -171,13 +196,13 @@ mod tests {
         let hi = F32_ACCURATE_DOMAIN_RAD.to_bits();
         let grid = (lo..=hi).step_by(61).map(f32::from_bits);
         let (es, ec, xs, xc) = max_err(grid.clone().chain(grid.map(|x| -x)));
-        assert!(es <= 2.5, "sin {es} ulp at {xs}");
-        assert!(ec <= 2.5, "cos {ec} ulp at {xc}");
+        assert!(es <= 2.0, "sin {es} ulp at {xs}");
+        assert!(ec <= 2.0, "cos {ec} ulp at {xc}");
         // Random over the whole domain.
         let d = F32_ACCURATE_DOMAIN_RAD;
         let (es, ec, xs, xc) = max_err(uniform(0x9e37_79b9_7f4a_7c15, 400_000, -d, d));
-        assert!(es <= 2.5, "sin {es} ulp at {xs}");
-        assert!(ec <= 2.5, "cos {ec} ulp at {xc}");
+        assert!(es <= 2.0, "sin {es} ulp at {xs}");
+        assert!(ec <= 2.0, "cos {ec} ulp at {xc}");
     }
 
     #[test]
@@ -187,8 +212,27 @@ mod tests {
             let x0 = (f64::from(k) * core::f64::consts::FRAC_PI_2) as f32;
             let pts = (-8i32..=8).map(|d| f32::from_bits(x0.to_bits().wrapping_add_signed(d)));
             let (es, ec, xs, xc) = max_err(pts);
-            assert!(es <= 2.5, "sin {es} ulp at {xs}");
-            assert!(ec <= 2.5, "cos {ec} ulp at {xc}");
+            assert!(es <= 2.0, "sin {es} ulp at {xs}");
+            assert!(ec <= 2.0, "cos {ec} ulp at {xc}");
+        }
+    }
+
+    #[test]
+    fn fast_path_matches_the_reduction() {
+        // For |x| ≤ π/4 the reduction is the identity (k = 0): the shortcut changes nothing.
+        for x in uniform(13, 100_000, -FRAC_PI_4, FRAC_PI_4) {
+            let (s, c) = sin_cos_f32(x);
+            let kf = (x * TWO_OVER_PI + ROUND_MAGIC) - ROUND_MAGIC;
+            assert_eq!(kf, 0.0);
+            let t = ((x - kf * PIO2_1) - kf * PIO2_2) - kf * PIO2_3;
+            let p = kf * PIO2_4;
+            let r = t - p;
+            let (s2, c2) = sin_cos_kernel(r, (t - r) - p);
+            assert_eq!(
+                (s.to_bits(), c.to_bits()),
+                (s2.to_bits(), c2.to_bits()),
+                "{x}"
+            );
         }
     }
 
