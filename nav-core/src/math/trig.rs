@@ -66,7 +66,7 @@ pub fn tan<T: Real>(x: T) -> T {
 }
 
 /// 2/π rounded to `f32`.
-const TWO_OVER_PI: f32 = 0.636_619_77;
+const TWO_OVER_PI: f32 = core::f32::consts::FRAC_2_PI;
 /// 1.5·2²³: `(v + M) − M` rounds `v` to the nearest integer (ties to even) for |v| < 2²².
 const ROUND_MAGIC: f32 = 12_582_912.0;
 /// π/2 = P1 + P2 + P3 + P4 (+ 8e-20). P1..P3 have ≤ 11 significant bits.
