@@ -4,6 +4,7 @@
 //! Constants are those of NIMA TR8350.2 (WGS-84, 3rd edition). Latitude `lat_rad` is geodetic,
 //! altitude `alt_m` is height above the ellipsoid (up positive).
 
+use crate::math::trig;
 use crate::Real;
 use nalgebra::Vector3;
 
@@ -31,7 +32,7 @@ pub const MEAN_RADIUS_M: f64 = 6_367_435.679_7;
 /// Meridian (north-south) radius of curvature R_M at geodetic latitude, m.
 #[inline]
 pub fn meridian_radius_m<T: Real>(lat_rad: T) -> T {
-    let s = lat_rad.sin();
+    let s = trig::sin(lat_rad);
     let e2 = T::lit(ECCENTRICITY_SQ);
     let d = T::one() - e2 * s * s;
     T::lit(SEMI_MAJOR_AXIS_M * (1.0 - ECCENTRICITY_SQ)) / (d * d.sqrt())
@@ -40,7 +41,7 @@ pub fn meridian_radius_m<T: Real>(lat_rad: T) -> T {
 /// Transverse (prime-vertical, east-west) radius of curvature R_N at geodetic latitude, m.
 #[inline]
 pub fn transverse_radius_m<T: Real>(lat_rad: T) -> T {
-    let s = lat_rad.sin();
+    let s = trig::sin(lat_rad);
     let d = T::one() - T::lit(ECCENTRICITY_SQ) * s * s;
     T::lit(SEMI_MAJOR_AXIS_M) / d.sqrt()
 }
@@ -48,7 +49,7 @@ pub fn transverse_radius_m<T: Real>(lat_rad: T) -> T {
 /// Both radii of curvature `(R_M, R_N)` at geodetic latitude, m (one `sin` and one `sqrt`).
 #[inline]
 pub fn radii_m<T: Real>(lat_rad: T) -> (T, T) {
-    let s = lat_rad.sin();
+    let s = trig::sin(lat_rad);
     let d = T::one() - T::lit(ECCENTRICITY_SQ) * s * s;
     let sd = d.sqrt();
     let r_n = T::lit(SEMI_MAJOR_AXIS_M) / sd;
@@ -60,7 +61,7 @@ pub fn radii_m<T: Real>(lat_rad: T) -> (T, T) {
 #[inline]
 pub fn normal_gravity_surface_m_s2<T: Real>(lat_rad: T) -> T {
     let s2 = {
-        let s = lat_rad.sin();
+        let s = trig::sin(lat_rad);
         s * s
     };
     T::lit(GRAVITY_EQUATOR_M_S2) * (T::one() + T::lit(SOMIGLIANA_K) * s2)
@@ -71,7 +72,7 @@ pub fn normal_gravity_surface_m_s2<T: Real>(lat_rad: T) -> T {
 /// (Somigliana on the ellipsoid with the second-order free-air correction of TR8350.2 eq. 4-3).
 #[inline]
 pub fn normal_gravity_m_s2<T: Real>(lat_rad: T, alt_m: T) -> T {
-    let s = lat_rad.sin();
+    let s = trig::sin(lat_rad);
     let s2 = s * s;
     let g0 = T::lit(GRAVITY_EQUATOR_M_S2) * (T::one() + T::lit(SOMIGLIANA_K) * s2)
         / (T::one() - T::lit(ECCENTRICITY_SQ) * s2).sqrt();
@@ -93,7 +94,7 @@ pub fn schuler_frequency_sq<T: Real>(gravity_m_s2: T) -> T {
 #[inline]
 pub fn earth_rate_ned<T: Real>(lat_rad: T) -> Vector3<T> {
     let w = T::lit(EARTH_RATE_RAD_S);
-    Vector3::new(w * lat_rad.cos(), T::zero(), -w * lat_rad.sin())
+    Vector3::new(w * trig::cos(lat_rad), T::zero(), -w * trig::sin(lat_rad))
 }
 
 /// Transport rate ω_en of the NED frame over the earth, rad/s:
@@ -106,7 +107,7 @@ pub fn transport_rate_ned<T: Real>(lat_rad: T, alt_m: T, vel_ned_m_s: &Vector3<T
     Vector3::new(
         vel_ned_m_s.y * inv_n,
         -vel_ned_m_s.x * inv_m,
-        -vel_ned_m_s.y * lat_rad.tan() * inv_n,
+        -vel_ned_m_s.y * trig::tan(lat_rad) * inv_n,
     )
 }
 

@@ -1,7 +1,7 @@
 //! The float abstraction: every filter is generic over [`Real`], implemented for `f32` (the
 //! target) and `f64` (host analysis).
 
-use nalgebra::RealField;
+use nalgebra::{ComplexField, RealField};
 
 /// A real scalar the filters run on: `f32` on the flight computer, `f64` on the host.
 ///
@@ -13,6 +13,18 @@ pub trait Real: RealField + Copy + Default + sealed::Sealed {
     fn to_f64(self) -> f64;
     /// Machine epsilon of the type.
     const EPS: Self;
+    /// `(sin x, cos x)`; use [`crate::math::trig::sin_cos`].
+    #[doc(hidden)]
+    fn trig_sin_cos(self) -> (Self, Self);
+    /// `sin x`; use [`crate::math::trig::sin`].
+    #[doc(hidden)]
+    fn trig_sin(self) -> Self;
+    /// `cos x`; use [`crate::math::trig::cos`].
+    #[doc(hidden)]
+    fn trig_cos(self) -> Self;
+    /// `tan x`; use [`crate::math::trig::tan`].
+    #[doc(hidden)]
+    fn trig_tan(self) -> Self;
 }
 
 impl Real for f32 {
@@ -25,6 +37,23 @@ impl Real for f32 {
         f64::from(self)
     }
     const EPS: Self = f32::EPSILON;
+    #[inline]
+    fn trig_sin_cos(self) -> (Self, Self) {
+        crate::math::trig::sin_cos_f32(self)
+    }
+    #[inline]
+    fn trig_sin(self) -> Self {
+        crate::math::trig::sin_cos_f32(self).0
+    }
+    #[inline]
+    fn trig_cos(self) -> Self {
+        crate::math::trig::sin_cos_f32(self).1
+    }
+    #[inline]
+    fn trig_tan(self) -> Self {
+        let (s, c) = crate::math::trig::sin_cos_f32(self);
+        s / c
+    }
 }
 
 impl Real for f64 {
@@ -37,6 +66,22 @@ impl Real for f64 {
         self
     }
     const EPS: Self = f64::EPSILON;
+    #[inline]
+    fn trig_sin_cos(self) -> (Self, Self) {
+        (ComplexField::sin(self), ComplexField::cos(self))
+    }
+    #[inline]
+    fn trig_sin(self) -> Self {
+        ComplexField::sin(self)
+    }
+    #[inline]
+    fn trig_cos(self) -> Self {
+        ComplexField::cos(self)
+    }
+    #[inline]
+    fn trig_tan(self) -> Self {
+        ComplexField::tan(self)
+    }
 }
 
 mod sealed {

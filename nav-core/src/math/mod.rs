@@ -1,4 +1,4 @@
-//! Shared math: rotations, discretisation of linear stochastic systems, Gauss-Markov processes
+//! Shared math: `f32`-only sine/cosine ([`trig`]), rotations, discretisation of linear stochastic systems, Gauss-Markov processes
 //! and the Kalman measurement update.
 
 pub mod checks;
@@ -7,3 +7,4 @@ pub mod kalman;
 pub mod linalg;
 pub mod markov;
 pub mod rotation;
+pub mod trig;

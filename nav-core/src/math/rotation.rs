@@ -9,6 +9,7 @@
 //! * Euler angles are the aerospace 3-2-1 sequence (yaw ψ about z, pitch θ about y, roll φ
 //!   about x) from navigation to body.
 
+use crate::math::trig;
 use crate::Real;
 use nalgebra::{Matrix3, Quaternion, Vector3};
 
@@ -45,7 +46,7 @@ pub fn exp_so3<T: Real>(phi: &Vector3<T>) -> Matrix3<T> {
         )
     } else {
         let th = th2.sqrt();
-        (th.sin() / th, (T::one() - th.cos()) / th2)
+        (trig::sin(th) / th, (T::one() - trig::cos(th)) / th2)
     };
     let k = skew(phi);
     Matrix3::identity() + k * a + k * k * b
@@ -61,7 +62,7 @@ pub fn log_so3<T: Real>(c: &Matrix3<T>) -> Vector3<T> {
         // sin θ/θ ≈ 1 − θ²/6
         w * (T::one() + th * th / T::lit(6.0))
     } else {
-        w * (th / th.sin())
+        w * (th / trig::sin(th))
     }
 }
 
@@ -85,7 +86,7 @@ pub fn quat_from_rotation_vector<T: Real>(phi: &Vector3<T>) -> Quaternion<T> {
         )
     } else {
         let th = th2.sqrt();
-        ((th * half).cos(), (th * half).sin() / th)
+        (trig::cos(th * half), trig::sin(th * half) / th)
     };
     Quaternion::new(c, phi.x * s_over_th, phi.y * s_over_th, phi.z * s_over_th)
 }
@@ -178,9 +179,9 @@ pub fn quat_normalize<T: Real>(q: &Quaternion<T>) -> Option<Quaternion<T>> {
 /// `C_b^n` from 3-2-1 Euler angles (roll φ, pitch θ, yaw ψ), rad.
 #[inline]
 pub fn euler_to_dcm<T: Real>(roll: T, pitch: T, yaw: T) -> Matrix3<T> {
-    let (sr, cr) = (roll.sin(), roll.cos());
-    let (sp, cp) = (pitch.sin(), pitch.cos());
-    let (sy, cy) = (yaw.sin(), yaw.cos());
+    let (sr, cr) = trig::sin_cos(roll);
+    let (sp, cp) = trig::sin_cos(pitch);
+    let (sy, cy) = trig::sin_cos(yaw);
     Matrix3::new(
         cp * cy,
         sr * sp * cy - cr * sy,
@@ -207,7 +208,7 @@ pub fn dcm_to_euler<T: Real>(c: &Matrix3<T>) -> (T, T, T) {
 /// the new frame rotated by +a about x.
 #[inline]
 pub fn frame_rotation_x<T: Real>(a: T) -> Matrix3<T> {
-    let (s, c) = (a.sin(), a.cos());
+    let (s, c) = trig::sin_cos(a);
     let (o, z) = (T::one(), T::zero());
     Matrix3::new(o, z, z, z, c, s, z, -s, c)
 }
@@ -215,7 +216,7 @@ pub fn frame_rotation_x<T: Real>(a: T) -> Matrix3<T> {
 /// Elementary frame rotation about y by angle a (see [`frame_rotation_x`]).
 #[inline]
 pub fn frame_rotation_y<T: Real>(a: T) -> Matrix3<T> {
-    let (s, c) = (a.sin(), a.cos());
+    let (s, c) = trig::sin_cos(a);
     let (o, z) = (T::one(), T::zero());
     Matrix3::new(c, z, -s, z, o, z, s, z, c)
 }
@@ -223,7 +224,7 @@ pub fn frame_rotation_y<T: Real>(a: T) -> Matrix3<T> {
 /// Elementary frame rotation about z by angle a (see [`frame_rotation_x`]).
 #[inline]
 pub fn frame_rotation_z<T: Real>(a: T) -> Matrix3<T> {
-    let (s, c) = (a.sin(), a.cos());
+    let (s, c) = trig::sin_cos(a);
     let (o, z) = (T::one(), T::zero());
     Matrix3::new(c, s, z, -s, c, z, z, z, o)
 }

@@ -37,9 +37,10 @@
 //!    so `z ≈ [H1 0 H3 0 0 H6] δx + v` (seed eq. 4 with its sign convention).
 
 use super::error_model::{ATT, GIMBAL, POS, STATES};
-use super::mechanization::{sin_cos, Kinematics, Position};
+use super::mechanization::{Kinematics, Position};
 use crate::earth::{transverse_radius_m, ECCENTRICITY_SQ};
 use crate::math::rotation::skew;
+use crate::math::trig;
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SVector, Vector2, Vector3};
 
@@ -59,8 +60,8 @@ pub struct GimbalAngles<T> {
 
 /// LOS unit vector in body axes from gimbal angles, `u_b = C_s^b [1 0 0]ᵀ`.
 pub fn los_body<T: Real>(g: &GimbalAngles<T>) -> Vector3<T> {
-    let (st, ct) = (g.pitch_rad.sin(), g.pitch_rad.cos());
-    let (sp, cp) = (g.yaw_rad.sin(), g.yaw_rad.cos());
+    let (st, ct) = trig::sin_cos(g.pitch_rad);
+    let (sp, cp) = trig::sin_cos(g.yaw_rad);
     Vector3::new(ct * cp, ct * sp, -st)
 }
 
@@ -118,13 +119,13 @@ impl<T: Real> Landmark<T> {
 /// WGS-84 ellipsoid: ECEF difference, rotated into NED).
 pub fn landmark_vector_ned<T: Real>(pos: &Position, lm: &Landmark<T>) -> Vector3<T> {
     let lat = T::lit(pos.lat_rad);
-    let (sl, cl) = sin_cos(lat);
+    let (sl, cl) = trig::sin_cos(lat);
     let rn = T::lit(crate::earth::SEMI_MAJOR_AXIS_M)
         / (T::one() - T::lit(ECCENTRICITY_SQ) * sl * sl).sqrt();
     let h = T::lit(pos.alt_m);
     // ECEF rotated about z by −l_vehicle: vehicle in the x-z plane.
     let dlon = T::lit(wrap_pi(lm.position.lon_rad - pos.lon_rad));
-    let (sdl, cdl) = sin_cos(dlon);
+    let (sdl, cdl) = trig::sin_cos(dlon);
     let dx = lm.axis_distance_m * cdl - (rn + h) * cl;
     let dy = lm.axis_distance_m * sdl;
     let dz = lm.ecef_z_m - (rn * T::lit(1.0 - ECCENTRICITY_SQ) + h) * sl;
@@ -203,8 +204,8 @@ pub fn los_model<T: Real>(
         });
     }
     let e_l = d / range;
-    let (st, ct) = sin_cos(gimbal.pitch_rad);
-    let (sp, cp) = sin_cos(gimbal.yaw_rad);
+    let (st, ct) = trig::sin_cos(gimbal.pitch_rad);
+    let (sp, cp) = trig::sin_cos(gimbal.yaw_rad);
     let e_g = c_b_n * Vector3::new(ct * cp, ct * sp, -st);
     let n_th = c_b_n * Vector3::new(-st * cp, -st * sp, -ct);
     let n_ps = c_b_n * Vector3::new(-sp, cp, T::zero());
@@ -282,8 +283,8 @@ pub fn los_model_3d<T: Real>(
 ) -> Result<LosModel3<T>, NavError> {
     // Validation and the shared geometry come from the 2-D model.
     let m2 = los_model(pos, c_b_n, gimbal, lm, sigma_rad)?;
-    let (st, ct) = (gimbal.pitch_rad.sin(), gimbal.pitch_rad.cos());
-    let (sp, cp) = (gimbal.yaw_rad.sin(), gimbal.yaw_rad.cos());
+    let (st, ct) = trig::sin_cos(gimbal.pitch_rad);
+    let (sp, cp) = trig::sin_cos(gimbal.yaw_rad);
     let n_th = c_b_n * Vector3::new(-st * cp, -st * sp, -ct);
     let n_ps = c_b_n * Vector3::new(-sp, cp, T::zero());
     let d = landmark_vector_ned(pos, lm);

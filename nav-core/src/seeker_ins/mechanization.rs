@@ -33,6 +33,7 @@
 
 use crate::earth::{normal_gravity_m_s2, EARTH_RATE_RAD_S};
 use crate::math::rotation::{quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm};
+use crate::math::trig;
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, Quaternion, Vector3, Vector4};
 
@@ -127,7 +128,7 @@ impl<T: Real> Kinematics<T> {
     pub(crate) fn new(pos: &Position, v: &Vector3<T>) -> Self {
         let lat = T::lit(pos.lat_rad);
         let h = T::lit(pos.alt_m);
-        let (sin_lat, cos_lat) = sin_cos(lat);
+        let (sin_lat, cos_lat) = trig::sin_cos(lat);
         let e2 = T::lit(crate::earth::ECCENTRICITY_SQ);
         let d = T::one() - e2 * sin_lat * sin_lat;
         let d_inv = T::one() / d;
@@ -151,39 +152,6 @@ impl<T: Real> Kinematics<T> {
             w_ie: Vector3::new(w * cos_lat, T::zero(), -w * sin_lat),
             w_en: Vector3::new(v.y * inv_n, -v.x * inv_m, -v.y * tan_lat * inv_n),
         }
-    }
-}
-
-/// `(sin x, cos x)`. In `f32` for |x| ≤ 1.6 rad (latitudes, gimbal angles) by Taylor
-/// polynomials to x¹⁵ / x¹⁶ (truncation < 1e-9, below f32 rounding) instead of libm's `sinf`,
-/// which works in `f64` (software floating point on a Cortex-M4F, ≈ 1 200 instructions a call).
-/// `f64` and larger |x|: the library functions.
-#[inline]
-pub(crate) fn sin_cos<T: Real>(x: T) -> (T, T) {
-    if T::EPS > T::lit(1e-10) && x.abs() <= T::lit(1.6) {
-        let x2 = x * x;
-        let l = |v: f64| T::lit(v);
-        let s = x
-            * (T::one()
-                + x2 * (l(-1.0 / 6.0)
-                    + x2 * (l(1.0 / 120.0)
-                        + x2 * (l(-1.0 / 5040.0)
-                            + x2 * (l(1.0 / 362_880.0)
-                                + x2 * (l(-1.0 / 39_916_800.0)
-                                    + x2 * (l(1.0 / 6_227_020_800.0)
-                                        + x2 * l(-1.0 / 1_307_674_368_000.0))))))));
-        let c = T::one()
-            + x2 * (l(-0.5)
-                + x2 * (l(1.0 / 24.0)
-                    + x2 * (l(-1.0 / 720.0)
-                        + x2 * (l(1.0 / 40_320.0)
-                            + x2 * (l(-1.0 / 3_628_800.0)
-                                + x2 * (l(1.0 / 479_001_600.0)
-                                    + x2 * (l(-1.0 / 87_178_291_200.0)
-                                        + x2 * l(1.0 / 20_922_789_888_000.0))))))));
-        (s, c)
-    } else {
-        (x.sin(), x.cos())
     }
 }
 
@@ -429,8 +397,8 @@ fn quat_minus_one<T: Real>(phi: &Vector3<T>) -> Quaternion<T> {
         )
     } else {
         let th = th2.sqrt();
-        let s4 = (th * T::lit(0.25)).sin();
-        (-T::lit(2.0) * s4 * s4, (th * T::lit(0.5)).sin() / th)
+        let s4 = trig::sin(th * T::lit(0.25));
+        (-T::lit(2.0) * s4 * s4, trig::sin(th * T::lit(0.5)) / th)
     };
     Quaternion::new(
         w_m1,
