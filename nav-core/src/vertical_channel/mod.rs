@@ -1078,16 +1078,27 @@ impl<T: Real> LoopCore<T> {
         // loop's fixed Φ and skip the interval check (f32 stamps may not resolve dt).
         let n = T::lit(f64::from(missing + 1));
         let step_s = (imu.time_s - self.time_s) / n;
+        // One call site of the (inlined) advance for the sub-steps and the final step: the
+        // aid samples go with the final step only.
         let mut k = T::zero();
-        for _ in 0..missing {
-            k += T::one();
-            let sub = ImuSample {
-                time_s: self.time_s + step_s * k,
-                specific_force_up_m_s2: imu.specific_force_up_m_s2,
+        let mut last = None;
+        for i in 0..=missing {
+            let sub;
+            let (sample, b, v) = if i == missing {
+                (imu, baro, velocity)
+            } else {
+                k += T::one();
+                sub = ImuSample {
+                    time_s: self.time_s + step_s * k,
+                    specific_force_up_m_s2: imu.specific_force_up_m_s2,
+                };
+                (&sub, None, None)
             };
-            tmp.advance(&sub, None, None, variances)?;
+            last = Some(tmp.advance(sample, b, v, variances)?);
         }
-        let (b, v, _) = tmp.advance(imu, baro, velocity, variances)?;
+        let Some((b, v, _)) = last else {
+            return Err(NavError::InvalidTimeStep);
+        };
         *self = tmp;
         Ok((b, v, missing + 1))
     }
