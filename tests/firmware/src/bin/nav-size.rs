@@ -10,8 +10,7 @@ mod logger;
 #[path = "../size_image.rs"]
 mod size_image;
 
-use cortex_m_rt::{entry, exception, ExceptionFrame};
-use cortex_m_semihosting::debug;
+use cortex_m_rt::entry;
 
 macro_rules! design_file {
     ($name:literal) => {
@@ -29,29 +28,4 @@ fn main() -> ! {
         vc_aided: core::hint::black_box(design_file!("vc_aided")),
     };
     size_image::run(&designs)
-}
-
-#[exception]
-unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[cfg(not(feature = "panic-never"))]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[cfg(feature = "panic-never")]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    extern "Rust" {
-        fn nav_core_contains_a_reachable_panic() -> !;
-    }
-    // SAFETY: never executed; the link fails if this call survives optimisation.
-    unsafe { nav_core_contains_a_reachable_panic() }
 }
