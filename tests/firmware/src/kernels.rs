@@ -491,7 +491,9 @@ struct Seeker {
     ok: bool,
 }
 
-static INS: Mutex<RefCell<Option<(Ins<f32>, bool)>>> = Mutex::new(RefCell::new(None));
+/// The INS kernel's state: the mechanisation and whether every step succeeded.
+type InsSlot = Mutex<RefCell<Option<(Ins<f32>, bool)>>>;
+static INS: InsSlot = Mutex::new(RefCell::new(None));
 static SEEKER: Mutex<RefCell<Option<Seeker>>> = Mutex::new(RefCell::new(None));
 
 fn ins_setup() {
