@@ -284,8 +284,11 @@ fn budget_table(report: &Map<String, Value>) -> String {
     let get = |k: &str| m4.get(k).and_then(Value::as_u64).unwrap_or(0);
     let f_text = get("filters_image_text_bytes");
     md.push_str(&format!(
-        "\nFilters image (`nav-size`: every filter built from designs computed on the host and \
-         stored in the image, `from_design`, and its step path; no harness): \
+        "\nFilters image (`nav-size`: a flight program — every filter built from designs \
+         computed on the host and stored in the image, `from_design`, with opaque \
+         configurations, gates and recovery policies set, and every run-time entry point called: \
+         steps, predictions, LOS updates, IMU gap and clipping handling, master-dropout \
+         propagation, delayed master match, re-initialisation; no harness): \
          `.text` {f_text} B (budget {BUDGET_TEXT_BYTES} B {}), `.rodata` {} B, `.data` {} B, \
          `.bss` {} B. With the designs computed on board (`nav-size-onboard`: `new`, so the \
          discretisation, Riccati solver and f64 gravity fit are linked): `.text` {} B. \

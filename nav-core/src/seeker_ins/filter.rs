@@ -562,7 +562,9 @@ impl<T: Real> SeekerIns<T> {
     }
 
     /// `P ← Φ P Φᵀ + Q_d` over `steps` IMU intervals with F at the INS state and the mean
-    /// specific force `dv_ned / (steps Δt)`; atomic (P unchanged on error).
+    /// specific force `dv_ned / (steps Δt)`; atomic (P unchanged on error). Not inlined: one
+    /// copy serves `predict_covariance` and the pending-prediction path of `update_los`.
+    #[inline(never)]
     fn covariance_step(
         p: &mut SMatrix<T, STATES, STATES>,
         ins: &Ins<T>,
@@ -608,6 +610,8 @@ impl<T: Real> SeekerIns<T> {
         Ok(report)
     }
 
+    /// Not inlined: one copy serves the direct and the pending-prediction paths.
+    #[inline(never)]
     fn update_los_now(&mut self, measured: &GimbalAngles<T>) -> Result<LosReport<T>, NavError> {
         let corrected = GimbalAngles {
             pitch_rad: measured.pitch_rad - self.gimbal_bias_rad.x,
@@ -630,17 +634,7 @@ impl<T: Real> SeekerIns<T> {
         let zero = T::zero();
         let p = &self.p;
         // k = P h over the 8 non-zero entries of h (columns 0..3, 6..9, 15..17 of P).
-        let ph = |h: &SVector<T, STATES>| -> [T; STATES] {
-            let mut k = [zero; STATES];
-            for (col, hj) in p.as_slice().chunks_exact(STATES).zip(h.iter()) {
-                if *hj != zero {
-                    for (ki, pij) in k.iter_mut().zip(col) {
-                        *ki += *hj * *pij;
-                    }
-                }
-            }
-            k
-        };
+        let ph = |h: &SVector<T, STATES>| -> [T; STATES] { covariance_times_dense_row(p, h) };
         let dot = |a: &[T; STATES], h: &SVector<T, STATES>| -> T {
             a.iter()
                 .zip(h.iter())
@@ -829,6 +823,25 @@ impl<T: Real> SeekerIns<T> {
         self.gimbal_bias_rad += x.fixed_rows::<2>(GIMBAL);
         Ok(())
     }
+}
+
+/// `k = P h`, skipping the zero entries of h (8 of 17 for a LOS row). Not inlined: one copy
+/// serves both LOS components.
+#[inline(never)]
+fn covariance_times_dense_row<T: Real>(
+    p: &SMatrix<T, STATES, STATES>,
+    h: &SVector<T, STATES>,
+) -> [T; STATES] {
+    let zero = T::zero();
+    let mut k = [zero; STATES];
+    for (col, hj) in p.as_slice().chunks_exact(STATES).zip(h.iter()) {
+        if *hj != zero {
+            for (ki, pij) in k.iter_mut().zip(col) {
+                *ki += *hj * *pij;
+            }
+        }
+    }
+    k
 }
 
 /// Innovation variance, NIS and χ² gate of one scalar component with `hᵀPh = hph`: the report

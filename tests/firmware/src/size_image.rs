@@ -1,35 +1,127 @@
-//! Shared body of the size images: every filter's constructor and step path (through the
-//! golden-vector replay driver, fed an opaque empty input so nothing is optimised away), no
-//! bench harness and no recorded vectors. The design source decides whether the design code
+//! Shared body of the size images: a flight program's use of nav-core — every filter's
+//! constructor, configuration calls and every run-time entry point, on opaque inputs so that
+//! nothing is optimised away or specialised on constants — without the bench harness, the
+//! golden replay and the recorded vectors. The design source decides whether the design code
 //! (discretisation, Riccati solver, f64 gravity fit) is in the image. Also the size images'
 //! exception and panic handlers.
 
+use core::hint::black_box as bb;
 use cortex_m_rt::{exception, ExceptionFrame};
 use cortex_m_semihosting::debug;
+use nalgebra::Vector3;
+use nav_core::seeker_ins::filter::{ClipFlags, SeekerIns};
+use nav_core::seeker_ins::measurement::GimbalAngles;
+use nav_core::seeker_ins::mechanization::ImuIncrement;
+use nav_core::transfer_alignment::{MasterSample, SlaveHistory, SlaveSample};
+use nav_core::vertical_channel::{BaroSample, ImuSample, InnovationGate, VelocitySample};
+use nav_core::NavError;
 use nav_golden::DesignSource;
 
 pub fn run(designs: &dyn DesignSource) -> ! {
-    let inputs: &[u8] = core::hint::black_box(&[]);
-    let mut values = 0usize;
-    let mut failed = 0u32;
-    for case in nav_golden::CASES {
-        match nav_golden::replay_with(case, inputs, designs, &mut |_, out| values += out.len()) {
-            Ok(steps) => values += steps,
-            Err(_) => failed += 1,
-        }
-    }
-    defmt::println!(
-        "SIZE image ran: values={=usize} failed={=u32}",
-        values,
-        failed
-    );
-    debug::exit(if failed == 0 {
+    let result = flight_loop(designs);
+    defmt::println!("SIZE image ran: ok={=bool}", result.is_ok());
+    debug::exit(if result.is_ok() {
         debug::EXIT_SUCCESS
     } else {
         debug::EXIT_FAILURE
     });
     #[allow(clippy::empty_loop)]
     loop {}
+}
+
+/// What a flight program does with nav-core: build every filter (designs from `designs`,
+/// configurations opaque to the optimiser), set its gates and recovery policies, then at each
+/// cycle call every run-time entry point: both transfer-alignment filters (`step`, the delayed
+/// match from the slave history, `propagate` through master dropouts), both vertical loops
+/// (gated `step`, `reinitialise`), and the seeker INS (`propagate`, its clipped and gap forms,
+/// `predict_covariance`, `update_los`). Inputs are opaque values; the cycle count is opaque (0
+/// here: the image is only linked and measured).
+fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
+    let mut ta9 = designs.ta9()?;
+    let mut ta12 = designs.ta12()?;
+    let mut cl = designs.vc_classical()?;
+    let mut ai = designs.vc_aided()?;
+    let (cfg, p0) = nav_golden::seeker_config()?;
+    let mut sk = SeekerIns::new(bb(cfg), bb(nav_golden::seeker_initial()), &bb(p0))?;
+    let gate = bb(InnovationGate {
+        nis_threshold: 10.83,
+        baro_sigma_m: 30.0,
+        velocity_sigma_m_s: 3.0,
+        starved_velocity_sigma_m_s: 0.5,
+        starved_accel_sigma_m_s2: 0.02,
+        recovery_hold_s: 60.0,
+    });
+    cl.set_gate(Some(&gate))?;
+    ai.set_gate(Some(&gate))?;
+    ta9.set_recovery(bb(ta9.recovery()))?;
+    ta12.set_recovery(bb(ta12.recovery()))?;
+    sk.set_recovery_policy(bb(sk.recovery_policy()))?;
+    sk.set_imu_fault_policy(bb(sk.imu_fault_policy()))?;
+    let mut history = SlaveHistory::<f32, 8>::new();
+    let v = |x: f32| bb(Vector3::new(x, x, x));
+    for _ in 0..bb(0u32) {
+        let master = MasterSample {
+            time_s: bb(0.0),
+            angular_rate_rad_s: v(0.0),
+            angular_accel_rad_s2: v(0.0),
+            specific_force_m_s2: v(0.0),
+        };
+        let slave = SlaveSample {
+            time_s: bb(0.0),
+            angular_rate_rad_s: v(0.0),
+            specific_force_m_s2: v(0.0),
+        };
+        history.push(&slave)?;
+        if bb(true) {
+            bb(ta9.step(&master, &slave)?);
+            bb(ta12.step_delayed(&master, &history)?);
+        } else {
+            bb(ta9.propagate(bb(0.0))?);
+            bb(ta12.propagate(bb(0.0))?);
+        }
+        let imu = bb(ImuSample {
+            time_s: 0.0,
+            specific_force_up_m_s2: 9.8,
+        });
+        let baro = bb(BaroSample {
+            time_s: 0.0,
+            altitude_m: 0.0,
+        });
+        let vel = bb(VelocitySample {
+            time_s: 0.0,
+            vz_up_m_s: 0.0,
+        });
+        bb(cl.step(&imu, bb(Some(&baro)))?);
+        bb(ai.step(&imu, bb(Some(&baro)), bb(Some(&vel)))?);
+        if bb(false) {
+            cl.reinitialise(&bb(nav_golden::vc_initial()))?;
+            ai.reinitialise(&bb(nav_golden::vc_initial()))?;
+        }
+        let inc = ImuIncrement {
+            delta_theta_rad: v(0.0),
+            delta_v_m_s: v(0.0),
+        };
+        match bb(0u8) {
+            0 => sk.propagate(&inc)?,
+            1 => sk.propagate_clipped(&inc, bb(ClipFlags::default()))?,
+            _ => sk.propagate_gap(bb(1))?,
+        }
+        if bb(true) {
+            sk.predict_covariance()?;
+            bb(sk.update_los(&bb(GimbalAngles {
+                pitch_rad: 0.0,
+                yaw_rad: 0.0,
+            }))?);
+        }
+        bb((
+            ta9.theta(),
+            ta12.theta_sigma_rad(),
+            cl.altitude_m(),
+            ai.vz_up_m_s(),
+            sk.state().vel_ned_m_s,
+        ));
+    }
+    Ok(())
 }
 
 #[exception]
