@@ -667,10 +667,9 @@ fn gap_intervals<T: Real>(dt: T, dt_s: T, tol: T) -> Result<u32, NavError> {
         && n <= T::lit(f64::from(MAX_IMU_GAP_INTERVALS))
         && (dt - n * dt_s).abs() <= tol
     {
-        // n is an integer in [2, MAX_IMU_GAP_INTERVALS].
-        let n_u32 = (1..=MAX_IMU_GAP_INTERVALS)
-            .find(|&k| T::lit(f64::from(k)) >= n)
-            .unwrap_or(MAX_IMU_GAP_INTERVALS);
+        // n is an integer in [2, MAX_IMU_GAP_INTERVALS]: the conversion is exact (and
+        // saturating in Rust, so it cannot wrap even if it were not).
+        let n_u32 = (n.to_f64() as u32).clamp(2, MAX_IMU_GAP_INTERVALS);
         Ok(n_u32 - 1)
     } else {
         Err(NavError::InvalidTimeStep)
