@@ -294,20 +294,11 @@ ta_kernel!(
 // ---------------------------------------------------------------- vertical channel
 
 use nav_core::vertical_channel::{
-    AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState, InnovationGate, VelocitySample,
+    AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState, VelocitySample,
 };
 
-/// The χ² gate is on in the bench (its cost is part of the step): every sample is gated.
-fn vc_gate() -> InnovationGate {
-    InnovationGate {
-        nis_threshold: 10.83,
-        baro_sigma_m: 30.0,
-        velocity_sigma_m_s: 3.0,
-        starved_velocity_sigma_m_s: 0.5,
-        starved_accel_sigma_m_s2: 0.02,
-        recovery_hold_s: 60.0,
-    }
-}
+// The χ² gate is on in the bench (its cost is part of the step): every sample is gated.
+use nav_golden::vc_gate;
 
 const VC_DT_S: f64 = 0.01;
 

@@ -13,7 +13,7 @@ use nav_core::seeker_ins::filter::{ClipFlags, SeekerIns};
 use nav_core::seeker_ins::measurement::GimbalAngles;
 use nav_core::seeker_ins::mechanization::ImuIncrement;
 use nav_core::transfer_alignment::{MasterSample, SlaveHistory, SlaveSample};
-use nav_core::vertical_channel::{BaroSample, ImuSample, InnovationGate, VelocitySample};
+use nav_core::vertical_channel::{BaroSample, ImuSample, VelocitySample};
 use nav_core::NavError;
 use nav_golden::DesignSource;
 
@@ -43,14 +43,7 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
     let mut ai = designs.vc_aided()?;
     let (cfg, p0) = nav_golden::seeker_config()?;
     let mut sk = SeekerIns::new(bb(cfg), bb(nav_golden::seeker_initial()), &bb(p0))?;
-    let gate = bb(InnovationGate {
-        nis_threshold: 10.83,
-        baro_sigma_m: 30.0,
-        velocity_sigma_m_s: 3.0,
-        starved_velocity_sigma_m_s: 0.5,
-        starved_accel_sigma_m_s2: 0.02,
-        recovery_hold_s: 60.0,
-    });
+    let gate = bb(nav_golden::vc_gate());
     cl.set_gate(Some(&gate))?;
     ai.set_gate(Some(&gate))?;
     ta9.set_recovery(bb(ta9.recovery()))?;

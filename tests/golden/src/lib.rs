@@ -24,7 +24,7 @@ use nav_core::transfer_alignment::{
 };
 use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
-    ClassicalLoop, ImuSample, InitialState, VelocitySample,
+    ClassicalLoop, ImuSample, InitialState, InnovationGate, VelocitySample,
 };
 use nav_core::NavError;
 
@@ -178,6 +178,20 @@ pub fn vc_aided_config() -> AidedConfig {
             stale_after_s: 0.15,
             lost_after_s: 1.0,
         },
+    }
+}
+
+/// The χ² innovation gate the firmware images put on both VC loops (0.1 % false alarms; σ
+/// of a tracking loop 30 m baro, 3 m/s velocity; re-inflation from 0.5 m/s, 0.02 m/s²; 60 s
+/// recovery hold). The golden recording runs without a gate.
+pub fn vc_gate() -> InnovationGate {
+    InnovationGate {
+        nis_threshold: 10.83,
+        baro_sigma_m: 30.0,
+        velocity_sigma_m_s: 3.0,
+        starved_velocity_sigma_m_s: 0.5,
+        starved_accel_sigma_m_s2: 0.02,
+        recovery_hold_s: 60.0,
     }
 }
 
