@@ -286,6 +286,8 @@ pub fn fuse_scalar_sparse<T: Real, const N: usize, const M: usize>(
     r: T,
     gate: Gate<T>,
 ) -> Result<FusionReport<T>, NavError> {
+    // Checked before the row so a bad innovation or r is reported first, as `fuse_scalar`
+    // does (`fuse_scalar_prepared` repeats the check: a few instructions).
     check_scalar_inputs(innovation, r)?;
     let b = sparse_covariance_product(p, h)?;
     let hph = h.dot(&b);
