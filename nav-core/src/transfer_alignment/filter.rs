@@ -548,6 +548,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     }
 
     /// Predicts `n` steps from the current covariance into the scratch buffer (a copy if n = 0).
+    #[inline(never)] // one copy serves `step` and `propagate`
     fn predict_to_scratch(&mut self, x: &mut SVector<T, N>, n: u32) {
         // Borrow the fields separately: no copy of the chains.
         let Self {
