@@ -21,6 +21,7 @@ use super::measurement::los_model_3d;
 use super::measurement::{los_model, GimbalAngles, Landmark};
 use super::mechanization::{ImuIncrement, Ins, InsState};
 use crate::error::ConfigIssue;
+use crate::math::checks::opaque;
 #[cfg(feature = "los-residual-3d")]
 use crate::math::kalman::fuse_scalar;
 use crate::math::kalman::{FusionOutcome, FusionReport, Gate};
@@ -635,11 +636,7 @@ impl<T: Real> SeekerIns<T> {
         let p = &self.p;
         // k = P h over the 8 non-zero entries of h (columns 0..3, 6..9, 15..17 of P).
         let ph = |h: &SVector<T, STATES>| -> [T; STATES] { covariance_times_dense_row(p, h) };
-        let dot = |a: &[T; STATES], h: &SVector<T, STATES>| -> T {
-            a.iter()
-                .zip(h.iter())
-                .fold(zero, |acc, (x, y)| acc + *x * *y)
-        };
+        let dot = |a: &[T; STATES], h: &SVector<T, STATES>| -> T { dot_rolled(a, h.as_slice()) };
         // Component 1 (pitch direction).
         let h1 = &model.h_pitch;
         let k1 = ph(h1);
@@ -657,24 +654,29 @@ impl<T: Real> SeekerIns<T> {
         let mut kk1 = [zero; STATES];
         if fused1 {
             let c = dot(&k1, h2) * inv_s1;
-            let it = k2
-                .iter_mut()
-                .zip(k1.iter())
-                .zip(x.iter_mut())
-                .zip(kk1.iter_mut());
-            for (((k2i, k1i), xi), kk) in it {
+            for i in 0..STATES {
+                let i = opaque(i); // keeps the loop rolled
+                let (Some(k2i), Some(k1i), Some(xi), Some(kk)) =
+                    (k2.get_mut(i), k1.get(i), x.get_mut(i), kk1.get_mut(i))
+                else {
+                    continue;
+                };
                 *k2i -= *k1i * c;
                 *kk = *k1i * inv_s1;
                 *xi = *kk * rep1.innovation;
             }
         }
-        let nu2 =
-            model.residual_rad.y - h2.iter().zip(x.iter()).fold(zero, |a, (h, v)| a + *h * *v);
+        let nu2 = model.residual_rad.y - dot_rolled(h2.as_slice(), &x);
         let (rep2, inv_s2) = scalar_report(dot(&k2, h2), model.variance_rad2.y, nu2, gate)?;
         let fused2 = rep2.outcome == FusionOutcome::Fused;
         let mut kk2 = [zero; STATES];
         if fused2 {
-            for ((kk, k2i), xi) in kk2.iter_mut().zip(k2.iter()).zip(x.iter_mut()) {
+            for i in 0..STATES {
+                let i = opaque(i); // keeps the loop rolled
+                let (Some(kk), Some(k2i), Some(xi)) = (kk2.get_mut(i), k2.get(i), x.get_mut(i))
+                else {
+                    continue;
+                };
                 *kk = *k2i * inv_s2;
                 *xi += *kk * rep2.innovation;
             }
@@ -694,6 +696,7 @@ impl<T: Real> SeekerIns<T> {
             pij - g(&k1, i) * g(&kk1, j) - g(&k2, i) * g(&kk2, j)
         };
         for (i, col) in p.as_slice().chunks_exact(STATES).enumerate() {
+            let i = opaque(i); // keeps the loop rolled
             let d = updated(i, i, col.get(i).copied().unwrap_or(zero));
             if !d.is_finite() || d < zero {
                 return Err(NavError::CovarianceNotPositiveSemiDefinite);
@@ -706,6 +709,7 @@ impl<T: Real> SeekerIns<T> {
         // P: upper triangle, mirrored (exactly symmetric).
         for j in 0..STATES {
             for i in 0..=j {
+                let i = opaque(i); // keeps the loop rolled
                 if let Some(v) = self.p.get((i, j)).copied() {
                     let u = updated(i, j, v);
                     if let Some(d) = self.p.get_mut((i, j)) {
@@ -740,6 +744,7 @@ impl<T: Real> SeekerIns<T> {
             let sf = f.sqrt();
             for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
                 for (i, v) in col.iter_mut().enumerate() {
+                    let i = opaque(i); // keeps the loop rolled
                     match (i < 9, j < 9) {
                         (true, true) => *v *= f,
                         (false, false) => {}
@@ -825,6 +830,16 @@ impl<T: Real> SeekerIns<T> {
     }
 }
 
+/// `Σ aᵢ bᵢ` folded from zero in index order (the shorter length), one rolled copy for every
+/// dot product of the LOS update (`opaque`: not specialised to 17 and unrolled).
+#[inline(never)]
+fn dot_rolled<T: Real>(a: &[T], b: &[T]) -> T {
+    let (a, b) = opaque((a, b));
+    a.iter()
+        .zip(b)
+        .fold(T::zero(), |acc, (x, y)| acc + *x * *y)
+}
+
 /// `k = P h`, skipping the zero entries of h (8 of 17 for a LOS row). Not inlined: one copy
 /// serves both LOS components.
 #[inline(never)]
@@ -836,7 +851,7 @@ fn covariance_times_dense_row<T: Real>(
     let mut k = [zero; STATES];
     for (col, hj) in p.as_slice().chunks_exact(STATES).zip(h.iter()) {
         if *hj != zero {
-            for (ki, pij) in k.iter_mut().zip(col) {
+            for (ki, pij) in k.iter_mut().zip(opaque(col)) {
                 *ki += *hj * *pij;
             }
         }
