@@ -654,13 +654,12 @@ impl<T: Real> SeekerIns<T> {
         let mut kk1 = [zero; STATES];
         if fused1 {
             let c = dot(&k1, h2) * inv_s1;
-            for i in 0..STATES {
-                let i = opaque(i); // keeps the loop rolled
-                let (Some(k2i), Some(k1i), Some(xi), Some(kk)) =
-                    (k2.get_mut(i), k1.get(i), x.get_mut(i), kk1.get_mut(i))
-                else {
-                    continue;
-                };
+            let it = opaque(&mut k2[..])
+                .iter_mut()
+                .zip(k1.iter())
+                .zip(x.iter_mut())
+                .zip(kk1.iter_mut());
+            for (((k2i, k1i), xi), kk) in it {
                 *k2i -= *k1i * c;
                 *kk = *k1i * inv_s1;
                 *xi = *kk * rep1.innovation;
@@ -671,12 +670,11 @@ impl<T: Real> SeekerIns<T> {
         let fused2 = rep2.outcome == FusionOutcome::Fused;
         let mut kk2 = [zero; STATES];
         if fused2 {
-            for i in 0..STATES {
-                let i = opaque(i); // keeps the loop rolled
-                let (Some(kk), Some(k2i), Some(xi)) = (kk2.get_mut(i), k2.get(i), x.get_mut(i))
-                else {
-                    continue;
-                };
+            for ((kk, k2i), xi) in opaque(&mut kk2[..])
+                .iter_mut()
+                .zip(k2.iter())
+                .zip(x.iter_mut())
+            {
                 *kk = *k2i * inv_s2;
                 *xi += *kk * rep2.innovation;
             }
@@ -709,7 +707,6 @@ impl<T: Real> SeekerIns<T> {
         // P: upper triangle, mirrored (exactly symmetric).
         for j in 0..STATES {
             for i in 0..=j {
-                let i = opaque(i); // keeps the loop rolled
                 if let Some(v) = self.p.get((i, j)).copied() {
                     let u = updated(i, j, v);
                     if let Some(d) = self.p.get_mut((i, j)) {
@@ -742,9 +739,10 @@ impl<T: Real> SeekerIns<T> {
         if max > 0 && c.consecutive_rejections >= max {
             let f = self.recovery.inflation_factor;
             let sf = f.sqrt();
-            for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
-                for (i, v) in col.iter_mut().enumerate() {
-                    let i = opaque(i); // keeps the loop rolled
+            // (`opaque`: runtime lengths, the loops stay rolled.)
+            let cols = opaque(self.p.as_mut_slice()).chunks_exact_mut(STATES);
+            for (j, col) in cols.enumerate() {
+                for (i, v) in opaque(col).iter_mut().enumerate() {
                     match (i < 9, j < 9) {
                         (true, true) => *v *= f,
                         (false, false) => {}
@@ -835,9 +833,7 @@ impl<T: Real> SeekerIns<T> {
 #[inline(never)]
 fn dot_rolled<T: Real>(a: &[T], b: &[T]) -> T {
     let (a, b) = opaque((a, b));
-    a.iter()
-        .zip(b)
-        .fold(T::zero(), |acc, (x, y)| acc + *x * *y)
+    a.iter().zip(b).fold(T::zero(), |acc, (x, y)| acc + *x * *y)
 }
 
 /// `k = P h`, skipping the zero entries of h (8 of 17 for a LOS row). Not inlined: one copy
@@ -851,7 +847,7 @@ fn covariance_times_dense_row<T: Real>(
     let mut k = [zero; STATES];
     for (col, hj) in p.as_slice().chunks_exact(STATES).zip(h.iter()) {
         if *hj != zero {
-            for (ki, pij) in k.iter_mut().zip(opaque(col)) {
+            for (ki, pij) in k.iter_mut().zip(col) {
                 *ki += *hj * *pij;
             }
         }
