@@ -497,6 +497,8 @@ impl<T: Real> SeekerIns<T> {
     }
 
     /// Adds `(2c − 1)(σ Δt)²` to the velocity and attitude variances ([`ImuFaultPolicy`]).
+    /// Not inlined: one copy serves the gap and the clipping paths.
+    #[inline(never)]
     fn inflate_degraded(&mut self, c: u16, accel_sigma: T, rate_sigma: T) {
         let dt = self.config.imu_dt_s;
         let w = T::lit(2.0 * f64::from(c) - 1.0) * dt * dt;
