@@ -272,13 +272,12 @@ impl<T: Real> SeekerIns<T> {
             1.0, 1.0, 1e14, 1e8, 1e8, 1e8, 10.0, 10.0, 10.0, 1e4, 1e4, 1e4, 1.0, 1.0, 1.0, 10.0,
             10.0,
         ];
-        if p0
-            .diagonal()
-            .iter()
-            .zip(MAX_VARIANCE.iter())
-            .any(|(v, m)| *v > T::lit(*m))
-        {
-            return Err(NavError::InputOutOfRange { input: "p0" });
+        let cols = p0.as_slice().chunks_exact(STATES).zip(MAX_VARIANCE.iter());
+        for (i, (col, m)) in cols.enumerate() {
+            let i = opaque(i); // keeps the loop rolled (configuration time only)
+            if col.get(i).is_some_and(|v| *v > T::lit(*m)) {
+                return Err(NavError::InputOutOfRange { input: "p0" });
+            }
         }
         if crate::math::kalman::asymmetry(p0) > T::zero()
             || !crate::math::kalman::is_psd(p0, T::lit(1e-6))
