@@ -21,6 +21,7 @@ use super::measurement::los_model_3d;
 use super::measurement::{los_model, GimbalAngles, Landmark};
 use super::mechanization::{ImuIncrement, Ins, InsState};
 use crate::error::ConfigIssue;
+use crate::math::checks::opaque;
 #[cfg(feature = "los-residual-3d")]
 use crate::math::kalman::fuse_scalar;
 use crate::math::kalman::{FusionOutcome, FusionReport, Gate};
@@ -271,13 +272,12 @@ impl<T: Real> SeekerIns<T> {
             1.0, 1.0, 1e14, 1e8, 1e8, 1e8, 10.0, 10.0, 10.0, 1e4, 1e4, 1e4, 1.0, 1.0, 1.0, 10.0,
             10.0,
         ];
-        if p0
-            .diagonal()
-            .iter()
-            .zip(MAX_VARIANCE.iter())
-            .any(|(v, m)| *v > T::lit(*m))
-        {
-            return Err(NavError::InputOutOfRange { input: "p0" });
+        let cols = p0.as_slice().chunks_exact(STATES).zip(MAX_VARIANCE.iter());
+        for (i, (col, m)) in cols.enumerate() {
+            let i = opaque(i); // keeps the loop rolled (configuration time only)
+            if col.get(i).is_some_and(|v| *v > T::lit(*m)) {
+                return Err(NavError::InputOutOfRange { input: "p0" });
+            }
         }
         if crate::math::kalman::asymmetry(p0) > T::zero()
             || !crate::math::kalman::is_psd(p0, T::lit(1e-6))
@@ -496,6 +496,8 @@ impl<T: Real> SeekerIns<T> {
     }
 
     /// Adds `(2c − 1)(σ Δt)²` to the velocity and attitude variances ([`ImuFaultPolicy`]).
+    /// Not inlined: one copy serves the gap and the clipping paths.
+    #[inline(never)]
     fn inflate_degraded(&mut self, c: u16, accel_sigma: T, rate_sigma: T) {
         let dt = self.config.imu_dt_s;
         let w = T::lit(2.0 * f64::from(c) - 1.0) * dt * dt;
@@ -635,11 +637,7 @@ impl<T: Real> SeekerIns<T> {
         let p = &self.p;
         // k = P h over the 8 non-zero entries of h (columns 0..3, 6..9, 15..17 of P).
         let ph = |h: &SVector<T, STATES>| -> [T; STATES] { covariance_times_dense_row(p, h) };
-        let dot = |a: &[T; STATES], h: &SVector<T, STATES>| -> T {
-            a.iter()
-                .zip(h.iter())
-                .fold(zero, |acc, (x, y)| acc + *x * *y)
-        };
+        let dot = |a: &[T; STATES], h: &SVector<T, STATES>| -> T { dot_rolled(a, h.as_slice()) };
         // Component 1 (pitch direction).
         let h1 = &model.h_pitch;
         let k1 = ph(h1);
@@ -657,7 +655,7 @@ impl<T: Real> SeekerIns<T> {
         let mut kk1 = [zero; STATES];
         if fused1 {
             let c = dot(&k1, h2) * inv_s1;
-            let it = k2
+            let it = opaque(&mut k2[..])
                 .iter_mut()
                 .zip(k1.iter())
                 .zip(x.iter_mut())
@@ -668,13 +666,16 @@ impl<T: Real> SeekerIns<T> {
                 *xi = *kk * rep1.innovation;
             }
         }
-        let nu2 =
-            model.residual_rad.y - h2.iter().zip(x.iter()).fold(zero, |a, (h, v)| a + *h * *v);
+        let nu2 = model.residual_rad.y - dot_rolled(h2.as_slice(), &x);
         let (rep2, inv_s2) = scalar_report(dot(&k2, h2), model.variance_rad2.y, nu2, gate)?;
         let fused2 = rep2.outcome == FusionOutcome::Fused;
         let mut kk2 = [zero; STATES];
         if fused2 {
-            for ((kk, k2i), xi) in kk2.iter_mut().zip(k2.iter()).zip(x.iter_mut()) {
+            for ((kk, k2i), xi) in opaque(&mut kk2[..])
+                .iter_mut()
+                .zip(k2.iter())
+                .zip(x.iter_mut())
+            {
                 *kk = *k2i * inv_s2;
                 *xi += *kk * rep2.innovation;
             }
@@ -694,6 +695,7 @@ impl<T: Real> SeekerIns<T> {
             pij - g(&k1, i) * g(&kk1, j) - g(&k2, i) * g(&kk2, j)
         };
         for (i, col) in p.as_slice().chunks_exact(STATES).enumerate() {
+            let i = opaque(i); // keeps the loop rolled
             let d = updated(i, i, col.get(i).copied().unwrap_or(zero));
             if !d.is_finite() || d < zero {
                 return Err(NavError::CovarianceNotPositiveSemiDefinite);
@@ -738,8 +740,10 @@ impl<T: Real> SeekerIns<T> {
         if max > 0 && c.consecutive_rejections >= max {
             let f = self.recovery.inflation_factor;
             let sf = f.sqrt();
-            for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
-                for (i, v) in col.iter_mut().enumerate() {
+            // (`opaque`: runtime lengths, the loops stay rolled.)
+            let cols = opaque(self.p.as_mut_slice()).chunks_exact_mut(STATES);
+            for (j, col) in cols.enumerate() {
+                for (i, v) in opaque(col).iter_mut().enumerate() {
                     match (i < 9, j < 9) {
                         (true, true) => *v *= f,
                         (false, false) => {}
@@ -823,6 +827,14 @@ impl<T: Real> SeekerIns<T> {
         self.gimbal_bias_rad += x.fixed_rows::<2>(GIMBAL);
         Ok(())
     }
+}
+
+/// `Σ aᵢ bᵢ` folded from zero in index order (the shorter length), one rolled copy for every
+/// dot product of the LOS update (`opaque`: not specialised to 17 and unrolled).
+#[inline(never)]
+fn dot_rolled<T: Real>(a: &[T], b: &[T]) -> T {
+    let (a, b) = opaque((a, b));
+    a.iter().zip(b).fold(T::zero(), |acc, (x, y)| acc + *x * *y)
 }
 
 /// `k = P h`, skipping the zero entries of h (8 of 17 for a LOS row). Not inlined: one copy

@@ -237,9 +237,11 @@ pub fn los_model<T: Real>(
         los_landmark_ned: e_l,
         los_gimbal_ned: e_g,
     };
-    let finite = model.residual_rad.iter().all(|v| v.is_finite())
-        && model.h_pitch.iter().all(|v| v.is_finite())
-        && model.h_yaw.iter().all(|v| v.is_finite());
+    let finite = crate::math::checks::all_finite_parts(&[
+        model.residual_rad.as_slice(),
+        model.h_pitch.as_slice(),
+        model.h_yaw.as_slice(),
+    ]);
     if !finite {
         return Err(NavError::NonFiniteInput {
             input: "LOS geometry",
