@@ -886,25 +886,31 @@ impl<T: Real> LoopCore<T> {
         variances: (Option<T>, Option<T>),
     ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
         let missing = check_imu(imu, self.time_s, self.dt_s)?;
-        if missing > 0 {
-            return self.step_after_gap(missing, imu, baro, velocity, variances);
-        }
-        self.advance(imu, baro, velocity, variances)
+        // A gap: coast the missing intervals first (cold, outlined, on a copy), then the
+        // normal step from the coasted state (one inlined copy of `advance` for both).
+        let (x, h_ref_m) = if missing > 0 {
+            self.coast_gap(missing, imu)?
+        } else {
+            (self.x, self.h_ref_m)
+        };
+        let (b, v) = self.advance(x, h_ref_m, imu, baro, velocity, variances)?;
+        Ok((b, v, missing + 1))
     }
 
-    /// The step after the IMU time check: aid checks, gate, propagation. On error nothing
-    /// changes.
+    /// The step after the IMU time check, from the state `x` and reference altitude `h_ref`
+    /// (the loop's, or a gap's coasted ones; the loop's clock is not used): aid checks, gate,
+    /// propagation. On error nothing changes.
     #[inline(always)]
     fn advance(
         &mut self,
+        mut x: Vector3<T>,
+        h_ref: T,
         imu: &ImuSample<T>,
         baro: Option<&BaroSample<T>>,
         velocity: Option<&VelocitySample<T>>,
         variances: (Option<T>, Option<T>),
-    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
+    ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
         let now = imu.time_s;
-        let mut x = self.x;
-        let h_ref = self.h_ref_m;
         let (h, v, b) = (x.x, x.y, x.z);
         let mut az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h_ref + h);
         let mid = now - self.half_dt_s;
@@ -1056,50 +1062,31 @@ impl<T: Real> LoopCore<T> {
                 innovation_variance: if use_vel { variances.1 } else { None },
                 new_sample: vel_check,
             },
-            1,
         ))
     }
 
-    /// Bridges a gap of `missing` IMU intervals: coasts them on the new sample's specific
-    /// force without aid samples, then steps normally. All-or-nothing (works on a copy).
+    /// Coasts the `missing` IMU intervals of a gap on the new sample's specific force,
+    /// without new aid samples (held ones are used as in a normal step), on a copy of the
+    /// loop; returns the coasted state and reference altitude (the loop is not changed).
     #[cold]
     #[inline(never)]
-    fn step_after_gap(
-        &mut self,
-        missing: u32,
-        imu: &ImuSample<T>,
-        baro: Option<&BaroSample<T>>,
-        velocity: Option<&VelocitySample<T>>,
-        variances: (Option<T>, Option<T>),
-    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
+    fn coast_gap(&self, missing: u32, imu: &ImuSample<T>) -> Result<(Vector3<T>, T), NavError> {
         let mut tmp = *self;
         // The gap (already checked to be n intervals) is split evenly; the sub-steps use the
-        // loop's fixed Φ and skip the interval check (f32 stamps may not resolve dt).
+        // loop's fixed Φ and skip the interval check (f32 stamps may not resolve dt). A coast
+        // changes only the state, the reference altitude and the clock (no new aid sample).
         let n = T::lit(f64::from(missing + 1));
         let step_s = (imu.time_s - self.time_s) / n;
-        // One call site of the (inlined) advance for the sub-steps and the final step: the
-        // aid samples go with the final step only.
         let mut k = T::zero();
-        let mut last = None;
-        for i in 0..=missing {
-            let sub;
-            let (sample, b, v) = if i == missing {
-                (imu, baro, velocity)
-            } else {
-                k += T::one();
-                sub = ImuSample {
-                    time_s: self.time_s + step_s * k,
-                    specific_force_up_m_s2: imu.specific_force_up_m_s2,
-                };
-                (&sub, None, None)
+        for _ in 0..missing {
+            k += T::one();
+            let sub = ImuSample {
+                time_s: self.time_s + step_s * k,
+                specific_force_up_m_s2: imu.specific_force_up_m_s2,
             };
-            last = Some(tmp.advance(sample, b, v, variances)?);
+            tmp.advance(tmp.x, tmp.h_ref_m, &sub, None, None, (None, None))?;
         }
-        let Some((b, v, _)) = last else {
-            return Err(NavError::InvalidTimeStep);
-        };
-        *self = tmp;
-        Ok((b, v, missing + 1))
+        Ok((tmp.x, tmp.h_ref_m))
     }
 
     /// Restarts the state and clock from `init`, keeping the design, the gate and the
