@@ -286,31 +286,35 @@ impl InnovationGate {
                 issue: ConfigIssue::OutOfRange,
             });
         }
-        for (field, v) in [
-            ("gate.nis_threshold", thr),
-            ("gate.baro_sigma_m", sh * sh),
-            ("gate.velocity_sigma_m_s", sv * sv),
-            ("gate.starved_velocity_sigma_m_s", gv * gv),
-            ("gate.starved_accel_sigma_m_s2", ga * ga),
-        ] {
-            // Squares must stay finite and (for σ₀) normal in f32.
-            let zero_ok = field.starts_with("gate.starved") && v == 0.0;
-            let ok = v.is_finite() && v < 1.0e30 && (zero_ok || v > 1.0e-30);
-            if !ok {
-                return Err(NavError::InvalidConfig {
-                    field,
-                    issue: ConfigIssue::OutOfRange,
-                });
-            }
-        }
+        // Squares must stay finite and (for σ₀) normal in f32; zero drift is legal.
+        let (sh2, sv2) = (sh * sh, sv * sv);
+        gate_range("gate.nis_threshold", thr, false)?;
+        gate_range("gate.baro_sigma_m", sh2, false)?;
+        gate_range("gate.velocity_sigma_m_s", sv2, false)?;
+        gate_range("gate.starved_velocity_sigma_m_s", gv * gv, true)?;
+        gate_range("gate.starved_accel_sigma_m_s2", ga * ga, true)?;
         Ok(GateParams {
             nis_threshold: T::lit(thr),
-            baro_var: T::lit(sh * sh),
-            velocity_var: T::lit(sv * sv),
+            baro_var: T::lit(sh2),
+            velocity_var: T::lit(sv2),
             growth_v: T::lit(gv),
             growth_half_a: T::lit(0.5 * ga),
             growth_a: T::lit(ga),
             recovery_hold_s: T::lit(hold),
+        })
+    }
+}
+
+/// A gate value (or square) must be finite, below 10³⁰ and above 10⁻³⁰ (or 0 when `zero_ok`).
+#[inline(never)]
+fn gate_range(field: &'static str, v: f64, zero_ok: bool) -> Result<(), NavError> {
+    let ok = v.is_finite() && v < 1.0e30 && ((zero_ok && v == 0.0) || v > 1.0e-30);
+    if ok {
+        Ok(())
+    } else {
+        Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::OutOfRange,
         })
     }
 }
