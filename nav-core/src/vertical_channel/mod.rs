@@ -288,11 +288,13 @@ impl InnovationGate {
         }
         // Squares must stay finite and (for σ₀) normal in f32; zero drift is legal.
         let (sh2, sv2) = (square(sh), square(sv));
-        gate_range("gate.nis_threshold", thr, false)?;
-        gate_range("gate.baro_sigma_m", sh2, false)?;
-        gate_range("gate.velocity_sigma_m_s", sv2, false)?;
-        gate_range("gate.starved_velocity_sigma_m_s", square(gv), true)?;
-        gate_range("gate.starved_accel_sigma_m_s2", square(ga), true)?;
+        gate_ranges(&[
+            ("gate.nis_threshold", thr, false),
+            ("gate.baro_sigma_m", sh2, false),
+            ("gate.velocity_sigma_m_s", sv2, false),
+            ("gate.starved_velocity_sigma_m_s", square(gv), true),
+            ("gate.starved_accel_sigma_m_s2", square(ga), true),
+        ])?;
         Ok(GateParams {
             nis_threshold: T::lit(thr),
             baro_var: T::lit(sh2),
@@ -352,18 +354,19 @@ pub(crate) fn square(x: f64) -> f64 {
     f64::from_bits((((e + 1022) as u64) << 52) + q)
 }
 
-/// A gate value (or square) must be finite, below 10³⁰ and above 10⁻³⁰ (or 0 when `zero_ok`).
+/// Each gate value (or square) `(field, v, zero_ok)` must be finite, below 10³⁰ and above
+/// 10⁻³⁰ (or 0 when `zero_ok`); the first that is not is named. One loop (not unrolled).
 #[inline(never)]
-fn gate_range(field: &'static str, v: f64, zero_ok: bool) -> Result<(), NavError> {
-    let ok = v.is_finite() && v < 1.0e30 && ((zero_ok && v == 0.0) || v > 1.0e-30);
-    if ok {
-        Ok(())
-    } else {
-        Err(NavError::InvalidConfig {
-            field,
-            issue: ConfigIssue::OutOfRange,
-        })
+fn gate_ranges(values: &[(&'static str, f64, bool)]) -> Result<(), NavError> {
+    for &(field, v, zero_ok) in crate::math::checks::opaque(values) {
+        if !(v.is_finite() && v < 1.0e30 && ((zero_ok && v == 0.0) || v > 1.0e-30)) {
+            return Err(NavError::InvalidConfig {
+                field,
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
     }
+    Ok(())
 }
 
 /// [`InnovationGate`] in the loop's float type.
