@@ -66,11 +66,14 @@ fn write_gravity<T: Real>(w: &mut ValueWriter<'_>, g: &GravityModel<T>) {
     w.real(g.g2_per_m_s2);
 }
 
+/// The gravity model, the step values and the `N` values they were read from.
+type GravityStep<T, const N: usize> = (GravityModel<T>, StepValues<T>, [T; N]);
+
 /// Reads `N ≥ 6` values of the float type through one looping reader ([`ValueReader::fill`]):
 /// the gravity model and the step values (the first six), and all `N` values.
 fn read_gravity_step<T: Real, const N: usize>(
     r: &mut ValueReader<'_>,
-) -> Result<(GravityModel<T>, StepValues<T>, [T; N]), NavError> {
+) -> Result<GravityStep<T, N>, NavError> {
     let mut v = [T::zero(); N];
     r.fill(&mut v)?;
     let [g0_m_s2, g1_per_s2, g2_per_m_s2, dt_s, half_dt_s, baro_lag_s, ..] = *v.as_slice() else {
