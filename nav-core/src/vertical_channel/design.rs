@@ -58,14 +58,6 @@ impl<T: Real> StepValues<T> {
         w.real(self.half_dt_s);
         w.real(self.baro_lag_s);
     }
-
-    fn read(r: &mut ValueReader<'_>) -> Result<Self, NavError> {
-        Ok(Self {
-            dt_s: r.real()?,
-            half_dt_s: r.real()?,
-            baro_lag_s: r.real()?,
-        })
-    }
 }
 
 fn write_gravity<T: Real>(w: &mut ValueWriter<'_>, g: &GravityModel<T>) {
@@ -74,12 +66,32 @@ fn write_gravity<T: Real>(w: &mut ValueWriter<'_>, g: &GravityModel<T>) {
     w.real(g.g2_per_m_s2);
 }
 
-fn read_gravity<T: Real>(r: &mut ValueReader<'_>) -> Result<GravityModel<T>, NavError> {
-    Ok(GravityModel {
-        g0_m_s2: r.real()?,
-        g1_per_s2: r.real()?,
-        g2_per_m_s2: r.real()?,
-    })
+/// The gravity model, the step values and the `N` values they were read from.
+type GravityStep<T, const N: usize> = (GravityModel<T>, StepValues<T>, [T; N]);
+
+/// Reads `N ≥ 6` values of the float type through one looping reader ([`ValueReader::fill`]):
+/// the gravity model and the step values (the first six), and all `N` values.
+fn read_gravity_step<T: Real, const N: usize>(
+    r: &mut ValueReader<'_>,
+) -> Result<GravityStep<T, N>, NavError> {
+    let mut v = [T::zero(); N];
+    r.fill(&mut v)?;
+    let [g0_m_s2, g1_per_s2, g2_per_m_s2, dt_s, half_dt_s, baro_lag_s, ..] = *v.as_slice() else {
+        return Err(BAD_VALUES);
+    };
+    Ok((
+        GravityModel {
+            g0_m_s2,
+            g1_per_s2,
+            g2_per_m_s2,
+        },
+        StepValues {
+            dt_s,
+            half_dt_s,
+            baro_lag_s,
+        },
+        v,
+    ))
 }
 
 /// Number of values of [`Modes`]: Φ_baro (9), then N and G (6 each) of the modes none, baro,
@@ -94,6 +106,7 @@ fn write_modes<T: Real>(w: &mut ValueWriter<'_>, m: &Modes<T>) {
     }
 }
 
+#[inline(never)]
 fn read_modes<T: Real>(r: &mut ValueReader<'_>) -> Result<Modes<T>, NavError> {
     let z = Matrix3x2::<T>::zeros();
     let zm = Mode { n: z, g: z };
@@ -238,15 +251,17 @@ impl<T: Real> DesignValues for ClassicalDesign<T> {
 
     fn read_values(values: &[f64]) -> Result<Self, NavError> {
         let mut r = ValueReader::new(values, Self::COUNT)?;
+        let mut g = [0.0; 5];
+        r.fill_f64(&mut g)?;
+        let [c1_per_s, c2_per_s2, c3_per_s3, c4_s, c_per_s2] = g;
         let gains = ClassicalGains {
-            c1_per_s: r.value()?,
-            c2_per_s2: r.value()?,
-            c3_per_s3: r.value()?,
-            c4_s: r.value()?,
-            c_per_s2: r.value()?,
+            c1_per_s,
+            c2_per_s2,
+            c3_per_s3,
+            c4_s,
+            c_per_s2,
         };
-        let gravity = read_gravity(&mut r)?;
-        let step = StepValues::read(&mut r)?;
+        let (gravity, step, _) = read_gravity_step::<T, 6>(&mut r)?;
         let modes = read_modes(&mut r)?;
         r.finish()?;
         Ok(Self {
@@ -412,10 +427,8 @@ impl<T: Real> DesignValues for AidedDesign<T> {
         }
         gains.riccati_iterations = iterations;
         gains.relative_residual = r.value()?;
-        let gravity = read_gravity(&mut r)?;
-        let step = StepValues::read(&mut r)?;
-        let baro_innovation_variance = r.real()?;
-        let velocity_innovation_variance = r.real()?;
+        let (gravity, step, v) = read_gravity_step::<T, 8>(&mut r)?;
+        let [.., baro_innovation_variance, velocity_innovation_variance] = v;
         let modes = read_modes(&mut r)?;
         r.finish()?;
         Ok(Self {

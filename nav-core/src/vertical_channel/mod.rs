@@ -286,33 +286,87 @@ impl InnovationGate {
                 issue: ConfigIssue::OutOfRange,
             });
         }
-        for (field, v) in [
-            ("gate.nis_threshold", thr),
-            ("gate.baro_sigma_m", sh * sh),
-            ("gate.velocity_sigma_m_s", sv * sv),
-            ("gate.starved_velocity_sigma_m_s", gv * gv),
-            ("gate.starved_accel_sigma_m_s2", ga * ga),
-        ] {
-            // Squares must stay finite and (for σ₀) normal in f32.
-            let zero_ok = field.starts_with("gate.starved") && v == 0.0;
-            let ok = v.is_finite() && v < 1.0e30 && (zero_ok || v > 1.0e-30);
-            if !ok {
-                return Err(NavError::InvalidConfig {
-                    field,
-                    issue: ConfigIssue::OutOfRange,
-                });
-            }
-        }
+        // Squares must stay finite and (for σ₀) normal in f32; zero drift is legal.
+        let (sh2, sv2) = (square(sh), square(sv));
+        gate_ranges(&[
+            ("gate.nis_threshold", thr, false),
+            ("gate.baro_sigma_m", sh2, false),
+            ("gate.velocity_sigma_m_s", sv2, false),
+            ("gate.starved_velocity_sigma_m_s", square(gv), true),
+            ("gate.starved_accel_sigma_m_s2", square(ga), true),
+        ])?;
         Ok(GateParams {
             nis_threshold: T::lit(thr),
-            baro_var: T::lit(sh * sh),
-            velocity_var: T::lit(sv * sv),
+            baro_var: T::lit(sh2),
+            velocity_var: T::lit(sv2),
             growth_v: T::lit(gv),
-            growth_half_a: T::lit(0.5 * ga),
+            // = T::lit(0.5 · ga) exactly (a power-of-two scaling; ga ≤ 10¹⁵ or the check
+            // above fails, and ≥ 10⁻¹⁵ or 0, so no overflow or underflow in f32).
+            growth_half_a: T::lit(ga) * T::lit(0.5),
             growth_a: T::lit(ga),
             recovery_hold_s: T::lit(hold),
         })
     }
+}
+
+/// `x · x` for a finite `x ≥ 0`, bit for bit the `f64` product (round to nearest, ties to
+/// even; overflow to +∞) when it is normal or infinite; a product below the normal range
+/// (< 2⁻¹⁰²²) is returned as 0 when it rounds to 0 and as the smallest subnormal otherwise
+/// (the same comparisons with 0 and with any normal bound). In integer arithmetic: the gate's
+/// squares are the only `f64` multiplications of a flight image (designs stored,
+/// `from_design`), so the soft-float multiply (≈ 780 B on the M4F) is not linked.
+#[inline(never)]
+pub(crate) fn square(x: f64) -> f64 {
+    let bits = x.to_bits();
+    // x = m · 2^(biased − 1075), m the 53-bit integer significand (x normal), so
+    // x² = m² · 2^(2 biased − 2150) with m² in [2¹⁰⁴, 2¹⁰⁶).
+    let biased = (bits >> 52) as i32;
+    if biased == 0 {
+        // 0 or subnormal (x < 2⁻¹⁰²²): x² < 2⁻²⁰⁴⁴ rounds to 0.
+        return 0.0;
+    }
+    let m = u128::from((bits & ((1 << 52) - 1)) | (1 << 52));
+    let p = m * m;
+    let top = (p >> 52) as u64; // bits 52..105 of m²: 53 or 54 bits
+    let low = p as u64 & ((1 << 52) - 1);
+    // Keep 53 bits: q, the first dropped bit `half` and whether any lower bit is set.
+    let (q, half, sticky, e) = if top >> 53 != 0 {
+        (top >> 1, top & 1 == 1, low != 0, 105)
+    } else {
+        (top, (low >> 51) & 1 == 1, low & ((1 << 51) - 1) != 0, 104)
+    };
+    // Exponent of the leading bit of x².
+    let e = e + 2 * biased - 2150;
+    if e < -1022 {
+        // Below the normal range: x² ∈ [2^e, 2^(e+1)) and never 2⁻¹⁰⁷⁵ exactly (an odd
+        // power of two), so it rounds to 0 exactly when e ≤ −1076.
+        return if e <= -1076 { 0.0 } else { f64::from_bits(1) };
+    }
+    if e > 1023 {
+        return f64::INFINITY;
+    }
+    // Round to nearest: up when above half. A tie (`half`, nothing below) needs m² = odd² ·
+    // 2⁵² (the only case with exactly 52 trailing zeros), whose kept part (odd² − 1)/2 is
+    // even (odd² ≡ 1 mod 8): ties to even round down.
+    let q = q + u64::from(half && sticky);
+    // Exponent field e + 1023 plus q's leading bit 2⁵² (a rounding carry to 2⁵³ moves to the
+    // next exponent, up to +∞ exactly).
+    f64::from_bits((((e + 1022) as u64) << 52) + q)
+}
+
+/// Each gate value (or square) `(field, v, zero_ok)` must be finite, below 10³⁰ and above
+/// 10⁻³⁰ (or 0 when `zero_ok`); the first that is not is named. One loop (not unrolled).
+#[inline(never)]
+fn gate_ranges(values: &[(&'static str, f64, bool)]) -> Result<(), NavError> {
+    for &(field, v, zero_ok) in crate::math::checks::opaque(values) {
+        if !(v.is_finite() && v < 1.0e30 && ((zero_ok && v == 0.0) || v > 1.0e-30)) {
+            return Err(NavError::InvalidConfig {
+                field,
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
+    }
+    Ok(())
 }
 
 /// [`InnovationGate`] in the loop's float type.
@@ -886,25 +940,31 @@ impl<T: Real> LoopCore<T> {
         variances: (Option<T>, Option<T>),
     ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
         let missing = check_imu(imu, self.time_s, self.dt_s)?;
-        if missing > 0 {
-            return self.step_after_gap(missing, imu, baro, velocity, variances);
-        }
-        self.advance(imu, baro, velocity, variances)
+        // A gap: coast the missing intervals first (cold, outlined, on a copy), then the
+        // normal step from the coasted state (one inlined copy of `advance` for both).
+        let (x, h_ref_m) = if missing > 0 {
+            self.coast_gap(missing, imu)?
+        } else {
+            (self.x, self.h_ref_m)
+        };
+        let (b, v) = self.advance(x, h_ref_m, imu, baro, velocity, variances)?;
+        Ok((b, v, missing + 1))
     }
 
-    /// The step after the IMU time check: aid checks, gate, propagation. On error nothing
-    /// changes.
+    /// The step after the IMU time check, from the state `x` and reference altitude `h_ref`
+    /// (the loop's, or a gap's coasted ones; the loop's clock is not used): aid checks, gate,
+    /// propagation. On error nothing changes.
     #[inline(always)]
     fn advance(
         &mut self,
+        mut x: Vector3<T>,
+        h_ref: T,
         imu: &ImuSample<T>,
         baro: Option<&BaroSample<T>>,
         velocity: Option<&VelocitySample<T>>,
         variances: (Option<T>, Option<T>),
-    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
+    ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
         let now = imu.time_s;
-        let mut x = self.x;
-        let h_ref = self.h_ref_m;
         let (h, v, b) = (x.x, x.y, x.z);
         let mut az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h_ref + h);
         let mid = now - self.half_dt_s;
@@ -1056,50 +1116,31 @@ impl<T: Real> LoopCore<T> {
                 innovation_variance: if use_vel { variances.1 } else { None },
                 new_sample: vel_check,
             },
-            1,
         ))
     }
 
-    /// Bridges a gap of `missing` IMU intervals: coasts them on the new sample's specific
-    /// force without aid samples, then steps normally. All-or-nothing (works on a copy).
+    /// Coasts the `missing` IMU intervals of a gap on the new sample's specific force,
+    /// without new aid samples (held ones are used as in a normal step), on a copy of the
+    /// loop; returns the coasted state and reference altitude (the loop is not changed).
     #[cold]
     #[inline(never)]
-    fn step_after_gap(
-        &mut self,
-        missing: u32,
-        imu: &ImuSample<T>,
-        baro: Option<&BaroSample<T>>,
-        velocity: Option<&VelocitySample<T>>,
-        variances: (Option<T>, Option<T>),
-    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
+    fn coast_gap(&self, missing: u32, imu: &ImuSample<T>) -> Result<(Vector3<T>, T), NavError> {
         let mut tmp = *self;
         // The gap (already checked to be n intervals) is split evenly; the sub-steps use the
-        // loop's fixed Φ and skip the interval check (f32 stamps may not resolve dt).
+        // loop's fixed Φ and skip the interval check (f32 stamps may not resolve dt). A coast
+        // changes only the state, the reference altitude and the clock (no new aid sample).
         let n = T::lit(f64::from(missing + 1));
         let step_s = (imu.time_s - self.time_s) / n;
-        // One call site of the (inlined) advance for the sub-steps and the final step: the
-        // aid samples go with the final step only.
         let mut k = T::zero();
-        let mut last = None;
-        for i in 0..=missing {
-            let sub;
-            let (sample, b, v) = if i == missing {
-                (imu, baro, velocity)
-            } else {
-                k += T::one();
-                sub = ImuSample {
-                    time_s: self.time_s + step_s * k,
-                    specific_force_up_m_s2: imu.specific_force_up_m_s2,
-                };
-                (&sub, None, None)
+        for _ in 0..missing {
+            k += T::one();
+            let sub = ImuSample {
+                time_s: self.time_s + step_s * k,
+                specific_force_up_m_s2: imu.specific_force_up_m_s2,
             };
-            last = Some(tmp.advance(sample, b, v, variances)?);
+            tmp.advance(tmp.x, tmp.h_ref_m, &sub, None, None, (None, None))?;
         }
-        let Some((b, v, _)) = last else {
-            return Err(NavError::InvalidTimeStep);
-        };
-        *self = tmp;
-        Ok((b, v, missing + 1))
+        Ok((tmp.x, tmp.h_ref_m))
     }
 
     /// Restarts the state and clock from `init`, keeping the design, the gate and the

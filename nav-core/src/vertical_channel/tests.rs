@@ -521,3 +521,84 @@ fn gravity_model_matches_earth_model() {
     // c = 2ω_s² is the vertical gradient to within the ellipsoidal corrections (< 1 %).
     assert!((g.c_per_s2() - g.g1_per_s2).abs() < 0.01 * g.g1_per_s2);
 }
+
+/// `square` (the gate's integer f64 square) against the hardware/soft-float product: bit for
+/// bit when the product is normal or infinite; below the normal range, 0 exactly when the
+/// product is 0 (and never a value ≥ the smallest normal).
+#[test]
+fn integer_square_is_the_f64_product() {
+    fn check(x: f64) {
+        let r = x * x;
+        let s = square(x);
+        if r >= f64::MIN_POSITIVE {
+            assert_eq!(s.to_bits(), r.to_bits(), "x = {x:e} ({:#x})", x.to_bits());
+        } else {
+            assert_eq!(s == 0.0, r == 0.0, "x = {x:e} ({:#x})", x.to_bits());
+            assert!(s < f64::MIN_POSITIVE, "x = {x:e}");
+        }
+    }
+    // Every binade edge and its neighbours, the overflow and underflow thresholds, the gate's
+    // range bounds (10^±15), ties of the rounding (odd significands near 2^26.5 …).
+    let mut edges = heapless::Vec::<f64, 4096>::new();
+    for k in 1..2047u64 {
+        edges.push(f64::from_bits(k << 52)).unwrap(); // normal powers of two
+    }
+    for j in 0..52u64 {
+        edges.push(f64::from_bits(1 << j)).unwrap(); // subnormal powers of two
+    }
+    for x in [
+        0.0,
+        f64::from_bits(1),
+        f64::MIN_POSITIVE,
+        f64::MAX,
+        f64::MIN_POSITIVE.sqrt(),
+        f64::MAX.sqrt(),
+        f64::from_bits(0x3FF6_A09E_667F_3BCD) * f64::from_bits((1023 - 538) << 52), // √2 · 2^-538,
+        f64::from_bits((1023 - 537) << 52),
+        f64::from_bits((1023 - 538) << 52),
+        f64::from_bits(0x3FF6_A09E_667F_3BCD) * f64::from_bits((1023 - 512) << 52),
+        f64::from_bits(0x3FF6_A09E_667F_3BCD) * f64::from_bits((1023 + 511) << 52),
+        1e15,
+        1e-15,
+        core::f64::consts::SQRT_2,
+        30.0,
+        3.0,
+        0.5,
+        0.02,
+        (1u64 << 53) as f64 - 1.0,
+        94_906_265.0, // ≈ 2^26.5: m² just below 2^53 · 2^53
+        94_906_267.0,
+        f64::INFINITY,
+    ] {
+        edges.push(x).unwrap();
+    }
+    for &x in &edges {
+        let b = x.to_bits();
+        for d in 0..=4u64 {
+            for y in [f64::from_bits(b.saturating_sub(d)), f64::from_bits(b + d)] {
+                if y >= 0.0 {
+                    check(y);
+                }
+            }
+        }
+    }
+    // Rounding ties: significands odd · 2²⁶ with odd² ≥ 2⁵³.
+    for odd in (94_906_267u64..94_910_267)
+        .chain((1 << 27) - 4001..1 << 27)
+        .step_by(2)
+    {
+        check((odd << 26) as f64);
+        check(f64::from_bits(((odd << 26) as f64).to_bits() - (400 << 52)));
+    }
+    // Random bit patterns over the whole positive range (xorshift, fixed seed).
+    let mut z: u64 = 0x9e37_79b9_7f4a_7c15;
+    for _ in 0..2_000_000 {
+        z ^= z << 13;
+        z ^= z >> 7;
+        z ^= z << 17;
+        let y = f64::from_bits(z & !(1 << 63));
+        if y.is_finite() {
+            check(y);
+        }
+    }
+}
