@@ -287,71 +287,24 @@ impl InnovationGate {
             });
         }
         // Squares must stay finite and (for σ₀) normal in f32; zero drift is legal.
-        let (sh2, sv2) = (square(sh), square(sv));
+        let (sh2, sv2) = (sh * sh, sv * sv);
         gate_ranges(&[
             ("gate.nis_threshold", thr, false),
             ("gate.baro_sigma_m", sh2, false),
             ("gate.velocity_sigma_m_s", sv2, false),
-            ("gate.starved_velocity_sigma_m_s", square(gv), true),
-            ("gate.starved_accel_sigma_m_s2", square(ga), true),
+            ("gate.starved_velocity_sigma_m_s", gv * gv, true),
+            ("gate.starved_accel_sigma_m_s2", ga * ga, true),
         ])?;
         Ok(GateParams {
             nis_threshold: T::lit(thr),
             baro_var: T::lit(sh2),
             velocity_var: T::lit(sv2),
             growth_v: T::lit(gv),
-            // = T::lit(0.5 · ga) exactly (a power-of-two scaling; ga ≤ 10¹⁵ or the check
-            // above fails, and ≥ 10⁻¹⁵ or 0, so no overflow or underflow in f32).
-            growth_half_a: T::lit(ga) * T::lit(0.5),
+            growth_half_a: T::lit(0.5 * ga),
             growth_a: T::lit(ga),
             recovery_hold_s: T::lit(hold),
         })
     }
-}
-
-/// `x · x` for a finite `x ≥ 0`, bit for bit the `f64` product (round to nearest, ties to
-/// even; overflow to +∞) when it is normal or infinite; a product below the normal range
-/// (< 2⁻¹⁰²²) is returned as 0 when it rounds to 0 and as the smallest subnormal otherwise
-/// (the same comparisons with 0 and with any normal bound). In integer arithmetic: the gate's
-/// squares are the only `f64` multiplications of a flight image (designs stored,
-/// `from_design`), so the soft-float multiply (≈ 780 B on the M4F) is not linked.
-#[inline(never)]
-pub(crate) fn square(x: f64) -> f64 {
-    let bits = x.to_bits();
-    // x = m · 2^(biased − 1075), m the 53-bit integer significand (x normal), so
-    // x² = m² · 2^(2 biased − 2150) with m² in [2¹⁰⁴, 2¹⁰⁶).
-    let biased = (bits >> 52) as i32;
-    if biased == 0 {
-        // 0 or subnormal (x < 2⁻¹⁰²²): x² < 2⁻²⁰⁴⁴ rounds to 0.
-        return 0.0;
-    }
-    let m = u128::from((bits & ((1 << 52) - 1)) | (1 << 52));
-    let p = m * m;
-    let top = (p >> 52) as u64; // bits 52..105 of m²: 53 or 54 bits
-    let low = p as u64 & ((1 << 52) - 1);
-    // Keep 53 bits: q, the first dropped bit `half` and whether any lower bit is set.
-    let (q, half, sticky, e) = if top >> 53 != 0 {
-        (top >> 1, top & 1 == 1, low != 0, 105)
-    } else {
-        (top, (low >> 51) & 1 == 1, low & ((1 << 51) - 1) != 0, 104)
-    };
-    // Exponent of the leading bit of x².
-    let e = e + 2 * biased - 2150;
-    if e < -1022 {
-        // Below the normal range: x² ∈ [2^e, 2^(e+1)) and never 2⁻¹⁰⁷⁵ exactly (an odd
-        // power of two), so it rounds to 0 exactly when e ≤ −1076.
-        return if e <= -1076 { 0.0 } else { f64::from_bits(1) };
-    }
-    if e > 1023 {
-        return f64::INFINITY;
-    }
-    // Round to nearest: up when above half. A tie (`half`, nothing below) needs m² = odd² ·
-    // 2⁵² (the only case with exactly 52 trailing zeros), whose kept part (odd² − 1)/2 is
-    // even (odd² ≡ 1 mod 8): ties to even round down.
-    let q = q + u64::from(half && sticky);
-    // Exponent field e + 1023 plus q's leading bit 2⁵² (a rounding carry to 2⁵³ moves to the
-    // next exponent, up to +∞ exactly).
-    f64::from_bits((((e + 1022) as u64) << 52) + q)
 }
 
 /// Each gate value (or square) `(field, v, zero_ok)` must be finite, below 10³⁰ and above
