@@ -286,33 +286,35 @@ impl InnovationGate {
                 issue: ConfigIssue::OutOfRange,
             });
         }
-        // Squares must stay finite and (for σ₀) normal in f32; zero drift is legal.
-        let (sh2, sv2) = (sh * sh, sv * sv);
+        // The threshold in [10⁻³⁰, 10³⁰), the σ in [10⁻¹⁵, 10¹⁵) (zero drift is legal), so the
+        // squares stay finite and (for σ₀) normal in f32. The squares are formed in the loop's
+        // float type: no f64 multiply (software floating point on the M4F) in a flight image.
         gate_ranges(&[
-            ("gate.nis_threshold", thr, false),
-            ("gate.baro_sigma_m", sh2, false),
-            ("gate.velocity_sigma_m_s", sv2, false),
-            ("gate.starved_velocity_sigma_m_s", gv * gv, true),
-            ("gate.starved_accel_sigma_m_s2", ga * ga, true),
+            ("gate.nis_threshold", thr, false, 1.0e-30, 1.0e30),
+            ("gate.baro_sigma_m", sh, false, 1.0e-15, 1.0e15),
+            ("gate.velocity_sigma_m_s", sv, false, 1.0e-15, 1.0e15),
+            ("gate.starved_velocity_sigma_m_s", gv, true, 1.0e-15, 1.0e15),
+            ("gate.starved_accel_sigma_m_s2", ga, true, 1.0e-15, 1.0e15),
         ])?;
+        let (sh, sv, ga) = (T::lit(sh), T::lit(sv), T::lit(ga));
         Ok(GateParams {
             nis_threshold: T::lit(thr),
-            baro_var: T::lit(sh2),
-            velocity_var: T::lit(sv2),
+            baro_var: sh * sh,
+            velocity_var: sv * sv,
             growth_v: T::lit(gv),
-            growth_half_a: T::lit(0.5 * ga),
-            growth_a: T::lit(ga),
+            growth_half_a: ga * T::lit(0.5),
+            growth_a: ga,
             recovery_hold_s: T::lit(hold),
         })
     }
 }
 
-/// Each gate value (or square) `(field, v, zero_ok)` must be finite, below 10³⁰ and above
-/// 10⁻³⁰ (or 0 when `zero_ok`); the first that is not is named. One loop (not unrolled).
+/// Each gate value `(field, v, zero_ok, low, high)` must be finite, below `high` and at least
+/// `low` (or 0 when `zero_ok`); the first that is not is named. One loop (not unrolled).
 #[inline(never)]
-fn gate_ranges(values: &[(&'static str, f64, bool)]) -> Result<(), NavError> {
-    for &(field, v, zero_ok) in crate::math::checks::opaque(values) {
-        if !(v.is_finite() && v < 1.0e30 && ((zero_ok && v == 0.0) || v > 1.0e-30)) {
+fn gate_ranges(values: &[(&'static str, f64, bool, f64, f64)]) -> Result<(), NavError> {
+    for &(field, v, zero_ok, low, high) in crate::math::checks::opaque(values) {
+        if !(v.is_finite() && v < high && ((zero_ok && v == 0.0) || v >= low)) {
             return Err(NavError::InvalidConfig {
                 field,
                 issue: ConfigIssue::OutOfRange,

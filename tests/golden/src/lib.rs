@@ -392,16 +392,26 @@ pub struct Stored<'a> {
 /// Reads a stored design of exactly `D::COUNT` little-endian f64 values.
 fn read_design<D: DesignValues>(bytes: &[u8]) -> Result<D, NavError> {
     let mut v = [0f64; MAX_DESIGN_VALUES];
-    let n = bytes.len() / 8;
-    if bytes.len() % 8 != 0 || n != D::COUNT {
+    let n = decode_f64s(bytes, &mut v);
+    if n != D::COUNT {
         return Err(NavError::CapacityExceeded);
     }
-    for (d, c) in v.iter_mut().zip(bytes.chunks_exact(8)) {
+    D::read_values(v.get(..n).ok_or(NavError::CapacityExceeded)?)
+}
+
+/// Little-endian f64 values of `bytes` into `out`; returns how many (`usize::MAX` when the
+/// length is not a whole number of values or does not fit). One copy for every design type.
+#[inline(never)]
+fn decode_f64s(bytes: &[u8], out: &mut [f64]) -> usize {
+    if bytes.len() % 8 != 0 || bytes.len() / 8 > out.len() {
+        return usize::MAX;
+    }
+    for (d, c) in out.iter_mut().zip(bytes.chunks_exact(8)) {
         let mut b = [0u8; 8];
         b.copy_from_slice(c);
         *d = f64::from_le_bytes(b);
     }
-    D::read_values(v.get(..n).ok_or(NavError::CapacityExceeded)?)
+    bytes.len() / 8
 }
 
 impl DesignSource for Stored<'_> {
