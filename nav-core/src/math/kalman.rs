@@ -74,21 +74,7 @@ pub fn fuse_scalar<T: Real, const N: usize>(
     r: T,
     gate: Gate<T>,
 ) -> Result<FusionReport<T>, NavError> {
-    if !finite(innovation) {
-        return Err(NavError::NonFiniteInput {
-            input: "innovation",
-        });
-    }
-    if !finite(r) {
-        return Err(NavError::NonFiniteInput {
-            input: "measurement variance",
-        });
-    }
-    if r <= T::zero() {
-        return Err(NavError::InputOutOfRange {
-            input: "measurement variance",
-        });
-    }
+    check_scalar_inputs(innovation, r)?;
     if !h.as_slice().iter().all(|v| finite(*v)) {
         return Err(NavError::NonFiniteInput {
             input: "measurement row h",
@@ -105,73 +91,7 @@ pub fn fuse_scalar<T: Real, const N: usize>(
         }
     }
     let hph = h.dot(&b);
-    let s = hph + r;
-    if !finite(s) || s <= T::zero() || hph < T::zero() {
-        return Err(NavError::InnovationVarianceNotPositive);
-    }
-    let inv_s = T::one() / s;
-    let nis = innovation * innovation * inv_s;
-    let (test_ratio, rejected) = match gate {
-        Gate::Off => (T::zero(), false),
-        Gate::Nis(threshold) => {
-            let ratio = nis / threshold;
-            // Fused only when the ratio is comparable and ≤ 1 with a positive threshold: a NaN
-            // or non-positive threshold rejects.
-            let within = matches!(
-                ratio.partial_cmp(&T::one()),
-                Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
-            );
-            (ratio, !within || threshold <= T::zero())
-        }
-    };
-    let report = |outcome| FusionReport {
-        innovation,
-        innovation_variance: s,
-        nis,
-        test_ratio,
-        outcome,
-    };
-    if rejected {
-        return Ok(report(FusionOutcome::Rejected));
-    }
-    let k = b * inv_s;
-    // Joseph form regrouped per column j: P⁺_ij = P_ij + k_i c_j − b_i k_j with
-    // c_j = s k_j − b_j (zero in exact arithmetic, kept so the result is the Joseph form's).
-    let mut c = SVector::<T, N>::zeros();
-    for ((cj, &kj), &bj) in c
-        .as_mut_slice()
-        .iter_mut()
-        .zip(k.as_slice())
-        .zip(b.as_slice())
-    {
-        *cj = s * kj - bj;
-    }
-    let (ks, bs, cs) = (k.as_slice(), b.as_slice(), c.as_slice());
-    // Check the diagonal of P⁺ before writing anything.
-    for (i, (((&ki, &bi), &ci), col)) in ks
-        .iter()
-        .zip(bs)
-        .zip(cs)
-        .zip(p.as_slice().chunks_exact(N))
-        .enumerate()
-    {
-        let pii = col.get(i).copied().unwrap_or_else(T::zero);
-        let d = pii + ki * ci - bi * ki;
-        if !finite(d) || d < T::zero() {
-            return Err(NavError::CovarianceNotPositiveSemiDefinite);
-        }
-    }
-    let dx = k * innovation;
-    if !all_finite(dx.as_slice()) {
-        return Err(NavError::NonFiniteInput {
-            input: "state correction",
-        });
-    }
-    // Upper triangle (rows i ≤ j of column j), each value written to both triangles: P stays
-    // exactly symmetric and the work is N(N+1)/2 elements.
-    joseph_pass(p, &k, &b, &c);
-    *x += dx;
-    Ok(report(FusionOutcome::Fused))
+    fuse_scalar_prepared(x, p, &b, hph, innovation, r, gate)
 }
 
 /// A measurement row `h` stored by its non-zero entries: `index[..len]` (strictly ascending,
