@@ -87,6 +87,46 @@ pub static KERNELS: &[Kernel] = &[
     },
 ];
 
+/// A kernel's state, shared by its setup, the measured call and the check.
+type Slot<S> = Mutex<RefCell<Option<S>>>;
+
+/// Replaces the state in `slot`.
+fn store<S>(slot: &Slot<S>, state: Option<S>) {
+    interrupt::free(|cs| {
+        if let Ok(mut s) = slot.borrow(cs).try_borrow_mut() {
+            *s = state;
+        }
+    });
+}
+
+/// Runs `f` on the state in `slot`, if any (inlined: the measured call is `f`'s body).
+#[inline(always)]
+fn with_state<S>(slot: &Slot<S>, f: impl FnOnce(&mut S)) {
+    interrupt::free(|cs| {
+        if let Some(s) = slot
+            .borrow(cs)
+            .try_borrow_mut()
+            .ok()
+            .as_deref_mut()
+            .and_then(Option::as_mut)
+        {
+            f(s);
+        }
+    });
+}
+
+/// `check` of the state in `slot`; `false` when there is none.
+fn check_state<S>(slot: &Slot<S>, check: impl FnOnce(&S) -> bool) -> bool {
+    interrupt::free(|cs| {
+        slot.borrow(cs)
+            .try_borrow()
+            .ok()
+            .as_deref()
+            .and_then(Option::as_ref)
+            .is_some_and(check)
+    })
+}
+
 struct S17 {
     x: SVector<f32, 17>,
     p: SMatrix<f32, 17, 17>,
@@ -95,7 +135,7 @@ struct S17 {
     fused: bool,
 }
 
-static S17_STATE: Mutex<RefCell<Option<S17>>> = Mutex::new(RefCell::new(None));
+static S17_STATE: Slot<S17> = Mutex::new(RefCell::new(None));
 
 fn k17_setup() {
     let mut p = SMatrix::<f32, 17, 17>::identity();
@@ -108,85 +148,52 @@ fn k17_setup() {
         phi[(i, i + 1)] = 0.01;
     }
     let q = SMatrix::<f32, 17, 17>::identity() * 1e-4;
-    interrupt::free(|cs| {
-        if let Ok(mut slot) = S17_STATE.borrow(cs).try_borrow_mut() {
-            *slot = Some(S17 {
-                x: SVector::zeros(),
-                p,
-                phi,
-                q,
-                fused: false,
-            });
-        }
-    });
+    store(
+        &S17_STATE,
+        Some(S17 {
+            x: SVector::zeros(),
+            p,
+            phi,
+            q,
+            fused: false,
+        }),
+    );
 }
 
 fn k17_scalar() {
-    interrupt::free(|cs| {
-        if let Some(s) = S17_STATE
-            .borrow(cs)
-            .try_borrow_mut()
-            .ok()
-            .as_deref_mut()
-            .and_then(Option::as_mut)
-        {
-            let mut h = SVector::<f32, 17>::zeros();
-            for (i, v) in [
-                (0usize, 1.0f32),
-                (1, -0.5),
-                (2, 0.2),
-                (6, 0.3),
-                (7, -0.1),
-                (8, 0.05),
-                (15, 1.0),
-                (16, 0.4),
-            ] {
-                h[i] = v;
-            }
-            let h = core::hint::black_box(h);
-            let r = fuse_scalar(&mut s.x, &mut s.p, &h, 0.5, 0.01, Gate::Nis(25.0));
-            s.fused = matches!(r, Ok(rep) if rep.outcome == FusionOutcome::Fused);
+    with_state(&S17_STATE, |s| {
+        let mut h = SVector::<f32, 17>::zeros();
+        for (i, v) in [
+            (0usize, 1.0f32),
+            (1, -0.5),
+            (2, 0.2),
+            (6, 0.3),
+            (7, -0.1),
+            (8, 0.05),
+            (15, 1.0),
+            (16, 0.4),
+        ] {
+            h[i] = v;
         }
+        let h = core::hint::black_box(h);
+        let r = fuse_scalar(&mut s.x, &mut s.p, &h, 0.5, 0.01, Gate::Nis(25.0));
+        s.fused = matches!(r, Ok(rep) if rep.outcome == FusionOutcome::Fused);
     });
 }
 
 fn k17_check() -> bool {
-    interrupt::free(|cs| {
-        S17_STATE
-            .borrow(cs)
-            .try_borrow()
-            .ok()
-            .as_deref()
-            .and_then(Option::as_ref)
-            .is_some_and(|s| s.fused && s.p[(0, 0)] < 1.0 && s.x[0] > 0.0)
-    })
+    check_state(&S17_STATE, |s| s.fused && s.p[(0, 0)] < 1.0 && s.x[0] > 0.0)
 }
 
 fn k17_dense_predict() {
-    interrupt::free(|cs| {
-        if let Some(s) = S17_STATE
-            .borrow(cs)
-            .try_borrow_mut()
-            .ok()
-            .as_deref_mut()
-            .and_then(Option::as_mut)
-        {
-            let phi = core::hint::black_box(s.phi);
-            propagate_dense(&mut s.p, &phi, &s.q);
-        }
+    with_state(&S17_STATE, |s| {
+        let phi = core::hint::black_box(s.phi);
+        propagate_dense(&mut s.p, &phi, &s.q);
     });
 }
 
 fn k17_check_pred() -> bool {
-    interrupt::free(|cs| {
-        S17_STATE
-            .borrow(cs)
-            .try_borrow()
-            .ok()
-            .as_deref()
-            .and_then(Option::as_ref)
-            .is_some_and(|s| s.p[(0, 0)] > 1.0)
-    })
+    check_state(&S17_STATE, |s| s.p[(0, 0)] > 1.0)
 }
 
 // ---------------------------------------------------------------- transfer alignment
@@ -224,19 +231,17 @@ struct Ta<F> {
     ok: bool,
 }
 
-static TA9: Mutex<RefCell<Option<Ta<ConventionalFilter<f32>>>>> = Mutex::new(RefCell::new(None));
-static TA12: Mutex<RefCell<Option<Ta<ProposedFilter<f32>>>>> = Mutex::new(RefCell::new(None));
+static TA9: Slot<Ta<ConventionalFilter<f32>>> = Mutex::new(RefCell::new(None));
+static TA12: Slot<Ta<ProposedFilter<f32>>> = Mutex::new(RefCell::new(None));
 
 macro_rules! ta_kernel {
     ($setup:ident, $step:ident, $prop:ident, $check:ident, $cell:ident, $ty:ty) => {
         /// Prediction only (a master-data dropout epoch).
         fn $prop() {
-            interrupt::free(|cs| {
-                if let Some(s) = $cell.borrow(cs).try_borrow_mut().ok().as_deref_mut().and_then(Option::as_mut) {
-                    let t = core::hint::black_box(s.k as f32 * TA_DT_S);
-                    s.ok &= matches!(s.filter.propagate(t), Ok(1));
-                    s.k += 1;
-                }
+            with_state(&$cell, |s| {
+                let t = core::hint::black_box(s.k as f32 * TA_DT_S);
+                s.ok &= matches!(s.filter.propagate(t), Ok(1));
+                s.k += 1;
             });
         }
         fn $setup() {
@@ -249,27 +254,17 @@ macro_rules! ta_kernel {
                     s.k += 1;
                 }
             }
-            interrupt::free(|cs| {
-        if let Ok(mut slot) = $cell.borrow(cs).try_borrow_mut() {
-            *slot = state;
-        }
-    });
+            store(&$cell, state);
         }
         fn $step() {
-            interrupt::free(|cs| {
-                if let Some(s) = $cell.borrow(cs).try_borrow_mut().ok().as_deref_mut().and_then(Option::as_mut) {
-                    let (m, sl) = ta_samples(s.k);
-                    s.ok &= matches!(s.filter.step(&m, &sl), Ok(r) if r.predictions == 1);
-                    s.k += 1;
-                }
+            with_state(&$cell, |s| {
+                let (m, sl) = ta_samples(s.k);
+                s.ok &= matches!(s.filter.step(&m, &sl), Ok(r) if r.predictions == 1);
+                s.k += 1;
             });
         }
         fn $check() -> bool {
-            interrupt::free(|cs| {
-                $cell.borrow(cs).try_borrow().ok().as_deref().and_then(Option::as_ref).is_some_and(|s| {
-                    s.ok && s.filter.theta().iter().all(|v| v.is_finite())
-                })
-            })
+            check_state(&$cell, |s| s.ok && s.filter.theta().iter().all(|v| v.is_finite()))
         }
     };
 }
@@ -333,8 +328,8 @@ struct Vc<L> {
     ok: bool,
 }
 
-static VCC: Mutex<RefCell<Option<Vc<ClassicalLoop<f32>>>>> = Mutex::new(RefCell::new(None));
-static VCA: Mutex<RefCell<Option<Vc<AidedLoop<f32>>>>> = Mutex::new(RefCell::new(None));
+static VCC: Slot<Vc<ClassicalLoop<f32>>> = Mutex::new(RefCell::new(None));
+static VCA: Slot<Vc<AidedLoop<f32>>> = Mutex::new(RefCell::new(None));
 
 fn vcc_setup() {
     let cfg = nav_golden::vc_classical_config();
@@ -348,41 +343,22 @@ fn vcc_setup() {
                 ok: true,
             })
         });
-    interrupt::free(|cs| {
-        if let Ok(mut slot) = VCC.borrow(cs).try_borrow_mut() {
-            *slot = state;
-        }
-    });
+    store(&VCC, state);
     for _ in 0..3 {
         vcc_step();
     }
 }
 
 fn vcc_step() {
-    interrupt::free(|cs| {
-        if let Some(s) = VCC
-            .borrow(cs)
-            .try_borrow_mut()
-            .ok()
-            .as_deref_mut()
-            .and_then(Option::as_mut)
-        {
-            let (imu, baro, _) = vc_imu(s.k);
-            s.ok &= s.filter.step(&imu, Some(&baro)).is_ok();
-            s.k += 1;
-        }
+    with_state(&VCC, |s| {
+        let (imu, baro, _) = vc_imu(s.k);
+        s.ok &= s.filter.step(&imu, Some(&baro)).is_ok();
+        s.k += 1;
     });
 }
 
 fn vcc_check() -> bool {
-    interrupt::free(|cs| {
-        VCC.borrow(cs)
-            .try_borrow()
-            .ok()
-            .as_deref()
-            .and_then(Option::as_ref)
-            .is_some_and(|s| s.ok && s.filter.altitude_m().is_finite())
-    })
+    check_state(&VCC, |s| s.ok && s.filter.altitude_m().is_finite())
 }
 
 fn vca_setup() {
@@ -397,41 +373,22 @@ fn vca_setup() {
                 ok: true,
             })
         });
-    interrupt::free(|cs| {
-        if let Ok(mut slot) = VCA.borrow(cs).try_borrow_mut() {
-            *slot = state;
-        }
-    });
+    store(&VCA, state);
     for _ in 0..3 {
         vca_step();
     }
 }
 
 fn vca_step() {
-    interrupt::free(|cs| {
-        if let Some(s) = VCA
-            .borrow(cs)
-            .try_borrow_mut()
-            .ok()
-            .as_deref_mut()
-            .and_then(Option::as_mut)
-        {
-            let (imu, baro, vel) = vc_imu(s.k);
-            s.ok &= s.filter.step(&imu, Some(&baro), Some(&vel)).is_ok();
-            s.k += 1;
-        }
+    with_state(&VCA, |s| {
+        let (imu, baro, vel) = vc_imu(s.k);
+        s.ok &= s.filter.step(&imu, Some(&baro), Some(&vel)).is_ok();
+        s.k += 1;
     });
 }
 
 fn vca_check() -> bool {
-    interrupt::free(|cs| {
-        VCA.borrow(cs)
-            .try_borrow()
-            .ok()
-            .as_deref()
-            .and_then(Option::as_ref)
-            .is_some_and(|s| s.ok && s.filter.altitude_m().is_finite())
-    })
+    check_state(&VCA, |s| s.ok && s.filter.altitude_m().is_finite())
 }
 
 // ---------------------------------------------------------------- seeker-aided INS
@@ -483,41 +440,23 @@ struct Seeker {
 }
 
 /// The INS kernel's state: the mechanisation and whether every step succeeded.
-type InsSlot = Mutex<RefCell<Option<(Ins<f32>, bool)>>>;
-static INS: InsSlot = Mutex::new(RefCell::new(None));
-static SEEKER: Mutex<RefCell<Option<Seeker>>> = Mutex::new(RefCell::new(None));
+static INS: Slot<(Ins<f32>, bool)> = Mutex::new(RefCell::new(None));
+static SEEKER: Slot<Seeker> = Mutex::new(RefCell::new(None));
 
 fn ins_setup() {
     let ins = Ins::new(ins_initial(), INS_DT_S).ok().map(|i| (i, true));
-    interrupt::free(|cs| {
-        if let Ok(mut slot) = INS.borrow(cs).try_borrow_mut() {
-            *slot = ins;
-        }
-    });
+    store(&INS, ins);
 }
 
 fn ins_step() {
-    interrupt::free(|cs| {
-        if let Some((ins, ok)) = INS
-            .borrow(cs)
-            .try_borrow_mut()
-            .ok()
-            .as_deref_mut()
-            .and_then(Option::as_mut)
-        {
-            *ok &= ins.step(&ins_increment()).is_ok();
-        }
+    with_state(&INS, |(ins, ok)| {
+        *ok &= ins.step(&ins_increment()).is_ok();
     });
 }
 
 fn ins_check() -> bool {
-    interrupt::free(|cs| {
-        INS.borrow(cs)
-            .try_borrow()
-            .ok()
-            .as_deref()
-            .and_then(Option::as_ref)
-            .is_some_and(|(ins, ok)| *ok && ins.state().vel_ned_m_s.iter().all(|v| v.is_finite()))
+    check_state(&INS, |(ins, ok)| {
+        *ok && ins.state().vel_ned_m_s.iter().all(|v| v.is_finite())
     })
 }
 
@@ -572,11 +511,7 @@ fn seeker_setup() {
             s.ok &= s.filter.propagate(&ins_increment()).is_ok();
         }
     }
-    interrupt::free(|cs| {
-        if let Ok(mut slot) = SEEKER.borrow(cs).try_borrow_mut() {
-            *slot = state;
-        }
-    });
+    store(&SEEKER, state);
 }
 
 /// As [`seeker_setup`], with P already propagated: the LOS update is measured alone (the
@@ -587,52 +522,28 @@ fn seeker_setup_predicted() {
 }
 
 fn eskf_predict() {
-    interrupt::free(|cs| {
-        if let Some(s) = SEEKER
-            .borrow(cs)
-            .try_borrow_mut()
-            .ok()
-            .as_deref_mut()
-            .and_then(Option::as_mut)
-        {
-            s.ok &= s.filter.predict_covariance().is_ok();
-        }
+    with_state(&SEEKER, |s| {
+        s.ok &= s.filter.predict_covariance().is_ok();
     });
 }
 
 fn eskf_los_update() {
-    interrupt::free(|cs| {
-        if let Some(s) = SEEKER
-            .borrow(cs)
-            .try_borrow_mut()
-            .ok()
-            .as_deref_mut()
-            .and_then(Option::as_mut)
-        {
-            let Some(lm) = landmark() else {
-                s.ok = false;
-                return;
-            };
-            let st = *s.filter.state();
-            let d = landmark_vector_ned(&st.position, &lm);
-            let u_b = quat_to_dcm(&st.q_b_n).transpose() * d.normalize();
-            let g = core::hint::black_box(gimbal_angles_of(&u_b));
-            s.ok &= s.filter.update_los(&g).is_ok();
-        }
+    with_state(&SEEKER, |s| {
+        let Some(lm) = landmark() else {
+            s.ok = false;
+            return;
+        };
+        let st = *s.filter.state();
+        let d = landmark_vector_ned(&st.position, &lm);
+        let u_b = quat_to_dcm(&st.q_b_n).transpose() * d.normalize();
+        let g = core::hint::black_box(gimbal_angles_of(&u_b));
+        s.ok &= s.filter.update_los(&g).is_ok();
     });
 }
 
 fn seeker_check() -> bool {
-    interrupt::free(|cs| {
-        SEEKER
-            .borrow(cs)
-            .try_borrow()
-            .ok()
-            .as_deref()
-            .and_then(Option::as_ref)
-            .is_some_and(|s| {
-                s.ok && s.filter.covariance().iter().all(|v| v.is_finite())
-                    && s.filter.gimbal_bias_rad() != Vector2::new(f32::NAN, 0.0)
-            })
+    check_state(&SEEKER, |s| {
+        s.ok && s.filter.covariance().iter().all(|v| v.is_finite())
+            && s.filter.gimbal_bias_rad() != Vector2::new(f32::NAN, 0.0)
     })
 }

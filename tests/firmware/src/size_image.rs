@@ -70,11 +70,19 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
         };
         count(history.push(&slave));
         if bb(true) {
-            count(ta9.step(&master, &slave).map(|r| drop(bb(r))));
-            count(ta12.step_delayed(&master, &history).map(|r| drop(bb(r))));
+            count(ta9.step(&master, &slave).map(|r| {
+                bb(r);
+            }));
+            count(ta12.step_delayed(&master, &history).map(|r| {
+                bb(r);
+            }));
         } else {
-            count(ta9.propagate(bb(0.0)).map(|r| drop(bb(r))));
-            count(ta12.propagate(bb(0.0)).map(|r| drop(bb(r))));
+            count(ta9.propagate(bb(0.0)).map(|r| {
+                bb(r);
+            }));
+            count(ta12.propagate(bb(0.0)).map(|r| {
+                bb(r);
+            }));
         }
         let imu = bb(ImuSample {
             time_s: 0.0,
@@ -88,11 +96,12 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
             time_s: 0.0,
             vz_up_m_s: 0.0,
         });
-        count(cl.step(&imu, bb(Some(&baro))).map(|r| drop(bb(r))));
-        count(
-            ai.step(&imu, bb(Some(&baro)), bb(Some(&vel)))
-                .map(|r| drop(bb(r))),
-        );
+        count(cl.step(&imu, bb(Some(&baro))).map(|r| {
+            bb(r);
+        }));
+        count(ai.step(&imu, bb(Some(&baro)), bb(Some(&vel))).map(|r| {
+            bb(r);
+        }));
         if bb(false) {
             count(cl.reinitialise(&bb(nav_golden::vc_initial())));
             count(ai.reinitialise(&bb(nav_golden::vc_initial())));
@@ -113,7 +122,9 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
                     pitch_rad: 0.0,
                     yaw_rad: 0.0,
                 }))
-                .map(|r| drop(bb(r))),
+                .map(|r| {
+                    bb(r);
+                }),
             );
         }
         bb((
