@@ -58,8 +58,10 @@ pub mod error;
 pub mod math;
 pub mod real;
 pub mod seeker_ins;
+pub mod time;
 pub mod transfer_alignment;
 pub mod vertical_channel;
 
 pub use error::NavError;
 pub use real::Real;
+pub use time::Timestamp;

@@ -13,6 +13,10 @@ pub trait Real: RealField + Copy + Default + sealed::Sealed {
     fn to_f64(self) -> f64;
     /// Machine epsilon of the type.
     const EPS: Self;
+    /// Converts an integer count (exact below 2²⁴ for `f32`; a hardware conversion on the M4F).
+    fn from_count(n: u32) -> Self;
+    /// Rounds to the nearest `u32`; `None` when not finite, negative or above `u32::MAX`.
+    fn to_u32_rounded(self) -> Option<u32>;
     /// `(sin x, cos x)`; use [`crate::math::trig::sin_cos`].
     #[doc(hidden)]
     fn trig_sin_cos(self) -> (Self, Self);
@@ -37,6 +41,19 @@ impl Real for f32 {
         f64::from(self)
     }
     const EPS: Self = f32::EPSILON;
+    #[inline(always)]
+    fn from_count(n: u32) -> Self {
+        n as f32
+    }
+    #[inline]
+    fn to_u32_rounded(self) -> Option<u32> {
+        // 4 294 967 040 is the largest f32 below 2³².
+        if self.is_finite() && (-0.5..4_294_967_040.0).contains(&self) {
+            Some((self + 0.5) as u32)
+        } else {
+            None
+        }
+    }
     #[inline]
     fn trig_sin_cos(self) -> (Self, Self) {
         crate::math::trig::sin_cos_f32(self)
@@ -66,6 +83,18 @@ impl Real for f64 {
         self
     }
     const EPS: Self = f64::EPSILON;
+    #[inline(always)]
+    fn from_count(n: u32) -> Self {
+        f64::from(n)
+    }
+    #[inline]
+    fn to_u32_rounded(self) -> Option<u32> {
+        if self.is_finite() && (-0.5..4_294_967_295.5).contains(&self) {
+            Some(libm::round(self) as u32)
+        } else {
+            None
+        }
+    }
     #[inline]
     fn trig_sin_cos(self) -> (Self, Self) {
         (ComplexField::sin(self), ComplexField::cos(self))

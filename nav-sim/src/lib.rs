@@ -17,3 +17,4 @@ pub mod rng;
 pub mod scenario;
 pub mod scenarios;
 pub mod stats;
+pub mod stress;

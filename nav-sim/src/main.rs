@@ -33,6 +33,17 @@ enum Cmd {
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
+    /// The stress campaign: every estimator over its envelope, long runs; writes
+    /// OUT/report.json and fails when any estimator stalled, committed a non-PSD covariance or
+    /// returned a non-finite value.
+    Stress {
+        /// The full campaign (10⁶-10⁷ steps per long run) instead of CI's short one.
+        #[arg(long)]
+        full: bool,
+        /// Output directory.
+        #[arg(long, default_value = "target/stress")]
+        out: PathBuf,
+    },
     /// Run a scenario (by name, or a path to a .toml file), or `all`.
     Run {
         /// Scenario name, path to a scenario file, or `all`.
@@ -79,6 +90,51 @@ fn main() -> Result<()> {
                 );
             }
             Ok(())
+        }
+        Cmd::Stress { full, out } => {
+            use nav_sim::stress::{self, StressLevel};
+            let level = if full {
+                StressLevel::Full
+            } else {
+                StressLevel::Short
+            };
+            let report = stress::run(level);
+            std::fs::create_dir_all(&out)?;
+            let path = out.join("report.json");
+            std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")?;
+            println!(
+                "stress ({}, {:.0} s) -> {}",
+                report.level,
+                report.elapsed_s,
+                path.display()
+            );
+            println!(
+                "{:<20} {:>6} {:>12} {:>8} {:>8} {:>10} {:>12}",
+                "estimator", "cases", "steps", "stalls", "non-PSD", "non-finite", "max refusals"
+            );
+            for (name, e) in [
+                ("transfer_alignment", &report.transfer_alignment),
+                ("seeker_ins", &report.seeker_ins),
+                ("vertical_channel", &report.vertical_channel),
+            ] {
+                println!(
+                    "{name:<20} {:>6} {:>12} {:>8} {:>8} {:>10} {:>12}",
+                    e.cases,
+                    e.steps,
+                    e.permanent_stalls,
+                    e.non_psd_commits,
+                    e.non_finite_reports,
+                    e.max_consecutive_refusals
+                );
+                for f in &e.findings {
+                    println!("    {}: {}", f.case, f.finding);
+                }
+            }
+            if report.clean {
+                Ok(())
+            } else {
+                anyhow::bail!("stress campaign not clean (see {})", path.display())
+            }
         }
         Cmd::Run {
             scenario: which,

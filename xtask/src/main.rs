@@ -8,6 +8,7 @@
 //! * `qemu`: record golden vectors on the host, replay them in the firmware on QEMU Cortex-M4F
 //!   and Cortex-M7, fail on any mismatch.
 //! * `bench`: instruction counts, stack and image sizes on QEMU → `target/bench/report.json`.
+//! * `stress [--short]`: the stress campaign of every estimator → `target/stress/report.json`.
 //! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
 //!   at the end.
 
@@ -33,6 +34,7 @@ fn main() -> ExitCode {
         "bench" => firmware::bench(),
         "qemu" => firmware::qemu(),
         "soak" => soak(),
+        "stress" => stress(rest.iter().any(|a| a == "--short")),
         "-h" | "--help" | "help" => {
             usage();
             Ok(())
@@ -55,6 +57,7 @@ fn usage() {
          \n  thumb                                               build nav-core for Cortex-M4F/M7\
          \n  ci                                                  fmt, clippy, thumb, tests, docs\
          \n  soak                                                full 10^6-step soak of every filter (f32)\
+         \n  stress [--short]                                    stress campaign -> target/stress/report.json\
          \n  qemu                                                firmware on QEMU: golden-vector replay\
          \n  bench                                               firmware on QEMU: instructions, stack, sizes"
     );
@@ -229,6 +232,35 @@ fn soak() -> Result<(), String> {
     )
 }
 
+/// `cargo xtask stress`: the stress campaign (`nav-sim stress`), full unless `--short`
+/// (what CI runs); writes `target/stress/report.json`, fails unless every count of failures
+/// is 0.
+fn stress(short: bool) -> Result<(), String> {
+    let mut cmd = cargo();
+    cmd.args([
+        "run",
+        "--release",
+        "--quiet",
+        "-p",
+        "nav-sim",
+        "--",
+        "stress",
+        "--out",
+    ]);
+    cmd.arg(root().join("target/stress"));
+    if !short {
+        cmd.arg("--full");
+    }
+    run(
+        if short {
+            "stress (short)"
+        } else {
+            "stress (full)"
+        },
+        &mut cmd,
+    )
+}
+
 fn ci() -> Result<(), String> {
     let t0 = Instant::now();
     let mut failures: Vec<String> = Vec::new();
@@ -319,6 +351,7 @@ fn ci() -> Result<(), String> {
                 .env("PROPTEST_RNG_SEED", &seed),
         ),
     );
+    step("stress (short)", stress(true));
     // The firmware on QEMU: golden-vector replay (fails on any mismatch), then the cost report.
     step("qemu", firmware::qemu());
     step("bench", firmware::bench());
