@@ -55,6 +55,7 @@ extern crate std;
 pub mod design;
 pub mod earth;
 pub mod error;
+pub mod health;
 pub mod math;
 pub mod real;
 pub mod seeker_ins;
@@ -63,5 +64,6 @@ pub mod transfer_alignment;
 pub mod vertical_channel;
 
 pub use error::NavError;
+pub use health::HealthState;
 pub use real::Real;
 pub use time::Timestamp;

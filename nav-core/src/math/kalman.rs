@@ -40,6 +40,11 @@ pub enum FusionOutcome {
     Fused,
     /// The innovation failed the gate; state and covariance are unchanged.
     Rejected,
+    /// The measurement was valid but could not be fused without breaking the covariance
+    /// (innovation variance not positive, or a variance that would turn negative or
+    /// non-finite in the working precision): the update was skipped, the filter keeps running
+    /// on its prediction, and the report's numbers are those of the attempted update.
+    Skipped,
 }
 
 /// Report of one scalar fusion (as PX4 EKF2 reports per sensor).

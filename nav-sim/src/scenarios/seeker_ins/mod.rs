@@ -461,6 +461,7 @@ pub fn simulate_run_faulted<T: Real>(
                                     (FusionOutcome::Rejected, false) => out.rejected += 1,
                                     (FusionOutcome::Fused, true) => out.false_lock_fused += 1,
                                     (FusionOutcome::Rejected, true) => out.false_lock_rejected += 1,
+                                    (FusionOutcome::Skipped, _) => out.errors += 1,
                                 }
                             }
                         }

@@ -29,6 +29,8 @@ pub struct MethodRun {
     pub fused: usize,
     /// Updates rejected by the gate.
     pub rejected: usize,
+    /// Updates skipped (numerically impossible in the working precision).
+    pub skipped: usize,
 }
 
 fn cast_config<T: Real>(c: &TaConfig<f64>) -> TaConfig<T> {
@@ -63,6 +65,7 @@ pub fn run_filter<T: Real, const K: usize, const N: usize>(
         nis_sum: [0.0; 6],
         fused: 0,
         rejected: 0,
+        skipped: 0,
     };
     for k in 0..n {
         let m = &truth.master[k];
@@ -89,6 +92,7 @@ pub fn run_filter<T: Real, const K: usize, const N: usize>(
                     out.fused += 1;
                 }
                 FusionOutcome::Rejected => out.rejected += 1,
+                FusionOutcome::Skipped => out.skipped += 1,
             }
         }
         let th = f.theta();
