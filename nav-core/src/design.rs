@@ -27,9 +27,15 @@
 //!     latitude_rad: 0.65,
 //!     tau_s: 20.0,
 //!     baro_lag_s: 0.2,
+//!     baro_period_s: 0.04,
 //!     baro_timeouts: AidTimeouts { stale_after_s: 0.06, lost_after_s: 0.5 },
 //! };
-//! let init = InitialState { time_s: 0.0_f32, altitude_m: 500.0, vz_up_m_s: 0.0, accel_bias_m_s2: 0.0 };
+//! let init = InitialState {
+//!     time: nav_core::time::Timestamp::ZERO,
+//!     altitude_m: 500.0_f32,
+//!     vz_up_m_s: 0.0,
+//!     accel_bias_m_s2: 0.0,
+//! };
 //!
 //! // On the ground (or at build time): design and store.
 //! let design = ClassicalDesign::<f32>::compute(&cfg)?;

@@ -38,6 +38,9 @@ pub struct ClassicalConfig {
     pub tau_s: f64,
     /// Altimeter lag compensation C4 (the baro's first-order lag time constant), s; 0 = none.
     pub baro_lag_s: f64,
+    /// Baro sample interval, s (the longest expected; with the IMU interval it decides
+    /// whether τ is stable in the multirate loop, see [`ClassicalDesign::compute`]).
+    pub baro_period_s: f64,
     /// Baro freshness timeouts.
     pub baro_timeouts: AidTimeouts,
 }
@@ -138,8 +141,8 @@ impl ClassicalGains {
 pub struct ClassicalReport<T> {
     /// The baro: status and innovation `h_baro − (ĥ − C4 V̂_z)` (= −e), m.
     pub baro: AidReport<T>,
-    /// IMU intervals covered by this step: 1, or n for a bridged gap of n − 1 missing
-    /// samples (see [`super::MAX_IMU_GAP_INTERVALS`]).
+    /// Sub-steps the interval was integrated in: 1 for an interval up to 1.5 nominal IMU
+    /// intervals, up to [`super::MAX_SUBSTEPS`] for a longer one (see [`super::LoopStatus`]).
     pub imu_intervals: u32,
 }
 
@@ -184,6 +187,7 @@ impl<T: Real> ClassicalLoop<T> {
             init,
             -1.0,
             design.step_values(),
+            gains.observer().0.cast::<T>(),
             *modes,
             gravity,
             &config.baro_timeouts,
@@ -225,18 +229,27 @@ impl<T: Real> ClassicalLoop<T> {
     pub fn accel_bias_m_s2(&self) -> T {
         self.core.accel_bias_m_s2()
     }
-    /// Time of the estimate, s.
-    pub fn time_s(&self) -> T {
-        self.core.time_s
+    /// Time of the estimate (of the last accepted IMU sample).
+    pub fn time(&self) -> crate::time::Timestamp {
+        self.core.time
+    }
+    /// Health after the last step ([`super::LoopStatus`] says why).
+    pub fn health(&self) -> crate::HealthState {
+        self.core.status.health
+    }
+    /// Health and the interval / divergence counters.
+    pub fn status(&self) -> &super::LoopStatus {
+        &self.core.status
     }
     /// Installs the χ² innovation gate ([`super::InnovationGate`]), or removes it with `None`
     /// (then every valid sample is accepted). Counters are kept. On error nothing changes.
     pub fn set_gate(&mut self, gate: Option<&super::InnovationGate>) -> Result<(), NavError> {
         self.core.set_gate(gate)
     }
-    /// Restarts the state and clock from `init` (e.g. after a refused IMU gap longer than
-    /// [`super::MAX_IMU_GAP_INTERVALS`] or a diverged estimate), keeping the design, the gate
-    /// and the counters; held aid samples are dropped. On error nothing changes.
+    /// Restarts the state and clock from `init` (e.g. when the health is
+    /// `NeedsReinitialisation` and an external altitude is known), keeping the design, the
+    /// gate and the counters; held aid samples are dropped and the health is `Initialising`
+    /// until the next step. On error nothing changes.
     pub fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
         self.core.reinitialise(init)
     }

@@ -8,7 +8,11 @@
 //! that uses them links none of the design code and runs no f64 arithmetic.
 use super::aided::{AidedConfig, AidedGains};
 use super::classical::{ClassicalConfig, ClassicalGains};
-use super::{check_imu_dt, discretise_modes, open_loop, GravityModel, Mode, Modes};
+use super::riccati::char_poly3;
+use super::{
+    check_imu_dt, discretise_modes, off_nominal_increment, open_loop, GravityModel, Mode, Modes,
+    INTERVAL_ACCURACY, MAX_AID_PERIOD_IMU_INTERVALS,
+};
 use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
 use crate::error::ConfigIssue;
 use crate::math::checks::all_finite_parts;
@@ -159,6 +163,148 @@ fn not_finite() -> NavError {
     }
 }
 
+/// An aid period in IMU intervals, `m = ⌈T / dt⌉` (≥ 1); `InvalidConfig { field }` when the
+/// period is not positive, not finite or more than [`MAX_AID_PERIOD_IMU_INTERVALS`] intervals.
+fn check_period(field: &'static str, period_s: f64, dt_s: f64) -> Result<u32, NavError> {
+    crate::error::require_positive(field, period_s)?;
+    let m = libm::ceil(period_s / dt_s - 1.0e-9);
+    if !(m <= MAX_AID_PERIOD_IMU_INTERVALS) {
+        return Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::OutOfRange,
+        });
+    }
+    // 1 ≤ m ≤ 10⁵: exact.
+    Ok(if m < 1.0 { 1 } else { m as u32 })
+}
+
+/// The loop's continuous model at design time (f64), for the envelope checks.
+struct LoopModel {
+    a0: Matrix3<f64>,
+    k: Matrix3x2<f64>,
+    c: Matrix2x3<f64>,
+    lag: f64,
+    bias_sign: f64,
+    /// Gravity gradient c = 2ω_s², 1/s².
+    c_grav: f64,
+    dt: f64,
+}
+
+impl LoopModel {
+    /// The variable-interval step ([`off_nominal_increment`]) must match the exact
+    /// discretisation at 0.25, 0.5, 0.75, 1.25 and 1.5 dt to [`INTERVAL_ACCURACY`] (relative,
+    /// per input, every aid mode); otherwise the loop is too fast for its IMU interval
+    /// (`InvalidConfig { field: "imu_dt_s" }`).
+    fn check_intervals(&self) -> Result<(), NavError> {
+        let nominal = discretise_modes::<f64>(&self.a0, &self.k, &self.c, self.dt)?;
+        for frac in [0.25, 0.5, 0.75, 1.25, 1.5] {
+            let h = frac * self.dt;
+            let exact = discretise_modes::<f64>(&self.a0, &self.k, &self.c, h)?;
+            for (ub, uv) in [(false, false), (true, false), (false, true), (true, true)] {
+                let mask = (f64::from(u8::from(ub)), f64::from(u8::from(uv)));
+                let (mn, me) = (nominal.select(ub, uv), exact.select(ub, uv));
+                for input in 0..4 {
+                    let mut u = [0.0; 4];
+                    if let Some(x) = u.get_mut(input) {
+                        *x = 1.0;
+                    }
+                    let [v, rate, nh, nv] = u;
+                    let nu = Vector2::new(nh * mask.0, nv * mask.1);
+                    let y_exact = me.n * Vector2::new(v, rate) + me.g * nu;
+                    let y = off_nominal_increment(
+                        &self.k,
+                        self.lag,
+                        self.bias_sign,
+                        mn,
+                        mask,
+                        (h, self.dt),
+                        (v, rate),
+                        &nu,
+                    );
+                    let scale = y_exact.amax();
+                    let err = (y - y_exact).amax();
+                    if !(err <= INTERVAL_ACCURACY * scale) {
+                        return Err(NavError::InvalidConfig {
+                            field: "imu_dt_s",
+                            issue: ConfigIssue::OutOfRange,
+                        });
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Stability of the multirate loop with perfect sensors: each aid sample (every `m` IMU
+    /// intervals) is held and extrapolated to the middle of every later interval, so the error
+    /// `e = [δh, δV_z, δb]` evolves as `e ← (I + N D₀ + G D_k) e` with the extrapolation age
+    /// `a_k = (k − ½) dt` since the sample:
+    ///
+    /// ```text
+    /// D₀ = [[0, 1, 0], [c, 0, ±1]]          (the rates V̂_z, A_z ± b̂ with gravity's c δh)
+    /// baro row of D_k:     [−1 − ½ a² c,  τ_b + a,  ∓½ a²]
+    /// velocity row of D_k: [a c,  −1,  ±a]
+    /// ```
+    ///
+    /// The loop is stable when the monodromy Ψ over one common period (the least common
+    /// multiple of the aid periods, or the longer period for both aids when that exceeds 10⁵
+    /// intervals) has all eigenvalues inside the unit circle (Jury test, evaluated on
+    /// `Ψ − I` accumulated separately so that slow loops, Ψ ≈ I, are judged correctly).
+    fn multirate_stable(&self, baro: Option<u32>, vel: Option<u32>) -> Result<bool, NavError> {
+        let (ub, uv) = (baro.is_some(), vel.is_some());
+        let modes = discretise_modes::<f64>(&self.a0, &self.k, &self.c, self.dt)?;
+        let mode = modes.select(ub, uv);
+        let (mb, mv) = (baro.unwrap_or(1), vel.unwrap_or(1));
+        let mut horizon = u64::from(mb) * u64::from(mv) / u64::from(gcd(mb, mv));
+        let (mut mb, mut mv) = (mb, mv);
+        if horizon > 100_000 {
+            let m = mb.max(mv);
+            (mb, mv, horizon) = (m, m, u64::from(m));
+        }
+        let s = self.bias_sign;
+        let cg = self.c_grav;
+        let d0 = nalgebra::Matrix2x3::new(0.0, 1.0, 0.0, cg, 0.0, s);
+        let base = mode.n * d0;
+        let mut delta = Matrix3::<f64>::zeros();
+        for k in 0..horizon {
+            let age = |m: u32| ((k % u64::from(m)) as f64 - 0.5) * self.dt;
+            let (ab, av) = (age(mb), age(mv));
+            let mut d = nalgebra::Matrix2x3::zeros();
+            if ub {
+                d.set_row(
+                    0,
+                    &nalgebra::RowVector3::new(-1.0 - 0.5 * ab * ab * cg, self.lag + ab, -0.5 * ab * ab * s),
+                );
+            }
+            if uv {
+                d.set_row(1, &nalgebra::RowVector3::new(av * cg, -1.0, av * s));
+            }
+            let e = base + mode.g * d;
+            delta += e + e * delta;
+            if !delta.iter().all(|v| v.is_finite()) {
+                return Ok(false);
+            }
+        }
+        // Ψ = I + Δ; p(z) = det(zI − Ψ) = q(z − 1) with q(μ) = μ³ + b₂μ² + b₁μ + b₀ of Δ.
+        let [b2, b1, b0] = char_poly3(&delta);
+        let u = b2 - b1 + b0; // a₀ + 1
+        let p_minus1 = 8.0 - 4.0 * b2 + 2.0 * b1 - b0; // −p(−1)
+        let jury = b0 > 0.0
+            && p_minus1 > 0.0
+            && u > 0.0
+            && u < 2.0
+            && u * (2.0 - u) > (u * (b2 - 2.0) - b0).abs();
+        Ok(jury)
+    }
+}
+
+fn gcd(mut a: u32, mut b: u32) -> u32 {
+    while b != 0 {
+        (a, b) = (b, a % b);
+    }
+    a.max(1)
+}
+
 /// Precomputed design of a [`super::ClassicalLoop`]: pole-placement gains, the discretised
 /// aid modes, the gravity model and the step values, in the loop's float type `T` (the gains
 /// as `f64` data, for reporting only).
@@ -184,7 +330,24 @@ impl<T: Real> ClassicalDesign<T> {
         let gravity = GravityModel::at_latitude(config.latitude_rad)?;
         let gains =
             ClassicalGains::pole_placement(config.tau_s, config.baro_lag_s, gravity.c_per_s2())?;
+        let period = check_period("baro_period_s", config.baro_period_s, config.imu_dt_s)?;
         let (k, c) = gains.observer();
+        let loop_ = LoopModel {
+            a0: open_loop(-1.0),
+            k,
+            c,
+            lag: config.baro_lag_s,
+            bias_sign: -1.0,
+            c_grav: gravity.c_per_s2(),
+            dt: config.imu_dt_s,
+        };
+        loop_.check_intervals()?;
+        if !loop_.multirate_stable(Some(period), None)? {
+            return Err(NavError::InvalidConfig {
+                field: "tau_s",
+                issue: ConfigIssue::OutOfRange,
+            });
+        }
         let modes = discretise_modes::<T>(&open_loop(-1.0), &k, &c, config.imu_dt_s)?;
         Ok(Self {
             gains,
@@ -304,6 +467,31 @@ impl<T: Real> AidedDesign<T> {
         )?;
         let gains = AidedGains::design(config)?;
         let gravity = GravityModel::at_latitude(config.latitude_rad)?;
+        let tb = check_period("baro_period_s", config.baro_period_s, config.imu_dt_s)?;
+        let tv = check_period("velocity_period_s", config.velocity_period_s, config.imu_dt_s)?;
+        let loop_ = LoopModel {
+            a0: open_loop(1.0),
+            k: gains.k,
+            c: gains.c,
+            lag: config.baro_lag_s,
+            bias_sign: 1.0,
+            c_grav: gravity.c_per_s2(),
+            dt: config.imu_dt_s,
+        };
+        loop_.check_intervals()?;
+        // Baro alone and both aids (the velocity aid alone cannot hold the altitude: its
+        // error diverges slowly through gravity's c δh in any design).
+        for (field, b, v) in [
+            ("baro_period_s", Some(tb), None),
+            ("velocity_period_s", Some(tb), Some(tv)),
+        ] {
+            if !loop_.multirate_stable(b, v)? {
+                return Err(NavError::InvalidConfig {
+                    field,
+                    issue: ConfigIssue::OutOfRange,
+                });
+            }
+        }
         let modes = discretise_modes::<T>(&open_loop(1.0), &gains.k, &gains.c, config.imu_dt_s)?;
         let cb = gains.c.row(0).transpose();
         let bv = (cb.transpose() * gains.p * cb).x + config.baro_noise_m * config.baro_noise_m;
@@ -460,6 +648,7 @@ mod tests {
             latitude_rad: 0.6,
             tau_s: 10.0,
             baro_lag_s: 0.0,
+            baro_period_s: 0.04,
             baro_timeouts: timeouts(),
         }
     }
@@ -482,7 +671,7 @@ mod tests {
 
     fn init<T: Real>() -> InitialState<T> {
         InitialState {
-            time_s: T::zero(),
+            time: crate::time::Timestamp::ZERO,
             altitude_m: T::lit(100.0),
             vz_up_m_s: T::zero(),
             accel_bias_m_s2: T::zero(),

@@ -52,31 +52,50 @@ pub mod riccati;
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
 use crate::math::discretize::discretize;
 pub use crate::math::kalman::FusionOutcome;
-use crate::{NavError, Real};
+use crate::time::{micros_to_seconds, Timestamp};
+use crate::{HealthState, NavError, Real};
 use nalgebra::{Matrix3, Matrix3x2, SMatrix, Vector2, Vector3};
 
 /// Largest accepted |specific force|, m/s² (20 g).
 pub const MAX_SPECIFIC_FORCE_M_S2: f64 = 196.0;
 /// Accepted altitude range of the estimate and the baro, m.
 pub const ALTITUDE_RANGE_M: (f64, f64) = (-2_000.0, 60_000.0);
-/// Range the altitude **estimate** must stay in, m (wider than [`ALTITUDE_RANGE_M`] so a loop
-/// coasting through a long outage keeps running and can re-acquire; leaving it means the loop
-/// has diverged: the step is refused with `InputOutOfRange { input: "altitude estimate" }`).
+/// Range the altitude **estimate** is kept in, m (wider than [`ALTITUDE_RANGE_M`] so a loop
+/// coasting through a long outage keeps running and can re-acquire). An estimate that leaves
+/// it is held at the limit (the step is not refused): the loop has diverged, its health is
+/// `NeedsReinitialisation` and the next aid samples are accepted outside the gate and re-anchor
+/// the measured states (see [`HealthState`] and [`InnovationGate`]).
 pub const ESTIMATE_RANGE_M: (f64, f64) = (-50_000.0, 500_000.0);
+/// Largest |vertical velocity| of the **estimate**, m/s; held at the limit like the altitude.
+pub const MAX_ESTIMATE_SPEED_M_S: f64 = 10_000.0;
+/// Largest |accelerometer bias| of the **estimate**, m/s² (= the specific-force range); held
+/// at the limit like the altitude.
+pub const MAX_ESTIMATE_BIAS_M_S2: f64 = MAX_SPECIFIC_FORCE_M_S2;
 /// Largest accepted |vertical velocity| of the aid, m/s.
 pub const MAX_VERTICAL_SPEED_M_S: f64 = 1_500.0;
-/// Accepted IMU interval relative to the configured one: `|Δt − dt| ≤ 0.25 dt`.
-pub const IMU_DT_TOLERANCE: f64 = 0.25;
-/// Longest IMU gap bridged by a step, in IMU intervals: a sample whose interval is
-/// `n · dt` (±[`IMU_DT_TOLERANCE`] dt, 2 ≤ n ≤ this) is accepted and the loop first coasts
-/// the `n − 1` missing intervals on its specific force (no aid), then steps normally. A longer
-/// gap is refused (`InvalidTimeStep`); the caller then re-initialises (`reinitialise`).
-pub const MAX_IMU_GAP_INTERVALS: u32 = 100;
+/// Largest number of aided sub-steps one IMU interval is integrated in. An interval `Δt` is
+/// integrated over its actual length: `n = round(Δt/dt)` sub-steps of `Δt/n` (1 ≤ n ≤ this),
+/// each the stored exact step at the nominal `dt` corrected by a short series for the
+/// difference (see [`LoopCore`]); a longer interval first coasts the excess on the IMU alone
+/// (closed form, exact), then takes this many nominal sub-steps. Worst-case work of one call:
+/// this many aided sub-steps plus one coast.
+pub const MAX_SUBSTEPS: u32 = 8;
+/// Longest IMU interval bridged by coasting, s. A longer gap is not integrated (one specific
+/// force sample says nothing about so long an interval): the state is kept, the clock moves
+/// to the sample, the held aid samples are dropped, the health is `NeedsReinitialisation` and
+/// the next sample of each aid is accepted outside the gate and re-anchors the measured state
+/// (ĥ for the baro, V̂_z for the velocity aid) — the loop comes back by itself, or by
+/// `reinitialise`.
+pub const MAX_BRIDGED_GAP_S: f64 = 10.0;
+/// Relative accuracy the variable-interval step must reach at configuration (checked against
+/// the exact discretisation at 0.25…1.5 dt, every aid mode); a configuration whose loop is
+/// too fast for its IMU interval to meet it is refused (`InvalidConfig { field: "imu_dt_s" }`).
+pub const INTERVAL_ACCURACY: f64 = 1.0e-4;
 /// The loops keep the altitude relative to a reference that is moved to the estimate when
 /// they differ by more than this, m (f32 resolution 2⁻¹⁶ m here).
 pub const RECENTRE_M: f64 = 256.0;
-/// Largest accepted configured IMU interval `imu_dt_s`, s.
-pub const MAX_IMU_DT_S: f64 = 1.0;
+/// Accepted range of the configured IMU interval `imu_dt_s`, s (10 kHz … 1 Hz).
+pub const IMU_DT_RANGE_S: (f64, f64) = (1.0e-4, 1.0);
 /// Largest accepted classical time constant `tau_s`, s.
 pub const MAX_TAU_S: f64 = 1.0e4;
 /// Accepted range of the aided design's PSDs and periods (squares of the noise densities,
@@ -86,14 +105,17 @@ pub const MIN_DESIGN_VALUE: f64 = 1.0e-24;
 pub const MAX_DESIGN_VALUE: f64 = 1.0e12;
 /// Largest accepted aid timeout (`stale_after_s`, `lost_after_s`), s.
 pub const MAX_TIMEOUT_S: f64 = 1.0e6;
+/// Largest aid sample period relative to the IMU interval (the multirate stability analysis
+/// runs over one aid period).
+pub const MAX_AID_PERIOD_IMU_INTERVALS: f64 = 1.0e5;
 
 /// One IMU sample: the vertical component of the specific force, averaged over the interval
-/// that ends at `time_s`.
+/// that ends at `time`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ImuSample<T> {
-    /// End of the IMU interval, s.
-    pub time_s: T,
+    /// End of the IMU interval (the flight computer's clock).
+    pub time: Timestamp,
     /// Vertical specific force, up positive, m/s² (≈ +g at rest).
     pub specific_force_up_m_s2: T,
 }
@@ -102,8 +124,8 @@ pub struct ImuSample<T> {
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct BaroSample<T> {
-    /// Time of validity, s (same clock as the IMU).
-    pub time_s: T,
+    /// Time of validity (same clock as the IMU).
+    pub time: Timestamp,
     /// Barometric altitude, m, up positive.
     pub altitude_m: T,
 }
@@ -112,8 +134,8 @@ pub struct BaroSample<T> {
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct VelocitySample<T> {
-    /// Time of validity, s.
-    pub time_s: T,
+    /// Time of validity (same clock as the IMU).
+    pub time: Timestamp,
     /// Vertical velocity, m/s, up positive.
     pub vz_up_m_s: T,
 }
@@ -172,24 +194,31 @@ pub struct AidReport<T> {
 pub struct SampleCheck<T> {
     /// Innovation of the new sample, extrapolated to mid-interval (measurement unit).
     pub innovation: T,
-    /// Gate variance `S = σ₀² + d(gap)²` (unit²); `+∞` when no gate is configured or for the
-    /// first sample of an aid (accepted ungated).
-    pub gate_variance: T,
+    /// Gate variance `S = σ₀² + d(gap)²` (unit²), finite (saturated at [`MAX_GATE_VARIANCE`]);
+    /// `None` when the sample was not gated (no gate configured, the first sample of an aid,
+    /// or a sample accepted outside the gate to re-anchor the loop).
+    pub gate_variance: Option<T>,
     /// `Fused` (the sample replaces the held one) or `Rejected` (discarded; the previously
     /// accepted sample keeps ageing and the aid eventually goes `Lost`).
     pub outcome: FusionOutcome,
-    /// `true` when this accepted sample ended a `Lost` period (re-acquisition).
+    /// `true` when this accepted sample ended a `Lost` period or re-anchored the loop
+    /// (re-acquisition).
     pub reacquired: bool,
     /// `true` when the re-acquisition reset the measured state (see [`InnovationGate`]).
     pub reset: bool,
 }
 
 impl<T: Real> SampleCheck<T> {
-    /// Normalised innovation squared `ν² / S` (χ², 1 dof); 0 when ungated.
-    pub fn nis(&self) -> T {
-        self.innovation * self.innovation / self.gate_variance
+    /// Normalised innovation squared `ν² / S` (χ², 1 dof), finite; `None` when not gated.
+    pub fn nis(&self) -> Option<T> {
+        self.gate_variance
+            .map(|s| self.innovation * self.innovation / s)
     }
 }
+
+/// Largest gate variance, unit² (the gate saturates here so that every reported number stays
+/// finite in f32; a gate this wide admits any valid sample).
+pub const MAX_GATE_VARIANCE: f64 = 1.0e30;
 
 /// Gate counters of one aid. `accepted`, `rejected` and `consecutive_rejected` wrap after
 /// 2³² samples (≈ 1.4 years at 100 Hz); `reacquisitions` and `resets` saturate.
@@ -206,6 +235,35 @@ pub struct GateCounters {
     pub reacquisitions: u32,
     /// Re-acquisitions that reset the measured state (innovation beyond the tracking gate).
     pub resets: u32,
+    /// Samples accepted outside the gate to re-anchor the loop (after a starved period longer
+    /// than `starved_reset_after_s`, a gap longer than [`MAX_BRIDGED_GAP_S`] or a diverged
+    /// estimate); each also counts as a re-acquisition and a reset.
+    pub forced_reanchors: u32,
+}
+
+/// Health of a loop and the counters behind it ([`classical::ClassicalLoop::status`],
+/// [`aided::AidedLoop::status`]).
+///
+/// `health` after the last step: `Initialising` before the first accepted step (after `new`
+/// or `reinitialise`); `NeedsReinitialisation` while a re-anchoring of the baro is pending (a
+/// gap longer than [`MAX_BRIDGED_GAP_S`], or an estimate held at a limit of
+/// [`ESTIMATE_RANGE_M`] / [`MAX_ESTIMATE_SPEED_M_S`] / [`MAX_ESTIMATE_BIAS_M_S2`]): the next
+/// baro sample re-anchors ĥ and ends it (or `reinitialise`); `Degraded` when the last step
+/// bridged an IMU gap (more than one sub-step), the baro is not in use, a velocity aid that
+/// has delivered is lost, an aid's last sample was rejected, or a recovery gate is held;
+/// `Nominal` otherwise. Counters saturate.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct LoopStatus {
+    /// Health after the last step.
+    pub health: HealthState,
+    /// IMU intervals longer than 1.5 nominal intervals integrated in sub-steps (and, beyond
+    /// [`MAX_SUBSTEPS`] intervals, a coast).
+    pub gaps_bridged: u32,
+    /// IMU gaps longer than [`MAX_BRIDGED_GAP_S`] (not integrated; state kept).
+    pub gaps_skipped: u32,
+    /// Steps whose estimate was held at a limit (diverged).
+    pub estimate_limited: u32,
 }
 
 /// χ² innovation gate of the aid samples, with re-inflation while an aid is starved and a
@@ -263,6 +321,12 @@ pub struct InnovationGate {
     /// How long the innovations must stay inside the tracking gate after a re-acquisition
     /// before the recovery gate is released, s (> 0; a few loop time constants, e.g. 3τ).
     pub recovery_hold_s: f64,
+    /// Starvation limit, s (> 0): when an aid's samples have been rejected without a break for
+    /// this long, the next sample is accepted outside the gate and resets the measured state
+    /// (the inertial solution has drifted faster than the re-inflation model allows; as PX4's
+    /// height reset on a failed innovation check). Longer than the longest aid fault the gate
+    /// should ride out (a frozen baro is accepted after this long).
+    pub starved_reset_after_s: f64,
 }
 
 impl InnovationGate {
@@ -280,21 +344,28 @@ impl InnovationGate {
             self.starved_accel_sigma_m_s2,
         )?;
         let hold = require_positive("gate.recovery_hold_s", self.recovery_hold_s)?;
-        if hold > MAX_TIMEOUT_S {
-            return Err(NavError::InvalidConfig {
-                field: "gate.recovery_hold_s",
-                issue: ConfigIssue::OutOfRange,
-            });
+        let starve = require_positive("gate.starved_reset_after_s", self.starved_reset_after_s)?;
+        for (field, v) in [
+            ("gate.recovery_hold_s", hold),
+            ("gate.starved_reset_after_s", starve),
+        ] {
+            if v > MAX_TIMEOUT_S {
+                return Err(NavError::InvalidConfig {
+                    field,
+                    issue: ConfigIssue::OutOfRange,
+                });
+            }
         }
-        // The threshold in [10⁻³⁰, 10³⁰), the σ in [10⁻¹⁵, 10¹⁵) (zero drift is legal), so the
-        // squares stay finite and (for σ₀) normal in f32. The squares are formed in the loop's
-        // float type: no f64 multiply (software floating point on the M4F) in a flight image.
+        // The threshold in [10⁻³, 10⁴), the σ in [10⁻⁶, 10⁶) (zero drift is legal), so the
+        // squares stay finite and normal in f32 and threshold · S (S ≤ MAX_GATE_VARIANCE) and
+        // ν² / S stay finite. The squares are formed in the loop's float type: no f64 multiply
+        // (software floating point on the M4F) in a flight image.
         gate_ranges(&[
-            ("gate.nis_threshold", thr, false, 1.0e-30, 1.0e30),
-            ("gate.baro_sigma_m", sh, false, 1.0e-15, 1.0e15),
-            ("gate.velocity_sigma_m_s", sv, false, 1.0e-15, 1.0e15),
-            ("gate.starved_velocity_sigma_m_s", gv, true, 1.0e-15, 1.0e15),
-            ("gate.starved_accel_sigma_m_s2", ga, true, 1.0e-15, 1.0e15),
+            ("gate.nis_threshold", thr, false, 1.0e-3, 1.0e4),
+            ("gate.baro_sigma_m", sh, false, 1.0e-6, 1.0e6),
+            ("gate.velocity_sigma_m_s", sv, false, 1.0e-6, 1.0e6),
+            ("gate.starved_velocity_sigma_m_s", gv, true, 1.0e-6, 1.0e6),
+            ("gate.starved_accel_sigma_m_s2", ga, true, 1.0e-6, 1.0e6),
         ])?;
         let (sh, sv, ga) = (T::lit(sh), T::lit(sv), T::lit(ga));
         Ok(GateParams {
@@ -305,6 +376,7 @@ impl InnovationGate {
             growth_half_a: ga * T::lit(0.5),
             growth_a: ga,
             recovery_hold_s: T::lit(hold),
+            starved_reset_after_s: T::lit(starve),
         })
     }
 }
@@ -334,6 +406,7 @@ pub(crate) struct GateParams<T> {
     growth_half_a: T,
     growth_a: T,
     recovery_hold_s: T,
+    starved_reset_after_s: T,
 }
 
 /// Timeouts of one aid.
@@ -373,8 +446,8 @@ impl AidTimeouts {
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct InitialState<T> {
-    /// Time of the initial state, s (the first IMU sample must end one interval later).
-    pub time_s: T,
+    /// Time of the initial state (the first IMU sample ends the first interval after it).
+    pub time: Timestamp,
     /// Initial altitude estimate, m, up positive.
     pub altitude_m: T,
     /// Initial vertical velocity estimate, m/s, up positive.
@@ -546,18 +619,27 @@ pub(crate) fn discretise_modes<T: Real>(
     })
 }
 
-/// A held aid sample and its timeouts (in the loop's float type).
+/// Seconds from `earlier` to `later` in the loop's float type (0 if `later` is earlier).
+#[inline(always)]
+pub(crate) fn secs_between<T: Real>(later: Timestamp, earlier: Timestamp) -> T {
+    micros_to_seconds(later.micros_since(earlier).unwrap_or(0))
+}
+
+/// A held aid sample, its recovery-gate state and its re-anchoring flag.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct AidChannel<T> {
-    pub(crate) last_time_s: T,
+    pub(crate) last_time: Timestamp,
     pub(crate) last_value: T,
     pub(crate) received: bool,
     /// Gate variance held after a re-acquisition until the innovations have stayed inside
     /// the tracking gate for `recovery_hold_s` (0: tracking).
     pub(crate) recovery_var: T,
-    /// Time since which the innovations are inside the tracking gate during a recovery
-    /// (+∞: not inside).
-    pub(crate) recovery_clear_since_s: T,
+    /// Time since which the innovations are inside the tracking gate during a recovery.
+    pub(crate) recovery_clear_since: Option<Timestamp>,
+    /// Time stamp of the first sample of the current run of gate rejections.
+    pub(crate) rejected_since: Option<Timestamp>,
+    /// The next sample is accepted outside the gate and re-anchors the measured state.
+    pub(crate) reanchor: bool,
 }
 
 /// Timeouts of one aid in the loop's float type.
@@ -579,43 +661,44 @@ impl<T: Real> Timeouts<T> {
 impl<T: Real> AidChannel<T> {
     pub(crate) fn new() -> Self {
         Self {
-            last_time_s: T::zero(),
+            last_time: Timestamp::ZERO,
             last_value: T::zero(),
             received: false,
             recovery_var: T::zero(),
-            recovery_clear_since_s: T::lit(f64::INFINITY),
+            recovery_clear_since: None,
+            rejected_since: None,
+            reanchor: false,
         }
     }
 
     /// Validates a new sample against the channel and the current IMU time; returns the
-    /// channel as it would be with the sample (self is not modified).
+    /// channel as it would be with the sample (self is not modified). A sample older than the
+    /// aid's `lost_after_s` at arrival would be `Lost` at once: it is refused
+    /// (`MeasurementTimeOutOfWindow`, as one from the future).
     pub(crate) fn with_sample(
         &self,
-        time_s: T,
+        time: Timestamp,
         value: T,
-        now_s: T,
+        now: Timestamp,
+        lost_after_s: T,
         value_name: &'static str,
         range: (f64, f64),
     ) -> Result<Self, NavError> {
-        if !time_s.is_finite() {
-            return Err(NavError::NonFiniteInput {
-                input: "aid time_s",
-            });
-        }
         if !value.is_finite() {
             return Err(NavError::NonFiniteInput { input: value_name });
         }
         if value < T::lit(range.0) || value > T::lit(range.1) {
             return Err(NavError::InputOutOfRange { input: value_name });
         }
-        if time_s > now_s {
-            return Err(NavError::MeasurementTimeOutOfWindow);
+        match now.micros_since(time) {
+            Some(age) if micros_to_seconds::<T>(age) <= lost_after_s => {}
+            _ => return Err(NavError::MeasurementTimeOutOfWindow),
         }
-        if self.received && time_s <= self.last_time_s {
+        if self.received && time <= self.last_time {
             return Err(NavError::TimeNotIncreasing);
         }
         Ok(Self {
-            last_time_s: time_s,
+            last_time: time,
             last_value: value,
             received: true,
             ..*self
@@ -623,11 +706,11 @@ impl<T: Real> AidChannel<T> {
     }
 
     #[inline(always)]
-    pub(crate) fn status(&self, now_s: T, to: &Timeouts<T>) -> AidStatus<T> {
+    pub(crate) fn status(&self, now: Timestamp, to: &Timeouts<T>) -> AidStatus<T> {
         if !self.received {
             return AidStatus::NoData;
         }
-        let age_s = now_s - self.last_time_s;
+        let age_s = secs_between(now, self.last_time);
         if age_s > to.lost_after_s {
             AidStatus::Lost { age_s }
         } else if age_s > to.stale_after_s {
@@ -638,14 +721,9 @@ impl<T: Real> AidChannel<T> {
     }
 }
 
-/// Checks an IMU sample against the loop time; returns the number of missing IMU intervals
-/// before it (0 normally, up to [`MAX_IMU_GAP_INTERVALS`] − 1 for a bridged gap).
-pub(crate) fn check_imu<T: Real>(imu: &ImuSample<T>, time_s: T, dt_s: T) -> Result<u32, NavError> {
-    if !imu.time_s.is_finite() {
-        return Err(NavError::NonFiniteInput {
-            input: "imu time_s",
-        });
-    }
+/// Checks an IMU sample's values (the interval is checked by the loop).
+#[inline(always)]
+pub(crate) fn check_imu_values<T: Real>(imu: &ImuSample<T>) -> Result<(), NavError> {
     if !imu.specific_force_up_m_s2.is_finite() {
         return Err(NavError::NonFiniteInput {
             input: "specific_force_up_m_s2",
@@ -656,40 +734,13 @@ pub(crate) fn check_imu<T: Real>(imu: &ImuSample<T>, time_s: T, dt_s: T) -> Resu
             input: "specific_force_up_m_s2",
         });
     }
-    if imu.time_s <= time_s {
-        return Err(NavError::TimeNotIncreasing);
-    }
-    let dt = imu.time_s - time_s;
-    let tol = T::lit(IMU_DT_TOLERANCE) * dt_s;
-    if (dt - dt_s).abs() <= tol {
-        return Ok(0);
-    }
-    gap_intervals(dt, dt_s, tol)
-}
-
-/// A gap of `n` IMU intervals (rare path): `Ok(n − 1)` when bridgeable.
-#[cold]
-#[inline(never)]
-fn gap_intervals<T: Real>(dt: T, dt_s: T, tol: T) -> Result<u32, NavError> {
-    let n = (dt / dt_s).round();
-    if n >= T::lit(2.0)
-        && n <= T::lit(f64::from(MAX_IMU_GAP_INTERVALS))
-        && (dt - n * dt_s).abs() <= tol
-    {
-        // n is an integer in [2, MAX_IMU_GAP_INTERVALS]: the conversion is exact (and
-        // saturating in Rust, so it cannot wrap even if it were not).
-        let n_u32 = (n.to_f64() as u32).clamp(2, MAX_IMU_GAP_INTERVALS);
-        Ok(n_u32 - 1)
-    } else {
-        Err(NavError::InvalidTimeStep)
-    }
+    Ok(())
 }
 
 /// Validates an initial state.
 #[inline(never)]
 pub(crate) fn check_initial<T: Real>(init: &InitialState<T>) -> Result<(), NavError> {
     for (name, v) in [
-        ("initial time_s", init.time_s),
         ("initial altitude_m", init.altitude_m),
         ("initial vz_up_m_s", init.vz_up_m_s),
         ("initial accel_bias_m_s2", init.accel_bias_m_s2),
@@ -704,29 +755,43 @@ pub(crate) fn check_initial<T: Real>(init: &InitialState<T>) -> Result<(), NavEr
             input: "initial altitude_m",
         });
     }
+    if init.vz_up_m_s.abs() > T::lit(MAX_ESTIMATE_SPEED_M_S) {
+        return Err(NavError::InputOutOfRange {
+            input: "initial vz_up_m_s",
+        });
+    }
+    if init.accel_bias_m_s2.abs() > T::lit(MAX_ESTIMATE_BIAS_M_S2) {
+        return Err(NavError::InputOutOfRange {
+            input: "initial accel_bias_m_s2",
+        });
+    }
     Ok(())
 }
 
+/// Gate parameters of one aid: `(σ₀², growth₁, growth₂, threshold, recovery hold, starvation
+/// limit)` with the drift `d = gap (growth₁ + growth₂ gap)`.
+type AidGate<T> = (T, T, T, T, T, T);
+
 /// Gate of one new sample: returns the channel to use and the verdict.
-/// `rate = (r₁, r₂)` extrapolates the sample to mid-interval, `z + age (r₁ − r₂ age)`; `pred` is the predicted measurement;
-/// `gate = (σ₀², growth₁, growth₂, threshold, recovery hold)` with the drift `d = gap (growth₁ + growth₂ gap)`.
+/// `rate = (r₁, r₂)` extrapolates the sample to mid-interval (`half_h` before `now`),
+/// `z + age (r₁ − r₂ age)`; `pred` is the predicted measurement.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn admit<T: Real, const SECOND_ORDER: bool>(
     old: &AidChannel<T>,
     cand: Option<AidChannel<T>>,
-    now: T,
+    now: Timestamp,
     lost_after_s: T,
     offset: T,
-    mid: T,
+    half_h: T,
     rate: (T, T),
     pred: T,
-    gate: Option<(T, T, T, T, T)>,
+    gate: Option<AidGate<T>>,
 ) -> (AidChannel<T>, Option<SampleCheck<T>>) {
     let Some(mut cand) = cand else {
         return (*old, None);
     };
-    let age = mid - cand.last_time_s;
+    let age = secs_between::<T>(now, cand.last_time) - half_h;
     let r = if SECOND_ORDER {
         rate.0 - rate.1 * age
     } else {
@@ -739,33 +804,74 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
     };
     let innovation = value + age * r - pred;
     let nu2 = innovation * innovation;
-    let lost = old.received && now - old.last_time_s > lost_after_s;
+    let max_var = T::lit(MAX_GATE_VARIANCE);
+    // Accepted outside the gate: a pending re-anchoring, or a starved gate.
+    let starved = match (gate, old.rejected_since) {
+        (Some(g), Some(t0)) => secs_between::<T>(cand.last_time, t0) >= g.5,
+        _ => false,
+    };
+    if old.reanchor || starved {
+        let var0 = gate.map_or(T::zero(), |g| g.0);
+        let v = var0 + nu2;
+        cand.recovery_var = if gate.is_some() {
+            if v < max_var {
+                v
+            } else {
+                max_var
+            }
+        } else {
+            T::zero()
+        };
+        cand.recovery_clear_since = None;
+        cand.rejected_since = None;
+        cand.reanchor = false;
+        let check = SampleCheck {
+            innovation,
+            gate_variance: None,
+            outcome: FusionOutcome::Fused,
+            reacquired: true,
+            reset: true,
+        };
+        return (cand, Some(check));
+    }
+    let lost = old.received && secs_between::<T>(now, old.last_time) > lost_after_s;
     let (gate_variance, pass) = match gate {
-        Some((var0, g1, g2, thr, hold)) if old.received => {
-            let gap = cand.last_time_s - old.last_time_s;
+        Some((var0, g1, g2, thr, hold, _)) if old.received => {
+            let gap = secs_between::<T>(cand.last_time, old.last_time);
             let d = gap * (g1 + g2 * gap);
             let mut s = var0 + d * d;
+            // Saturate (also catches an overflow to +∞): every reported number stays finite.
+            if !(s < max_var) {
+                s = max_var;
+            }
             if old.recovery_var > s {
                 s = old.recovery_var;
             }
             let pass = nu2 <= thr * s;
             if pass && lost {
-                // Re-acquisition: hold this gate while the loop absorbs the coast error.
-                cand.recovery_var = s;
-                cand.recovery_clear_since_s = T::lit(f64::INFINITY);
+                // Re-acquisition: hold a gate while the loop absorbs the coast error, no wider
+                // than this sample's own innovation needs (a sample stamped long ago cannot
+                // open the gate for the samples after it).
+                let v = var0 + nu2;
+                cand.recovery_var = if v < s { v } else { s };
+                cand.recovery_clear_since = None;
             } else if pass && old.recovery_var > T::zero() {
                 if nu2 > thr * var0 {
-                    cand.recovery_clear_since_s = T::lit(f64::INFINITY);
-                } else if cand.last_time_s - old.recovery_clear_since_s >= hold {
-                    cand.recovery_var = T::zero();
-                    cand.recovery_clear_since_s = T::lit(f64::INFINITY);
-                } else if old.recovery_clear_since_s > cand.last_time_s {
-                    cand.recovery_clear_since_s = cand.last_time_s;
+                    cand.recovery_clear_since = None;
+                } else {
+                    match old.recovery_clear_since {
+                        Some(t0) if secs_between::<T>(cand.last_time, t0) >= hold => {
+                            cand.recovery_var = T::zero();
+                            cand.recovery_clear_since = None;
+                        }
+                        Some(_) => {}
+                        None => cand.recovery_clear_since = Some(cand.last_time),
+                    }
                 }
             }
-            (s, pass)
+            (Some(s), pass)
         }
-        _ => (T::lit(f64::INFINITY), true),
+        _ => (None, true),
     };
     let reacquired = pass && lost;
     let check = SampleCheck {
@@ -779,7 +885,14 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
         reacquired,
         reset: false,
     };
-    (if pass { cand } else { *old }, Some(check))
+    if pass {
+        cand.rejected_since = None;
+        (cand, Some(check))
+    } else {
+        let mut kept = *old;
+        kept.rejected_since = Some(old.rejected_since.unwrap_or(cand.last_time));
+        (kept, Some(check))
+    }
 }
 
 impl GateCounters {
@@ -793,6 +906,9 @@ impl GateCounters {
                     self.reacquisitions = self.reacquisitions.saturating_add(1);
                     if c.reset {
                         self.resets = self.resets.saturating_add(1);
+                        if c.gate_variance.is_none() {
+                            self.forced_reanchors = self.forced_reanchors.saturating_add(1);
+                        }
                     }
                 }
             } else {
@@ -807,7 +923,7 @@ impl GateCounters {
 #[inline(never)]
 pub(crate) fn check_imu_dt(imu_dt_s: f64) -> Result<(), NavError> {
     require_positive("imu_dt_s", imu_dt_s)?;
-    if imu_dt_s > MAX_IMU_DT_S {
+    if !(IMU_DT_RANGE_S.0..=IMU_DT_RANGE_S.1).contains(&imu_dt_s) {
         return Err(NavError::InvalidConfig {
             field: "imu_dt_s",
             issue: ConfigIssue::OutOfRange,
@@ -816,7 +932,72 @@ pub(crate) fn check_imu_dt(imu_dt_s: f64) -> Result<(), NavError> {
     Ok(())
 }
 
+/// `F_m u = A₀ u − K_m C u` of the aid mode with the masks `(m_b, m_v)` (1: aid in use).
+#[inline(always)]
+fn f_apply<T: Real>(
+    k: &Matrix3x2<T>,
+    lag: T,
+    bias_sign: T,
+    mask: (T, T),
+    u: &Vector3<T>,
+) -> Vector3<T> {
+    let c = Vector2::new((u.x - lag * u.y) * mask.0, u.y * mask.1);
+    Vector3::new(u.y, bias_sign * u.z, T::zero()) - k * c
+}
+
+/// `M(h) r = ∫₀^h exp(F_m s) ds r` by its Taylor series to `F³` (Horner), for `|h|` up to half
+/// the nominal interval (relative error ≈ (|λ| h)⁴ / 120 for the loop's fastest pole λ).
+#[inline(always)]
+pub(crate) fn series_m<T: Real>(
+    k: &Matrix3x2<T>,
+    lag: T,
+    bias_sign: T,
+    mask: (T, T),
+    h: T,
+    r: &Vector3<T>,
+) -> Vector3<T> {
+    let f = |u: &Vector3<T>| f_apply(k, lag, bias_sign, mask, u);
+    let mut w = r + f(r) * (h * T::lit(0.25));
+    w = r + f(&w) * (h * T::lit(1.0 / 3.0));
+    w = r + f(&w) * (h * T::lit(0.5));
+    w * h
+}
+
+/// The increment `M(h) r` of one step of length `h` (nominal `dt`), with `y₀ = M(dt) r` from
+/// the stored exact modes (`y₀ = N [V̂_z, rate] + G ν`): for `h < dt/2` the series directly,
+/// otherwise `M(dt) r + Φ(dt) M(h − dt) r` (`Φ(dt) w = w + N [w₂, ±w₃] − G C w`), exact up
+/// to the series' truncation in `|h − dt| ≤ dt/2`.
+#[allow(clippy::too_many_arguments)]
+#[cold]
+#[inline(never)]
+pub(crate) fn off_nominal_increment<T: Real>(
+    k: &Matrix3x2<T>,
+    lag: T,
+    bias_sign: T,
+    mode: &Mode<T>,
+    mask: (T, T),
+    (h, dt): (T, T),
+    (v, rate): (T, T),
+    nu: &Vector2<T>,
+) -> Vector3<T> {
+    let r = Vector3::new(v, rate, T::zero()) + k * nu;
+    if h < dt * T::lit(0.5) {
+        return series_m(k, lag, bias_sign, mask, h, &r);
+    }
+    let w = series_m(k, lag, bias_sign, mask, h - dt, &r);
+    let cw = Vector2::new(w.x - lag * w.y, w.y);
+    mode.n * Vector2::new(v, rate) + mode.g * nu + w + mode.n * Vector2::new(w.y, bias_sign * w.z)
+        - mode.g * cw
+}
+
 /// The state and machinery shared by both loops.
+///
+/// Time: the clock is a [`Timestamp`]; every interval is formed in integer microseconds and
+/// converted to the float type as a duration. A step integrates the actual interval `Δt`
+/// since the last accepted sample: `Δt ≤ 1.5 dt` in one step (the stored exact step at the
+/// nominal `dt`, corrected for `Δt − dt` by [`off_nominal_increment`] when they differ),
+/// longer intervals in sub-steps ([`MAX_SUBSTEPS`]), beyond those by an exact inertial coast
+/// first, and gaps beyond [`MAX_BRIDGED_GAP_S`] by re-anchoring (see [`LoopStatus`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct LoopCore<T: Real> {
     /// `[ĥ − h_ref (m), V̂_z (m/s), b̂ (m/s²)]`: the altitude relative to `h_ref_m`, so that
@@ -825,10 +1006,13 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) x: Vector3<T>,
     /// Reference altitude, m (moved to the estimate when |ĥ − h_ref| > [`RECENTRE_M`]).
     pub(crate) h_ref_m: T,
-    pub(crate) time_s: T,
+    pub(crate) time: Timestamp,
     pub(crate) dt_s: T,
+    pub(crate) dt_us: u64,
     pub(crate) half_dt_s: T,
     pub(crate) modes: Modes<T>,
+    /// Continuous observer gains (columns baro, velocity) for off-nominal intervals.
+    pub(crate) k: Matrix3x2<T>,
     pub(crate) gravity: GravityModel<T>,
     pub(crate) baro: AidChannel<T>,
     pub(crate) velocity: AidChannel<T>,
@@ -842,15 +1026,22 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) gate: Option<GateParams<T>>,
     pub(crate) baro_counters: GateCounters,
     pub(crate) velocity_counters: GateCounters,
+    pub(crate) status: LoopStatus,
 }
+
+/// Longest bridged gap in µs.
+const MAX_BRIDGED_GAP_US: u64 = 10_000_000;
+const _: () = assert!(MAX_BRIDGED_GAP_US as f64 == MAX_BRIDGED_GAP_S * 1.0e6);
 
 impl<T: Real> LoopCore<T> {
     /// The loop at `init` with a design's values (copies only: no f64 arithmetic).
-    /// `step`: (IMU interval, half of it, baro lag), s.
+    /// `step`: (IMU interval, half of it, baro lag), s; `k`: the continuous gains.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn new(
         init: &InitialState<T>,
         bias_sign: f64,
         step: (T, T, T),
+        k: Matrix3x2<T>,
         modes: Modes<T>,
         gravity: &GravityModel<T>,
         baro: &AidTimeouts,
@@ -858,6 +1049,21 @@ impl<T: Real> LoopCore<T> {
     ) -> Result<Self, NavError> {
         check_initial(init)?;
         let (dt_s, half_dt_s, baro_lag_s) = step;
+        let dt_us = match crate::time::seconds_to_micros(dt_s) {
+            Some(us) if us > 0 => us,
+            _ => {
+                return Err(NavError::InvalidConfig {
+                    field: "design.imu_dt_s",
+                    issue: ConfigIssue::OutOfRange,
+                })
+            }
+        };
+        if !k.iter().all(|v| v.is_finite()) {
+            return Err(NavError::InvalidConfig {
+                field: "design",
+                issue: ConfigIssue::NotFinite,
+            });
+        }
         Ok(Self {
             h_ref_m: init.altitude_m,
             x: Vector3::new(
@@ -865,10 +1071,12 @@ impl<T: Real> LoopCore<T> {
                 init.vz_up_m_s,
                 -init.accel_bias_m_s2 * T::lit(bias_sign),
             ),
-            time_s: init.time_s,
+            time: init.time,
             dt_s,
+            dt_us,
             half_dt_s,
             modes,
+            k,
             gravity: *gravity,
             baro: AidChannel::new(),
             velocity: AidChannel::new(),
@@ -879,13 +1087,13 @@ impl<T: Real> LoopCore<T> {
             gate: None,
             baro_counters: GateCounters::default(),
             velocity_counters: GateCounters::default(),
+            status: LoopStatus::default(),
         })
     }
 
-    /// One IMU step with optional new aid samples. On error nothing changes.
+    /// One IMU step with optional new aid samples, over the actual interval since the last
+    /// accepted sample. On error nothing changes. Returns the reports and the sub-steps.
     /// `variances`: innovation variances to report for (baro, velocity) when used.
-    /// Inlined into each loop's `step` (the classical loop's velocity path then folds away and
-    /// the reports are built in place).
     #[inline(always)]
     pub(crate) fn step(
         &mut self,
@@ -894,48 +1102,175 @@ impl<T: Real> LoopCore<T> {
         velocity: Option<&VelocitySample<T>>,
         variances: (Option<T>, Option<T>),
     ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
-        let missing = check_imu(imu, self.time_s, self.dt_s)?;
-        // A gap: coast the missing intervals first (cold, outlined, on a copy), then the
-        // normal step from the coasted state (one inlined copy of `advance` for both).
-        let (x, h_ref_m) = if missing > 0 {
-            self.coast_gap(missing, imu)?
-        } else {
-            (self.x, self.h_ref_m)
+        check_imu_values(imu)?;
+        let us = match imu.time.micros_since(self.time) {
+            Some(d) if d > 0 => d,
+            _ => return Err(NavError::TimeNotIncreasing),
         };
-        let (b, v) = self.advance(x, h_ref_m, imu, baro, velocity, variances)?;
-        Ok((b, v, missing + 1))
+        if us <= self.dt_us + self.dt_us / 2 {
+            let (b, v) = self.advance(
+                self.x,
+                self.h_ref_m,
+                imu.time,
+                us,
+                imu.specific_force_up_m_s2,
+                baro,
+                velocity,
+                variances,
+                false,
+            )?;
+            return Ok((b, v, 1));
+        }
+        self.bridge(us, imu, baro, velocity, variances)
     }
 
-    /// The step after the IMU time check, from the state `x` and reference altitude `h_ref`
-    /// (the loop's, or a gap's coasted ones; the loop's clock is not used): aid checks, gate,
-    /// propagation. On error nothing changes.
+    /// An interval longer than 1.5 dt (rare path, on a copy): sub-steps, a coast first if
+    /// longer than [`MAX_SUBSTEPS`] intervals, or a re-anchoring beyond
+    /// [`MAX_BRIDGED_GAP_S`]. The new aid samples enter the last sub-step.
+    #[cold]
+    #[inline(never)]
+    fn bridge(
+        &mut self,
+        us: u64,
+        imu: &ImuSample<T>,
+        baro: Option<&BaroSample<T>>,
+        velocity: Option<&VelocitySample<T>>,
+        variances: (Option<T>, Option<T>),
+    ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
+        let mut tmp = *self;
+        let f = imu.specific_force_up_m_s2;
+        let dt_us = self.dt_us;
+        if us > MAX_BRIDGED_GAP_US {
+            // Not integrated: keep the state, restart the clock one interval before the
+            // sample, drop the held aid samples and re-anchor on the next ones.
+            tmp.time = Timestamp::from_micros(imu.time.as_micros() - dt_us);
+            tmp.baro = AidChannel {
+                reanchor: true,
+                ..AidChannel::new()
+            };
+            tmp.velocity = AidChannel {
+                reanchor: true,
+                ..AidChannel::new()
+            };
+            tmp.status.gaps_skipped = tmp.status.gaps_skipped.saturating_add(1);
+            let (b, v) =
+                tmp.advance(tmp.x, tmp.h_ref_m, imu.time, dt_us, f, baro, velocity, variances, true)?;
+            *self = tmp;
+            return Ok((b, v, 1));
+        }
+        let max_sub = u64::from(MAX_SUBSTEPS);
+        let (n, coast_us) = if us > max_sub * dt_us + dt_us / 2 {
+            (max_sub, us - max_sub * dt_us)
+        } else {
+            ((us + dt_us / 2) / dt_us, 0)
+        };
+        let n = n.clamp(2, max_sub);
+        if coast_us > 0 {
+            tmp.coast(coast_us, f);
+        }
+        let start = tmp.time;
+        let span = us - coast_us;
+        for i in 1..n {
+            let end = start.add_micros(span * i / n);
+            let h = end.micros_since(tmp.time).unwrap_or(0);
+            tmp.advance(tmp.x, tmp.h_ref_m, end, h, f, None, None, (None, None), true)?;
+        }
+        let h = imu.time.micros_since(tmp.time).unwrap_or(0);
+        let (b, v) =
+            tmp.advance(tmp.x, tmp.h_ref_m, imu.time, h, f, baro, velocity, variances, true)?;
+        tmp.status.gaps_bridged = tmp.status.gaps_bridged.saturating_add(1);
+        *self = tmp;
+        // n ≤ MAX_SUBSTEPS: the conversion cannot truncate.
+        Ok((b, v, n as u32))
+    }
+
+    /// Exact inertial coast over `us` µs on the specific force `f` (no aid; gravity at the
+    /// mid-interval altitude).
+    #[inline(never)]
+    fn coast(&mut self, us: u64, f: T) {
+        let h = micros_to_seconds::<T>(us);
+        let half = T::lit(0.5);
+        let (alt, v, b) = (self.x.x, self.x.y, self.x.z);
+        let g = self.gravity.gravity_m_s2(self.h_ref_m + alt + v * h * half);
+        let rate = f - g + self.bias_sign * b;
+        let x_new = Vector3::new(alt + h * (v + half * h * rate), v + h * rate, b);
+        self.settle(x_new, self.h_ref_m);
+        self.time = self.time.add_micros(us);
+    }
+
+    /// Commits a new state: re-centres the relative altitude and holds the estimate inside
+    /// its limits; a held estimate marks both aids for re-anchoring.
+    #[inline(always)]
+    fn settle(&mut self, mut x: Vector3<T>, h_ref: T) {
+        let mut h_ref_new = h_ref;
+        let mut limited = false;
+        if !(x.x.abs() <= T::lit(RECENTRE_M)) {
+            h_ref_new = h_ref + x.x;
+            x.x = T::zero();
+            let (lo, hi) = (T::lit(ESTIMATE_RANGE_M.0), T::lit(ESTIMATE_RANGE_M.1));
+            if !(h_ref_new >= lo && h_ref_new <= hi) {
+                h_ref_new = if h_ref_new < lo { lo } else { hi };
+                limited = true;
+            }
+        }
+        let vmax = T::lit(MAX_ESTIMATE_SPEED_M_S);
+        if !(x.y.abs() <= vmax) {
+            x.y = if x.y < T::zero() { -vmax } else { vmax };
+            limited = true;
+        }
+        let bmax = T::lit(MAX_ESTIMATE_BIAS_M_S2);
+        if !(x.z.abs() <= bmax) {
+            x.z = if x.z < T::zero() { -bmax } else { bmax };
+            limited = true;
+        }
+        if limited {
+            self.status.estimate_limited = self.status.estimate_limited.saturating_add(1);
+            self.baro.reanchor = true;
+            self.velocity.reanchor = true;
+        }
+        self.x = x;
+        self.h_ref_m = h_ref_new;
+    }
+
+    /// One (sub-)step of `h_us` µs ending at `now`, from the state `x` and reference altitude
+    /// `h_ref`: aid checks, gate, propagation, commit. On error nothing changes.
+    #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn advance(
         &mut self,
         mut x: Vector3<T>,
         h_ref: T,
-        imu: &ImuSample<T>,
+        now: Timestamp,
+        h_us: u64,
+        specific_force: T,
         baro: Option<&BaroSample<T>>,
         velocity: Option<&VelocitySample<T>>,
         variances: (Option<T>, Option<T>),
+        bridged: bool,
     ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
-        let now = imu.time_s;
-        let (h, v, b) = (x.x, x.y, x.z);
-        let mut az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h_ref + h);
-        let mid = now - self.half_dt_s;
+        let nominal = h_us == self.dt_us;
+        let (h_s, half_h) = if nominal {
+            (self.dt_s, self.half_dt_s)
+        } else {
+            let h = micros_to_seconds::<T>(h_us);
+            (h, h * T::lit(0.5))
+        };
+        let (alt, v, b) = (x.x, x.y, x.z);
+        let mut az = specific_force - self.gravity.gravity_m_s2(h_ref + alt);
         // Predicted measurements at mid-interval (the baro's relative to h_ref) and the rates
         // a held sample is extrapolated with (baro: second order, h(mid) = h(t) + age (V̂ −
         // ½ a age); velocity: first order).
-        let mut h_pred = h - self.baro_lag_s * v;
+        let mut h_pred = alt - self.baro_lag_s * v;
         let mut v_rate = az + self.bias_sign * b;
         let half = T::lit(0.5);
 
         // Validate the new samples (nothing is committed before all checks pass).
         let baro_cand = match baro {
             Some(s) => Some(self.baro.with_sample(
-                s.time_s,
+                s.time,
                 s.altitude_m,
                 now,
+                self.baro_timeouts.lost_after_s,
                 "altitude_m",
                 ALTITUDE_RANGE_M,
             )?),
@@ -943,9 +1278,10 @@ impl<T: Real> LoopCore<T> {
         };
         let vel_cand = match velocity {
             Some(s) => Some(self.velocity.with_sample(
-                s.time_s,
+                s.time,
                 s.vz_up_m_s,
                 now,
+                self.velocity_timeouts.lost_after_s,
                 "vz_up_m_s",
                 (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
             )?),
@@ -959,7 +1295,7 @@ impl<T: Real> LoopCore<T> {
             now,
             self.baro_timeouts.lost_after_s,
             h_ref,
-            mid,
+            half_h,
             (v, half * v_rate),
             h_pred,
             gate.map(|g| {
@@ -969,6 +1305,7 @@ impl<T: Real> LoopCore<T> {
                     g.growth_half_a,
                     g.nis_threshold,
                     g.recovery_hold_s,
+                    g.starved_reset_after_s,
                 )
             }),
         );
@@ -978,7 +1315,7 @@ impl<T: Real> LoopCore<T> {
             now,
             self.velocity_timeouts.lost_after_s,
             T::zero(),
-            mid,
+            half_h,
             (v_rate, T::zero()),
             v,
             gate.map(|g| {
@@ -988,33 +1325,35 @@ impl<T: Real> LoopCore<T> {
                     T::zero(),
                     g.nis_threshold,
                     g.recovery_hold_s,
+                    g.starved_reset_after_s,
                 )
             }),
         );
-        // Recovery: a re-acquiring sample (accepted thanks to the re-inflated gate) whose
-        // innovation fails the tracking gate resets the measured state so that its innovation
-        // is zero (baro: ĥ; velocity: V̂_z); the other states are kept.
-        let (mut reset_baro, mut reset_vel) = (false, false);
-        if let Some(g) = gate {
-            if let Some(c) = baro_check.as_mut().filter(|c| c.reacquired) {
-                if c.innovation * c.innovation > g.nis_threshold * g.baro_var {
-                    x.x += c.innovation;
-                    reset_baro = true;
-                    c.reset = true;
-                }
+        // Recovery: a re-acquiring sample whose innovation fails the tracking gate (or one
+        // accepted outside the gate to re-anchor the loop) resets the measured state so that
+        // its innovation is zero (baro: ĥ; velocity: V̂_z); the other states are kept.
+        let mut reset_any = false;
+        if let Some(c) = baro_check.as_mut().filter(|c| c.reacquired) {
+            let big = gate.is_some_and(|g| c.innovation * c.innovation > g.nis_threshold * g.baro_var);
+            if c.reset || big {
+                x.x += c.innovation;
+                c.reset = true;
+                reset_any = true;
             }
-            if let Some(c) = vel_check.as_mut().filter(|c| c.reacquired) {
-                if c.innovation * c.innovation > g.nis_threshold * g.velocity_var {
-                    x.y += c.innovation;
-                    reset_vel = true;
-                    c.reset = true;
-                }
+        }
+        if let Some(c) = vel_check.as_mut().filter(|c| c.reacquired) {
+            let big = gate
+                .is_some_and(|g| c.innovation * c.innovation > g.nis_threshold * g.velocity_var);
+            if c.reset || big {
+                x.y += c.innovation;
+                c.reset = true;
+                reset_any = true;
             }
-            if reset_baro || reset_vel {
-                az = imu.specific_force_up_m_s2 - self.gravity.gravity_m_s2(h_ref + x.x);
-                h_pred = x.x - self.baro_lag_s * x.y;
-                v_rate = az + self.bias_sign * x.z;
-            }
+        }
+        if reset_any {
+            az = specific_force - self.gravity.gravity_m_s2(h_ref + x.x);
+            h_pred = x.x - self.baro_lag_s * x.y;
+            v_rate = az + self.bias_sign * x.z;
         }
         let v = x.y;
 
@@ -1024,40 +1363,60 @@ impl<T: Real> LoopCore<T> {
         let use_vel = vel_status.in_use();
 
         // Held samples extrapolated to the middle of the interval (ZOH of the continuous loop).
+        let mid_age = |ch: &AidChannel<T>| secs_between::<T>(now, ch.last_time) - half_h;
         let nu_h = use_baro.then(|| {
-            let age = mid - baro_ch.last_time_s;
+            let age = mid_age(&baro_ch);
             (baro_ch.last_value - h_ref) + age * (v - half * v_rate * age) - h_pred
         });
-        let nu_v = use_vel.then(|| vel_ch.last_value + (mid - vel_ch.last_time_s) * v_rate - v);
+        let nu_v = use_vel.then(|| vel_ch.last_value + mid_age(&vel_ch) * v_rate - v);
         let mode = self.modes.select(use_baro, use_vel);
-        let mut x_new = x
-            + (mode.n * Vector2::new(v, v_rate)
-                + mode.g * Vector2::new(nu_h.unwrap_or(T::zero()), nu_v.unwrap_or(T::zero())));
+        let nu = Vector2::new(nu_h.unwrap_or(T::zero()), nu_v.unwrap_or(T::zero()));
+        let dx = if nominal {
+            mode.n * Vector2::new(v, v_rate) + mode.g * nu
+        } else {
+            let mask = (
+                if use_baro { T::one() } else { T::zero() },
+                if use_vel { T::one() } else { T::zero() },
+            );
+            off_nominal_increment(
+                &self.k,
+                self.baro_lag_s,
+                self.bias_sign,
+                mode,
+                mask,
+                (h_s, self.dt_s),
+                (v, v_rate),
+                &nu,
+            )
+        };
+        let x_new = x + dx;
         // One test for all three: a sum of finite values is finite unless it overflows, which
-        // is refused as well.
+        // is refused as well (unreachable with valid input: every term is bounded).
         if !(x_new.x + x_new.y + x_new.z).is_finite() {
             return Err(NavError::NonFiniteInput {
                 input: "state after step",
             });
         }
-        // Re-centre the relative altitude (and range-check the estimate) when it has moved.
-        let mut h_ref_new = h_ref;
-        if x_new.x.abs() > T::lit(RECENTRE_M) {
-            h_ref_new = h_ref + x_new.x;
-            if h_ref_new < T::lit(ESTIMATE_RANGE_M.0) || h_ref_new > T::lit(ESTIMATE_RANGE_M.1) {
-                return Err(NavError::InputOutOfRange {
-                    input: "altitude estimate",
-                });
-            }
-            x_new.x = T::zero();
-        }
-        self.x = x_new;
-        self.h_ref_m = h_ref_new;
-        self.time_s = now;
         self.baro = baro_ch;
         self.velocity = vel_ch;
+        self.settle(x_new, h_ref);
+        self.time = now;
         self.baro_counters.count(&baro_check);
         self.velocity_counters.count(&vel_check);
+        self.status.health = if self.baro.reanchor {
+            HealthState::NeedsReinitialisation
+        } else if bridged
+            || !use_baro
+            || (self.velocity.received && !use_vel)
+            || self.baro.rejected_since.is_some()
+            || self.velocity.rejected_since.is_some()
+            || self.baro.recovery_var > T::zero()
+            || self.velocity.recovery_var > T::zero()
+        {
+            HealthState::Degraded
+        } else {
+            HealthState::Nominal
+        };
         Ok((
             AidReport {
                 status: baro_status,
@@ -1074,32 +1433,9 @@ impl<T: Real> LoopCore<T> {
         ))
     }
 
-    /// Coasts the `missing` IMU intervals of a gap on the new sample's specific force,
-    /// without new aid samples (held ones are used as in a normal step), on a copy of the
-    /// loop; returns the coasted state and reference altitude (the loop is not changed).
-    #[cold]
-    #[inline(never)]
-    fn coast_gap(&self, missing: u32, imu: &ImuSample<T>) -> Result<(Vector3<T>, T), NavError> {
-        let mut tmp = *self;
-        // The gap (already checked to be n intervals) is split evenly; the sub-steps use the
-        // loop's fixed Φ and skip the interval check (f32 stamps may not resolve dt). A coast
-        // changes only the state, the reference altitude and the clock (no new aid sample).
-        let n = T::lit(f64::from(missing + 1));
-        let step_s = (imu.time_s - self.time_s) / n;
-        let mut k = T::zero();
-        for _ in 0..missing {
-            k += T::one();
-            let sub = ImuSample {
-                time_s: self.time_s + step_s * k,
-                specific_force_up_m_s2: imu.specific_force_up_m_s2,
-            };
-            tmp.advance(tmp.x, tmp.h_ref_m, &sub, None, None, (None, None))?;
-        }
-        Ok((tmp.x, tmp.h_ref_m))
-    }
-
     /// Restarts the state and clock from `init`, keeping the design, the gate and the
-    /// counters (held aid samples are dropped). On error nothing changes.
+    /// counters (held aid samples are dropped; health `Initialising`). On error nothing
+    /// changes.
     pub(crate) fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
         check_initial(init)?;
         self.h_ref_m = init.altitude_m;
@@ -1108,9 +1444,10 @@ impl<T: Real> LoopCore<T> {
             init.vz_up_m_s,
             -init.accel_bias_m_s2 * self.bias_sign,
         );
-        self.time_s = init.time_s;
+        self.time = init.time;
         self.baro = AidChannel::new();
         self.velocity = AidChannel::new();
+        self.status.health = HealthState::Initialising;
         Ok(())
     }
 
