@@ -54,7 +54,7 @@ fn vc_inputs(seed: u64) -> Result<Vec<f32>> {
         let baro_valid = (k + 1) % 4 == 0;
         let vel_valid = (k + 1) % 10 == 0;
         v.extend([
-            t as f32,
+            ((k + 1) as f64 * dt * 1000.0).round() as f32, // ms
             f_up as f32,
             f32::from(u8::from(baro_valid)),
             (h + normal(&mut rng, 1.0)) as f32,

@@ -9,6 +9,7 @@ use nav_core::error::ConfigIssue;
 use nav_core::transfer_alignment::{
     AxisFlexure, MasterSample, SlaveSample, TaConfig, TaDesign, TransferAlignment,
 };
+use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
     ClassicalLoop, ImuSample, InitialState, VelocitySample,
@@ -321,6 +322,7 @@ fn classical_config() -> ClassicalConfig {
         latitude_rad: 0.645_771_823_2,
         tau_s: 20.0,
         baro_lag_s: 0.2,
+        baro_period_s: 0.04,
         baro_timeouts: timeouts(),
     }
 }
@@ -346,7 +348,7 @@ fn aided_config() -> AidedConfig {
 
 fn initial<T: Real>() -> InitialState<T> {
     InitialState {
-        time_s: T::zero(),
+        time: Timestamp::ZERO,
         altitude_m: T::lit(520.0),
         vz_up_m_s: T::lit(2.0),
         accel_bias_m_s2: T::lit(0.01),
@@ -364,17 +366,18 @@ fn vc_samples<T: Real>(
     Option<VelocitySample<T>>,
 ) {
     let t = 0.01 * (k + 1) as f64;
+    let us = 10_000 * (k as u64 + 1);
     let imu = ImuSample {
-        time_s: T::lit(t),
+        time: Timestamp::from_micros(us),
         specific_force_up_m_s2: T::lit(9.8 + 0.3 * (0.5 * t).sin() + 0.01 * rng.next()),
     };
     let h = 500.0 + 10.0 * (1.0 - (0.5 * t).cos());
     let baro = (k % 4 == 0 && !(150..250).contains(&k)).then(|| BaroSample {
-        time_s: T::lit(t - 0.005),
+        time: Timestamp::from_micros(us - 5_000),
         altitude_m: T::lit(h + rng.next()),
     });
     let vel = (k % 10 == 0).then(|| VelocitySample {
-        time_s: T::lit(t - 0.002),
+        time: Timestamp::from_micros(us - 2_000),
         vz_up_m_s: T::lit(5.0 * (0.5 * t).sin() + 0.1 * rng.next()),
     });
     (imu, baro, vel)

@@ -8,7 +8,12 @@ use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
     InitialState, InnovationGate, VelocitySample,
 };
+use nav_core::time::Timestamp;
 use nav_core::{NavError, Real};
+
+fn ts(seconds: f64) -> Timestamp {
+    Timestamp::from_secs_f64(seconds).unwrap()
+}
 use nav_sim::rng::{normal, run_rng, SimRng};
 use proptest::prelude::*;
 
@@ -40,7 +45,7 @@ impl<T: Real> Loop<T> for ClassicalLoop<T> {
         }
         if let Some(c) = r.baro.new_sample {
             assert!(c.innovation.is_finite());
-            assert!(c.gate_variance > T::zero() && c.nis().is_finite() && c.nis() >= T::zero());
+            assert!(c.gate_variance.is_none_or(|g| g > T::zero() && g.is_finite()) && c.nis().is_none_or(|n| n.is_finite() && n >= T::zero()));
         }
         Ok(())
     }
@@ -71,7 +76,7 @@ impl<T: Real> Loop<T> for AidedLoop<T> {
                 .is_none_or(|v| v.is_finite() && v > T::zero()));
             if let Some(c) = a.new_sample {
                 assert!(c.innovation.is_finite());
-                assert!(c.gate_variance > T::zero() && c.nis().is_finite() && c.nis() >= T::zero());
+                assert!(c.gate_variance.is_none_or(|g| g > T::zero() && g.is_finite()) && c.nis().is_none_or(|n| n.is_finite() && n >= T::zero()));
             }
         }
         Ok(())
@@ -206,6 +211,7 @@ impl Setup {
             latitude_rad: self.lat_rad,
             tau_s: self.tau_s,
             baro_lag_s: self.lag_s,
+            baro_period_s: self.baro_every as f64 * self.dt_s,
             baro_timeouts: self.timeouts(self.baro_every),
         }
     }
@@ -232,6 +238,7 @@ impl Setup {
             starved_velocity_sigma_m_s: 1.0,
             starved_accel_sigma_m_s2: 0.5,
             recovery_hold_s: 60.0,
+            starved_reset_after_s: 60.0,
         })
     }
     fn truth(&self, t: f64) -> (f64, f64, f64) {
@@ -245,7 +252,7 @@ impl Setup {
     fn init<T: Real>(&self) -> InitialState<T> {
         let (h, v, _) = self.truth(0.0);
         InitialState {
-            time_s: T::zero(),
+            time: Timestamp::ZERO,
             altitude_m: T::lit(h + self.init_err_m),
             vz_up_m_s: T::lit(v + self.init_err_m_s),
             accel_bias_m_s2: T::zero(),
@@ -307,15 +314,15 @@ fn inputs(s: &Setup, steps: usize) -> Vec<Inputs> {
 
 fn feed<T: Real, L: Loop<T>>(lp: &mut L, i: &Inputs) -> Result<(), NavError> {
     let imu = ImuSample {
-        time_s: T::lit(i.t),
+        time: ts(i.t),
         specific_force_up_m_s2: T::lit(i.f),
     };
     let baro = i.baro.map(|(t, z)| BaroSample {
-        time_s: T::lit(t),
+        time: ts(t),
         altitude_m: T::lit(z),
     });
     let vel = i.vel.map(|(t, z)| VelocitySample {
-        time_s: T::lit(t),
+        time: ts(t),
         vz_up_m_s: T::lit(z),
     });
     lp.step_all(&imu, baro.as_ref(), vel.as_ref())
@@ -413,10 +420,9 @@ proptest! {
     /// of 0.01 m + 1e-6 |h|, 5 mm/s, 5e-4 m/s²). Both loops get the same f32-representable
     /// inputs (what a firmware receives), so the comparison isolates the f32 *arithmetic*,
     /// which adds well under a tenth to the estimation error. No gate, so both take the same
-    /// samples. (Rounding the inputs themselves to f32 is a separate effect: with |V_z| near
-    /// 800 m/s, f32 time stamps at ~100 s resolve 7.6 µs, i.e. ~6 mm of altitude per sample,
-    /// which can reach a quarter of the f64 error with a 5 cm baro — the regression case
-    /// below; use time stamps relative to a recent epoch or integer ticks on the target.)
+    /// samples. (Time stamps are integer microseconds: rounding them is not an effect any
+    /// more — with f32 time stamps it moved the f64 loop by a quarter of its error at 800 m/s,
+    /// the regression case below.)
     #[test]
     fn f32_agrees_with_f64_over_a_long_run(mut s in setup_strategy()) {
         s.gate = false;
@@ -436,15 +442,16 @@ proptest! {
     }
 }
 
-/// The inputs rounded to f32 (the values an f32 firmware receives); the truth is kept.
+/// The inputs rounded to f32 (the values an f32 firmware receives; the time stamps are
+/// integer microseconds, exact); the truth is kept.
 fn f32_representable(ins: &[Inputs]) -> Vec<Inputs> {
     let r = |v: f64| f64::from(v as f32);
     ins.iter()
         .map(|i| Inputs {
-            t: r(i.t),
+            t: i.t,
             f: r(i.f),
-            baro: i.baro.map(|(t, z)| (r(t), r(z))),
-            vel: i.vel.map(|(t, z)| (r(t), r(z))),
+            baro: i.baro.map(|(t, z)| (t, r(z))),
+            vel: i.vel.map(|(t, z)| (t, r(z))),
             truth: i.truth,
         })
         .collect()
@@ -520,22 +527,14 @@ type Case = (
 fn bad_step_cases(t: f64, dt: f64) -> Vec<Case> {
     use NavError::*;
     let n = t + dt; // a good IMU time
-    let imu_t = |v: f64, e| ("imu time_s", [v, 9.8], None, None, e);
+    let imu_t = |v: f64, e| ("imu time", [v, 9.8], None, None, e);
     let sf = |v: f64, e| ("specific force", [n, v], None, None, e);
     let nf = |input| NonFiniteInput { input };
     let oor = |input| InputOutOfRange { input };
     let mut c: Vec<Case> = vec![
-        imu_t(f64::NAN, nf("imu time_s")),
-        imu_t(f64::INFINITY, nf("imu time_s")),
-        imu_t(f64::NEG_INFINITY, nf("imu time_s")),
-        imu_t(1e30, InvalidTimeStep),
-        imu_t(t, TimeNotIncreasing),            // repeating (Δt = 0)
-        imu_t(t - dt, TimeNotIncreasing),       // backwards (Δt < 0)
-        imu_t(-1e30, TimeNotIncreasing),        // hugely backwards
-        imu_t(t + 1.6 * dt, InvalidTimeStep),   // Δt neither 1 nor 2 intervals
-        imu_t(t + 101.0 * dt, InvalidTimeStep), // gap longer than 100 intervals
-        imu_t(t + 1e3, InvalidTimeStep),        // huge Δt
-        imu_t(t + 0.5 * dt, InvalidTimeStep),   // Δt too small
+        imu_t(t, TimeNotIncreasing),      // repeating (Δt = 0)
+        imu_t(t - dt, TimeNotIncreasing), // backwards (Δt < 0)
+        imu_t(0.0, TimeNotIncreasing),    // hugely backwards
         sf(f64::NAN, nf("specific_force_up_m_s2")),
         sf(f64::INFINITY, nf("specific_force_up_m_s2")),
         sf(f64::NEG_INFINITY, nf("specific_force_up_m_s2")),
@@ -557,14 +556,11 @@ fn bad_step_cases(t: f64, dt: f64) -> Vec<Case> {
             }
         };
         for (tt, e) in [
-            (f64::NAN, nf("aid time_s")),
-            (f64::INFINITY, nf("aid time_s")),
-            (f64::NEG_INFINITY, nf("aid time_s")),
             (n + dt, MeasurementTimeOutOfWindow), // from the future
-            (1e30, MeasurementTimeOutOfWindow),
+            (1e9, MeasurementTimeOutOfWindow),
             (t, TimeNotIncreasing),            // repeating
             (t - 0.5 * dt, TimeNotIncreasing), // backwards
-            (-1e30, TimeNotIncreasing),
+            (0.0, MeasurementTimeOutOfWindow), // older than lost_after_s at arrival
         ] {
             let (b, v) = mk(tt, good);
             c.push((aid, [n, 9.8], b, v, e));
@@ -593,15 +589,15 @@ fn check_bad_steps<T: Real, L: Loop<T> + Clone>(lp: L, t: f64, dt: f64, has_velo
         }
         let before = format!("{lp:?}");
         let imu = ImuSample {
-            time_s: T::lit(imu[0]),
+            time: ts(imu[0]),
             specific_force_up_m_s2: T::lit(imu[1]),
         };
         let b = b.map(|[t, z]| BaroSample {
-            time_s: T::lit(t),
+            time: ts(t),
             altitude_m: T::lit(z),
         });
         let v = v.map(|[t, z]| VelocitySample {
-            time_s: T::lit(t),
+            time: ts(t),
             vz_up_m_s: T::lit(z),
         });
         let r = lp.step_all(&imu, b.as_ref(), v.as_ref());
@@ -610,7 +606,7 @@ fn check_bad_steps<T: Real, L: Loop<T> + Clone>(lp: L, t: f64, dt: f64, has_velo
     }
     // A good step still works afterwards.
     let imu = ImuSample {
-        time_s: T::lit(t + dt),
+        time: ts(t + dt),
         specific_force_up_m_s2: T::lit(9.8),
     };
     lp.step_all(&imu, None, None).unwrap();
@@ -651,11 +647,12 @@ fn bad_configs<T: Real>() {
     let init = s.init::<T>();
     // Classical: every field.
     type CSet = fn(&mut ClassicalConfig, f64);
-    let fields: [(&str, CSet, &[f64]); 6] = [
-        ("imu_dt_s", |c, v| c.imu_dt_s = v, &[2.0]),
+    let fields: [(&str, CSet, &[f64]); 7] = [
+        ("imu_dt_s", |c, v| c.imu_dt_s = v, &[2.0, 1e-5]),
         ("latitude_rad", |c, v| c.latitude_rad = v, &[2.0, -2.0]),
-        ("tau_s", |c, v| c.tau_s = v, &[1e5]),
+        ("tau_s", |c, v| c.tau_s = v, &[1e5, 0.01]),
         ("baro_lag_s", |c, v| c.baro_lag_s = v, &[]),
+        ("baro_period_s", |c, v| c.baro_period_s = v, &[1e13]),
         (
             "baro_timeouts.stale_after_s",
             |c, v| c.baro_timeouts.stale_after_s = v,
@@ -747,7 +744,7 @@ fn bad_configs<T: Real>() {
     ] {
         let mut init = s.init::<T>();
         match i {
-            0 => init.time_s = T::lit(v),
+            0 => init.vz_up_m_s = T::lit(v),
             1 => init.altitude_m = T::lit(v),
             2 => init.vz_up_m_s = T::lit(v),
             _ => init.accel_bias_m_s2 = T::lit(v),
@@ -766,7 +763,7 @@ fn bad_configs<T: Real>() {
     }
     // Gate: every field, refused by set_gate with the loop unchanged.
     type GSet = fn(&mut InnovationGate, f64);
-    let fields: [(&str, GSet, &[f64]); 6] = [
+    let fields: [(&str, GSet, &[f64]); 7] = [
         ("gate.nis_threshold", |g, v| g.nis_threshold = v, &[]),
         ("gate.baro_sigma_m", |g, v| g.baro_sigma_m = v, &[1e-300]),
         (
@@ -785,6 +782,11 @@ fn bad_configs<T: Real>() {
             &[],
         ),
         ("gate.recovery_hold_s", |g, v| g.recovery_hold_s = v, &[1e7]),
+        (
+            "gate.starved_reset_after_s",
+            |g, v| g.starved_reset_after_s = v,
+            &[1e7],
+        ),
     ];
     let (mut c, _) = warmed(ClassicalLoop::<T>::new(&s.classical(), &init).unwrap(), &s);
     let (mut a, _) = warmed(AidedLoop::<T>::new(&s.aided(), &init).unwrap(), &s);
@@ -856,9 +858,10 @@ fn regression_cases_found_by_proptest() {
     );
     assert!(r.iter().all(|&v| v <= 0.1), "{r:?}");
     // 3. Extreme dynamics (4.5 km at 0.17 rad/s: |V_z| ≈ 790 m/s, 14 g) with a 5 cm baro and
-    //    a 0.34 s lag: the f32 arithmetic agrees with f64 (the property below), but rounding the
-    //    *inputs* to f32 moves the f64 loop itself by ~24 % of its error in h (time stamps:
-    //    7.6 µs resolution at ~100 s × 790 m/s). Both effects are pinned here.
+    //    a 0.34 s lag: the f32 arithmetic agrees with f64 (the property below). Rounding the
+    //    *inputs* to f32 moved the f64 loop itself by ~24 % of its error in h when the time
+    //    stamps were f32 (7.6 µs resolution at ~100 s × 790 m/s); with integer-microsecond
+    //    time stamps only the values are rounded, and that effect is below 10 %.
     let s3 = Setup {
         dt_s: 0.02,
         lat_rad: 0.0,
@@ -893,10 +896,7 @@ fn regression_cases_found_by_proptest() {
     let arithmetic = agreement(&x32, &x64r, &rounded, &s3);
     assert!(arithmetic.iter().all(|&v| v <= 0.1), "{arithmetic:?}");
     let input_rounding = agreement(&x64r, &x64, &exact, &s3);
-    assert!(
-        input_rounding[0] > 0.1 && input_rounding[0] < 0.5,
-        "{input_rounding:?}"
-    );
+    assert!(input_rounding[0] < 0.1, "{input_rounding:?}");
     // 2. Extreme noise ratios: the Riccati design either refuses with a typed error or returns
     //    a solution that meets its own residual bound with a stable closed loop — never a wrong
     //    design silently (the property tests draw accel noise ≥ 1e-4 and bias RW ≥ 1e-6).

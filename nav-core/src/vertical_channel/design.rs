@@ -179,15 +179,15 @@ fn check_period(field: &'static str, period_s: f64, dt_s: f64) -> Result<u32, Na
 }
 
 /// The loop's continuous model at design time (f64), for the envelope checks.
-struct LoopModel {
-    a0: Matrix3<f64>,
-    k: Matrix3x2<f64>,
-    c: Matrix2x3<f64>,
-    lag: f64,
-    bias_sign: f64,
+pub(crate) struct LoopModel {
+    pub(crate) a0: Matrix3<f64>,
+    pub(crate) k: Matrix3x2<f64>,
+    pub(crate) c: Matrix2x3<f64>,
+    pub(crate) lag: f64,
+    pub(crate) bias_sign: f64,
     /// Gravity gradient c = 2ω_s², 1/s².
-    c_grav: f64,
-    dt: f64,
+    pub(crate) c_grav: f64,
+    pub(crate) dt: f64,
 }
 
 impl LoopModel {
@@ -250,7 +250,23 @@ impl LoopModel {
     /// multiple of the aid periods, or the longer period for both aids when that exceeds 10⁵
     /// intervals) has all eigenvalues inside the unit circle (Jury test, evaluated on
     /// `Ψ − I` accumulated separately so that slow loops, Ψ ≈ I, are judged correctly).
-    fn multirate_stable(&self, baro: Option<u32>, vel: Option<u32>) -> Result<bool, NavError> {
+    pub(crate) fn multirate_stable(
+        &self,
+        baro: Option<u32>,
+        vel: Option<u32>,
+    ) -> Result<bool, NavError> {
+        Ok(match self.monodromy_minus_identity(baro, vel)? {
+            Some(delta) => jury_stable(&delta),
+            None => false,
+        })
+    }
+
+    /// `Ψ − I` over one common aid period (`None` when it overflows: unstable).
+    pub(crate) fn monodromy_minus_identity(
+        &self,
+        baro: Option<u32>,
+        vel: Option<u32>,
+    ) -> Result<Option<Matrix3<f64>>, NavError> {
         let (ub, uv) = (baro.is_some(), vel.is_some());
         let modes = discretise_modes::<f64>(&self.a0, &self.k, &self.c, self.dt)?;
         let mode = modes.select(ub, uv);
@@ -282,11 +298,18 @@ impl LoopModel {
             let e = base + mode.g * d;
             delta += e + e * delta;
             if !delta.iter().all(|v| v.is_finite()) {
-                return Ok(false);
+                return Ok(None);
             }
         }
+        Ok(Some(delta))
+    }
+}
+
+/// Jury test of `Ψ = I + Δ`: all eigenvalues strictly inside the unit circle.
+pub(crate) fn jury_stable(delta: &Matrix3<f64>) -> bool {
+    {
         // Ψ = I + Δ; p(z) = det(zI − Ψ) = q(z − 1) with q(μ) = μ³ + b₂μ² + b₁μ + b₀ of Δ.
-        let [b2, b1, b0] = char_poly3(&delta);
+        let [b2, b1, b0] = char_poly3(delta);
         let u = b2 - b1 + b0; // a₀ + 1
         let p_minus1 = 8.0 - 4.0 * b2 + 2.0 * b1 - b0; // −p(−1)
         let jury = b0 > 0.0
@@ -294,7 +317,7 @@ impl LoopModel {
             && u > 0.0
             && u < 2.0
             && u * (2.0 - u) > (u * (b2 - 2.0) - b0).abs();
-        Ok(jury)
+        jury
     }
 }
 
@@ -341,13 +364,13 @@ impl<T: Real> ClassicalDesign<T> {
             c_grav: gravity.c_per_s2(),
             dt: config.imu_dt_s,
         };
-        loop_.check_intervals()?;
         if !loop_.multirate_stable(Some(period), None)? {
             return Err(NavError::InvalidConfig {
                 field: "tau_s",
                 issue: ConfigIssue::OutOfRange,
             });
         }
+        loop_.check_intervals()?;
         let modes = discretise_modes::<T>(&open_loop(-1.0), &k, &c, config.imu_dt_s)?;
         Ok(Self {
             gains,
@@ -478,20 +501,22 @@ impl<T: Real> AidedDesign<T> {
             c_grav: gravity.c_per_s2(),
             dt: config.imu_dt_s,
         };
-        loop_.check_intervals()?;
-        // Baro alone and both aids (the velocity aid alone cannot hold the altitude: its
-        // error diverges slowly through gravity's c δh in any design).
-        for (field, b, v) in [
-            ("baro_period_s", Some(tb), None),
-            ("velocity_period_s", Some(tb), Some(tv)),
-        ] {
-            if !loop_.multirate_stable(b, v)? {
-                return Err(NavError::InvalidConfig {
-                    field,
-                    issue: ConfigIssue::OutOfRange,
-                });
-            }
+        // The design mode (both aids). A single-aid mode is what the joint design leaves when
+        // the other aid drops out: the velocity aid alone cannot hold the altitude (its error
+        // diverges slowly through gravity's c δh in any design), and the baro column of a
+        // design that leans on the velocity aid can be slowly unstable alone too; the health
+        // says `Degraded` while an aid is lost.
+        if !loop_.multirate_stable(Some(tb), Some(tv))? {
+            return Err(NavError::InvalidConfig {
+                field: if tb >= tv {
+                    "baro_period_s"
+                } else {
+                    "velocity_period_s"
+                },
+                issue: ConfigIssue::OutOfRange,
+            });
         }
+        loop_.check_intervals()?;
         let modes = discretise_modes::<T>(&open_loop(1.0), &gains.k, &gains.c, config.imu_dt_s)?;
         let cb = gains.c.row(0).transpose();
         let bv = (cb.transpose() * gains.p * cb).x + config.baro_noise_m * config.baro_noise_m;

@@ -27,6 +27,7 @@ use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
     InitialState, VelocitySample,
 };
+use nav_core::time::Timestamp;
 use nav_core::Real;
 use serde::Deserialize;
 use serde_json::{json, Value};
@@ -338,6 +339,7 @@ pub fn loop_configs(cfg: &Config, tau_s: f64) -> (ClassicalConfig, AidedConfig) 
             latitude_rad: lat,
             tau_s,
             baro_lag_s: cfg.classical.lag_compensation_s,
+            baro_period_s: baro_period,
             baro_timeouts,
         },
         AidedConfig {
@@ -392,7 +394,7 @@ pub fn simulate<T: Real>(
     let (ccfg, acfg) = loop_configs(cfg, tau_s);
     let (h0, v0, _) = profile.at(0.0);
     let init = InitialState {
-        time_s: T::zero(),
+        time: Timestamp::ZERO,
         altitude_m: T::lit(h0 + init_err.0),
         vz_up_m_s: T::lit(v0 + init_err.1),
         accel_bias_m_s2: T::zero(),
@@ -424,6 +426,7 @@ pub fn simulate<T: Real>(
     let (mut h_prev, mut v_prev, _) = profile.at(0.0);
     for k in 1..=steps {
         let t = k as f64 * dt;
+        let stamp = Timestamp::from_secs_f64(t).map_err(|e| anyhow!("time stamp {t}: {e}"))?;
         let (h, v, _) = profile.at(t);
         // Mean specific force over the interval: Δv/Δt + g at mid-interval altitude.
         let (h_mid, _, _) = profile.at(t - 0.5 * dt);
@@ -451,7 +454,7 @@ pub fn simulate<T: Real>(
             let z = z_lag + markov + white;
             last_baro = z;
             (!in_dropout(cfg, "baro", t)).then_some(BaroSample {
-                time_s: T::lit(t),
+                time: stamp,
                 altitude_m: T::lit(z),
             })
         } else {
@@ -464,14 +467,14 @@ pub fn simulate<T: Real>(
                 0.0
             };
             (!in_dropout(cfg, "velocity", t)).then_some(VelocitySample {
-                time_s: T::lit(t),
+                time: stamp,
                 vz_up_m_s: T::lit(v + white),
             })
         } else {
             None
         };
         let imu = ImuSample {
-            time_s: T::lit(t),
+            time: stamp,
             specific_force_up_m_s2: T::lit(f),
         };
         classical
@@ -585,7 +588,7 @@ fn settle_json(s: Option<f64>) -> Value {
 fn design_json(cfg: &Config, tau_s: f64) -> Result<Value> {
     let (ccfg, acfg) = loop_configs(cfg, tau_s);
     let init = InitialState {
-        time_s: 0.0,
+        time: Timestamp::ZERO,
         altitude_m: 0.0,
         vz_up_m_s: 0.0,
         accel_bias_m_s2: 0.0,

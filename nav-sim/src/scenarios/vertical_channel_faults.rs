@@ -25,6 +25,7 @@ use nav_core::vertical_channel::{
     AidStatus, AidedLoop, BaroSample, ClassicalLoop, GateCounters, ImuSample, InitialState,
     InnovationGate, VelocitySample,
 };
+use nav_core::time::Timestamp;
 use nav_core::Real;
 use serde::Deserialize;
 use serde_json::{json, Value};
@@ -71,6 +72,8 @@ pub struct GateConfig {
     pub starved_accel_sigma_m_s2: f64,
     /// Recovery gate hold after a re-acquisition, s.
     pub recovery_hold_s: f64,
+    /// Starvation limit: samples rejected without a break this long re-anchor the loop, s.
+    pub starved_reset_after_s: f64,
 }
 
 /// `fault-baro` configuration.
@@ -151,7 +154,7 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
     let (ccfg, acfg) = loop_configs(cfg, cfg.classical.tau_s);
     let (h0, v0, _) = profile.at(0.0);
     let init = InitialState {
-        time_s: T::zero(),
+        time: Timestamp::ZERO,
         altitude_m: T::lit(h0 + fc.initial_error_m),
         vz_up_m_s: T::lit(v0 + fc.initial_error_m_s),
         accel_bias_m_s2: T::zero(),
@@ -164,6 +167,7 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
         starved_velocity_sigma_m_s: g.starved_velocity_sigma_m_s,
         starved_accel_sigma_m_s2: g.starved_accel_sigma_m_s2,
         recovery_hold_s: g.recovery_hold_s,
+        starved_reset_after_s: g.starved_reset_after_s,
     };
     let e = |e: nav_core::NavError| anyhow!("{e}");
     let mut classical = [
@@ -198,6 +202,7 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
     let (mut h_prev, mut v_prev, _) = profile.at(0.0);
     for k in 1..=steps {
         let t = k as f64 * dt;
+        let stamp = Timestamp::from_secs_f64(t).map_err(|e| anyhow!("time stamp {t}: {e}"))?;
         let (h, v, _) = profile.at(t);
         let (h_mid, _, _) = profile.at(t - 0.5 * dt);
         let f = (v - v_prev) / dt + normal_gravity_m_s2(lat, h_mid) + bias + normal(rng, sigma_f);
@@ -230,16 +235,16 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
             (None, None)
         };
         let vel = (k % vel_every == 0).then(|| VelocitySample {
-            time_s: T::lit(t),
+            time: stamp,
             vz_up_m_s: T::lit(v + normal(rng, cfg.velocity_aid.noise_m_s)),
         });
         let imu = ImuSample {
-            time_s: T::lit(t),
+            time: stamp,
             specific_force_up_m_s2: T::lit(f),
         };
         let sample = |z: Option<f64>| {
             z.map(|z| BaroSample {
-                time_s: T::lit(t),
+                time: stamp,
                 altitude_m: T::lit(z),
             })
         };

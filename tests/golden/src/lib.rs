@@ -22,6 +22,7 @@ use nav_core::seeker_ins::mechanization::{ImuIncrement, InsState, Position};
 use nav_core::transfer_alignment::{
     AxisFlexure, ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig, TaDesign,
 };
+use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
     ClassicalLoop, ImuSample, InitialState, InnovationGate, VelocitySample,
@@ -157,6 +158,7 @@ pub fn vc_classical_config() -> ClassicalConfig {
         latitude_rad: 0.645_771_823_2,
         tau_s: 20.0,
         baro_lag_s: 0.2,
+        baro_period_s: 0.04,
         baro_timeouts: vc_timeouts(),
     }
 }
@@ -192,13 +194,14 @@ pub fn vc_gate() -> InnovationGate {
         starved_velocity_sigma_m_s: 0.5,
         starved_accel_sigma_m_s2: 0.02,
         recovery_hold_s: 60.0,
+        starved_reset_after_s: 60.0,
     }
 }
 
 /// Initial state of both VC loops (the truth starts at 500 m, level).
 pub fn vc_initial() -> InitialState<f32> {
     InitialState {
-        time_s: 0.0,
+        time: Timestamp::ZERO,
         altitude_m: 520.0,
         vz_up_m_s: 2.0,
         accel_bias_m_s2: 0.0,
@@ -310,8 +313,8 @@ fn ta_samples(r: &[f32]) -> (MasterSample<f32>, SlaveSample<f32>) {
     )
 }
 
-/// `[t, f_up, baro_valid, h_baro, velocity_valid, v_ref]` → IMU sample and the aid samples
-/// that arrived.
+/// `[t_ms, f_up, baro_valid, h_baro, velocity_valid, v_ref]` → IMU sample and the aid samples
+/// that arrived (`t_ms`: the time stamp in whole milliseconds, exact in f32 up to 4.6 h).
 fn vc_samples(
     r: &[f32],
 ) -> (
@@ -319,17 +322,18 @@ fn vc_samples(
     Option<BaroSample<f32>>,
     Option<VelocitySample<f32>>,
 ) {
-    let t = val(r, 0);
+    // A whole non-negative number of milliseconds (the cast saturates, NaN gives 0).
+    let t = Timestamp::from_millis(val(r, 0) as u64);
     let imu = ImuSample {
-        time_s: t,
+        time: t,
         specific_force_up_m_s2: val(r, 1),
     };
     let baro = (val(r, 2) != 0.0).then_some(BaroSample {
-        time_s: t,
+        time: t,
         altitude_m: val(r, 3),
     });
     let vel = (val(r, 4) != 0.0).then_some(VelocitySample {
-        time_s: t,
+        time: t,
         vz_up_m_s: val(r, 5),
     });
     (imu, baro, vel)
