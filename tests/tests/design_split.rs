@@ -6,10 +6,10 @@
 use nalgebra::Vector3;
 use nav_core::design::DesignValues;
 use nav_core::error::ConfigIssue;
+use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::{
     AxisFlexure, MasterSample, SlaveSample, TaConfig, TaDesign, TransferAlignment,
 };
-use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
     ClassicalLoop, ImuSample, InitialState, VelocitySample,

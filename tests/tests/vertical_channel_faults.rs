@@ -3,11 +3,11 @@
 //! dropout and return within their pre-fault error bound — and the soak test (`NAV_SOAK_STEPS`).
 
 use nav_core::time::Timestamp;
-use nav_core::HealthState;
 use nav_core::vertical_channel::{
     AidStatus, AidedLoop, BaroSample, ClassicalLoop, FusionOutcome, ImuSample, InitialState,
     InnovationGate, VelocitySample,
 };
+use nav_core::HealthState;
 use nav_core::Real;
 use nav_sim::rng::{normal, run_rng};
 use nav_sim::scenarios::vertical_channel::{load_config, loop_configs};

@@ -4,11 +4,11 @@
 //! unchanged bit for bit, and a soak run (`NAV_SOAK_STEPS`).
 
 use nav_core::earth::normal_gravity_m_s2;
+use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
     InitialState, InnovationGate, VelocitySample,
 };
-use nav_core::time::Timestamp;
 use nav_core::{NavError, Real};
 
 fn ts(seconds: f64) -> Timestamp {
@@ -45,7 +45,11 @@ impl<T: Real> Loop<T> for ClassicalLoop<T> {
         }
         if let Some(c) = r.baro.new_sample {
             assert!(c.innovation.is_finite());
-            assert!(c.gate_variance.is_none_or(|g| g > T::zero() && g.is_finite()) && c.nis().is_none_or(|n| n.is_finite() && n >= T::zero()));
+            assert!(
+                c.gate_variance
+                    .is_none_or(|g| g > T::zero() && g.is_finite())
+                    && c.nis().is_none_or(|n| n.is_finite() && n >= T::zero())
+            );
         }
         Ok(())
     }
@@ -76,7 +80,11 @@ impl<T: Real> Loop<T> for AidedLoop<T> {
                 .is_none_or(|v| v.is_finite() && v > T::zero()));
             if let Some(c) = a.new_sample {
                 assert!(c.innovation.is_finite());
-                assert!(c.gate_variance.is_none_or(|g| g > T::zero() && g.is_finite()) && c.nis().is_none_or(|n| n.is_finite() && n >= T::zero()));
+                assert!(
+                    c.gate_variance
+                        .is_none_or(|g| g > T::zero() && g.is_finite())
+                        && c.nis().is_none_or(|n| n.is_finite() && n >= T::zero())
+                );
             }
         }
         Ok(())

@@ -289,7 +289,11 @@ impl LoopModel {
             if ub {
                 d.set_row(
                     0,
-                    &nalgebra::RowVector3::new(-1.0 - 0.5 * ab * ab * cg, self.lag + ab, -0.5 * ab * ab * s),
+                    &nalgebra::RowVector3::new(
+                        -1.0 - 0.5 * ab * ab * cg,
+                        self.lag + ab,
+                        -0.5 * ab * ab * s,
+                    ),
                 );
             }
             if uv {
@@ -491,7 +495,11 @@ impl<T: Real> AidedDesign<T> {
         let gains = AidedGains::design(config)?;
         let gravity = GravityModel::at_latitude(config.latitude_rad)?;
         let tb = check_period("baro_period_s", config.baro_period_s, config.imu_dt_s)?;
-        let tv = check_period("velocity_period_s", config.velocity_period_s, config.imu_dt_s)?;
+        let tv = check_period(
+            "velocity_period_s",
+            config.velocity_period_s,
+            config.imu_dt_s,
+        )?;
         let loop_ = LoopModel {
             a0: open_loop(1.0),
             k: gains.k,

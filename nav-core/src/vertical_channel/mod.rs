@@ -1153,8 +1153,17 @@ impl<T: Real> LoopCore<T> {
                 ..AidChannel::new()
             };
             tmp.status.gaps_skipped = tmp.status.gaps_skipped.saturating_add(1);
-            let (b, v) =
-                tmp.advance(tmp.x, tmp.h_ref_m, imu.time, dt_us, f, baro, velocity, variances, true)?;
+            let (b, v) = tmp.advance(
+                tmp.x,
+                tmp.h_ref_m,
+                imu.time,
+                dt_us,
+                f,
+                baro,
+                velocity,
+                variances,
+                true,
+            )?;
             *self = tmp;
             return Ok((b, v, 1));
         }
@@ -1173,11 +1182,30 @@ impl<T: Real> LoopCore<T> {
         for i in 1..n {
             let end = start.add_micros(span * i / n);
             let h = end.micros_since(tmp.time).unwrap_or(0);
-            tmp.advance(tmp.x, tmp.h_ref_m, end, h, f, None, None, (None, None), true)?;
+            tmp.advance(
+                tmp.x,
+                tmp.h_ref_m,
+                end,
+                h,
+                f,
+                None,
+                None,
+                (None, None),
+                true,
+            )?;
         }
         let h = imu.time.micros_since(tmp.time).unwrap_or(0);
-        let (b, v) =
-            tmp.advance(tmp.x, tmp.h_ref_m, imu.time, h, f, baro, velocity, variances, true)?;
+        let (b, v) = tmp.advance(
+            tmp.x,
+            tmp.h_ref_m,
+            imu.time,
+            h,
+            f,
+            baro,
+            velocity,
+            variances,
+            true,
+        )?;
         tmp.status.gaps_bridged = tmp.status.gaps_bridged.saturating_add(1);
         *self = tmp;
         // n ≤ MAX_SUBSTEPS: the conversion cannot truncate.
@@ -1334,7 +1362,8 @@ impl<T: Real> LoopCore<T> {
         // its innovation is zero (baro: ĥ; velocity: V̂_z); the other states are kept.
         let mut reset_any = false;
         if let Some(c) = baro_check.as_mut().filter(|c| c.reacquired) {
-            let big = gate.is_some_and(|g| c.innovation * c.innovation > g.nis_threshold * g.baro_var);
+            let big =
+                gate.is_some_and(|g| c.innovation * c.innovation > g.nis_threshold * g.baro_var);
             if c.reset || big {
                 x.x += c.innovation;
                 c.reset = true;

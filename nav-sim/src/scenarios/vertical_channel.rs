@@ -23,11 +23,11 @@ use crate::scenario::{Context, Kind};
 use crate::stats::ensemble;
 use anyhow::{anyhow, bail, ensure, Result};
 use nav_core::earth::normal_gravity_m_s2;
+use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
     InitialState, VelocitySample,
 };
-use nav_core::time::Timestamp;
 use nav_core::Real;
 use serde::Deserialize;
 use serde_json::{json, Value};

@@ -21,11 +21,11 @@ use crate::scenario::{Context, Kind};
 use crate::scenarios::vertical_channel::{load_config, loop_configs, Config, Profile};
 use anyhow::{anyhow, ensure, Result};
 use nav_core::earth::normal_gravity_m_s2;
+use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidStatus, AidedLoop, BaroSample, ClassicalLoop, GateCounters, ImuSample, InitialState,
     InnovationGate, VelocitySample,
 };
-use nav_core::time::Timestamp;
 use nav_core::Real;
 use serde::Deserialize;
 use serde_json::{json, Value};
