@@ -689,7 +689,7 @@ fn gated_aided_loop_with_15g_manoeuvres_and_long_outages_never_starves() {
             let f = (v - v_prev) / dt + gravity(hm) + bias + normal(&mut rng, 0.05 / dt.sqrt());
             v_prev = v;
             let phase = t % 300.0;
-            let out = phase >= 150.0 && phase < 270.0;
+            let out = (150.0..270.0).contains(&phase);
             let time = Timestamp::from_micros(k * 10_000);
             let b = (k % 4 == 0 && !out).then(|| BaroSample {
                 time,

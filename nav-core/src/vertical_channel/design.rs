@@ -168,7 +168,7 @@ fn not_finite() -> NavError {
 fn check_period(field: &'static str, period_s: f64, dt_s: f64) -> Result<u32, NavError> {
     crate::error::require_positive(field, period_s)?;
     let m = libm::ceil(period_s / dt_s - 1.0e-9);
-    if !(m <= MAX_AID_PERIOD_IMU_INTERVALS) {
+    if m.is_nan() || m > MAX_AID_PERIOD_IMU_INTERVALS {
         return Err(NavError::InvalidConfig {
             field,
             issue: ConfigIssue::OutOfRange,
@@ -223,7 +223,7 @@ impl LoopModel {
                     );
                     let scale = y_exact.amax();
                     let err = (y - y_exact).amax();
-                    if !(err <= INTERVAL_ACCURACY * scale) {
+                    if err.is_nan() || err > INTERVAL_ACCURACY * scale {
                         return Err(NavError::InvalidConfig {
                             field: "imu_dt_s",
                             issue: ConfigIssue::OutOfRange,
@@ -316,12 +316,11 @@ pub(crate) fn jury_stable(delta: &Matrix3<f64>) -> bool {
         let [b2, b1, b0] = char_poly3(delta);
         let u = b2 - b1 + b0; // a₀ + 1
         let p_minus1 = 8.0 - 4.0 * b2 + 2.0 * b1 - b0; // −p(−1)
-        let jury = b0 > 0.0
+        b0 > 0.0
             && p_minus1 > 0.0
             && u > 0.0
             && u < 2.0
-            && u * (2.0 - u) > (u * (b2 - 2.0) - b0).abs();
-        jury
+            && u * (2.0 - u) > (u * (b2 - 2.0) - b0).abs()
     }
 }
 

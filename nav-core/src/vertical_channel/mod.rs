@@ -840,8 +840,9 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
             let gap = secs_between::<T>(cand.last_time, old.last_time);
             let d = gap * (g1 + g2 * gap);
             let mut s = var0 + d * d;
-            // Saturate (also catches an overflow to +∞): every reported number stays finite.
-            if !(s < max_var) {
+            // Saturate (also catches an overflow to +∞; s cannot be NaN: every term is finite
+            // or +∞): every reported number stays finite.
+            if s > max_var {
                 s = max_var;
             }
             if old.recovery_var > s {
@@ -1232,22 +1233,23 @@ impl<T: Real> LoopCore<T> {
     fn settle(&mut self, mut x: Vector3<T>, h_ref: T) {
         let mut h_ref_new = h_ref;
         let mut limited = false;
-        if !(x.x.abs() <= T::lit(RECENTRE_M)) {
+        // `x` is finite here (checked by the caller, or bounded by construction in a coast).
+        if x.x.abs() > T::lit(RECENTRE_M) {
             h_ref_new = h_ref + x.x;
             x.x = T::zero();
             let (lo, hi) = (T::lit(ESTIMATE_RANGE_M.0), T::lit(ESTIMATE_RANGE_M.1));
-            if !(h_ref_new >= lo && h_ref_new <= hi) {
+            if h_ref_new < lo || h_ref_new > hi {
                 h_ref_new = if h_ref_new < lo { lo } else { hi };
                 limited = true;
             }
         }
         let vmax = T::lit(MAX_ESTIMATE_SPEED_M_S);
-        if !(x.y.abs() <= vmax) {
+        if x.y.abs() > vmax {
             x.y = if x.y < T::zero() { -vmax } else { vmax };
             limited = true;
         }
         let bmax = T::lit(MAX_ESTIMATE_BIAS_M_S2);
-        if !(x.z.abs() <= bmax) {
+        if x.z.abs() > bmax {
             x.z = if x.z < T::zero() { -bmax } else { bmax };
             limited = true;
         }

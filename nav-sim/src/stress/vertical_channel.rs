@@ -315,7 +315,7 @@ fn run_case(c: &Case) -> (Tally, Extra) {
         extra.end_health = Some(health);
         // Checkpoint at the end of each aided window (after the first cycle's transient).
         let cyc = (t / CYCLE_S) as u64;
-        if ph >= 149.0 && ph < 150.0 && checkpoint_cycle != cyc && t > CYCLE_S {
+        if (149.0..150.0).contains(&ph) && checkpoint_cycle != cyc && t > CYCLE_S {
             checkpoint_cycle = cyc;
             let e = (est_h - h).abs();
             extra.checkpoints += 1;

@@ -288,6 +288,7 @@ ta_kernel!(
 
 // ---------------------------------------------------------------- vertical channel
 
+use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState, VelocitySample,
 };
@@ -301,18 +302,21 @@ fn vc_init() -> InitialState<f32> {
     nav_golden::vc_initial()
 }
 
+/// Nominal IMU interval of the bench, µs.
+const VC_DT_US: u64 = (VC_DT_S * 1.0e6) as u64;
+
 fn vc_imu(k: u32) -> (ImuSample<f32>, BaroSample<f32>, VelocitySample<f32>) {
-    let t = (k + 1) as f32 * VC_DT_S as f32;
+    let t = Timestamp::from_micros((u64::from(k) + 1) * VC_DT_US);
     let imu = ImuSample {
-        time_s: t,
+        time: t,
         specific_force_up_m_s2: 9.80,
     };
     let baro = BaroSample {
-        time_s: t,
+        time: t,
         altitude_m: 500.0,
     };
     let vel = VelocitySample {
-        time_s: t,
+        time: t,
         vz_up_m_s: 0.0,
     };
     (

@@ -85,15 +85,15 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
             }));
         }
         let imu = bb(ImuSample {
-            time_s: 0.0,
+            time: bb(nav_core::time::Timestamp::ZERO),
             specific_force_up_m_s2: 9.8,
         });
         let baro = bb(BaroSample {
-            time_s: 0.0,
+            time: bb(nav_core::time::Timestamp::ZERO),
             altitude_m: 0.0,
         });
         let vel = bb(VelocitySample {
-            time_s: 0.0,
+            time: bb(nav_core::time::Timestamp::ZERO),
             vz_up_m_s: 0.0,
         });
         count(cl.step(&imu, bb(Some(&baro))).map(|r| {
