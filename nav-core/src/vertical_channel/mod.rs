@@ -1051,6 +1051,10 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) time: Timestamp,
     pub(crate) dt_s: T,
     pub(crate) dt_us: u64,
+    /// `dt_us` when it is exactly `dt_s` in the float type (the stored step then applies
+    /// as is), else 0 (an interval of a whole number of µs is never exactly `dt_s`: every
+    /// step takes the corrected path).
+    pub(crate) nominal_us: u64,
     pub(crate) half_dt_s: T,
     pub(crate) modes: Modes<T>,
     /// Continuous observer gains (columns baro, velocity) for off-nominal intervals.
@@ -1116,6 +1120,11 @@ impl<T: Real> LoopCore<T> {
             time: init.time,
             dt_s,
             dt_us,
+            nominal_us: if micros_to_seconds::<T>(dt_us) == dt_s {
+                dt_us
+            } else {
+                0
+            },
             half_dt_s,
             modes,
             k,
@@ -1319,7 +1328,7 @@ impl<T: Real> LoopCore<T> {
         variances: (Option<T>, Option<T>),
         bridged: bool,
     ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
-        let nominal = h_us == self.dt_us;
+        let nominal = h_us == self.nominal_us;
         let (h_s, half_h) = if nominal {
             (self.dt_s, self.half_dt_s)
         } else {
