@@ -271,7 +271,10 @@ impl LoopModel {
         let modes = discretise_modes::<f64>(&self.a0, &self.k, &self.c, self.dt)?;
         let mode = modes.select(ub, uv);
         let (mb, mv) = (baro.unwrap_or(1), vel.unwrap_or(1));
-        let mut horizon = u64::from(mb) * u64::from(mv) / u64::from(gcd(mb, mv));
+        let mut horizon = u64::from(mb)
+            .saturating_mul(u64::from(mv))
+            .checked_div(u64::from(gcd(mb, mv)))
+            .unwrap_or(u64::MAX);
         let (mut mb, mut mv) = (mb, mv);
         if horizon > 100_000 {
             let m = mb.max(mv);
@@ -283,7 +286,7 @@ impl LoopModel {
         let base = mode.n * d0;
         let mut delta = Matrix3::<f64>::zeros();
         for k in 0..horizon {
-            let age = |m: u32| ((k % u64::from(m)) as f64 - 0.5) * self.dt;
+            let age = |m: u32| (k.checked_rem(u64::from(m)).unwrap_or(0) as f64 - 0.5) * self.dt;
             let (ab, av) = (age(mb), age(mv));
             let mut d = nalgebra::Matrix2x3::zeros();
             if ub {

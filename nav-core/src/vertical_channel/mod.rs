@@ -666,6 +666,9 @@ pub(crate) fn secs_between<T: Real>(later: Timestamp, earlier: Timestamp) -> T {
     micros_to_seconds(later.micros_since(earlier).unwrap_or(0))
 }
 
+/// "No time" in the channels' optional time fields (the end of the clock).
+const NEVER: Timestamp = Timestamp::from_micros(u64::MAX);
+
 /// A held aid sample, its recovery-gate state and its re-anchoring flag.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct AidChannel<T> {
@@ -675,10 +678,12 @@ pub(crate) struct AidChannel<T> {
     /// Gate variance held after a re-acquisition until the innovations have stayed inside
     /// the tracking gate for `recovery_hold_s` (0: tracking).
     pub(crate) recovery_var: T,
-    /// Time since which the innovations are inside the tracking gate during a recovery.
-    pub(crate) recovery_clear_since: Option<Timestamp>,
-    /// Time stamp of the first sample of the current run of gate rejections.
-    pub(crate) rejected_since: Option<Timestamp>,
+    /// Time since which the innovations are inside the tracking gate during a recovery
+    /// ([`NEVER`]: not inside).
+    pub(crate) recovery_clear_since: Timestamp,
+    /// Time stamp of the first sample of the current run of gate rejections ([`NEVER`]:
+    /// the last sample was accepted).
+    pub(crate) rejected_since: Timestamp,
     /// The next sample is accepted outside the gate and re-anchors the measured state.
     pub(crate) reanchor: bool,
 }
@@ -706,8 +711,8 @@ impl<T: Real> AidChannel<T> {
             last_value: T::zero(),
             received: false,
             recovery_var: T::zero(),
-            recovery_clear_since: None,
-            rejected_since: None,
+            recovery_clear_since: NEVER,
+            rejected_since: NEVER,
             reanchor: false,
         }
     }
@@ -746,12 +751,12 @@ impl<T: Real> AidChannel<T> {
         })
     }
 
+    /// Freshness with `age_s` the age of the held sample now.
     #[inline(always)]
-    pub(crate) fn status(&self, now: Timestamp, to: &Timeouts<T>) -> AidStatus<T> {
+    pub(crate) fn status(&self, age_s: T, to: &Timeouts<T>) -> AidStatus<T> {
         if !self.received {
             return AidStatus::NoData;
         }
-        let age_s = secs_between(now, self.last_time);
         if age_s > to.lost_after_s {
             AidStatus::Lost { age_s }
         } else if age_s > to.stale_after_s {
@@ -816,10 +821,13 @@ type AidGate<T> = (T, T, T, T, T, T);
 /// Gate of one new sample: returns the channel to use and the verdict.
 /// `rate = (r₁, r₂)` extrapolates the sample to mid-interval (`half_h` before `now`),
 /// `z + age (r₁ − r₂ age)`; `pred` is the predicted measurement.
+/// `old_age`: the held sample's age now; returns the channel to use, its sample's age now and
+/// the verdict.
 #[allow(clippy::too_many_arguments)]
 #[inline(always)]
 fn admit<T: Real, const SECOND_ORDER: bool>(
     old: &AidChannel<T>,
+    old_age: T,
     cand: Option<AidChannel<T>>,
     now: Timestamp,
     lost_after_s: T,
@@ -828,11 +836,12 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
     rate: (T, T),
     pred: T,
     gate: Option<AidGate<T>>,
-) -> (AidChannel<T>, Option<SampleCheck<T>>) {
+) -> (AidChannel<T>, T, Option<SampleCheck<T>>) {
     let Some(mut cand) = cand else {
-        return (*old, None);
+        return (*old, old_age, None);
     };
-    let age = secs_between::<T>(now, cand.last_time) - half_h;
+    let cand_age = secs_between::<T>(now, cand.last_time);
+    let age = cand_age - half_h;
     let r = if SECOND_ORDER {
         rate.0 - rate.1 * age
     } else {
@@ -847,8 +856,10 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
     let nu2 = innovation * innovation;
     let max_var = T::lit(MAX_GATE_VARIANCE);
     // Accepted outside the gate: a pending re-anchoring, or a starved gate.
-    let starved = match (gate, old.rejected_since) {
-        (Some(g), Some(t0)) => secs_between::<T>(cand.last_time, t0) >= g.5,
+    let starved = match gate {
+        Some(g) if old.rejected_since != NEVER => {
+            secs_between::<T>(cand.last_time, old.rejected_since) >= g.5
+        }
         _ => false,
     };
     if old.reanchor || starved {
@@ -863,8 +874,8 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
         } else {
             T::zero()
         };
-        cand.recovery_clear_since = None;
-        cand.rejected_since = None;
+        cand.recovery_clear_since = NEVER;
+        cand.rejected_since = NEVER;
         cand.reanchor = false;
         let check = SampleCheck {
             innovation,
@@ -873,12 +884,12 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
             reacquired: true,
             reset: true,
         };
-        return (cand, Some(check));
+        return (cand, cand_age, Some(check));
     }
-    let lost = old.received && secs_between::<T>(now, old.last_time) > lost_after_s;
+    let lost = old.received && old_age > lost_after_s;
     let (gate_variance, pass) = match gate {
         Some((var0, g1, g2, thr, hold, _)) if old.received => {
-            let gap = secs_between::<T>(cand.last_time, old.last_time);
+            let gap = old_age - cand_age;
             let d = gap * (g1 + g2 * gap);
             let mut s = var0 + d * d;
             // Saturate (also catches an overflow to +∞; s cannot be NaN: every term is finite
@@ -896,18 +907,17 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
                 // open the gate for the samples after it).
                 let v = var0 + nu2;
                 cand.recovery_var = if v < s { v } else { s };
-                cand.recovery_clear_since = None;
+                cand.recovery_clear_since = NEVER;
             } else if pass && old.recovery_var > T::zero() {
                 if nu2 > thr * var0 {
-                    cand.recovery_clear_since = None;
+                    cand.recovery_clear_since = NEVER;
                 } else {
-                    match old.recovery_clear_since {
-                        Some(t0) if secs_between::<T>(cand.last_time, t0) >= hold => {
-                            cand.recovery_var = T::zero();
-                            cand.recovery_clear_since = None;
-                        }
-                        Some(_) => {}
-                        None => cand.recovery_clear_since = Some(cand.last_time),
+                    let t0 = old.recovery_clear_since;
+                    if t0 == NEVER {
+                        cand.recovery_clear_since = cand.last_time;
+                    } else if secs_between::<T>(cand.last_time, t0) >= hold {
+                        cand.recovery_var = T::zero();
+                        cand.recovery_clear_since = NEVER;
                     }
                 }
             }
@@ -928,12 +938,14 @@ fn admit<T: Real, const SECOND_ORDER: bool>(
         reset: false,
     };
     if pass {
-        cand.rejected_since = None;
-        (cand, Some(check))
+        cand.rejected_since = NEVER;
+        (cand, cand_age, Some(check))
     } else {
         let mut kept = *old;
-        kept.rejected_since = Some(old.rejected_since.unwrap_or(cand.last_time));
-        (kept, Some(check))
+        if old.rejected_since == NEVER {
+            kept.rejected_since = cand.last_time;
+        }
+        (kept, old_age, Some(check))
     }
 }
 
@@ -1158,7 +1170,7 @@ impl<T: Real> LoopCore<T> {
             Some(d) if d > 0 => d,
             _ => return Err(NavError::TimeNotIncreasing),
         };
-        if us <= self.dt_us + self.dt_us / 2 {
+        if us <= self.dt_us.saturating_add(self.dt_us / 2) {
             let (b, v) = self.advance(
                 self.x,
                 self.h_ref_m,
@@ -1190,11 +1202,11 @@ impl<T: Real> LoopCore<T> {
     ) -> Result<(AidReport<T>, AidReport<T>, u32), NavError> {
         let mut tmp = *self;
         let f = imu.specific_force_up_m_s2;
-        let dt_us = self.dt_us;
+        let dt_us = self.dt_us.max(1);
         if us > MAX_BRIDGED_GAP_US {
             // Not integrated: keep the state, restart the clock one interval before the
             // sample, drop the held aid samples and re-anchor on the next ones.
-            tmp.time = Timestamp::from_micros(imu.time.as_micros() - dt_us);
+            tmp.time = Timestamp::from_micros(imu.time.as_micros().saturating_sub(dt_us));
             tmp.baro = AidChannel {
                 reanchor: true,
                 ..AidChannel::new()
@@ -1204,63 +1216,61 @@ impl<T: Real> LoopCore<T> {
                 ..AidChannel::new()
             };
             tmp.status.gaps_skipped = tmp.status.gaps_skipped.saturating_add(1);
-            let (b, v) = tmp.advance(
-                tmp.x,
-                tmp.h_ref_m,
-                imu.time,
-                dt_us,
-                f,
-                baro,
-                velocity,
-                variances,
-                true,
-            )?;
+            let (b, v) = tmp.advance_outlined(imu.time, dt_us, f, baro, velocity, variances)?;
             *self = tmp;
             return Ok((b, v, 1));
         }
         let max_sub = u64::from(MAX_SUBSTEPS);
-        let (n, coast_us) = if us > max_sub * dt_us + dt_us / 2 {
-            (max_sub, us - max_sub * dt_us)
+        let sub_span = max_sub.saturating_mul(dt_us);
+        let (n, coast_us) = if us > sub_span.saturating_add(dt_us / 2) {
+            (max_sub, us.saturating_sub(sub_span))
         } else {
-            ((us + dt_us / 2) / dt_us, 0)
+            (
+                us.saturating_add(dt_us / 2).checked_div(dt_us).unwrap_or(2),
+                0,
+            )
         };
         let n = n.clamp(2, max_sub);
         if coast_us > 0 {
             tmp.coast(coast_us, f);
         }
         let start = tmp.time;
-        let span = us - coast_us;
+        let span = us.saturating_sub(coast_us);
         for i in 1..n {
-            let end = start.add_micros(span * i / n);
+            let end = start.add_micros(span.saturating_mul(i).checked_div(n).unwrap_or(0));
             let h = end.micros_since(tmp.time).unwrap_or(0);
-            tmp.advance(
-                tmp.x,
-                tmp.h_ref_m,
-                end,
-                h,
-                f,
-                None,
-                None,
-                (None, None),
-                true,
-            )?;
+            tmp.advance_outlined(end, h, f, None, None, (None, None))?;
         }
         let h = imu.time.micros_since(tmp.time).unwrap_or(0);
-        let (b, v) = tmp.advance(
-            tmp.x,
-            tmp.h_ref_m,
-            imu.time,
-            h,
-            f,
-            baro,
-            velocity,
-            variances,
-            true,
-        )?;
+        let (b, v) = tmp.advance_outlined(imu.time, h, f, baro, velocity, variances)?;
         tmp.status.gaps_bridged = tmp.status.gaps_bridged.saturating_add(1);
         *self = tmp;
         // n ≤ MAX_SUBSTEPS: the conversion cannot truncate.
         Ok((b, v, n as u32))
+    }
+
+    /// One bridged sub-step (one outlined copy of [`Self::advance`] for every rare path).
+    #[inline(never)]
+    fn advance_outlined(
+        &mut self,
+        now: Timestamp,
+        h_us: u64,
+        specific_force: T,
+        baro: Option<&BaroSample<T>>,
+        velocity: Option<&VelocitySample<T>>,
+        variances: (Option<T>, Option<T>),
+    ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
+        self.advance(
+            self.x,
+            self.h_ref_m,
+            now,
+            h_us,
+            specific_force,
+            baro,
+            velocity,
+            variances,
+            true,
+        )
     }
 
     /// Exact inertial coast over `us` µs on the specific force `f` (no aid; gravity at the
@@ -1369,8 +1379,19 @@ impl<T: Real> LoopCore<T> {
         };
         // χ² gate on the new samples.
         let gate = self.gate.as_ref();
-        let (baro_ch, mut baro_check) = admit::<T, true>(
+        // Each held sample's age now: one integer difference and one conversion per aid.
+        let age = |ch: &AidChannel<T>| {
+            if ch.received {
+                secs_between::<T>(now, ch.last_time)
+            } else {
+                T::zero()
+            }
+        };
+        let baro_age = age(&self.baro);
+        let vel_age = age(&self.velocity);
+        let (baro_ch, baro_age, mut baro_check) = admit::<T, true>(
             &self.baro,
+            baro_age,
             baro_cand,
             now,
             self.baro_timeouts.lost_after_s,
@@ -1389,8 +1410,9 @@ impl<T: Real> LoopCore<T> {
                 )
             }),
         );
-        let (vel_ch, mut vel_check) = admit::<T, false>(
+        let (vel_ch, vel_age, mut vel_check) = admit::<T, false>(
             &self.velocity,
+            vel_age,
             vel_cand,
             now,
             self.velocity_timeouts.lost_after_s,
@@ -1438,18 +1460,17 @@ impl<T: Real> LoopCore<T> {
         }
         let v = x.y;
 
-        let baro_status = baro_ch.status(now, &self.baro_timeouts);
-        let vel_status = vel_ch.status(now, &self.velocity_timeouts);
+        let baro_status = baro_ch.status(baro_age, &self.baro_timeouts);
+        let vel_status = vel_ch.status(vel_age, &self.velocity_timeouts);
         let use_baro = baro_status.in_use();
         let use_vel = vel_status.in_use();
 
         // Held samples extrapolated to the middle of the interval (ZOH of the continuous loop).
-        let mid_age = |ch: &AidChannel<T>| secs_between::<T>(now, ch.last_time) - half_h;
         let nu_h = use_baro.then(|| {
-            let age = mid_age(&baro_ch);
+            let age = baro_age - half_h;
             (baro_ch.last_value - h_ref) + age * (v - half * v_rate * age) - h_pred
         });
-        let nu_v = use_vel.then(|| vel_ch.last_value + mid_age(&vel_ch) * v_rate - v);
+        let nu_v = use_vel.then(|| vel_ch.last_value + (vel_age - half_h) * v_rate - v);
         let mode = self.modes.select(use_baro, use_vel);
         let nu = Vector2::new(nu_h.unwrap_or(T::zero()), nu_v.unwrap_or(T::zero()));
         let dx = if nominal {
@@ -1489,8 +1510,8 @@ impl<T: Real> LoopCore<T> {
         } else if bridged
             || !use_baro
             || (self.velocity.received && !use_vel)
-            || self.baro.rejected_since.is_some()
-            || self.velocity.rejected_since.is_some()
+            || self.baro.rejected_since != NEVER
+            || self.velocity.rejected_since != NEVER
             || self.baro.recovery_var > T::zero()
             || self.velocity.recovery_var > T::zero()
         {
