@@ -80,9 +80,9 @@ pub const MIN_TAU_STEPS: f64 = 5.0;
 /// Largest initial 1σ of the mounting misalignment, rad (≈ 5.7°, small-angle model).
 pub const MAX_MOUNT_SIGMA_RAD: f64 = 0.1;
 /// Range of the rate-difference 1σ `rate_noise_sigma_rad_s`, rad/s.
-pub const RATE_NOISE_SIGMA_RANGE_RAD_S: (f64, f64) = (1.0e-5, 0.1);
+pub const RATE_NOISE_SIGMA_RANGE_RAD_S: (f64, f64) = (1.0e-4, 0.1);
 /// Range of the specific-force-difference 1σ `accel_noise_sigma_m_s2`, m/s².
-pub const ACCEL_NOISE_SIGMA_RANGE_M_S2: (f64, f64) = (1.0e-4, 1.0);
+pub const ACCEL_NOISE_SIGMA_RANGE_M_S2: (f64, f64) = (1.0e-3, 1.0);
 /// Largest |lever-arm component|, m.
 pub const MAX_LEVER_ARM_M: f64 = 100.0;
 /// Range of the χ²(1) NIS gate threshold.
@@ -93,6 +93,12 @@ pub const MAX_GAP_STEPS: u32 = 100;
 /// One scalar update divides a variance by at most this ratio (`r ≥ hᵀPh / ratio`): keeps the
 /// Joseph update's subtraction within f32's digits (chosen by the stress campaign).
 pub const MAX_VARIANCE_REDUCTION: f64 = 1.0e4;
+/// Every committed covariance gets `P_ii ← P_ii (1 + PSD_LOADING_EPS · ε)` (ε the float type's
+/// machine epsilon: ≈ 1.5e-5 in f32, 2.8e-14 in f64): a PSD diagonal that keeps the
+/// correlation matrix's smallest eigenvalue above the rounding of one step (chosen by the
+/// stress campaign).
+pub const PSD_LOADING_EPS: f64 = 128.0;
+
 /// Epochs without an anomaly (skipped update, re-initialised flexure, covariance reset) after
 /// which [`HealthState::Degraded`] returns to [`HealthState::Nominal`].
 pub const DEGRADED_HOLD_EPOCHS: u32 = 100;
@@ -371,6 +377,8 @@ pub struct TransferAlignment<T: Real, const K: usize, const N: usize> {
     phi: [SMatrix<T, K, K>; 3],
     /// Per-axis discrete process noise in the θ parametrisation.
     q_d: [SMatrix<T, K, K>; 3],
+    /// Variance ceilings, axis-major (see [`condition`]).
+    ceiling: SVector<T, N>,
     /// State, axis-major, θ parametrisation.
     x: SVector<T, N>,
     /// Covariance, axis-major: `p[cur]` is current, the other one scratch.
@@ -396,6 +404,7 @@ impl<T: Real, const K: usize, const N: usize> core::fmt::Debug for TransferAlign
             .field("chains", &self.chains)
             .field("phi", &self.phi)
             .field("q_d", &self.q_d)
+            .field("ceiling", &self.ceiling)
             .field("x", &self.x)
             .field("p", self.p_cur())
             .field("r_rate", &self.r_rate)
@@ -492,6 +501,35 @@ fn propagate_block<T: Real, const K: usize>(
         }
     }
     d
+}
+
+/// Conditions a committed covariance, keeping it PSD (both operations map a PSD matrix to a PSD
+/// matrix): the diagonal loading of [`PSD_LOADING_EPS`], then, for a variance above its
+/// ceiling (a bound no consistent covariance reaches: the stationary flexure variances, and
+/// `(√(σ_m² + σ_f²) + σ_f)²` for θ), row and column scaled by `√(ceiling / P_ii)` (a
+/// congruence). Keeps unobservable directions from growing without bound under the loading.
+#[inline(never)]
+fn condition<T: Real, const N: usize>(p: &mut SMatrix<T, N, N>, ceiling: &SVector<T, N>) {
+    let load = T::one() + T::lit(PSD_LOADING_EPS) * T::EPS;
+    for i in 0..N {
+        if let Some(d) = p.get_mut((i, i)) {
+            *d *= load;
+        }
+    }
+    for (i, &c) in ceiling.iter().enumerate() {
+        let d = p.get((i, i)).copied().unwrap_or_else(T::zero);
+        if d > c {
+            let s = (c / d).sqrt();
+            for j in 0..N {
+                if let Some(v) = p.get_mut((i, j)) {
+                    *v *= s;
+                }
+                if let Some(v) = p.get_mut((j, i)) {
+                    *v *= s;
+                }
+            }
+        }
+    }
 }
 
 /// `0` when every component is finite, NaN otherwise (`v·0` is ±0 for finite v and NaN for
@@ -621,12 +659,27 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             to_total_cov(&cz.q_d),
         ];
         let p = Self::initial_covariance(&chains);
+        let mut ceiling = SVector::<T, N>::zeros();
+        for (a, ch) in chains.iter().enumerate() {
+            let var_f = at(&ch.p0, 1, 1);
+            let theta = (at(&ch.p0, 0, 0) + var_f).sqrt() + var_f.sqrt();
+            for d in 0..K {
+                if let Some(c) = ceiling.get_mut(K * a + d) {
+                    *c = if d == 0 {
+                        theta * theta
+                    } else {
+                        at(&ch.p0, d, d) * T::lit(1.001)
+                    };
+                }
+            }
+        }
         Ok(Self {
             cfg,
             model,
             chains,
             phi,
             q_d,
+            ceiling,
             x: SVector::zeros(),
             p: [p, p],
             second: false,
@@ -1171,6 +1224,9 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             health.epochs_since_anomaly.saturating_add(1)
         };
         health.state = self.classify(&health, &x);
+        let ceiling = self.ceiling;
+        let (_, p) = self.buffers();
+        condition(p, &ceiling);
         self.health = health;
         self.x = x;
         self.second = !self.second;
@@ -1201,6 +1257,9 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         if health.state != HealthState::Initialising {
             health.state = self.classify(&health, &x);
         }
+        let ceiling = self.ceiling;
+        let (_, p) = self.buffers();
+        condition(p, &ceiling);
         self.health = health;
         self.x = x;
         self.second = !self.second;

@@ -52,9 +52,9 @@ struct Case {
 }
 
 impl Case {
-    fn name(&self) -> String {
+    fn name(&self, cfg: &TaConfig<f32>) -> String {
         format!(
-            "{} f32 {} Hz σ {}° τ {} s {:?} start {} s",
+            "{} f32 {} Hz σ {}° τ {} s {:?} (rate σ {} rad/s, accel σ {} m/s², gate {:?}) start {} s",
             if self.proposed {
                 "proposed"
             } else {
@@ -64,6 +64,9 @@ impl Case {
             self.sigma_deg,
             self.tau_s,
             self.inputs,
+            cfg.rate_noise_sigma_rad_s,
+            cfg.accel_noise_sigma_m_s2,
+            cfg.nis_gate,
             self.start_us / 1_000_000
         )
     }
@@ -74,8 +77,8 @@ fn config(c: &Case, rng: &mut SimRng) -> TaConfig<f32> {
     let (rate_sigma, accel_sigma) = match c.inputs {
         Inputs::ConstantClean | Inputs::Hostile => (3e-4, 5e-3),
         Inputs::HostileNoiseCorners => {
-            if rng.gen_bool(0.5) {
-                (1e-5, 1e-4)
+            if rng.random_bool(0.5) {
+                (1e-4, 1e-3)
             } else {
                 (0.1, 1.0)
             }
@@ -94,7 +97,7 @@ fn config(c: &Case, rng: &mut SimRng) -> TaConfig<f32> {
         dt_s: dt as f32,
         time_tolerance_s: (0.1 * dt) as f32,
         max_gap_steps: 3,
-        nis_gate: if rng.gen_bool(0.5) { Some(25.0) } else { None },
+        nis_gate: if rng.random_bool(0.5) { Some(25.0) } else { None },
     }
 }
 
@@ -139,14 +142,15 @@ fn check_outputs<const K: usize, const N: usize>(
             .flat_map(|i| (0..N).map(move |j| (i, j)))
             .map(|(i, j)| f64::from(p[(i, j)]))
             .collect();
-        tally.covariance("P", &rows, N, f64::from(f32::EPSILON));
+        let diag: Vec<String> = (0..N).map(|i| format!("{:.1e}", rows[i * N + i])).collect();
+        tally.covariance(&format!("P (diag {})", diag.join(" ")), &rows, N, f64::from(f32::EPSILON));
     }
 }
 
 fn run_case<const K: usize, const N: usize>(c: &Case) -> Tally {
     let mut rng = run_rng(SEED, c.seed);
-    let mut tally = Tally::new(c.name());
     let cfg = config(c, &mut rng);
+    let mut tally = Tally::new(c.name(&cfg));
     let Ok(mut f) = TransferAlignment::<f32, K, N>::new(cfg) else {
         tally.call("new", &Err::<(), _>("configuration refused"));
         return tally;
@@ -165,7 +169,7 @@ fn run_case<const K: usize, const N: usize>(c: &Case) -> Tally {
     let mut w = World {
         t_s: 0.0,
         theta_m: Vector3::new(0.004, -0.003, 0.002),
-        phase: Vector3::new(rng.gen::<f64>(), rng.gen(), rng.gen()) * std::f64::consts::TAU,
+        phase: Vector3::new(rng.random::<f64>(), rng.random(), rng.random()) * std::f64::consts::TAU,
         omega: Vector3::zeros(),
         force: Vector3::new(0.0, 0.0, -9.81),
         next_manoeuvre_s: 1.0,
@@ -175,10 +179,10 @@ fn run_case<const K: usize, const N: usize>(c: &Case) -> Tally {
     while k < c.steps {
         // Time stamp of the next sample.
         let interval = if hostile {
-            let jitter = (dt_us as f64 * rng.gen_range(0.5..1.5)).round() as u64;
-            let missing = if rng.gen_bool(1e-3) {
+            let jitter = (dt_us as f64 * rng.random_range(0.5..1.5)).round() as u64;
+            let missing = if rng.random_bool(1e-3) {
                 // Missing samples: a few steps, sometimes beyond max_gap_steps.
-                dt_us * rng.gen_range(1..12)
+                dt_us * rng.random_range(1..12)
             } else {
                 0
             };
@@ -190,16 +194,16 @@ fn run_case<const K: usize, const N: usize>(c: &Case) -> Tally {
         w.t_s += interval as f64 * 1e-6;
         if hostile && w.t_s >= w.next_manoeuvre_s {
             w.omega = Vector3::new(
-                rng.gen_range(-1.0..1.0),
-                rng.gen_range(-1.0..1.0),
-                rng.gen_range(-0.5..0.5),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-1.0..1.0),
+                rng.random_range(-0.5..0.5),
             );
             w.force = Vector3::new(
-                rng.gen_range(-30.0..30.0),
-                rng.gen_range(-30.0..30.0),
-                -9.81 + rng.gen_range(-30.0..30.0),
+                rng.random_range(-30.0..30.0),
+                rng.random_range(-30.0..30.0),
+                -9.81 + rng.random_range(-30.0..30.0),
             );
-            w.next_manoeuvre_s = w.t_s + rng.gen_range(0.5..3.0);
+            w.next_manoeuvre_s = w.t_s + rng.random_range(0.5..3.0);
         }
         // Flexure: a sinusoid of amplitude σ at the correlation frequency, per axis.
         let om_f = 1.0 / c.tau_s;
@@ -254,8 +258,8 @@ fn run_one(c: &Case) -> Tally {
 /// Runs the campaign at `level`.
 pub fn run(level: StressLevel) -> EstimatorStress {
     let (grid_seconds, long_steps) = match level {
-        StressLevel::Short => (2.0, 100_000),
-        StressLevel::Full => (60.0, 10_000_000),
+        StressLevel::Short => (10.0, 100_000),
+        StressLevel::Full => (600.0, 10_000_000),
     };
     let mut cases = Vec::new();
     let mut seed = 0u64;
