@@ -27,7 +27,6 @@ fn cfg<T: Real>(sig: [f64; 3], tau: [f64; 3], lever: [f64; 3], gate: Option<f64>
 
 /// Deterministic pseudo-random inputs: step k of a sequence with a manoeuvre amplitude.
 fn inputs<T: Real>(k: u64, seed: u64, amp: f64) -> (MasterSample<T>, SlaveSample<T>) {
-    let t = k as f64 * 0.01;
     let h = |i: u64| {
         let x = (seed
             .wrapping_mul(6364136223846793005)

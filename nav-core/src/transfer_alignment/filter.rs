@@ -97,7 +97,7 @@ pub const MAX_VARIANCE_REDUCTION: f64 = 1.0e4;
 /// machine epsilon: ≈ 1.5e-5 in f32, 2.8e-14 in f64): a PSD diagonal that keeps the
 /// correlation matrix's smallest eigenvalue above the rounding of one step (chosen by the
 /// stress campaign).
-pub const PSD_LOADING_EPS: f64 = 128.0;
+pub const PSD_LOADING_EPS: f64 = 16.0;
 
 /// Epochs without an anomaly (skipped update, re-initialised flexure, covariance reset) after
 /// which [`HealthState::Degraded`] returns to [`HealthState::Nominal`].
