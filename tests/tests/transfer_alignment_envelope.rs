@@ -184,7 +184,9 @@ fn max_gap_steps_is_bounded_and_long_gaps_cost_nothing() {
         f.step(&m, &s).unwrap();
     }
     // A gap of exactly the bound is predicted step by step.
-    let (m, s) = still::<f64>(Timestamp::from_micros(10_000 * (299 + u64::from(MAX_GAP_STEPS))));
+    let (m, s) = still::<f64>(Timestamp::from_micros(
+        10_000 * (299 + u64::from(MAX_GAP_STEPS)),
+    ));
     let rep = f.step(&m, &s).unwrap();
     assert_eq!(
         (rep.predictions, rep.gap),

@@ -188,7 +188,12 @@ impl<T: Real> TaConfig<T> {
                 MIN_FLEXURE_SIGMA_RAD,
                 MAX_FLEXURE_SIGMA_RAD,
             )?;
-            within("flexure.tau_s", fl.tau_s, MIN_FLEXURE_TAU_S, MAX_FLEXURE_TAU_S)?;
+            within(
+                "flexure.tau_s",
+                fl.tau_s,
+                MIN_FLEXURE_TAU_S,
+                MAX_FLEXURE_TAU_S,
+            )?;
             if fl.tau_s < T::lit(MIN_TAU_STEPS) * self.dt_s {
                 return Err(out_of_range("flexure.tau_s"));
             }
@@ -249,8 +254,8 @@ impl<T: Real> TaConfig<T> {
         let r_rate = self.rate_noise_sigma_rad_s * self.rate_noise_sigma_rad_s;
         let r_accel = self.accel_noise_sigma_m_s2 * self.accel_noise_sigma_m_s2;
         let dt_us = self.dt_us()?;
-        let tol_us =
-            seconds_to_micros(self.time_tolerance_s).ok_or_else(|| out_of_range("time_tolerance_s"))?;
+        let tol_us = seconds_to_micros(self.time_tolerance_s)
+            .ok_or_else(|| out_of_range("time_tolerance_s"))?;
         Ok((r_rate, r_accel, dt_us, tol_us))
     }
 }
@@ -530,6 +535,15 @@ fn condition<T: Real, const N: usize>(p: &mut SMatrix<T, N, N>, ceiling: &SVecto
             }
         }
     }
+}
+
+/// `|v| ≤ lim`, false for NaN.
+#[inline(always)]
+fn within_limit<T: Real>(v: T, lim: T) -> bool {
+    matches!(
+        v.abs().partial_cmp(&lim),
+        Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
+    )
 }
 
 /// `0` when every component is finite, NaN otherwise (`v·0` is ±0 for finite v and NaN for
@@ -874,8 +888,12 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
                 - x.get(K * a + 1).copied().unwrap_or_else(T::zero);
             let p0_mm = at(&ch.p0, 0, 0);
             let var_f = at(&ch.p0, 1, 1);
-            let caa = c.get((a, a)).copied().unwrap_or_else(T::zero).max(T::zero());
-            let reset = reset_mount && !(theta_m.abs() <= lim);
+            let caa = c
+                .get((a, a))
+                .copied()
+                .unwrap_or_else(T::zero)
+                .max(T::zero());
+            let reset = reset_mount && !within_limit(theta_m, lim);
             let var = if reset {
                 // Decorrelate this axis: its estimate is thrown away.
                 for b in 0..3 {
@@ -1041,7 +1059,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         let lim = T::lit(MAX_MISALIGNMENT_RAD);
         let diverged = (0..3).any(|a| {
             let v = x.get(K * a).copied().unwrap_or_else(T::zero);
-            !(v.abs() <= lim)
+            !within_limit(v, lim)
         });
         if diverged || h.consecutive_all_skipped >= SKIPPED_EPOCHS_FOR_REINIT {
             HealthState::NeedsReinitialisation
@@ -1472,8 +1490,7 @@ mod tests {
         for a in 0..3 {
             phi.fixed_view_mut::<K, K>(K * a, K * a)
                 .copy_from(&f.phi[a]);
-            qd.fixed_view_mut::<K, K>(K * a, K * a)
-                .copy_from(&f.q_d[a]);
+            qd.fixed_view_mut::<K, K>(K * a, K * a).copy_from(&f.q_d[a]);
         }
         let mut pd = p0;
         propagate_dense(&mut pd, &phi, &qd);

@@ -97,7 +97,11 @@ fn config(c: &Case, rng: &mut SimRng) -> TaConfig<f32> {
         dt_s: dt as f32,
         time_tolerance_s: (0.1 * dt) as f32,
         max_gap_steps: 3,
-        nis_gate: if rng.random_bool(0.5) { Some(25.0) } else { None },
+        nis_gate: if rng.random_bool(0.5) {
+            Some(25.0)
+        } else {
+            None
+        },
     }
 }
 
@@ -143,7 +147,12 @@ fn check_outputs<const K: usize, const N: usize>(
             .map(|(i, j)| f64::from(p[(i, j)]))
             .collect();
         let diag: Vec<String> = (0..N).map(|i| format!("{:.1e}", rows[i * N + i])).collect();
-        tally.covariance(&format!("P (diag {})", diag.join(" ")), &rows, N, f64::from(f32::EPSILON));
+        tally.covariance(
+            &format!("P (diag {})", diag.join(" ")),
+            &rows,
+            N,
+            f64::from(f32::EPSILON),
+        );
     }
 }
 
@@ -169,7 +178,8 @@ fn run_case<const K: usize, const N: usize>(c: &Case) -> Tally {
     let mut w = World {
         t_s: 0.0,
         theta_m: Vector3::new(0.004, -0.003, 0.002),
-        phase: Vector3::new(rng.random::<f64>(), rng.random(), rng.random()) * std::f64::consts::TAU,
+        phase: Vector3::new(rng.random::<f64>(), rng.random(), rng.random())
+            * std::f64::consts::TAU,
         omega: Vector3::zeros(),
         force: Vector3::new(0.0, 0.0, -9.81),
         next_manoeuvre_s: 1.0,
@@ -212,9 +222,8 @@ fn run_case<const K: usize, const N: usize>(c: &Case) -> Tally {
         let theta_f_dot = arg.map(f64::cos) * (sigma * om_f);
         let theta = w.theta_m + theta_f;
         let stamp = Timestamp::from_micros(now_us);
-        let noise3 = |rng: &mut SimRng, s: f64| {
-            Vector3::new(normal(rng, s), normal(rng, s), normal(rng, s))
-        };
+        let noise3 =
+            |rng: &mut SimRng, s: f64| Vector3::new(normal(rng, s), normal(rng, s), normal(rng, s));
         let master = MasterSample {
             time: stamp,
             angular_rate_rad_s: w.omega.map(|v| v as f32),

@@ -19,6 +19,7 @@ use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm};
 use nav_core::seeker_ins::filter::{LosResidual, SeekerIns, SeekerInsConfig};
 use nav_core::seeker_ins::measurement::{GimbalAngles, Landmark};
 use nav_core::seeker_ins::mechanization::{ImuIncrement, InsState, Position};
+use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::{
     AxisFlexure, ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig, TaDesign,
 };
@@ -26,7 +27,6 @@ use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
     ClassicalLoop, ImuSample, InitialState, InnovationGate, VelocitySample,
 };
-use nav_core::time::Timestamp;
 use nav_core::NavError;
 
 /// A recorded filter run.
