@@ -24,6 +24,12 @@ use nav_core::transfer_alignment::{
 };
 use rand::Rng;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// Totals over the campaign: updates skipped, flexure re-initialisations, covariance resets.
+static SKIPPED: AtomicU64 = AtomicU64::new(0);
+static REINITS: AtomicU64 = AtomicU64::new(0);
+static RESETS: AtomicU64 = AtomicU64::new(0);
 
 const SEED: u64 = 0x7a_2026;
 const PSD_EVERY: u64 = 100;
@@ -253,6 +259,13 @@ fn run_case<const K: usize, const N: usize>(c: &Case) -> Tally {
         check_outputs(&mut tally, &f, k % PSD_EVERY == 0);
     }
     check_outputs(&mut tally, &f, true);
+    let h = f.health();
+    SKIPPED.fetch_add(
+        h.skipped.iter().map(|v| u64::from(*v)).sum(),
+        Ordering::Relaxed,
+    );
+    REINITS.fetch_add(u64::from(h.flexure_reinitialisations), Ordering::Relaxed);
+    RESETS.fetch_add(u64::from(h.covariance_resets), Ordering::Relaxed);
     tally
 }
 
@@ -310,6 +323,9 @@ pub fn run(level: StressLevel) -> EstimatorStress {
             seed,
         });
     }
+    for c in [&SKIPPED, &REINITS, &RESETS] {
+        c.store(0, Ordering::Relaxed);
+    }
     let tallies: Vec<Tally> = cases.par_iter().map(run_one).collect();
     let mut out = EstimatorStress::default();
     for t in tallies {
@@ -328,6 +344,14 @@ pub fn run(level: StressLevel) -> EstimatorStress {
         "P checked every 100 calls and at the end (eps = f32::EPSILON); every report value, θ, \
          θ_m and σ checked finite"
             .into(),
+        format!(
+            "filters' own counts: {} updates skipped (not fusable in f32), {} flexure \
+             re-initialisations (gaps beyond max_gap_steps), {} covariance resets (gate \
+             starvation)",
+            SKIPPED.load(Ordering::Relaxed),
+            REINITS.load(Ordering::Relaxed),
+            RESETS.load(Ordering::Relaxed)
+        ),
     ];
     out
 }
