@@ -28,11 +28,11 @@ fn ta_inputs(seed: u64) -> Result<Vec<f32>> {
     let run = truth::simulate(&cfg, &mut rng)?;
     let mut v = Vec::new();
     for (m, s) in run.master.iter().zip(&run.slave).take(TA_STEPS) {
-        v.push(m.time_s as f32);
+        v.push(m.time.as_micros() as f32);
         v.extend(m.angular_rate_rad_s.iter().map(|x| *x as f32));
         v.extend(m.angular_accel_rad_s2.iter().map(|x| *x as f32));
         v.extend(m.specific_force_m_s2.iter().map(|x| *x as f32));
-        v.push(s.time_s as f32);
+        v.push(s.time.as_micros() as f32);
         v.extend(s.angular_rate_rad_s.iter().map(|x| *x as f32));
         v.extend(s.specific_force_m_s2.iter().map(|x| *x as f32));
     }

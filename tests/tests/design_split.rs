@@ -68,13 +68,13 @@ fn ta_samples<T: Real>(k: usize, rng: &mut Lcg) -> (MasterSample<T>, SlaveSample
     let v = |x: Vector3<f64>| x.map(T::lit);
     (
         MasterSample {
-            time_s: T::lit(t),
+            time: nav_core::time::Timestamp::from_micros(10_000 * (k as u64 + 1)),
             angular_rate_rad_s: v(w),
             angular_accel_rad_s2: v(wd),
             specific_force_m_s2: v(f),
         },
         SlaveSample {
-            time_s: T::lit(t),
+            time: nav_core::time::Timestamp::from_micros(10_000 * (k as u64 + 1)),
             angular_rate_rad_s: v(ws),
             specific_force_m_s2: v(fs),
         },

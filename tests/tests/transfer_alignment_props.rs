@@ -2,6 +2,7 @@
 //! damage, χ² gate counters and the covariance-reset recovery, soak, fault-transfer recovery.
 use nalgebra::{SMatrix, Vector3};
 use nav_core::math::kalman::{asymmetry, is_psd, FusionOutcome};
+use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::*;
 use nav_core::{NavError, Real};
 use proptest::prelude::*;
@@ -26,7 +27,6 @@ fn cfg<T: Real>(sig: [f64; 3], tau: [f64; 3], lever: [f64; 3], gate: Option<f64>
 
 /// Deterministic pseudo-random inputs: step k of a sequence with a manoeuvre amplitude.
 fn inputs<T: Real>(k: u64, seed: u64, amp: f64) -> (MasterSample<T>, SlaveSample<T>) {
-    let t = k as f64 * 0.01;
     let h = |i: u64| {
         let x = (seed
             .wrapping_mul(6364136223846793005)
@@ -42,13 +42,13 @@ fn inputs<T: Real>(k: u64, seed: u64, amp: f64) -> (MasterSample<T>, SlaveSample
     let theta = Vector3::new(0.004, -0.003, 0.002) + Vector3::new(h(7), h(8), h(9)) * 1e-3;
     let v = |x: Vector3<f64>| x.map(T::lit);
     let m = MasterSample {
-        time_s: T::lit(t),
+        time: Timestamp::from_micros(k * 10_000),
         angular_rate_rad_s: v(w),
         angular_accel_rad_s2: v(Vector3::new(h(10), h(11), h(12)) * amp * 5.0),
         specific_force_m_s2: v(f),
     };
     let s = SlaveSample {
-        time_s: T::lit(t),
+        time: Timestamp::from_micros(k * 10_000),
         angular_rate_rad_s: v(w - theta.cross(&w) + Vector3::new(h(13), h(14), h(15)) * 3e-4),
         specific_force_m_s2: v(f - theta.cross(&f) + Vector3::new(h(16), h(17), h(18)) * 5e-3),
     };
@@ -230,36 +230,23 @@ fn bad_inputs<T: Real, const K: usize, const N: usize>() {
                 NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
             ));
         }
-        // Time stamps: non-finite / huge.
-        let (mut mm, mut ss) = (m, s);
-        mm.time_s = x;
-        ss.time_s = x;
-        refused(&mut f, &mm, &ss);
-        let mut mm = m;
-        mm.time_s = x;
-        refused(&mut f, &mm, &s);
     }
-    // Repeating, backwards, half-step, too long a gap, master/slave out of sync.
+    // Repeating, backwards, master/slave out of sync (any later stamp is valid: jitter and
+    // gaps are taken as they come).
     let (m4, s4) = inputs::<T>(4, 3, 1.0);
     assert_eq!(refused(&mut f, &m4, &s4), NavError::TimeNotIncreasing);
     let (m0, s0) = inputs::<T>(0, 3, 1.0);
     assert_eq!(refused(&mut f, &m0, &s0), NavError::TimeNotIncreasing);
-    let (mut mh, mut sh) = (m, s);
-    mh.time_s = T::lit(0.045);
-    sh.time_s = T::lit(0.045);
-    assert_eq!(refused(&mut f, &mh, &sh), NavError::InvalidTimeStep);
-    let (m9, s9) = inputs::<T>(9, 3, 1.0);
-    assert_eq!(refused(&mut f, &m9, &s9), NavError::InvalidTimeStep);
     let mut ms = m;
-    ms.time_s = T::lit(0.03);
+    ms.time = Timestamp::from_micros(30_000);
     assert_eq!(
         refused(&mut f, &ms, &s),
         NavError::MeasurementTimeOutOfWindow
     );
     // Propagation: bad times are refused without damage too.
-    for t in [f64::NAN, 0.0, 0.04, 0.045, 1e9] {
+    for t in [0, 40_000] {
         let before = format!("{f:?}");
-        assert!(f.propagate(T::lit(t)).is_err());
+        assert!(f.propagate(Timestamp::from_micros(t)).is_err());
         assert_eq!(format!("{f:?}"), before);
     }
     // Master data older than the slave history can match.
@@ -350,7 +337,22 @@ fn bad_configs<T: Real, const K: usize, const N: usize>() {
     // Huge values that would overflow R or P.
     let mut c = ok;
     c.accel_noise_sigma_m_s2 = T::lit(1e30);
-    assert!(TransferAlignment::<T, K, N>::new(c).is_err() || T::lit(1e60).is_finite());
+    assert!(matches!(
+        TransferAlignment::<T, K, N>::new(c),
+        Err(NavError::InvalidConfig {
+            field: "accel_noise_sigma_m_s2",
+            ..
+        })
+    ));
+    let mut c = ok;
+    c.rate_noise_sigma_rad_s = T::lit(1e30);
+    assert!(matches!(
+        TransferAlignment::<T, K, N>::new(c),
+        Err(NavError::InvalidConfig {
+            field: "rate_noise_sigma_rad_s",
+            ..
+        })
+    ));
     let mut c = ok;
     c.max_gap_steps = 0;
     assert!(TransferAlignment::<T, K, N>::new(c).is_err());
@@ -458,8 +460,8 @@ fn soak_f32() {
     for k in 0..steps {
         let (m, s) = inputs::<f32>(k, 99, if (k / 1000) % 2 == 0 { 0.2 } else { 2.0 });
         if k % 997 < 3 && k > 10 {
-            a.propagate(s.time_s).unwrap();
-            b.propagate(s.time_s).unwrap();
+            a.propagate(s.time).unwrap();
+            b.propagate(s.time).unwrap();
         } else {
             a.step(&m, &s).unwrap();
             b.step(&m, &s).unwrap();

@@ -12,8 +12,8 @@
 //! master specific force before matching; the flexure terms cannot be (the proposed filter models
 //! the largest one, `L_0 × θ̈_f`).
 use super::model::FlexureModel;
-use crate::error::input_finite;
 use crate::math::kalman::SparseRow;
+use crate::time::Timestamp;
 use crate::{NavError, Real};
 use nalgebra::{SMatrix, SVector, Vector3};
 
@@ -21,8 +21,8 @@ use nalgebra::{SMatrix, SVector, Vector3};
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct MasterSample<T> {
-    /// Time stamp, s.
-    pub time_s: T,
+    /// Time stamp (the flight computer's clock, integer µs).
+    pub time: Timestamp,
     /// Master angular rate ω_m (inertial, master axes), rad/s.
     pub angular_rate_rad_s: Vector3<T>,
     /// Master angular acceleration ω̇_m (master axes), rad/s², for the lever-arm compensation.
@@ -35,8 +35,8 @@ pub struct MasterSample<T> {
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct SlaveSample<T> {
-    /// Time stamp, s.
-    pub time_s: T,
+    /// Time stamp (the flight computer's clock, integer µs).
+    pub time: Timestamp,
     /// Slave gyro output ω_s (slave axes), rad/s.
     pub angular_rate_rad_s: Vector3<T>,
     /// Slave accelerometer output f_s (slave axes), m/s².
@@ -46,7 +46,6 @@ pub struct SlaveSample<T> {
 impl<T: Real> MasterSample<T> {
     /// `NonFiniteInput` unless every field is finite.
     pub fn validate(&self) -> Result<(), NavError> {
-        input_finite("master.time_s", self.time_s)?;
         finite3("master.angular_rate_rad_s", &self.angular_rate_rad_s)?;
         finite3("master.angular_accel_rad_s2", &self.angular_accel_rad_s2)?;
         finite3("master.specific_force_m_s2", &self.specific_force_m_s2)
@@ -56,7 +55,6 @@ impl<T: Real> MasterSample<T> {
 impl<T: Real> SlaveSample<T> {
     /// `NonFiniteInput` unless every field is finite.
     pub fn validate(&self) -> Result<(), NavError> {
-        input_finite("slave.time_s", self.time_s)?;
         finite3("slave.angular_rate_rad_s", &self.angular_rate_rad_s)?;
         finite3("slave.specific_force_m_s2", &self.specific_force_m_s2)
     }
@@ -202,6 +200,52 @@ pub fn h_row_sparse<T: Real, const K: usize>(
     h
 }
 
+/// Row `row` of H in the filters' own parametrisation: per axis chain `[θ, θ_f, θ̇_f(, θ̈_f)]`
+/// with the *total* misalignment θ = θ_m + θ_f in place of θ_m (axis-major, `K` states per
+/// chain). Since z depends on θ_m and θ_f only through their sum, the θ_f column of [`h_row`]
+/// moves onto θ and the θ_f entries vanish:
+///
+/// ```text
+/// dω row i:  −[ω_m×]_i on θ,  −1 on θ̇_f,i                  (3 entries)
+/// df row i:  −[f_h×]_i on θ,  [L_0×]_i on θ̈_f (proposed)    (2 or 4 entries)
+/// ```
+///
+/// Inlined: with a constant `row` the pattern folds to constants in the caller.
+#[inline(always)]
+pub fn h_row_total<T: Real, const K: usize>(
+    model: FlexureModel,
+    row: usize,
+    omega_m: &Vector3<T>,
+    f_h: &Vector3<T>,
+    lever_arm_m: &Vector3<T>,
+) -> SparseRow<T, 4> {
+    let mut h = SparseRow::<T, 4>::new();
+    let (i, gyro) = if row < 3 {
+        (row, true)
+    } else {
+        (row - 3, false)
+    };
+    let s = if gyro {
+        skew_row(omega_m, i)
+    } else {
+        skew_row(f_h, i)
+    };
+    let lever = skew_row(lever_arm_m, i);
+    // At most 2 (axes a ≠ i) × 2 entries: `push` cannot fail.
+    for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
+        if a != i {
+            let _ = h.push(K * a, -v);
+        }
+        if gyro && a == i {
+            let _ = h.push(K * a + 2, -T::one());
+        }
+        if !gyro && model == FlexureModel::Proposed && a != i {
+            let _ = h.push(K * a + 3, l);
+        }
+    }
+    h
+}
+
 /// H (6×N) in the spec's state ordering.
 pub fn h_matrix<T: Real, const K: usize, const N: usize>(
     omega_m: &Vector3<T>,
@@ -247,7 +291,7 @@ impl<T: Real, const H: usize> SlaveHistory<T, H> {
     /// An empty history.
     pub fn new() -> Self {
         let z = SlaveSample {
-            time_s: T::zero(),
+            time: Timestamp::ZERO,
             angular_rate_rad_s: Vector3::zeros(),
             specific_force_m_s2: Vector3::zeros(),
         };
@@ -268,12 +312,12 @@ impl<T: Real, const H: usize> SlaveHistory<T, H> {
         self.len == 0
     }
 
-    /// Stores a slave sample. Errors (history unchanged): `NonFiniteInput`,
+    /// Stores a slave sample. Errors (history unchanged): `NonFiniteInput` (rates, forces),
     /// `TimeNotIncreasing` (time stamp not after the newest held), `CapacityExceeded` if H = 0.
     pub fn push(&mut self, slave: &SlaveSample<T>) -> Result<(), NavError> {
         slave.validate()?;
         if let Some(last) = self.newest() {
-            if slave.time_s <= last.time_s {
+            if slave.time <= last.time {
                 return Err(NavError::TimeNotIncreasing);
             }
         }
@@ -305,15 +349,20 @@ impl<T: Real, const H: usize> SlaveHistory<T, H> {
         self.back(self.len.wrapping_sub(1))
     }
 
-    /// The held slave sample whose time stamp is within `tolerance_s` of `time_s`.
-    /// Errors: `NonFiniteInput` (time), `MeasurementTimeOutOfWindow` when `time_s` is older than
-    /// the oldest sample held (master data too late for the history), newer than the newest, or
+    /// The held slave sample whose time stamp is within `tolerance_us` µs of `time` (the
+    /// newest such sample). Errors: `MeasurementTimeOutOfWindow` when `time` is older than the
+    /// oldest sample held (master data too late for the history), newer than the newest, or
     /// falls between two samples, or the history is empty.
-    pub fn find(&self, time_s: T, tolerance_s: T) -> Result<SlaveSample<T>, NavError> {
-        input_finite("master.time_s", time_s)?;
+    pub fn find(&self, time: Timestamp, tolerance_us: u64) -> Result<SlaveSample<T>, NavError> {
         (0..self.len)
             .filter_map(|i| self.back(i))
-            .find(|s| (s.time_s - time_s).abs() <= tolerance_s)
+            .find(|s| {
+                let d = s
+                    .time
+                    .micros_since(time)
+                    .or_else(|| time.micros_since(s.time));
+                d.is_some_and(|d| d <= tolerance_us)
+            })
             .copied()
             .ok_or(NavError::MeasurementTimeOutOfWindow)
     }
@@ -368,7 +417,7 @@ mod tests {
     #[test]
     fn lever_arm_compensation_is_rigid_body_kinematics() {
         let m = MasterSample {
-            time_s: 0.0_f64,
+            time: Timestamp::ZERO,
             angular_rate_rad_s: Vector3::new(0.0, 0.0, 0.5),
             angular_accel_rad_s2: Vector3::new(0.0, 0.0, 2.0),
             specific_force_m_s2: Vector3::new(0.0, 0.0, -9.8),

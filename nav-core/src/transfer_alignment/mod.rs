@@ -18,8 +18,13 @@ pub mod observability;
 
 pub use design::TaDesign;
 pub use filter::{
-    ConventionalFilter, ProposedFilter, RecoveryPolicy, StepReport, TaConfig, TaHealth,
-    TransferAlignment, MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_SPECIFIC_FORCE_M_S2,
+    ConventionalFilter, GapOutcome, Propagation, ProposedFilter, RecoveryPolicy, StepReport,
+    TaConfig, TaHealth, TransferAlignment, ACCEL_NOISE_SIGMA_RANGE_M_S2, DEGRADED_HOLD_EPOCHS,
+    MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_DT_S, MAX_FLEXURE_SIGMA_RAD,
+    MAX_FLEXURE_TAU_S, MAX_GAP_STEPS, MAX_LEVER_ARM_M, MAX_MISALIGNMENT_RAD, MAX_MOUNT_SIGMA_RAD,
+    MAX_SPECIFIC_FORCE_M_S2, MAX_VARIANCE_REDUCTION, MIN_DT_S, MIN_FLEXURE_SIGMA_RAD,
+    MIN_FLEXURE_TAU_S, MIN_TAU_STEPS, NIS_GATE_RANGE, PSD_LOADING_EPS,
+    RATE_NOISE_SIGMA_RANGE_RAD_S, SKIPPED_EPOCHS_FOR_REINIT,
 };
 pub use measurement::{MasterSample, SlaveHistory, SlaveSample};
 pub use model::{AxisFlexure, FlexureModel};

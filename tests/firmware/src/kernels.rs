@@ -198,7 +198,12 @@ fn k17_check_pred() -> bool {
 
 // ---------------------------------------------------------------- transfer alignment
 
-const TA_DT_S: f32 = 0.01;
+/// TA filter step, µs.
+const TA_DT_US: u64 = 10_000;
+
+fn ta_time(k: u32) -> nav_core::time::Timestamp {
+    nav_core::time::Timestamp::from_micros(u64::from(k) * TA_DT_US)
+}
 
 /// The same configuration the golden-vector replay uses.
 fn ta_config() -> TaConfig<f32> {
@@ -206,19 +211,19 @@ fn ta_config() -> TaConfig<f32> {
 }
 
 fn ta_samples(k: u32) -> (MasterSample<f32>, SlaveSample<f32>) {
-    let t = k as f32 * TA_DT_S;
+    let t = ta_time(k);
     let w = Vector3::new(0.001, -0.002, 0.0005);
     let f = Vector3::new(9.8, 0.05, -9.81);
     // Slave sees a small fixed misalignment (θ × f, θ × ω) plus flexure-like wobble.
     let theta = Vector3::new(0.004, -0.003, 0.002);
     let master = MasterSample {
-        time_s: t,
+        time: t,
         angular_rate_rad_s: w,
         angular_accel_rad_s2: Vector3::zeros(),
         specific_force_m_s2: f,
     };
     let slave = SlaveSample {
-        time_s: t,
+        time: t,
         angular_rate_rad_s: w - theta.cross(&w),
         specific_force_m_s2: f - theta.cross(&f),
     };
@@ -239,8 +244,8 @@ macro_rules! ta_kernel {
         /// Prediction only (a master-data dropout epoch).
         fn $prop() {
             with_state(&$cell, |s| {
-                let t = core::hint::black_box(s.k as f32 * TA_DT_S);
-                s.ok &= matches!(s.filter.propagate(t), Ok(1));
+                let t = core::hint::black_box(ta_time(s.k));
+                s.ok &= matches!(s.filter.propagate(t), Ok(p) if p.predictions == 1);
                 s.k += 1;
             });
         }

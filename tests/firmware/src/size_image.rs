@@ -58,13 +58,13 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
     let mut count = |r: Result<(), NavError>| refused += u32::from(r.is_err());
     for _ in 0..bb(0u32) {
         let master = MasterSample {
-            time_s: bb(0.0),
+            time: bb(nav_core::time::Timestamp::ZERO),
             angular_rate_rad_s: v(0.0),
             angular_accel_rad_s2: v(0.0),
             specific_force_m_s2: v(0.0),
         };
         let slave = SlaveSample {
-            time_s: bb(0.0),
+            time: bb(nav_core::time::Timestamp::ZERO),
             angular_rate_rad_s: v(0.0),
             specific_force_m_s2: v(0.0),
         };
@@ -77,10 +77,10 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
                 bb(r);
             }));
         } else {
-            count(ta9.propagate(bb(0.0)).map(|r| {
+            count(ta9.propagate(bb(nav_core::time::Timestamp::ZERO)).map(|r| {
                 bb(r);
             }));
-            count(ta12.propagate(bb(0.0)).map(|r| {
+            count(ta12.propagate(bb(nav_core::time::Timestamp::ZERO)).map(|r| {
                 bb(r);
             }));
         }

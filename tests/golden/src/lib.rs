@@ -297,16 +297,22 @@ fn val(r: &[f32], at: usize) -> f32 {
     r.get(at).copied().unwrap_or(f32::NAN)
 }
 
+/// A TA time stamp stored as whole µs in an f32 (exact below 2²⁴ µs = 16.7 s, the recorded
+/// cases are 3 s long); a value that is not a whole number of µs saturates or truncates.
+fn stamp(us: f32) -> Timestamp {
+    Timestamp::from_micros(us as u64)
+}
+
 fn ta_samples(r: &[f32]) -> (MasterSample<f32>, SlaveSample<f32>) {
     (
         MasterSample {
-            time_s: val(r, 0),
+            time: stamp(val(r, 0)),
             angular_rate_rad_s: v3(r, 1),
             angular_accel_rad_s2: v3(r, 4),
             specific_force_m_s2: v3(r, 7),
         },
         SlaveSample {
-            time_s: val(r, 10),
+            time: stamp(val(r, 10)),
             angular_rate_rad_s: v3(r, 11),
             specific_force_m_s2: v3(r, 14),
         },

@@ -72,19 +72,19 @@ pub fn run_filter<T: Real, const K: usize, const N: usize>(
         let s = &truth.slave[k];
         let v = |x: &Vector3<f64>| x.map(T::lit);
         let mt = MasterSample {
-            time_s: T::lit(m.time_s),
+            time: m.time,
             angular_rate_rad_s: v(&m.angular_rate_rad_s),
             angular_accel_rad_s2: v(&m.angular_accel_rad_s2),
             specific_force_m_s2: v(&m.specific_force_m_s2),
         };
         let st = SlaveSample {
-            time_s: T::lit(s.time_s),
+            time: s.time,
             angular_rate_rad_s: v(&s.angular_rate_rad_s),
             specific_force_m_s2: v(&s.specific_force_m_s2),
         };
         let rep = f
             .step(&mt, &st)
-            .map_err(|e| anyhow!("filter step at t = {} s: {e}", m.time_s))?;
+            .map_err(|e| anyhow!("filter step at t = {} s: {e}", m.time.as_secs_f64()))?;
         for (sum, u) in out.nis_sum.iter_mut().zip(rep.updates.iter()) {
             match u.outcome {
                 FusionOutcome::Fused => {

@@ -113,7 +113,7 @@ pub fn run_once(cfg: &FaultConfig, rng: &mut crate::rng::SimRng) -> Result<Fault
     for j in 0..n {
         let s = &truth.slave[j];
         hist.push(&SlaveSample {
-            time_s: s.time_s as f32,
+            time: s.time,
             angular_rate_rad_s: v(&s.angular_rate_rad_s),
             specific_force_m_s2: v(&s.specific_force_m_s2),
         })
@@ -122,16 +122,16 @@ pub fn run_once(cfg: &FaultConfig, rng: &mut crate::rng::SimRng) -> Result<Fault
             continue;
         };
         let m = &truth.master[k];
-        if in_dropout(cfg, m.time_s) {
-            if f.time_s().is_some() {
-                match f.propagate(m.time_s as f32) {
+        if in_dropout(cfg, m.time.as_secs_f64()) {
+            if f.time().is_some() {
+                match f.propagate(m.time) {
                     Ok(_) => out.propagations += 1,
                     Err(_) => out.errors += 1,
                 }
             }
         } else {
             let mt = MasterSample {
-                time_s: m.time_s as f32,
+                time: m.time,
                 angular_rate_rad_s: v(&m.angular_rate_rad_s),
                 angular_accel_rad_s2: v(&m.angular_accel_rad_s2),
                 specific_force_m_s2: v(&m.specific_force_m_s2),
@@ -148,7 +148,7 @@ pub fn run_once(cfg: &FaultConfig, rng: &mut crate::rng::SimRng) -> Result<Fault
                 Err(_) => out.errors += 1,
             }
         }
-        if f.time_s().is_some() {
+        if f.time().is_some() {
             let e = f.theta().map(f64::from) - truth.theta_rad[k];
             out.err_rad[j] = e.norm();
             out.sigma_rad[j] = f.theta_sigma_rad().map(f64::from).norm();

@@ -12,6 +12,7 @@ use nav_core::earth::{earth_rate_ned, normal_gravity_m_s2};
 use nav_core::math::discretize::{discretize, stationary_covariance};
 use nav_core::math::markov::{GaussMarkov, MarkovOrder};
 use nav_core::math::rotation::{exp_so3, skew};
+use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::{MasterSample, SlaveSample};
 
 /// Standard gravity used for "1 g", m/s².
@@ -212,8 +213,9 @@ pub fn simulate(cfg: &CaseConfig, rng: &mut SimRng) -> Result<TruthRun> {
         run.theta_rad.push(theta);
         run.theta_f_accel_rad_s2.push(th_f_dd);
         run.c_n_m.push(c_n_b);
+        let stamp = Timestamp::from_secs_f64(t).map_err(|e| anyhow!("time stamp: {e}"))?;
         run.master.push(MasterSample {
-            time_s: t,
+            time: stamp,
             angular_rate_rad_s: master_err.gyro(&w, rng),
             // The master's angular-acceleration estimate is taken as exact (it only enters the
             // rigid lever-arm compensation; ≈ 1e-9 rad/s² in the default profiles).
@@ -221,7 +223,7 @@ pub fn simulate(cfg: &CaseConfig, rng: &mut SimRng) -> Result<TruthRun> {
             specific_force_m_s2: master_err.accel(&f_m, rng),
         });
         run.slave.push(SlaveSample {
-            time_s: t,
+            time: stamp,
             angular_rate_rad_s: slave_err.gyro(&w_s, rng),
             specific_force_m_s2: slave_err.accel(&f_s, rng),
         });
