@@ -55,7 +55,13 @@ const SIG0: [f64; 17] = [
 ];
 
 fn p0<T: Real>() -> SMatrix<T, 17, 17> {
-    SMatrix::from_fn(|i, j| if i == j { T::lit(SIG0[i] * SIG0[i]) } else { T::zero() })
+    SMatrix::from_fn(|i, j| {
+        if i == j {
+            T::lit(SIG0[i] * SIG0[i])
+        } else {
+            T::zero()
+        }
+    })
 }
 
 fn initial<T: Real>() -> InsState<T> {
@@ -79,7 +85,11 @@ fn filter<T: Real>(landmark: Position) -> SeekerIns<T> {
 fn increment<T: Real>(up_m_s2: f64) -> ImuIncrement<T> {
     let dt = 0.01;
     ImuIncrement {
-        delta_theta_rad: Vector3::new(T::lit(1.0e-5 * dt), T::lit(4.4e-5 * dt), T::lit(-3.5e-5 * dt)),
+        delta_theta_rad: Vector3::new(
+            T::lit(1.0e-5 * dt),
+            T::lit(4.4e-5 * dt),
+            T::lit(-3.5e-5 * dt),
+        ),
         delta_v_m_s: Vector3::new(T::zero(), T::zero(), T::lit((-9.80 - up_m_s2) * dt)),
     }
 }
@@ -142,7 +152,10 @@ fn long_clipping<T: Real>() {
     }
     for i in 6..9 {
         let v = f.covariance()[(i, i)].to_f64();
-        assert!(v <= VARIANCE_CEILING[i] * (1.0 + 1e-5), "attitude variance {v}");
+        assert!(
+            v <= VARIANCE_CEILING[i] * (1.0 + 1e-5),
+            "attitude variance {v}"
+        );
     }
     assert!(f.health_counters().variance_limits > 0);
     assert_eq!(f.health(), HealthState::NeedsReinitialisation);
@@ -167,7 +180,11 @@ fn long_clipping<T: Real>() {
         assert!(f.counters().conditioned > 0);
     }
     // The updates bring the attitude back from its ceiling.
-    assert!(f.covariance()[(6, 6)].to_f64() < 1e-2, "{}", f.covariance()[(6, 6)]);
+    assert!(
+        f.covariance()[(6, 6)].to_f64() < 1e-2,
+        "{}",
+        f.covariance()[(6, 6)]
+    );
 }
 
 #[test]
@@ -204,19 +221,25 @@ fn setters<T: Real>() {
             clip_accel_sigma_m_s2: T::lit(v),
             ..d
         };
-        refused_unchanged(&mut f, "clip_accel_sigma_m_s2", |f| f.set_imu_fault_policy(pol));
+        refused_unchanged(&mut f, "clip_accel_sigma_m_s2", |f| {
+            f.set_imu_fault_policy(pol)
+        });
         let pol = ImuFaultPolicy {
             gap_accel_sigma_m_s2: T::lit(v),
             ..d
         };
-        refused_unchanged(&mut f, "gap_accel_sigma_m_s2", |f| f.set_imu_fault_policy(pol));
+        refused_unchanged(&mut f, "gap_accel_sigma_m_s2", |f| {
+            f.set_imu_fault_policy(pol)
+        });
     }
     for v in [51.0, 1e19, -1e-3] {
         let pol = ImuFaultPolicy {
             clip_rate_sigma_rad_s: T::lit(v),
             ..d
         };
-        refused_unchanged(&mut f, "clip_rate_sigma_rad_s", |f| f.set_imu_fault_policy(pol));
+        refused_unchanged(&mut f, "clip_rate_sigma_rad_s", |f| {
+            f.set_imu_fault_policy(pol)
+        });
     }
     // Joint condition: 30 rad/s over a 0.5 s gap would add 15 rad of attitude σ.
     let pol = ImuFaultPolicy {
@@ -224,7 +247,9 @@ fn setters<T: Real>() {
         max_gap_samples: 50,
         ..d
     };
-    refused_unchanged(&mut f, "gap_rate_sigma_rad_s", |f| f.set_imu_fault_policy(pol));
+    refused_unchanged(&mut f, "gap_rate_sigma_rad_s", |f| {
+        f.set_imu_fault_policy(pol)
+    });
     for n in [0u16, 101, 501, u16::MAX] {
         let pol = ImuFaultPolicy {
             max_gap_samples: n,
@@ -289,7 +314,12 @@ fn config_ranges<T: Real>() {
     assert!(SeekerIns::new(good, initial(), &p0()).is_ok());
     type Set<T> = fn(&mut SeekerInsConfig<T>, f64);
     let cases: [(&str, Set<T>, &[f64], &[f64]); 5] = [
-        ("imu_dt_s", |c, v| c.imu_dt_s = T::lit(v), &[0.2, 1.0, 5e-5], &[1e-4, 0.1]),
+        (
+            "imu_dt_s",
+            |c, v| c.imu_dt_s = T::lit(v),
+            &[0.2, 1.0, 5e-5],
+            &[1e-4, 0.1],
+        ),
         (
             "accel_noise_density_m_s2_rt_hz",
             |c, v| c.accel_noise_density_m_s2_rt_hz = T::lit(v),
@@ -308,7 +338,12 @@ fn config_ranges<T: Real>() {
             &[1e-7, 0.2, 10.0],
             &[1e-5, 0.1],
         ),
-        ("gate_nis", |c, v| c.gate_nis = T::lit(v), &[0.5, 2e4, 1e30], &[1.0, 1e4]),
+        (
+            "gate_nis",
+            |c, v| c.gate_nis = T::lit(v),
+            &[0.5, 2e4, 1e30],
+            &[1.0, 1e4],
+        ),
     ];
     for (field, set, bad, ok) in cases {
         for v in bad {
@@ -377,7 +412,11 @@ fn out_of_range_and_back<T: Real>() {
         }
         assert!(all_finite(&f), "sample {k}");
     }
-    assert!(f.state().position.alt_m > 1.0e6, "{}", f.state().position.alt_m);
+    assert!(
+        f.state().position.alt_m > 1.0e6,
+        "{}",
+        f.state().position.alt_m
+    );
     assert_eq!(f.health(), HealthState::NeedsReinitialisation);
     assert!(f.health_counters().out_of_range_samples > 0);
     // Refused re-initialisations change nothing.
@@ -406,7 +445,11 @@ fn out_of_range_and_back<T: Real>() {
     assert!(f.reinitialise(far, &p_nav).is_err());
     assert_eq!(format!("{f:?}"), before);
     // The way back.
-    let biases = (f.accel_bias_m_s2(), f.gyro_bias_rad_s(), f.gimbal_bias_rad());
+    let biases = (
+        f.accel_bias_m_s2(),
+        f.gyro_bias_rad_s(),
+        f.gimbal_bias_rad(),
+    );
     let p_bias = f.covariance().fixed_view::<8, 8>(9, 9).into_owned();
     p_nav[(0, 2)] = T::lit(1e-6 * 6e-6 * 40.0);
     p_nav[(2, 0)] = p_nav[(0, 2)];
@@ -414,11 +457,19 @@ fn out_of_range_and_back<T: Real>() {
     assert_eq!(f.health(), HealthState::Initialising);
     assert_eq!(
         biases,
-        (f.accel_bias_m_s2(), f.gyro_bias_rad_s(), f.gimbal_bias_rad())
+        (
+            f.accel_bias_m_s2(),
+            f.gyro_bias_rad_s(),
+            f.gimbal_bias_rad()
+        )
     );
     assert_eq!(f.covariance().fixed_view::<9, 9>(0, 0).into_owned(), p_nav);
     assert_eq!(f.covariance().fixed_view::<8, 8>(9, 9).into_owned(), p_bias);
-    assert!(f.covariance().fixed_view::<9, 8>(0, 9).iter().all(|v| *v == T::zero()));
+    assert!(f
+        .covariance()
+        .fixed_view::<9, 8>(0, 9)
+        .iter()
+        .all(|v| *v == T::zero()));
     assert_eq!(f.health_counters().reinitialisations, 1);
     for _ in 0..100 {
         f.propagate(&increment(0.0)).unwrap();

@@ -2,13 +2,13 @@
 //! damage, χ² gate counters and the recovery path, f32/f64 agreement and a soak run.
 
 use nalgebra::{SMatrix, Vector3};
+use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned};
 use nav_core::seeker_ins::{
     GimbalAngles, ImuIncrement, InsState, Landmark, LosResidual, LosSkipReason, Position,
     RecoveryPolicy, SeekerIns, SeekerInsConfig,
 };
-use nav_core::math::kalman::FusionOutcome;
 use nav_core::{NavError, Real};
 use proptest::prelude::*;
 
