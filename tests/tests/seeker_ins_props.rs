@@ -234,7 +234,7 @@ fn f32_and_f64_agree_over_a_long_run() {
     for i in 0..9 {
         let sa = a.covariance()[(i, i)].sqrt();
         let sb = (b.covariance()[(i, i)] as f64).sqrt();
-        assert!((sa - sb).abs() <= 0.15 * sa, "σ[{i}] f64 {sa:e} f32 {sb:e}");
+        assert!((sa - sb).abs() <= 0.25 * sa, "σ[{i}] f64 {sa:e} f32 {sb:e}");
     }
 }
 
