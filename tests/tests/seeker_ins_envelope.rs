@@ -150,12 +150,9 @@ fn long_clipping<T: Real>() {
             assert_eq!(p_defect(&f), None, "clipped sample {k}");
         }
     }
-    for i in 6..9 {
+    for (i, ceiling) in VARIANCE_CEILING.iter().enumerate().take(9).skip(6) {
         let v = f.covariance()[(i, i)].to_f64();
-        assert!(
-            v <= VARIANCE_CEILING[i] * (1.0 + 1e-5),
-            "attitude variance {v}"
-        );
+        assert!(v <= ceiling * (1.0 + 1e-5), "attitude variance {v}");
     }
     assert!(f.health_counters().variance_limits > 0);
     assert_eq!(f.health(), HealthState::NeedsReinitialisation);
@@ -313,7 +310,8 @@ fn config_ranges<T: Real>() {
     let good = config::<T>(offset(2000.0, 70_000.0, 0.0));
     assert!(SeekerIns::new(good, initial(), &p0()).is_ok());
     type Set<T> = fn(&mut SeekerInsConfig<T>, f64);
-    let cases: [(&str, Set<T>, &[f64], &[f64]); 5] = [
+    type Field<'a, T> = (&'a str, Set<T>, &'a [f64], &'a [f64]);
+    let cases: [Field<T>; 5] = [
         (
             "imu_dt_s",
             |c, v| c.imu_dt_s = T::lit(v),

@@ -928,7 +928,7 @@ impl<T: Real> SeekerIns<T> {
         let s = self.ins.state();
         let d = landmark_vector_ned(&s.position, &self.config.landmark);
         let range = d.norm();
-        if !(range >= T::lit(MIN_LANDMARK_RANGE_M)) {
+        if !range.is_finite() || range < T::lit(MIN_LANDMARK_RANGE_M) {
             let range = if range.is_finite() { range } else { T::zero() };
             return Ok(self.skip_all(range, LosSkipReason::LandmarkTooClose));
         }

@@ -216,7 +216,8 @@ pub fn los_model<T: Real>(
 ) -> Result<LosModel<T>, NavError> {
     validate_gimbal(gimbal, sigma_rad)?;
     let d = landmark_vector_ned(pos, lm);
-    if !(d.norm() >= T::lit(MIN_LANDMARK_RANGE_M)) {
+    let range = d.norm();
+    if !range.is_finite() || range < T::lit(MIN_LANDMARK_RANGE_M) {
         return Err(NavError::InputOutOfRange {
             input: "landmark range",
         });
