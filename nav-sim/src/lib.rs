@@ -13,6 +13,7 @@ pub mod montecarlo;
 pub mod output;
 pub mod plot;
 pub mod processes;
+pub mod replay;
 pub mod rng;
 pub mod scenario;
 pub mod scenarios;

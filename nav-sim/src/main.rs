@@ -44,6 +44,20 @@ enum Cmd {
         #[arg(long, default_value = "target/stress")]
         out: PathBuf,
     },
+    /// Replay a flight log (a PX4 .ulg file or a directory of CSV files in the documented
+    /// schema) through the vertical-channel loops; writes OUT/{summary.json, timeseries.csv,
+    /// replay.png}.
+    Replay {
+        /// The log: a `.ulg` file or a directory with imu.csv, baro.csv (gnss.csv,
+        /// estimate.csv optional).
+        log: PathBuf,
+        /// Replay configuration (TOML); defaults for every absent field.
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Output directory.
+        #[arg(long, default_value = "target/replay")]
+        out: PathBuf,
+    },
     /// Run a scenario (by name, or a path to a .toml file), or `all`.
     Run {
         /// Scenario name, path to a scenario file, or `all`.
@@ -89,6 +103,19 @@ fn main() -> Result<()> {
                     out.display()
                 );
             }
+            Ok(())
+        }
+        Cmd::Replay { log, config, out } => {
+            let cfg = match config {
+                Some(p) => nav_sim::replay::ReplayConfig::from_file(&p)?,
+                None => nav_sim::replay::ReplayConfig::default(),
+            };
+            let summary = nav_sim::replay::replay(&log, &cfg, &out)?;
+            println!("{}", serde_json::to_string_pretty(&summary["loops"])?);
+            println!(
+                "wrote {}/{{summary.json, timeseries.csv, replay.png}}",
+                out.display()
+            );
             Ok(())
         }
         Cmd::Stress { full, out } => {

@@ -2,11 +2,12 @@
 //! damage, χ² gate counters and the recovery path, f32/f64 agreement and a soak run.
 
 use nalgebra::{SMatrix, Vector3};
+use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned};
 use nav_core::seeker_ins::{
-    GimbalAngles, ImuIncrement, InsState, Landmark, LosResidual, Position, RecoveryPolicy,
-    SeekerIns, SeekerInsConfig,
+    GimbalAngles, ImuIncrement, InsState, Landmark, LosResidual, LosSkipReason, Position,
+    RecoveryPolicy, SeekerIns, SeekerInsConfig,
 };
 use nav_core::{NavError, Real};
 use proptest::prelude::*;
@@ -106,8 +107,9 @@ fn min_corr_eigen<T: Real>(p: &SMatrix<T, 17, 17>) -> f64 {
 }
 
 /// Health of P: symmetric, PSD in correlation form, finite, variances within physical bounds
-/// (navigation block below (10⁴ km)², 10⁴ m/s, π rad; bias and gimbal variances never above
-/// their initial values: they are random constants).
+/// (navigation block below (10⁴ km)², 10⁴ m/s, π rad; bias and gimbal variances random
+/// constants: never above their initial values but for the stabilising noise, 256 ε per fused
+/// update, < 25 % over these runs).
 fn check_health<T: Real>(f: &SeekerIns<T>, tol_eig: f64) -> Result<(), String> {
     let p = f.covariance();
     if p.iter().any(|v| !v.is_finite()) {
@@ -126,7 +128,7 @@ fn check_health<T: Real>(f: &SeekerIns<T>, tol_eig: f64) -> Result<(), String> {
         let ok = if i < 9 {
             (0.0..=bounds[i]).contains(&v)
         } else {
-            v >= 0.0 && v <= SIG0[i] * SIG0[i] * (1.0 + 1e-5)
+            v >= 0.0 && v <= SIG0[i] * SIG0[i] * 1.25
         };
         if !ok {
             return Err(format!("variance {i} out of bounds: {v:e}"));
@@ -225,13 +227,14 @@ fn f32_and_f64_agree_over_a_long_run() {
     let de = (pa.lon_rad - pb.lon_rad) * 6.39e6 * LAT0.cos();
     let dh = pa.alt_m - pb.alt_m;
     let dpos = (dn * dn + de * de + dh * dh).sqrt();
-    assert!(dpos < 5.0, "position difference {dpos} m");
+    // 15 m: the f32 filter carries the stabilising noise (256 ε per update), f64 in effect not.
+    assert!(dpos < 15.0, "position difference {dpos} m");
     let dv = (a.state().vel_ned_m_s - b.state().vel_ned_m_s.cast::<f64>()).norm();
-    assert!(dv < 0.05, "velocity difference {dv} m/s");
+    assert!(dv < 0.15, "velocity difference {dv} m/s");
     for i in 0..9 {
         let sa = a.covariance()[(i, i)].sqrt();
         let sb = (b.covariance()[(i, i)] as f64).sqrt();
-        assert!((sa - sb).abs() <= 0.01 * sa, "σ[{i}] f64 {sa:e} f32 {sb:e}");
+        assert!((sa - sb).abs() <= 0.25 * sa, "σ[{i}] f64 {sa:e} f32 {sb:e}");
     }
 }
 
@@ -305,7 +308,8 @@ fn bad_input_is_refused_without_damage<T: Real>() {
             f.set_recovery_policy(pol)
         });
     }
-    // A landmark at the vehicle position.
+    // A landmark at the vehicle position: valid input, geometrically meaningless: skipped
+    // with its reason, P and the state unchanged.
     let mut cfg = config::<T>(0.0, 0.0);
     cfg.landmark = Landmark::new(start_position()).unwrap();
     let mut g = filter::<T>(cfg);
@@ -313,7 +317,13 @@ fn bad_input_is_refused_without_damage<T: Real>() {
         pitch_rad: T::lit(-0.1),
         yaw_rad: T::zero(),
     };
-    assert_refused(&mut g, "landmark at the vehicle", |f| f.update_los(&any));
+    let (p_before, s_before) = (*g.covariance(), *g.state());
+    let r = g.update_los(&any).unwrap();
+    assert_eq!(r.skipped, Some(LosSkipReason::LandmarkTooClose));
+    assert_eq!(r.pitch.outcome, FusionOutcome::Skipped);
+    assert_eq!(r.yaw.outcome, FusionOutcome::Skipped);
+    assert_eq!((p_before, s_before), (*g.covariance(), *g.state()));
+    assert_eq!(g.counters().skipped, 2);
 }
 
 #[test]
@@ -456,8 +466,7 @@ fn soak_f32() {
     let mut rng = run_rng(7, 0);
     let mut uni = |a: f64| a * gauss(&mut rng).clamp(-1.0, 1.0);
     // The vehicle passes the landmark after ≈ 6 min; updates then fall outside the gimbal
-    // range and are skipped, or are refused (typed error, no damage): the soak also covers
-    // long free-INS stretches.
+    // range and are not made: the soak also covers long free-INS stretches.
     let mut f = filter::<f32>(config(2000.0, 70_000.0));
     let mut man = [0.0; 6];
     for k in 0..steps {
@@ -492,8 +501,22 @@ fn soak_f32() {
             let (a, b) = (uni(0.005), uni(0.005));
             let g = los_from_estimate(&f, a, b);
             if g.pitch_rad.abs() < 1.3 {
-                // Range errors (landmark passed, behind) are legal refusals here.
-                let _ = f.update_los(&g);
+                // Every input here is valid: no error is allowed (a landmark passed or behind
+                // is fused, rejected or skipped, never refused); the report is finite.
+                match f.update_los(&g) {
+                    Ok(r) => {
+                        for c in [r.pitch, r.yaw] {
+                            assert!(
+                                [c.innovation, c.innovation_variance, c.nis, c.test_ratio]
+                                    .iter()
+                                    .all(|v| v.is_finite()),
+                                "step {k}: {r:?}"
+                            );
+                        }
+                        assert!(r.range_m.is_finite());
+                    }
+                    Err(e) => panic!("step {k}: valid LOS refused: {e:?}"),
+                }
             }
         }
         if k % 5000 == 4999 {

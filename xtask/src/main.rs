@@ -8,6 +8,8 @@
 //! * `qemu`: record golden vectors on the host, replay them in the firmware on QEMU Cortex-M4F
 //!   and Cortex-M7, fail on any mismatch.
 //! * `bench`: instruction counts, stack and image sizes on QEMU → `target/bench/report.json`.
+//! * `replay [LOG [--config F] [--out DIR]]`: replay a flight log (ULog or CSV directory)
+//!   through the vertical loops; without arguments the shipped logs → `target/replay/<name>/`.
 //! * `stress [--short]`: the stress campaign of every estimator → `target/stress/report.json`.
 //! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
 //!   at the end.
@@ -34,6 +36,7 @@ fn main() -> ExitCode {
         "bench" => firmware::bench(),
         "qemu" => firmware::qemu(),
         "soak" => soak(),
+        "replay" => replay(rest),
         "stress" => stress(rest.iter().any(|a| a == "--short")),
         "-h" | "--help" | "help" => {
             usage();
@@ -57,6 +60,7 @@ fn usage() {
          \n  thumb                                               build nav-core for Cortex-M4F/M7\
          \n  ci                                                  fmt, clippy, thumb, tests, docs\
          \n  soak                                                full 10^6-step soak of every filter (f32)\
+         \n  replay [LOG [--config F] [--out DIR]]               replay flight logs (default: the shipped ones)\
          \n  stress [--short]                                    stress campaign -> target/stress/report.json\
          \n  qemu                                                firmware on QEMU: golden-vector replay\
          \n  bench                                               firmware on QEMU: instructions, stack, sizes"
@@ -230,6 +234,58 @@ fn soak() -> Result<(), String> {
             ])
             .env("NAV_SOAK_STEPS", "1000000"),
     )
+}
+
+/// Where the shipped flight logs live: `$NAV_DATA_DIR`, else `../shared/data` beside the
+/// repository.
+fn data_dir() -> PathBuf {
+    std::env::var_os("NAV_DATA_DIR")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| root().join("../shared/data"))
+}
+
+/// `cargo xtask replay [LOG [--config F] [--out DIR]]`: replays one log, or with no argument
+/// the shipped ones (the real PX4 CSV flight and the SITL ULog) into `target/replay/<name>/`.
+fn replay(rest: &[String]) -> Result<(), String> {
+    let cmd = |args: &[String]| {
+        let mut c = cargo();
+        c.args([
+            "run",
+            "--release",
+            "--quiet",
+            "-p",
+            "nav-sim",
+            "--",
+            "replay",
+        ]);
+        c.args(args);
+        c
+    };
+    if !rest.is_empty() {
+        return run("replay", &mut cmd(rest));
+    }
+    let data = data_dir();
+    for (name, log) in [
+        ("px4-sdlog2-csv", data.join("px4-sdlog2-csv")),
+        ("px4-sitl-hop", data.join("px4-sitl-hop/px4_sitl_hop.ulg")),
+    ] {
+        let args = vec![
+            log.display().to_string(),
+            "--config".into(),
+            root()
+                .join(format!("nav-sim/replay/{name}.toml"))
+                .display()
+                .to_string(),
+            "--out".into(),
+            root()
+                .join("target/replay")
+                .join(name)
+                .display()
+                .to_string(),
+        ];
+        run(&format!("replay {name}"), &mut cmd(&args))?;
+    }
+    Ok(())
 }
 
 /// `cargo xtask stress`: the stress campaign (`nav-sim stress`), full unless `--short`

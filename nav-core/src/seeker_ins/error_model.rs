@@ -123,7 +123,7 @@ impl<T: Real> SparseF<T> {
         let mut vel_h = vx * dwen_dh;
         let rho = k.w_ie * T::lit(2.0) + k.w_en;
         // Gravity gradient (module earth: g = g0(L)(1 − (c1 + c1' sin²L) h + c2 h²)).
-        let (dg_dlat, dg_dh) = gravity_gradient(k.sin_lat, k.cos_lat, T::lit(pos.alt_m));
+        let (dg_dlat, dg_dh) = gravity_gradient(k.sin_lat, k.cos_lat, k.alt_m);
         vel_lat.z += dg_dlat;
         vel_h.z += dg_dh;
         Self {
@@ -308,15 +308,18 @@ impl<T: Real> SparseF<T> {
 /// of P change; the result is exactly symmetric. `q_accel`, `q_gyro`: white-noise PSDs
 /// ((m/s²)²/Hz, (rad/s)²/Hz).
 ///
-/// Errors (P unchanged): `InvalidTimeStep`, `NonFiniteInput`,
-/// `CovarianceNotPositiveSemiDefinite` (a negative or non-finite variance would result).
+/// A variance of the navigation block that would round below zero is set to zero with its row
+/// and column (PSD kept); the count of such repairs is returned.
+///
+/// Errors (P unchanged): `InvalidTimeStep`, `NonFiniteInput` (a non-finite entry would
+/// result).
 pub fn propagate_covariance_sparse<T: Real>(
     p: &mut SMatrix<T, STATES, STATES>,
     f: &SparseF<T>,
     dt_s: T,
     q_accel: T,
     q_gyro: T,
-) -> Result<(), NavError> {
+) -> Result<u32, NavError> {
     if !dt_s.is_finite() || dt_s <= T::zero() {
         return Err(NavError::InvalidTimeStep);
     }
@@ -368,7 +371,7 @@ pub fn propagate_covariance_sparse<T: Real>(
             .unwrap_or(zero)
     };
     // Exactly symmetric: ½(C_rc + C_cr) + (gq_rc + gq_cr) + Q_c Δt on the diagonal.
-    let corner: [[T; 9]; 9] = core::array::from_fn(|c| {
+    let mut corner: [[T; 9]; 9] = core::array::from_fn(|c| {
         core::array::from_fn(|r| {
             let mut v = (at(r, c) + at(c, r)) * T::lit(0.5) + (gq(r, c) + gq(c, r));
             if r == c && r >= 3 {
@@ -388,12 +391,30 @@ pub fn propagate_covariance_sparse<T: Real>(
             input: "propagated covariance",
         });
     }
-    if corner
-        .iter()
-        .enumerate()
-        .any(|(i, col)| col.get(i).is_none_or(|d| *d < zero))
-    {
-        return Err(NavError::CovarianceNotPositiveSemiDefinite);
+    // A variance that rounds below zero (a state the filter knows to the precision limit):
+    // its row and column are set to zero, a congruence with a zero on the diagonal, so the
+    // result stays PSD. Counted for the caller's health report.
+    let mut repaired = 0u32;
+    for i in 0..9 {
+        if corner
+            .get(i)
+            .and_then(|col| col.get(i))
+            .is_some_and(|d| *d < zero)
+        {
+            repaired += 1;
+            for (c, col) in corner.iter_mut().enumerate() {
+                for (r, v) in col.iter_mut().enumerate() {
+                    if r == i || c == i {
+                        *v = zero;
+                    }
+                }
+            }
+            if let Some(row) = rows.get_mut(i) {
+                for v in row.iter_mut().skip(9) {
+                    *v = zero;
+                }
+            }
+        }
     }
     // Commit: P[0..9, 9..17] = (Φ P)[0..9, 9..17] (Φᵀ is the identity there), its transpose
     // P[9..17, 0..9], and the corner. Column by column over P's column-major storage.
@@ -414,7 +435,7 @@ pub fn propagate_covariance_sparse<T: Real>(
             }
         }
     }
-    Ok(())
+    Ok(repaired)
 }
 
 #[inline]

@@ -7,41 +7,126 @@
 //!   specific force of the interval).
 //! * [`SeekerIns::update_los`] (seeker rate): first propagates P over any pending interval,
 //!   then fuses the two LOS residual components ([`super::measurement`]) as sequential scalar
-//!   Joseph updates with a χ² gate, feeds the estimate back (position, velocity, attitude into
-//!   the INS; biases and gimbal errors into the compensations) and resets δx to zero.
+//!   updates in the simple form `P⁺ = P − k kᵀ/s` with a χ² gate, feeds the estimate back
+//!   (position, velocity, attitude into the INS; biases and gimbal errors into the
+//!   compensations) and resets δx to zero.
 //!
 //! Because δx is zero after every feedback, the prediction only propagates P.
 //! Every method that returns an error leaves the whole filter exactly as it was.
+//!
+//! # Numerical envelope (f32 and f64)
+//!
+//! P stays symmetric PSD by construction:
+//!
+//! * **Variance ceilings.** After every covariance propagation, IMU-fault inflation and
+//!   recovery inflation, a navigation-block variance above its physical ceiling
+//!   ([`VARIANCE_CEILING`], the bounds [`SeekerIns::new`] accepts for p0: (1 rad)² in latitude
+//!   and longitude, (10⁷ m)² in altitude, (10⁴ m/s)² in velocity, 10 rad² in attitude) is brought
+//!   back to it by scaling its row and column (`P ← D P D`, D diagonal: a congruence, so P stays
+//!   PSD and the correlations are kept), as PX4 EKF2 limits its variances.
+//! * **Conditioned LOS update.** A scalar update removes from P the fraction `hᵀPh/(hᵀPh + r)`
+//!   of the variance along h; when `hᵀPh/r` exceeds what the working precision can resolve
+//!   ([`max_information_ratio`], `10⁻³/ε`: 8 389 in f32), the component is fused with r raised
+//!   to `hᵀPh / ratio` (a less informative but consistent measurement; the next updates finish
+//!   the job). Counted in [`LosCounters::conditioned`].
+//! * **Skipped, never refused.** A valid LOS that still cannot be fused (non-positive
+//!   innovation variance, a variance that would turn negative, a non-finite correction) is
+//!   reported as [`FusionOutcome::Skipped`] with a [`LosSkipReason`]; P and the state are
+//!   unchanged. A propagated variance that rounds below zero is set to zero with its row and
+//!   column (counted in [`HealthCounters::covariance_repairs`]).
+//!
+//! # Health and the way back
+//!
+//! [`SeekerIns::health`] says how far the solution can be trusted ([`crate::HealthState`]),
+//! [`SeekerIns::health_counters`] why. When the position leaves the model range (|L| ≥ 86°,
+//! |h| ≥ 1000 km; e.g. the unaided vertical channel diverging between rare landmark sightings)
+//! the INS keeps integrating with gravity, radii and rates at the nearest point of the range
+//! and the health is `NeedsReinitialisation`; so it is when a navigation variance sits at its
+//! ceiling. [`SeekerIns::reinitialise`] restarts position, velocity, attitude and their
+//! covariance and keeps the bias and gimbal-error estimates with their covariance.
+//!
+//! # Work per call (bounded)
+//!
+//! `propagate` / `propagate_clipped`: one INS step and at most one covariance propagation
+//! (Cortex-M4F, `cargo xtask bench`: `ins_mech_step` + `eskf17_predict`). `propagate_gap(n)`:
+//! n ≤ [`MAX_GAP_SAMPLES`] of those. `update_los`: at most one covariance propagation and one
+//! LOS update (`eskf17_los_update`). `reinitialise`, `predict_covariance` and the setters:
+//! O(17²) at most. No call loops on data.
 
 use super::error_model::{
     propagate_covariance_sparse, SparseF, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
 };
 #[cfg(feature = "los-residual-3d")]
 use super::measurement::los_model_3d;
-use super::measurement::{los_model, GimbalAngles, Landmark};
+use super::measurement::{
+    landmark_vector_ned, los_model_at, validate_gimbal, GimbalAngles, Landmark,
+    MIN_LANDMARK_RANGE_M,
+};
 use super::mechanization::{ImuIncrement, Ins, InsState};
 use crate::error::ConfigIssue;
 use crate::math::checks::opaque;
 #[cfg(feature = "los-residual-3d")]
 use crate::math::kalman::fuse_scalar;
 use crate::math::kalman::{FusionOutcome, FusionReport, Gate};
-use crate::{NavError, Real};
+use crate::{HealthState, NavError, Real};
 use nalgebra::{SMatrix, SVector, Vector2, Vector3};
 
-/// Filter configuration. σ are standard deviations, densities are √PSD.
+/// Physical ceilings of the error-state variances (units of the error state, see the module
+/// [`super`] doc): latitude and longitude (1 rad)², altitude (10⁷ m)², velocity (10⁴ m/s)²,
+/// attitude 10 rad² (≈ π², nothing known), accelerometer bias (100 m/s²)², gyro bias
+/// (1 rad/s)², gimbal errors 10 rad². [`SeekerIns::new`] refuses a p0 beyond them; the
+/// navigation block (states 0..9) is limited to them at run time (module doc).
+pub const VARIANCE_CEILING: [f64; STATES] = [
+    1.0, 1.0, 1e14, 1e8, 1e8, 1e8, 10.0, 10.0, 10.0, 1e4, 1e4, 1e4, 1.0, 1.0, 1.0, 10.0, 10.0,
+];
+
+/// Largest ratio `hᵀPh / r` a LOS component is fused with in the working precision:
+/// `10⁻³ / ε` (8 389 in f32, 4.5e12 in f64). Beyond it r is raised (module doc).
+pub fn max_information_ratio<T: Real>() -> T {
+    T::lit(1e-3) / T::EPS
+}
+
+/// Without a fused LOS component for this long the health is `Degraded` (aid lost), s.
+pub const AID_TIMEOUT_S: f64 = 10.0;
+
+/// Largest accepted [`ImuFaultPolicy::max_gap_samples`], IMU samples (bounds the work of one
+/// [`SeekerIns::propagate_gap`]).
+pub const MAX_GAP_SAMPLES: u16 = 500;
+/// Largest accepted gap duration `max_gap_samples × imu_dt_s`, s: beyond it a zero-order hold
+/// is no model of the motion.
+pub const MAX_GAP_S: f64 = 1.0;
+/// Largest accepted accelerometer σ of the IMU fault policy (gap and clipping), m/s² (≈ 100 g).
+pub const MAX_FAULT_ACCEL_SIGMA_M_S2: f64 = 1000.0;
+/// Largest accepted rate σ of the IMU fault policy (gap and clipping), rad/s.
+pub const MAX_FAULT_RATE_SIGMA_RAD_S: f64 = 50.0;
+/// Largest attitude σ one full gap may add, `gap_rate_sigma × max_gap_samples × imu_dt_s`, rad
+/// (the error model is a small-angle model).
+pub const MAX_GAP_ATTITUDE_SIGMA_RAD: f64 = 1.0;
+/// Largest velocity σ one full gap may add, `gap_accel_sigma × max_gap_samples × imu_dt_s`,
+/// m/s.
+pub const MAX_GAP_VELOCITY_SIGMA_M_S: f64 = 100.0;
+/// Largest accepted [`RecoveryPolicy::inflation_factor`] (variance factor; σ × 10).
+pub const MAX_INFLATION_FACTOR: f64 = 100.0;
+
+/// Filter configuration. σ are standard deviations, densities are √PSD. The ranges below are
+/// the envelope in which the filter is known to work (stress campaign, README); outside them
+/// [`SeekerIns::new`] returns `InvalidConfig` naming the field.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SeekerInsConfig<T> {
-    /// IMU sample interval, s.
+    /// IMU sample interval, s: [1e-4, 0.1] (10 kHz to 10 Hz).
     pub imu_dt_s: T,
-    /// Covariance propagation every this many IMU samples (≥ 1); e.g. 10 at 100 Hz → 10 Hz.
+    /// Covariance propagation every this many IMU samples, ≥ 1, with
+    /// `covariance_interval_steps × imu_dt_s ≤ 1 s` (the second-order transition matrix);
+    /// e.g. 10 at 100 Hz → 10 Hz.
     pub covariance_interval_steps: u16,
-    /// Accelerometer white noise density (velocity random walk), m/s²/√Hz.
+    /// Accelerometer white noise density (velocity random walk), m/s²/√Hz: [0, 0.1].
     pub accel_noise_density_m_s2_rt_hz: T,
-    /// Gyro white noise density (angle random walk), rad/s/√Hz = rad/√s.
+    /// Gyro white noise density (angle random walk), rad/s/√Hz = rad/√s: [0, 0.01].
     pub gyro_noise_density_rad_s_rt_hz: T,
-    /// Seeker gimbal-angle white noise, 1σ per angle, rad.
+    /// Seeker gimbal-angle white noise, 1σ per angle, rad: [1e-5, 0.1] (below 1e-5 rad the
+    /// f32 LOS residual, a difference of unit vectors, is no longer resolved).
     pub seeker_noise_rad: T,
-    /// χ² (1 degree of freedom) gate on each scalar component's NIS, e.g. 16 (4σ).
+    /// χ² (1 degree of freedom) gate on each scalar component's NIS, e.g. 16 (4σ): [1, 10⁴].
     pub gate_nis: T,
     /// The landmark the seeker tracks.
     pub landmark: Landmark<T>,
@@ -70,12 +155,32 @@ pub enum LosResidual {
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct LosReport<T> {
-    /// Pitch-direction component (innovation rad, variance rad², NIS, fused/rejected).
+    /// Pitch-direction component (innovation rad, variance rad², NIS, fused/rejected/skipped).
     pub pitch: FusionReport<T>,
     /// Yaw-direction component.
     pub yaw: FusionReport<T>,
     /// Range from the INS position to the landmark, m.
     pub range_m: T,
+    /// Why a component was skipped (`None` when none was).
+    pub skipped: Option<LosSkipReason>,
+}
+
+/// Why a valid LOS measurement was not fused ([`FusionOutcome::Skipped`]; nothing changed).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum LosSkipReason {
+    /// The INS position is closer to the landmark than
+    /// [`super::measurement::MIN_LANDMARK_RANGE_M`]: the LOS direction carries no usable
+    /// information (both components skipped).
+    LandmarkTooClose,
+    /// The working precision cannot fuse it: innovation variance not positive and finite, or
+    /// a variance that would turn negative or non-finite.
+    NumericalLimit,
+    /// The correction it implies is not finite (both components skipped).
+    CorrectionNotFinite,
+    /// The gimbal angles are valid but, corrected by the estimated gimbal errors, beyond the
+    /// ±80° pitch (or ±π yaw) the LOS model accepts (both components skipped).
+    GimbalBeyondLimit,
 }
 
 /// The seeker-aided INS: INS + error covariance + bias and gimbal-error compensations.
@@ -98,6 +203,40 @@ pub struct SeekerIns<T> {
     /// Consecutive IMU samples bridged by the hold / clipped (fully correlated inflation).
     held_run: u16,
     clipped_run: u16,
+    health: HealthCounters,
+    /// IMU samples since the last gap or clipped sample (saturating).
+    samples_since_imu_fault: u32,
+    /// How the last LOS update went (for the health state).
+    last_update: LastUpdate,
+}
+
+/// How the last LOS update went.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum LastUpdate {
+    /// None since construction or re-initialisation.
+    None,
+    /// Every component fused or rejected, none conditioned or skipped.
+    Clean,
+    /// A component was conditioned or skipped.
+    Degraded,
+}
+
+/// What the filter did to stay in its numerical envelope, and where its solution stands
+/// ([`SeekerIns::health`] derives the [`crate::HealthState`] from it and the state).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct HealthCounters {
+    /// IMU samples since a LOS component was last fused (saturating).
+    pub samples_since_fusion: u32,
+    /// Navigation variances brought back to their ceiling ([`VARIANCE_CEILING`]).
+    pub variance_limits: u32,
+    /// Propagated variances that rounded below zero and were zeroed with their row and
+    /// column.
+    pub covariance_repairs: u32,
+    /// IMU samples integrated with the position outside the model range.
+    pub out_of_range_samples: u32,
+    /// Calls of [`SeekerIns::reinitialise`].
+    pub reinitialisations: u32,
 }
 
 /// Counts of what the LOS updates did (each scalar component counts once).
@@ -112,6 +251,10 @@ pub struct LosCounters {
     pub consecutive_rejections: u32,
     /// Covariance re-inflations done by the recovery path ([`RecoveryPolicy`]).
     pub inflations: u32,
+    /// Components skipped ([`FusionOutcome::Skipped`], [`LosSkipReason`]).
+    pub skipped: u32,
+    /// Components fused with r raised to the precision limit ([`max_information_ratio`]).
+    pub conditioned: u32,
 }
 
 /// Recovery when the filter is starved of measurements by its own gate (the estimate drifted
@@ -121,7 +264,10 @@ pub struct LosCounters {
 /// symmetric PSD, correlations are kept), so that the gate opens again. Loss of lock (no
 /// update calls) needs no recovery: P grows by propagation. Default: 50 updates (5 s at
 /// 10 Hz; a 10 s false lock 2° off causes at most two inflations, σ × 4, still rejected),
-/// factor 4 (σ × 2).
+/// factor 4 (σ × 2). The inflated variances are limited to [`VARIANCE_CEILING`].
+///
+/// Valid ranges ([`SeekerIns::set_recovery_policy`]): `max_consecutive_rejections` any (0
+/// disables), `inflation_factor` in (1, [`MAX_INFLATION_FACTOR`]].
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RecoveryPolicy<T> {
@@ -153,7 +299,15 @@ impl<T: Real> Default for RecoveryPolicy<T> {
 /// adds `(2c − 1)(σ Δt)²` to the diagonal of the velocity (states 3..6) and attitude (6..9)
 /// blocks of P (the sum over `c = 1..n` is `(n σ Δt)²`); the position follows through Φ.
 /// Adding to the diagonal keeps P symmetric PSD. Isotropic in NED (the clipped body axis is
-/// not resolved: conservative by at most the two other axes).
+/// not resolved: conservative by at most the two other axes). The variances are limited to
+/// [`VARIANCE_CEILING`], so a clipping burst of any length keeps P bounded and PSD.
+///
+/// Valid ranges ([`SeekerIns::set_imu_fault_policy`]): `max_gap_samples` in
+/// [1, [`MAX_GAP_SAMPLES`]] with `max_gap_samples × imu_dt_s ≤` [`MAX_GAP_S`]; accelerometer σ
+/// in [0, [`MAX_FAULT_ACCEL_SIGMA_M_S2`]] m/s², rate σ in [0, [`MAX_FAULT_RATE_SIGMA_RAD_S`]]
+/// rad/s; over one full gap `gap_rate_sigma × max_gap_samples × imu_dt_s ≤`
+/// [`MAX_GAP_ATTITUDE_SIGMA_RAD`] and `gap_accel_sigma × max_gap_samples × imu_dt_s ≤`
+/// [`MAX_GAP_VELOCITY_SIGMA_M_S`].
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ImuFaultPolicy<T> {
@@ -222,6 +376,9 @@ impl<T: Real> PartialEq for SeekerIns<T> {
             && self.imu_counters == o.imu_counters
             && self.held_run == o.held_run
             && self.clipped_run == o.clipped_run
+            && self.health == o.health
+            && self.samples_since_imu_fault == o.samples_since_imu_fault
+            && self.last_update == o.last_update
     }
 }
 
@@ -229,50 +386,23 @@ impl<T: Real> SeekerIns<T> {
     /// Filter at the initial INS state with initial covariance `p0` (units of the error state,
     /// see the module [`super`] doc).
     ///
-    /// Errors: `InvalidConfig` (non-positive interval, σ or gate, negative or NaN densities;
-    /// zero `covariance_interval_steps`), `InvalidTimeStep` (interval not in (0, 1] s),
-    /// `NonFiniteInput`, `InputOutOfRange` (a variance of p0 beyond its physical bound),
-    /// `CovarianceNotPositiveSemiDefinite` (p0 not symmetric PSD).
+    /// Errors: `InvalidConfig` (a field outside its range, see [`SeekerInsConfig`]),
+    /// `NonFiniteInput`, `InputOutOfRange` (a variance of p0 beyond [`VARIANCE_CEILING`], an
+    /// initial position outside the model range), `CovarianceNotPositiveSemiDefinite` (p0 not
+    /// symmetric PSD).
     pub fn new(
         config: SeekerInsConfig<T>,
         initial: InsState<T>,
         p0: &SMatrix<T, STATES, STATES>,
     ) -> Result<Self, NavError> {
-        use crate::error::{require_non_negative, require_positive};
-        require_positive("imu_dt_s", config.imu_dt_s)?;
-        require_non_negative(
-            "accel_noise_density_m_s2_rt_hz",
-            config.accel_noise_density_m_s2_rt_hz,
-        )?;
-        require_non_negative(
-            "gyro_noise_density_rad_s_rt_hz",
-            config.gyro_noise_density_rad_s_rt_hz,
-        )?;
-        require_positive("seeker_noise_rad", config.seeker_noise_rad)?;
-        require_positive("gate_nis", config.gate_nis)?;
-        if cfg!(not(feature = "los-residual-3d")) && config.residual == LosResidual::FullRank3d {
-            return Err(NavError::InvalidConfig {
-                field: "residual",
-                issue: ConfigIssue::OutOfRange,
-            });
-        }
-        if config.covariance_interval_steps == 0 {
-            return Err(NavError::InvalidConfig {
-                field: "covariance_interval_steps",
-                issue: ConfigIssue::NotPositive,
-            });
-        }
+        validate_config(&config)?;
         if !crate::math::checks::all_finite(p0.as_slice()) {
             return Err(NavError::NonFiniteInput { input: "p0" });
         }
-        // Physical bounds on the initial variances (units of the error state): position
-        // (1 rad)², altitude (10⁷ m)², velocity (10⁴ m/s)², attitude 10 rad², accelerometer
-        // bias (100 m/s²)², gyro bias (1 rad/s)², gimbal errors 10 rad².
-        const MAX_VARIANCE: [f64; STATES] = [
-            1.0, 1.0, 1e14, 1e8, 1e8, 1e8, 10.0, 10.0, 10.0, 1e4, 1e4, 1e4, 1.0, 1.0, 1.0, 10.0,
-            10.0,
-        ];
-        let cols = p0.as_slice().chunks_exact(STATES).zip(MAX_VARIANCE.iter());
+        let cols = p0
+            .as_slice()
+            .chunks_exact(STATES)
+            .zip(VARIANCE_CEILING.iter());
         for (i, (col, m)) in cols.enumerate() {
             let i = opaque(i); // keeps the loop rolled (configuration time only)
             if col.get(i).is_some_and(|v| *v > T::lit(*m)) {
@@ -304,7 +434,115 @@ impl<T: Real> SeekerIns<T> {
             imu_counters: ImuFaultCounters::default(),
             held_run: 0,
             clipped_run: 0,
+            health: HealthCounters::default(),
+            samples_since_imu_fault: u32::MAX,
+            last_update: LastUpdate::None,
         })
+    }
+
+    /// Restarts the navigation solution: position, velocity and attitude from `state`, their
+    /// covariance (states 0..9, units of the error state) from `nav_covariance`. Kept: the
+    /// accelerometer, gyro and gimbal-error estimates with their covariance block (states
+    /// 9..17; their correlations with the old navigation errors are dropped, so P stays PSD),
+    /// the configuration, the policies and every counter. Cleared: the pending covariance
+    /// interval, the IMU-fault runs, the rejection run; the health restarts at
+    /// `Initialising` (until the next IMU sample). Counted in
+    /// [`HealthCounters::reinitialisations`].
+    ///
+    /// Errors (filter unchanged): `NonFiniteInput`, `InputOutOfRange` (position outside the
+    /// model range, a variance beyond [`VARIANCE_CEILING`]),
+    /// `CovarianceNotPositiveSemiDefinite` (`nav_covariance` not symmetric PSD).
+    pub fn reinitialise(
+        &mut self,
+        state: InsState<T>,
+        nav_covariance: &SMatrix<T, 9, 9>,
+    ) -> Result<(), NavError> {
+        if !crate::math::checks::all_finite(nav_covariance.as_slice()) {
+            return Err(NavError::NonFiniteInput {
+                input: "nav_covariance",
+            });
+        }
+        for (i, m) in VARIANCE_CEILING.iter().take(9).enumerate() {
+            if nav_covariance.get((i, i)).is_some_and(|v| *v > T::lit(*m)) {
+                return Err(NavError::InputOutOfRange {
+                    input: "nav_covariance",
+                });
+            }
+        }
+        if crate::math::kalman::asymmetry(nav_covariance) > T::zero()
+            || !crate::math::kalman::is_psd(nav_covariance, T::lit(1e-6))
+        {
+            return Err(NavError::CovarianceNotPositiveSemiDefinite);
+        }
+        let ins = Ins::new(state, self.config.imu_dt_s)?;
+        let zero = T::zero();
+        for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
+            for (i, v) in col.iter_mut().enumerate() {
+                if i < 9 && j < 9 {
+                    *v = nav_covariance.get((i, j)).copied().unwrap_or(zero);
+                } else if i < 9 || j < 9 {
+                    *v = zero;
+                }
+            }
+        }
+        self.ins = ins;
+        self.steps_pending = 0;
+        self.dv_ned_pending_m_s = Vector3::zeros();
+        self.held_run = 0;
+        self.clipped_run = 0;
+        self.counters.consecutive_rejections = 0;
+        self.health.samples_since_fusion = 0;
+        self.health.reinitialisations = self.health.reinitialisations.saturating_add(1);
+        self.samples_since_imu_fault = u32::MAX;
+        self.last_update = LastUpdate::None;
+        Ok(())
+    }
+
+    /// How far the solution can be trusted now:
+    ///
+    /// * `Initialising`: no IMU sample since construction or [`SeekerIns::reinitialise`];
+    /// * `NeedsReinitialisation`: the position is outside the model range (|L| ≥ 86°,
+    ///   |h| ≥ 1000 km), or a navigation variance is at its ceiling ([`VARIANCE_CEILING`]:
+    ///   the filter knows nothing there any more). The filter keeps running (and comes back by
+    ///   itself if LOS updates bring the state and P back), but its solution is not to be used
+    ///   until then or until [`SeekerIns::reinitialise`];
+    /// * `Degraded`: no LOS component fused for [`AID_TIMEOUT_S`], the gate rejecting every
+    ///   component of the last updates, the last update conditioned or skipped, or an IMU gap
+    ///   or clipped sample within the last [`AID_TIMEOUT_S`];
+    /// * `Nominal` otherwise.
+    pub fn health(&self) -> HealthState {
+        if self.ins.last_increment().is_none() {
+            return HealthState::Initialising;
+        }
+        let at_ceiling = VARIANCE_CEILING
+            .iter()
+            .take(9)
+            .enumerate()
+            .any(|(i, m)| self.p.get((i, i)).is_some_and(|v| *v >= T::lit(0.99 * m)));
+        if at_ceiling || !self.ins.state().position.is_in_range() {
+            return HealthState::NeedsReinitialisation;
+        }
+        let timeout = self.aid_timeout_samples();
+        if self.health.samples_since_fusion > timeout
+            || self.samples_since_imu_fault <= timeout
+            || self.counters.consecutive_rejections > 0
+            || self.last_update == LastUpdate::Degraded
+        {
+            return HealthState::Degraded;
+        }
+        HealthState::Nominal
+    }
+
+    /// [`AID_TIMEOUT_S`] in IMU samples.
+    fn aid_timeout_samples(&self) -> u32 {
+        (T::lit(AID_TIMEOUT_S) / self.config.imu_dt_s)
+            .to_u32_rounded()
+            .unwrap_or(u32::MAX)
+    }
+
+    /// What the filter did to stay in its envelope, and the samples since the last fusion.
+    pub fn health_counters(&self) -> HealthCounters {
+        self.health
     }
 
     /// Counters of fused / rejected LOS components and recovery inflations.
@@ -317,10 +555,16 @@ impl<T: Real> SeekerIns<T> {
         self.recovery
     }
 
-    /// Replaces the recovery policy. Errors (filter unchanged): `InvalidConfig` when the factor
-    /// is not finite and > 1.
+    /// Replaces the recovery policy. Errors (filter unchanged): `InvalidConfig
+    /// { field: "inflation_factor" }` unless the factor is in (1, [`MAX_INFLATION_FACTOR`]].
     pub fn set_recovery_policy(&mut self, policy: RecoveryPolicy<T>) -> Result<(), NavError> {
-        if !policy.inflation_factor.is_finite() || policy.inflation_factor <= T::one() {
+        in_range(
+            "inflation_factor",
+            policy.inflation_factor,
+            T::one(),
+            T::lit(MAX_INFLATION_FACTOR),
+        )?;
+        if policy.inflation_factor <= T::one() {
             return Err(NavError::InvalidConfig {
                 field: "inflation_factor",
                 issue: ConfigIssue::OutOfRange,
@@ -340,23 +584,41 @@ impl<T: Real> SeekerIns<T> {
         self.imu_counters
     }
 
-    /// Replaces the IMU fault policy. Errors (filter unchanged): `InvalidConfig` when
-    /// `max_gap_samples` is 0 or a σ is negative or not finite.
+    /// Replaces the IMU fault policy. Errors (filter unchanged): `InvalidConfig` naming the
+    /// field outside its range ([`ImuFaultPolicy`]; the joint gap conditions name
+    /// `max_gap_samples`, `gap_rate_sigma_rad_s` or `gap_accel_sigma_m_s2`).
     pub fn set_imu_fault_policy(&mut self, policy: ImuFaultPolicy<T>) -> Result<(), NavError> {
-        use crate::error::require_non_negative;
+        let out_of_range = |field| NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::OutOfRange,
+        };
         if policy.max_gap_samples == 0 {
             return Err(NavError::InvalidConfig {
                 field: "max_gap_samples",
                 issue: ConfigIssue::NotPositive,
             });
         }
-        for (field, v) in [
-            ("gap_accel_sigma_m_s2", policy.gap_accel_sigma_m_s2),
-            ("gap_rate_sigma_rad_s", policy.gap_rate_sigma_rad_s),
-            ("clip_accel_sigma_m_s2", policy.clip_accel_sigma_m_s2),
-            ("clip_rate_sigma_rad_s", policy.clip_rate_sigma_rad_s),
+        let gap_s = self.config.imu_dt_s * T::from_count(u32::from(policy.max_gap_samples));
+        if policy.max_gap_samples > MAX_GAP_SAMPLES || gap_s > T::lit(MAX_GAP_S) {
+            return Err(out_of_range("max_gap_samples"));
+        }
+        let (amax, wmax) = (
+            T::lit(MAX_FAULT_ACCEL_SIGMA_M_S2),
+            T::lit(MAX_FAULT_RATE_SIGMA_RAD_S),
+        );
+        for (field, v, max) in [
+            ("gap_accel_sigma_m_s2", policy.gap_accel_sigma_m_s2, amax),
+            ("gap_rate_sigma_rad_s", policy.gap_rate_sigma_rad_s, wmax),
+            ("clip_accel_sigma_m_s2", policy.clip_accel_sigma_m_s2, amax),
+            ("clip_rate_sigma_rad_s", policy.clip_rate_sigma_rad_s, wmax),
         ] {
-            require_non_negative(field, v)?;
+            in_range(field, v, T::zero(), max)?;
+        }
+        if policy.gap_rate_sigma_rad_s * gap_s > T::lit(MAX_GAP_ATTITUDE_SIGMA_RAD) {
+            return Err(out_of_range("gap_rate_sigma_rad_s"));
+        }
+        if policy.gap_accel_sigma_m_s2 * gap_s > T::lit(MAX_GAP_VELOCITY_SIGMA_M_S) {
+            return Err(out_of_range("gap_accel_sigma_m_s2"));
         }
         self.imu_policy = policy;
         Ok(())
@@ -408,6 +670,7 @@ impl<T: Real> SeekerIns<T> {
         self.propagate_compensated(&compensated)?;
         self.held_run = 0;
         self.clipped_run = 0;
+        self.samples_since_imu_fault = self.samples_since_imu_fault.saturating_add(1);
         Ok(())
     }
 
@@ -449,6 +712,7 @@ impl<T: Real> SeekerIns<T> {
         };
         self.inflate_degraded(self.clipped_run, sa, sw);
         self.imu_counters.clipped_samples = self.imu_counters.clipped_samples.saturating_add(1);
+        self.samples_since_imu_fault = 0;
         Ok(())
     }
 
@@ -491,12 +755,14 @@ impl<T: Real> SeekerIns<T> {
             .imu_counters
             .held_samples
             .saturating_add(u32::from(missing_samples));
+        next.samples_since_imu_fault = 0;
         *self = next;
         Ok(())
     }
 
-    /// Adds `(2c − 1)(σ Δt)²` to the velocity and attitude variances ([`ImuFaultPolicy`]).
-    /// Not inlined: one copy serves the gap and the clipping paths.
+    /// Adds `(2c − 1)(σ Δt)²` to the velocity and attitude variances ([`ImuFaultPolicy`]),
+    /// then limits them to their ceilings. Not inlined: one copy serves the gap and the
+    /// clipping paths.
     #[inline(never)]
     fn inflate_degraded(&mut self, c: u16, accel_sigma: T, rate_sigma: T) {
         let dt = self.config.imu_dt_s;
@@ -512,6 +778,31 @@ impl<T: Real> SeekerIns<T> {
                 *v += qw;
             }
         }
+        self.limit_variances();
+    }
+
+    /// Brings every navigation variance above its ceiling back to it by scaling its row and
+    /// column (a congruence: P stays symmetric PSD, correlations are kept). Nine compares when
+    /// nothing is limited.
+    #[inline(never)]
+    fn limit_variances(&mut self) {
+        for (i, m) in VARIANCE_CEILING.iter().take(9).enumerate() {
+            let i = opaque(i);
+            let cap = T::lit(*m);
+            let Some(d) = self.p.get((i, i)).copied() else {
+                continue;
+            };
+            if d > cap {
+                let f = (cap / d).sqrt();
+                for v in self.p.column_mut(i).iter_mut() {
+                    *v *= f;
+                }
+                for v in self.p.row_mut(i).iter_mut() {
+                    *v *= f;
+                }
+                self.health.variance_limits = self.health.variance_limits.saturating_add(1);
+            }
+        }
     }
 
     /// INS step with a bias-compensated increment and the covariance step when due; atomic.
@@ -524,7 +815,7 @@ impl<T: Real> SeekerIns<T> {
         let dv_pending = self.dv_ned_pending_m_s + ins.specific_force_ned_m_s2() * dt;
         let steps = self.steps_pending.saturating_add(1);
         if steps >= self.config.covariance_interval_steps {
-            Self::covariance_step(
+            let repairs = Self::covariance_step(
                 &mut self.p,
                 &ins,
                 steps,
@@ -533,14 +824,26 @@ impl<T: Real> SeekerIns<T> {
                 self.q_accel,
                 self.q_gyro,
             )?;
+            self.after_covariance_step(repairs);
             self.steps_pending = 0;
             self.dv_ned_pending_m_s = Vector3::zeros();
         } else {
             self.steps_pending = steps;
             self.dv_ned_pending_m_s = dv_pending;
         }
+        let h = &mut self.health;
+        h.samples_since_fusion = h.samples_since_fusion.saturating_add(1);
+        if !ins.state().position.is_in_range() {
+            h.out_of_range_samples = h.out_of_range_samples.saturating_add(1);
+        }
         self.ins = ins;
         Ok(())
+    }
+
+    /// Counts the repairs of a covariance step and limits the variances.
+    fn after_covariance_step(&mut self, repairs: u32) {
+        self.health.covariance_repairs = self.health.covariance_repairs.saturating_add(repairs);
+        self.limit_variances();
     }
 
     /// Propagates P over the IMU samples accumulated since the last covariance step (no-op if
@@ -549,7 +852,7 @@ impl<T: Real> SeekerIns<T> {
         if self.steps_pending == 0 {
             return Ok(());
         }
-        Self::covariance_step(
+        let repairs = Self::covariance_step(
             &mut self.p,
             &self.ins,
             self.steps_pending,
@@ -558,6 +861,7 @@ impl<T: Real> SeekerIns<T> {
             self.q_accel,
             self.q_gyro,
         )?;
+        self.after_covariance_step(repairs);
         self.steps_pending = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
         Ok(())
@@ -575,7 +879,7 @@ impl<T: Real> SeekerIns<T> {
         config: &SeekerInsConfig<T>,
         q_accel: T,
         q_gyro: T,
-    ) -> Result<(), NavError> {
+    ) -> Result<u32, NavError> {
         let dt_total = config.imu_dt_s * T::lit(f64::from(steps));
         let f_ned = dv_ned_m_s / dt_total;
         let s = ins.state();
@@ -615,25 +919,31 @@ impl<T: Real> SeekerIns<T> {
     /// Not inlined: one copy serves the direct and the pending-prediction paths.
     #[inline(never)]
     fn update_los_now(&mut self, measured: &GimbalAngles<T>) -> Result<LosReport<T>, NavError> {
+        let sigma = self.config.seeker_noise_rad;
+        validate_gimbal(measured, sigma)?;
         let corrected = GimbalAngles {
             pitch_rad: measured.pitch_rad - self.gimbal_bias_rad.x,
             yaw_rad: measured.yaw_rad - self.gimbal_bias_rad.y,
         };
         let s = self.ins.state();
+        let d = landmark_vector_ned(&s.position, &self.config.landmark);
+        let range = d.norm();
+        if !range.is_finite() || range < T::lit(MIN_LANDMARK_RANGE_M) {
+            let range = if range.is_finite() { range } else { T::zero() };
+            return Ok(self.skip_all(range, LosSkipReason::LandmarkTooClose));
+        }
+        if validate_gimbal(&corrected, sigma).is_err() {
+            return Ok(self.skip_all(range, LosSkipReason::GimbalBeyondLimit));
+        }
         let gate = Gate::Nis(self.config.gate_nis);
         let c_b_n = self.ins.c_b_n();
         #[cfg(feature = "los-residual-3d")]
         if self.config.residual == LosResidual::FullRank3d {
             return self.update_los_3d(&corrected, &c_b_n, gate);
         }
-        let model = los_model(
-            &s.position,
-            &c_b_n,
-            &corrected,
-            &self.config.landmark,
-            self.config.seeker_noise_rad,
-        )?;
+        let model = los_model_at(&s.position, &d, &c_b_n, &corrected, sigma)?;
         let zero = T::zero();
+        let kappa = max_information_ratio::<T>();
         let p = &self.p;
         // k = P h over the 8 non-zero entries of h (columns 0..3, 6..9, 15..17 of P).
         let ph = |h: &SVector<T, STATES>| -> [T; STATES] { covariance_times_dense_row(p, h) };
@@ -641,12 +951,9 @@ impl<T: Real> SeekerIns<T> {
         // Component 1 (pitch direction).
         let h1 = &model.h_pitch;
         let k1 = ph(h1);
-        let (rep1, inv_s1) = scalar_report(
-            dot(&k1, h1),
-            model.variance_rad2.x,
-            model.residual_rad.x,
-            gate,
-        )?;
+        let hph1 = dot(&k1, h1);
+        let (r1, cond1) = conditioned_noise(hph1, model.variance_rad2.x, kappa);
+        let (rep1, inv_s1) = scalar_report(hph1, r1, model.residual_rad.x, gate);
         let fused1 = rep1.outcome == FusionOutcome::Fused;
         // Component 2 (yaw direction), against P after component 1: k₂ = P h₂ − k₁ (K₁·h₂).
         let h2 = &model.h_yaw;
@@ -667,7 +974,9 @@ impl<T: Real> SeekerIns<T> {
             }
         }
         let nu2 = model.residual_rad.y - dot_rolled(h2.as_slice(), &x);
-        let (rep2, inv_s2) = scalar_report(dot(&k2, h2), model.variance_rad2.y, nu2, gate)?;
+        let hph2 = dot(&k2, h2);
+        let (r2, cond2) = conditioned_noise(hph2, model.variance_rad2.y, kappa);
+        let (rep2, inv_s2) = scalar_report(hph2, r2, nu2, gate);
         let fused2 = rep2.outcome == FusionOutcome::Fused;
         let mut kk2 = [zero; STATES];
         if fused2 {
@@ -680,13 +989,17 @@ impl<T: Real> SeekerIns<T> {
                 *xi += *kk * rep2.innovation;
             }
         }
+        let skipped = (rep1.outcome == FusionOutcome::Skipped
+            || rep2.outcome == FusionOutcome::Skipped)
+            .then_some(LosSkipReason::NumericalLimit);
         let report = LosReport {
             pitch: rep1,
             yaw: rep2,
             range_m: model.range_m,
+            skipped,
         };
         if !(fused1 || fused2) {
-            self.note_rejection();
+            self.note_no_fusion(&[rep1.outcome, rep2.outcome]);
             return Ok(report);
         }
         // Check before anything changes: variances stay ≥ 0 and everything is finite.
@@ -698,13 +1011,15 @@ impl<T: Real> SeekerIns<T> {
             let i = opaque(i); // keeps the loop rolled
             let d = updated(i, i, col.get(i).copied().unwrap_or(zero));
             if !d.is_finite() || d < zero {
-                return Err(NavError::CovarianceNotPositiveSemiDefinite);
+                return Ok(self.skip_attempt(report, LosSkipReason::NumericalLimit));
             }
         }
         let xv = SVector::<T, STATES>::from(x);
         // Feedback first: it is atomic (the INS validates before it changes) and only P, which
         // cannot fail any more, follows.
-        self.feed_back_parts(&xv)?;
+        if self.feed_back_parts(&xv).is_err() {
+            return Ok(self.skip_attempt(report, LosSkipReason::CorrectionNotFinite));
+        }
         // P: upper triangle, mirrored (exactly symmetric).
         for j in 0..STATES {
             for i in 0..=j {
@@ -719,22 +1034,81 @@ impl<T: Real> SeekerIns<T> {
                 }
             }
         }
-        self.counters.fused = self
-            .counters
-            .fused
-            .saturating_add(u32::from(fused1) + u32::from(fused2));
-        self.counters.rejected = self
-            .counters
-            .rejected
-            .saturating_add(u32::from(!fused1) + u32::from(!fused2));
-        self.counters.consecutive_rejections = 0;
+        stabilise(&mut self.p);
+        let conditioned = (fused1 && cond1) || (fused2 && cond2);
+        self.note_fusion(
+            &[rep1.outcome, rep2.outcome],
+            u32::from(fused1 && cond1) + u32::from(fused2 && cond2),
+        );
+        if conditioned {
+            self.last_update = LastUpdate::Degraded;
+        }
         Ok(report)
     }
 
-    /// Both components rejected: count, and re-inflate P per [`RecoveryPolicy`].
-    fn note_rejection(&mut self) {
+    /// Counts a fusion: components by outcome, `conditioned` of them fused with raised r.
+    fn note_fusion(&mut self, outcomes: &[FusionOutcome], conditioned: u32) {
+        let count = |o: FusionOutcome| outcomes.iter().filter(|x| **x == o).count() as u32;
         let c = &mut self.counters;
-        c.rejected = c.rejected.saturating_add(2);
+        c.fused = c.fused.saturating_add(count(FusionOutcome::Fused));
+        c.rejected = c.rejected.saturating_add(count(FusionOutcome::Rejected));
+        c.skipped = c.skipped.saturating_add(count(FusionOutcome::Skipped));
+        c.conditioned = c.conditioned.saturating_add(conditioned);
+        c.consecutive_rejections = 0;
+        self.health.samples_since_fusion = 0;
+        self.last_update = if count(FusionOutcome::Skipped) > 0 {
+            LastUpdate::Degraded
+        } else {
+            LastUpdate::Clean
+        };
+    }
+
+    /// Every component skipped for `reason` before an attempt (nothing computed): counted,
+    /// nothing else changes.
+    fn skip_all(&mut self, range_m: T, reason: LosSkipReason) -> LosReport<T> {
+        let zero = T::zero();
+        let none = FusionReport {
+            innovation: zero,
+            innovation_variance: zero,
+            nis: zero,
+            test_ratio: zero,
+            outcome: FusionOutcome::Skipped,
+        };
+        let report = LosReport {
+            pitch: none,
+            yaw: none,
+            range_m,
+            skipped: Some(reason),
+        };
+        self.note_no_fusion(&[FusionOutcome::Skipped, FusionOutcome::Skipped]);
+        report
+    }
+
+    /// An attempted update that cannot be committed: its fused components become skipped.
+    fn skip_attempt(&mut self, mut report: LosReport<T>, reason: LosSkipReason) -> LosReport<T> {
+        for c in [&mut report.pitch, &mut report.yaw] {
+            if c.outcome == FusionOutcome::Fused {
+                c.outcome = FusionOutcome::Skipped;
+            }
+        }
+        report.skipped = Some(reason);
+        self.note_no_fusion(&[report.pitch.outcome, report.yaw.outcome]);
+        report
+    }
+
+    /// No component fused: count; when every component was rejected by the gate, count the
+    /// run and re-inflate P per [`RecoveryPolicy`].
+    fn note_no_fusion(&mut self, outcomes: &[FusionOutcome]) {
+        let count = |o: FusionOutcome| outcomes.iter().filter(|x| **x == o).count() as u32;
+        let skipped = count(FusionOutcome::Skipped);
+        let c = &mut self.counters;
+        c.rejected = c.rejected.saturating_add(count(FusionOutcome::Rejected));
+        c.skipped = c.skipped.saturating_add(skipped);
+        if skipped > 0 {
+            self.last_update = LastUpdate::Degraded;
+            return;
+        }
+        self.last_update = LastUpdate::Clean;
         c.consecutive_rejections = c.consecutive_rejections.saturating_add(1);
         let max = self.recovery.max_consecutive_rejections;
         if max > 0 && c.consecutive_rejections >= max {
@@ -753,11 +1127,13 @@ impl<T: Real> SeekerIns<T> {
             }
             c.consecutive_rejections = 0;
             c.inflations = c.inflations.saturating_add(1);
+            self.limit_variances();
         }
     }
 
     /// The comparison variant: three scalar updates with the shared `fuse_scalar` on a copy
-    /// (not inlined: its copy of the filter stays out of the 2-D path's stack frame).
+    /// (not inlined: its copy of the filter stays out of the 2-D path's stack frame). The same
+    /// conditioning of r; a component `fuse_scalar` cannot fuse is skipped.
     #[cfg(feature = "los-residual-3d")]
     #[inline(never)]
     fn update_los_3d(
@@ -777,36 +1153,51 @@ impl<T: Real> SeekerIns<T> {
         )?;
         let mut x = SVector::<T, STATES>::zeros();
         let r = model.variance_rad2;
-        let n = fuse_scalar(
-            &mut x,
-            &mut next.p,
-            &model.h_north,
-            model.residual.x,
-            r,
-            gate,
-        )?;
-        let nu_e = model.residual.y - model.h_east.dot(&x);
-        let e = fuse_scalar(&mut x, &mut next.p, &model.h_east, nu_e, r, gate)?;
-        let nu_d = model.residual.z - model.h_down.dot(&x);
-        let d = fuse_scalar(&mut x, &mut next.p, &model.h_down, nu_d, r, gate)?;
-        let fused = [n, e, d]
-            .iter()
-            .filter(|c| c.outcome == FusionOutcome::Fused)
-            .count() as u32;
-        if fused > 0 {
-            next.feed_back_parts(&x)?;
-            next.counters.fused = next.counters.fused.saturating_add(fused);
-            next.counters.rejected = next.counters.rejected.saturating_add(3 - fused);
-            next.counters.consecutive_rejections = 0;
-        } else {
-            next.note_rejection();
-        }
-        *self = next;
-        Ok(LosReport {
+        let kappa = max_information_ratio::<T>();
+        let mut conditioned = 0u32;
+        let mut fuse = |x: &mut SVector<T, STATES>,
+                        p: &mut SMatrix<T, STATES, STATES>,
+                        h: &SVector<T, STATES>,
+                        z: T|
+         -> FusionReport<T> {
+            let nu = z - h.dot(x);
+            let hph = (*p * h).dot(h);
+            let (r_eff, cond) = conditioned_noise(hph, r, kappa);
+            match fuse_scalar(x, p, h, nu, r_eff, gate) {
+                Ok(rep) => {
+                    if cond && rep.outcome == FusionOutcome::Fused {
+                        conditioned += 1;
+                    }
+                    rep
+                }
+                Err(_) => skipped_report(nu),
+            }
+        };
+        let n = fuse(&mut x, &mut next.p, &model.h_north, model.residual.x);
+        let e = fuse(&mut x, &mut next.p, &model.h_east, model.residual.y);
+        let d = fuse(&mut x, &mut next.p, &model.h_down, model.residual.z);
+        let outcomes = [n.outcome, e.outcome, d.outcome];
+        let any_skipped = outcomes.contains(&FusionOutcome::Skipped);
+        let report = LosReport {
             pitch: n,
             yaw: e,
             range_m: model.range_m,
-        })
+            skipped: any_skipped.then_some(LosSkipReason::NumericalLimit),
+        };
+        if outcomes.contains(&FusionOutcome::Fused) {
+            if next.feed_back_parts(&x).is_err() {
+                return Ok(self.skip_attempt(report, LosSkipReason::CorrectionNotFinite));
+            }
+            stabilise(&mut next.p);
+            next.note_fusion(&outcomes, conditioned);
+            if conditioned > 0 {
+                next.last_update = LastUpdate::Degraded;
+            }
+        } else {
+            next.note_no_fusion(&outcomes);
+        }
+        *self = next;
+        Ok(report)
     }
 
     /// Closed-loop feedback of δx and reset (δx = 0 afterwards; P is kept: the reset of an
@@ -827,6 +1218,90 @@ impl<T: Real> SeekerIns<T> {
         self.gimbal_bias_rad += x.fixed_rows::<2>(GIMBAL);
         Ok(())
     }
+}
+
+/// Relative variance added to every state after a fused LOS update, in units of ε of the
+/// working precision ([`stabilise`]).
+pub const STABILISING_EPS: f64 = 256.0;
+
+/// Stabilising noise `P ← P + δ diag(P)`, `δ = STABILISING_EPS · ε` (3.1e-5 in f32): the
+/// correlation matrix becomes `(C + δ I)/(1 + δ)`, so its smallest eigenvalue is at least
+/// `δ/(1 + δ)` — a margin above the rounding of the next propagation and update. Without it an
+/// f32 P that the updates have made singular to working precision (a combination of states
+/// known to the seeker's precision) turns indefinite, and the next precise LOS, fused into an
+/// indefinite prior, commits a P with a correlation eigenvalue of −0.27 (measured, seeker
+/// σ = 1e-5 rad).
+#[inline(never)]
+fn stabilise<T: Real, const N: usize>(p: &mut SMatrix<T, N, N>) {
+    let delta = T::lit(STABILISING_EPS) * T::EPS;
+    for i in 0..N {
+        if let Some(v) = p.get_mut((i, i)) {
+            *v += *v * delta;
+        }
+    }
+}
+
+/// Checks a configuration value: finite and in [lo, hi] (`InvalidConfig` naming `field`).
+#[inline(never)]
+fn in_range<T: Real>(field: &'static str, v: T, lo: T, hi: T) -> Result<(), NavError> {
+    if !v.is_finite() {
+        return Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::NotFinite,
+        });
+    }
+    if v < lo || v > hi {
+        return Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::OutOfRange,
+        });
+    }
+    Ok(())
+}
+
+/// The ranges of [`SeekerInsConfig`] (its field docs).
+fn validate_config<T: Real>(config: &SeekerInsConfig<T>) -> Result<(), NavError> {
+    use crate::error::{require_non_negative, require_positive};
+    let c = config;
+    require_positive("imu_dt_s", c.imu_dt_s)?;
+    in_range("imu_dt_s", c.imu_dt_s, T::lit(1e-4), T::lit(0.1))?;
+    let (a, g) = (
+        c.accel_noise_density_m_s2_rt_hz,
+        c.gyro_noise_density_rad_s_rt_hz,
+    );
+    require_non_negative("accel_noise_density_m_s2_rt_hz", a)?;
+    in_range("accel_noise_density_m_s2_rt_hz", a, T::zero(), T::lit(0.1))?;
+    require_non_negative("gyro_noise_density_rad_s_rt_hz", g)?;
+    in_range("gyro_noise_density_rad_s_rt_hz", g, T::zero(), T::lit(0.01))?;
+    require_positive("seeker_noise_rad", c.seeker_noise_rad)?;
+    in_range(
+        "seeker_noise_rad",
+        c.seeker_noise_rad,
+        T::lit(1e-5),
+        T::lit(0.1),
+    )?;
+    require_positive("gate_nis", c.gate_nis)?;
+    in_range("gate_nis", c.gate_nis, T::one(), T::lit(1e4))?;
+    if cfg!(not(feature = "los-residual-3d")) && c.residual == LosResidual::FullRank3d {
+        return Err(NavError::InvalidConfig {
+            field: "residual",
+            issue: ConfigIssue::OutOfRange,
+        });
+    }
+    if c.covariance_interval_steps == 0 {
+        return Err(NavError::InvalidConfig {
+            field: "covariance_interval_steps",
+            issue: ConfigIssue::NotPositive,
+        });
+    }
+    let interval_s = c.imu_dt_s * T::from_count(u32::from(c.covariance_interval_steps));
+    if interval_s > T::lit(1.0) {
+        return Err(NavError::InvalidConfig {
+            field: "covariance_interval_steps",
+            issue: ConfigIssue::OutOfRange,
+        });
+    }
+    Ok(())
 }
 
 /// `Σ aᵢ bᵢ` folded from zero in index order (the shorter length), one rolled copy for every
@@ -856,17 +1331,42 @@ fn covariance_times_dense_row<T: Real>(
     k
 }
 
+/// The noise variance a scalar component is fused with: `r`, or `hph / kappa` when the
+/// component would carry more information than the working precision resolves
+/// ([`max_information_ratio`]); `true` when raised.
+#[inline(always)]
+fn conditioned_noise<T: Real>(hph: T, r: T, kappa: T) -> (T, bool) {
+    let floor = hph / kappa;
+    if floor > r {
+        (floor, true)
+    } else {
+        (r, false)
+    }
+}
+
+/// The report of a component that could not be fused (non-finite numbers reported as 0).
+fn skipped_report<T: Real>(innovation: T) -> FusionReport<T> {
+    let zero = T::zero();
+    FusionReport {
+        innovation: if innovation.is_finite() {
+            innovation
+        } else {
+            zero
+        },
+        innovation_variance: zero,
+        nis: zero,
+        test_ratio: zero,
+        outcome: FusionOutcome::Skipped,
+    }
+}
+
 /// Innovation variance, NIS and χ² gate of one scalar component with `hᵀPh = hph`: the report
-/// and `1/s`. Errors: `InnovationVarianceNotPositive` (s not finite and > 0, or hᵀPh < 0).
-fn scalar_report<T: Real>(
-    hph: T,
-    r: T,
-    innovation: T,
-    gate: Gate<T>,
-) -> Result<(FusionReport<T>, T), NavError> {
+/// and `1/s`. A component whose s is not finite and > 0 (or hᵀPh < 0, or a non-finite
+/// innovation) is reported [`FusionOutcome::Skipped`] with `1/s = 0`.
+fn scalar_report<T: Real>(hph: T, r: T, innovation: T, gate: Gate<T>) -> (FusionReport<T>, T) {
     let s = hph + r;
     if !s.is_finite() || s <= T::zero() || hph < T::zero() || !innovation.is_finite() {
-        return Err(NavError::InnovationVarianceNotPositive);
+        return (skipped_report(innovation), T::zero());
     }
     let inv_s = T::one() / s;
     let nis = innovation * innovation * inv_s;
@@ -882,7 +1382,7 @@ fn scalar_report<T: Real>(
             (ratio, !within || threshold <= T::zero())
         }
     };
-    Ok((
+    (
         FusionReport {
             innovation,
             innovation_variance: s,
@@ -895,7 +1395,7 @@ fn scalar_report<T: Real>(
             },
         },
         inv_s,
-    ))
+    )
 }
 
 #[cfg(test)]

@@ -81,20 +81,26 @@ pub struct Landmark<T> {
     position: Position,
     /// (R_N + h) cos L of the landmark: distance from the earth's axis, m.
     axis_distance_m: T,
-    /// (R_N (1 − e²) + h) sin L of the landmark: ECEF z, m.
-    ecef_z_m: T,
+    /// sin L, cos L of the landmark.
+    sin_lat: T,
+    cos_lat: T,
+    /// Transverse radius R_N at the landmark, m.
+    rn_m: T,
+    /// √(1 − e² sin² L) at the landmark.
+    sqrt_d: T,
 }
+
+/// Shortest range to the landmark (from the INS position) at which [`super::SeekerIns`] fuses
+/// a LOS, m. Closer, the direction to the landmark is dominated by the position error (and
+/// meaningless at the landmark itself): the update is skipped
+/// ([`super::LosSkipReason::LandmarkTooClose`]).
+pub const MIN_LANDMARK_RANGE_M: f64 = 100.0;
 
 impl<T: Real> Landmark<T> {
     /// Landmark at a geodetic position. Errors: `InvalidConfig` for a non-finite or
     /// out-of-range position (|L| < 86°, |h| < 1000 km).
     pub fn new(position: Position) -> Result<Self, NavError> {
-        let ok = position.lat_rad.is_finite()
-            && position.lon_rad.is_finite()
-            && position.alt_m.is_finite()
-            && position.lat_rad.abs() < 1.5
-            && position.alt_m.abs() < 1.0e6;
-        if !ok {
+        if !position.is_in_range() {
             return Err(NavError::InvalidConfig {
                 field: "landmark position",
                 issue: crate::error::ConfigIssue::OutOfRange,
@@ -102,10 +108,14 @@ impl<T: Real> Landmark<T> {
         }
         let l = position.lat_rad;
         let rn: f64 = transverse_radius_m(l);
+        let (s, c) = (libm::sin(l), libm::cos(l));
         Ok(Self {
             position,
-            axis_distance_m: T::lit((rn + position.alt_m) * libm::cos(l)),
-            ecef_z_m: T::lit((rn * (1.0 - ECCENTRICITY_SQ) + position.alt_m) * libm::sin(l)),
+            axis_distance_m: T::lit((rn + position.alt_m) * c),
+            sin_lat: T::lit(s),
+            cos_lat: T::lit(c),
+            rn_m: T::lit(rn),
+            sqrt_d: T::lit(libm::sqrt(1.0 - ECCENTRICITY_SQ * s * s)),
         })
     }
 
@@ -117,28 +127,55 @@ impl<T: Real> Landmark<T> {
 
 /// Vector D from `pos` to the landmark resolved in the NED frame at `pos`, m (exact on the
 /// WGS-84 ellipsoid: ECEF difference, rotated into NED).
+///
+/// Precision independent of the absolute position: the latitude, longitude and altitude
+/// differences are formed in `f64` (where the positions are kept) and are small numbers in
+/// `T`; the ECEF difference is then written in terms of them without cancellation
+/// (`sin L₂ − sin L₁ = 2 cos L̄ sin(ΔL/2)`, `cos L₂ − cos L₁ = −2 sin L̄ sin(ΔL/2)`,
+/// `R_N₂ − R_N₁` from the difference of `1 − e² sin² L`, `cos Δl − 1 = −2 sin²(Δl/2)`), so the
+/// error is a few ε of |D| (in `f32`: micrometres at 100 m) instead of ε of the earth radius
+/// (0.5 m in `f32` when the two ECEF positions are formed and subtracted).
 pub fn landmark_vector_ned<T: Real>(pos: &Position, lm: &Landmark<T>) -> Vector3<T> {
-    let lat = T::lit(pos.lat_rad);
+    let one = T::one();
+    let half = T::lit(0.5);
+    let two = T::lit(2.0);
+    let e2 = T::lit(ECCENTRICITY_SQ);
+    let a = T::lit(crate::earth::SEMI_MAJOR_AXIS_M);
+    // Differences in f64, small numbers in T.
+    let d_lat = T::lit(lm.position.lat_rad - pos.lat_rad);
+    let d_lon = T::lit(wrap_pi(lm.position.lon_rad - pos.lon_rad));
+    let d_alt = T::lit(lm.position.alt_m - pos.alt_m);
+    let (lat, h) = super::mechanization::model_lat_alt::<T>(pos);
     let (sl, cl) = trig::sin_cos(lat);
-    let rn = T::lit(crate::earth::SEMI_MAJOR_AXIS_M)
-        / (T::one() - T::lit(ECCENTRICITY_SQ) * sl * sl).sqrt();
-    let h = T::lit(pos.alt_m);
-    // ECEF rotated about z by −l_vehicle: vehicle in the x-z plane.
-    let dlon = T::lit(wrap_pi(lm.position.lon_rad - pos.lon_rad));
-    let (sdl, cdl) = trig::sin_cos(dlon);
-    let dx = lm.axis_distance_m * cdl - (rn + h) * cl;
-    let dy = lm.axis_distance_m * sdl;
-    let dz = lm.ecef_z_m - (rn * T::lit(1.0 - ECCENTRICITY_SQ) + h) * sl;
+    let half_dlat = half * d_lat;
+    let (sm, cm) = trig::sin_cos(lat + half_dlat);
+    let sh = trig::sin(half_dlat);
+    // sin L_lm − sin L, cos L_lm − cos L.
+    let ds = two * cm * sh;
+    let dc = -two * sm * sh;
+    // R_N at the vehicle and R_N(lm) − R_N = R_N(lm) R_N (1/R_N − 1/R_N(lm)).
+    let sqrt_d = (one - e2 * sl * sl).sqrt();
+    let rn = a / sqrt_d;
+    let d_rn = lm.rn_m * rn * e2 * ds * (lm.sin_lat + sl) / (a * (sqrt_d + lm.sqrt_d));
+    // Differences of the axis distance (R_N + h) cos L and of ECEF z (R_N (1 − e²) + h) sin L.
+    let d_axis = (d_rn + d_alt) * lm.cos_lat + (rn + h) * dc;
+    let dz = ((one - e2) * d_rn + d_alt) * lm.sin_lat + (rn * (one - e2) + h) * ds;
+    // ECEF rotated about z by −l (vehicle in the x-z plane):
+    // dx = A_lm cos Δl − A = (A_lm − A) − 2 A_lm sin²(Δl/2), dy = A_lm sin Δl.
+    let (shl, chl) = trig::sin_cos(half * d_lon);
+    let dx = d_axis - two * lm.axis_distance_m * shl * shl;
+    let dy = two * lm.axis_distance_m * shl * chl;
     Vector3::new(-sl * dx + cl * dz, dy, -cl * dx - sl * dz)
 }
 
-/// Longitude difference wrapped into [−π, π] (one f64 compare in the common case).
+/// Longitude difference wrapped into [−π, π] (one f64 compare in the common case; any number
+/// of turns for a position that left the model range).
 fn wrap_pi(x: f64) -> f64 {
     use core::f64::consts::PI;
     if x > PI {
-        x - 2.0 * PI
+        x - 2.0 * PI * libm::floor((x + PI) / (2.0 * PI))
     } else if x < -PI {
-        x + 2.0 * PI
+        x + 2.0 * PI * libm::floor((PI - x) / (2.0 * PI))
     } else {
         x
     }
@@ -168,7 +205,8 @@ pub struct LosModel<T> {
 /// Builds the residual, H and R (module doc) at the INS position `pos`, attitude `c_b_n`
 /// and bias-corrected gimbal angles, for a seeker white noise `sigma_rad` (1σ per angle, rad).
 ///
-/// Errors: `NonFiniteInput`, `InputOutOfRange` (|θ_s| > 80°, |ψ_s| > π, range < 1 m, σ ≤ 0).
+/// Errors: `NonFiniteInput`, `InputOutOfRange` (|θ_s| > 80°, |ψ_s| > π, σ ≤ 0, range below
+/// [`MIN_LANDMARK_RANGE_M`]).
 pub fn los_model<T: Real>(
     pos: &Position,
     c_b_n: &Matrix3<T>,
@@ -176,6 +214,20 @@ pub fn los_model<T: Real>(
     lm: &Landmark<T>,
     sigma_rad: T,
 ) -> Result<LosModel<T>, NavError> {
+    validate_gimbal(gimbal, sigma_rad)?;
+    let d = landmark_vector_ned(pos, lm);
+    let range = d.norm();
+    if !range.is_finite() || range < T::lit(MIN_LANDMARK_RANGE_M) {
+        return Err(NavError::InputOutOfRange {
+            input: "landmark range",
+        });
+    }
+    los_model_at(pos, &d, c_b_n, gimbal, sigma_rad)
+}
+
+/// Checks a gimbal measurement and the seeker σ: `NonFiniteInput`, `InputOutOfRange`
+/// (|θ_s| > 80°, |ψ_s| > π, σ not finite and > 0).
+pub fn validate_gimbal<T: Real>(gimbal: &GimbalAngles<T>, sigma_rad: T) -> Result<(), NavError> {
     if !(gimbal.pitch_rad.is_finite() && gimbal.yaw_rad.is_finite()) {
         return Err(NavError::NonFiniteInput {
             input: "gimbal angles",
@@ -196,9 +248,22 @@ pub fn los_model<T: Real>(
             input: "seeker noise sigma",
         });
     }
-    let d = landmark_vector_ned(pos, lm);
+    Ok(())
+}
+
+/// [`los_model`] with the landmark vector `d` (NED, m, from [`landmark_vector_ned`]) already
+/// computed; any range > 0 is accepted (the caller applies its minimum range).
+pub fn los_model_at<T: Real>(
+    pos: &Position,
+    d: &Vector3<T>,
+    c_b_n: &Matrix3<T>,
+    gimbal: &GimbalAngles<T>,
+    sigma_rad: T,
+) -> Result<LosModel<T>, NavError> {
+    validate_gimbal(gimbal, sigma_rad)?;
+    let d = *d;
     let range = d.norm();
-    if !range.is_finite() || range < T::one() {
+    if !range.is_finite() || range <= T::zero() {
         return Err(NavError::InputOutOfRange {
             input: "landmark range",
         });

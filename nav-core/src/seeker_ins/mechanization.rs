@@ -49,14 +49,39 @@ pub struct Position {
     pub alt_m: f64,
 }
 
+/// Largest |latitude| of the model range, rad (86°: the NED mechanization is singular at the
+/// poles).
+pub const MAX_LAT_RAD: f64 = 1.5;
+/// Largest |altitude| of the model range, m (the normal gravity series and the radii hold well
+/// below 1000 km).
+pub const MAX_ALT_M: f64 = 1.0e6;
+
 impl Position {
-    fn is_valid(&self) -> bool {
+    /// `true` when finite and inside the model range (|L| < [`MAX_LAT_RAD`], |h| <
+    /// [`MAX_ALT_M`]). Outside it the INS keeps integrating with gravity, radii and rates
+    /// evaluated at the nearest point of the range (finite, but not a navigation solution).
+    pub fn is_in_range(&self) -> bool {
         self.lat_rad.is_finite()
             && self.lon_rad.is_finite()
             && self.alt_m.is_finite()
-            && self.lat_rad.abs() < 1.5 // 86°: the NED mechanization is singular at the poles
-            && self.alt_m.abs() < 1.0e6
+            && self.lat_rad.abs() < MAX_LAT_RAD
+            && self.alt_m.abs() < MAX_ALT_M
     }
+
+    fn is_finite(&self) -> bool {
+        self.lat_rad.is_finite() && self.lon_rad.is_finite() && self.alt_m.is_finite()
+    }
+}
+
+/// Latitude (rad) and altitude (m) in `T`, clamped into the model range: the point at which
+/// gravity, radii and rates are evaluated (the position itself when it is in range).
+pub(crate) fn model_lat_alt<T: Real>(pos: &Position) -> (T, T) {
+    let lat_max = T::lit(MAX_LAT_RAD);
+    let alt_max = T::lit(MAX_ALT_M);
+    (
+        T::lit(pos.lat_rad).max(-lat_max).min(lat_max),
+        T::lit(pos.alt_m).max(-alt_max).min(alt_max),
+    )
 }
 
 /// One IMU sample: angle and velocity increments over one IMU interval, body axes.
@@ -122,12 +147,13 @@ pub(crate) struct Kinematics<T> {
     pub(crate) w_ie: Vector3<T>,
     /// ω_en^n, rad/s.
     pub(crate) w_en: Vector3<T>,
+    /// Altitude at which gravity is evaluated (clamped into the model range), m.
+    pub(crate) alt_m: T,
 }
 
 impl<T: Real> Kinematics<T> {
     pub(crate) fn new(pos: &Position, v: &Vector3<T>) -> Self {
-        let lat = T::lit(pos.lat_rad);
-        let h = T::lit(pos.alt_m);
+        let (lat, h) = model_lat_alt::<T>(pos);
         let (sin_lat, cos_lat) = trig::sin_cos(lat);
         let e2 = T::lit(crate::earth::ECCENTRICITY_SQ);
         let d = T::one() - e2 * sin_lat * sin_lat;
@@ -151,6 +177,7 @@ impl<T: Real> Kinematics<T> {
             drn_dlat: rn * sc,
             w_ie: Vector3::new(w * cos_lat, T::zero(), -w * sin_lat),
             w_en: Vector3::new(v.y * inv_n, -v.x * inv_m, -v.y * tan_lat * inv_n),
+            alt_m: h,
         }
     }
 }
@@ -295,7 +322,7 @@ impl<T: Real> Ins<T> {
         let c = unit_dcm(&s.q_b_n);
         let dv_n0 = c * dv_b;
         let dv_n = dv_n0 - zeta.cross(&dv_n0) * half;
-        let g = normal_gravity_from_sin(k.sin_lat, T::lit(s.position.alt_m));
+        let g = normal_gravity_from_sin(k.sin_lat, k.alt_m);
         let coriolis = (k.w_ie * T::lit(2.0) + k.w_en).cross(&v);
         let mut dv_total = dv_n - coriolis * dt;
         dv_total.z += g * dt;
@@ -335,8 +362,10 @@ impl<T: Real> Ins<T> {
             vel_ned_m_s: v_new,
             q_b_n: Quaternion::from(q_hi),
         };
-        if !position.is_valid() || !v_new.iter().all(|x| x.is_finite()) {
-            return Err(NavError::InputOutOfRange {
+        // Outside the model range the step still runs (gravity, radii and rates at the
+        // nearest point of the range); only a non-finite result is refused.
+        if !position.is_finite() || !v_new.iter().all(|x| x.is_finite()) {
+            return Err(NavError::NonFiniteInput {
                 input: "navigation state after step",
             });
         }
@@ -354,8 +383,8 @@ impl<T: Real> Ins<T> {
     /// errors and removes the misalignment, `C_b^n ← (I − [φ×])⁻¹ Ĉ_b^n ≈ exp([φ×]) Ĉ_b^n`.
     ///
     /// `d_lat_rad`, `d_lon_rad` in rad, `d_alt_m` in m, `d_vel_m_s` in m/s, `phi_rad` in rad
-    /// (all estimate minus truth). Errors (state unchanged): `NonFiniteInput`,
-    /// `InputOutOfRange` if the corrected position is invalid.
+    /// (all estimate minus truth). Errors (state unchanged): `NonFiniteInput`. A corrected
+    /// position outside the model range is accepted (as [`Ins::step`] accepts it).
     pub fn correct(
         &mut self,
         d_lat_rad: f64,
@@ -374,7 +403,7 @@ impl<T: Real> Ins<T> {
             vel_ned_m_s: s.vel_ned_m_s - d_vel_m_s,
             q_b_n: quat_mul(&quat_from_rotation_vector(phi_rad), &s.q_b_n),
         };
-        self.state = validate_state(&corrected)?;
+        self.state = finite_state(&corrected)?;
         self.vel_lo = Vector3::zeros();
         self.q_lo = Vector4::zeros();
         Ok(())
@@ -426,13 +455,20 @@ fn kahan_add4<T: Real>(s: &Vector4<T>, c: &Vector4<T>, x: &Vector4<T>) -> (Vecto
     (t, c_new)
 }
 
+/// An initial state: finite, in the model range, unit-normalisable quaternion.
 fn validate_state<T: Real>(s: &InsState<T>) -> Result<InsState<T>, NavError> {
-    let p = &s.position;
-    if !(p.lat_rad.is_finite() && p.lon_rad.is_finite() && p.alt_m.is_finite()) {
-        return Err(NavError::NonFiniteInput { input: "position" });
-    }
-    if !p.is_valid() {
+    let st = finite_state(s)?;
+    if !st.position.is_in_range() {
         return Err(NavError::InputOutOfRange { input: "position" });
+    }
+    Ok(st)
+}
+
+/// A state reached by integration or correction: finite, quaternion normalised.
+fn finite_state<T: Real>(s: &InsState<T>) -> Result<InsState<T>, NavError> {
+    let p = &s.position;
+    if !p.is_finite() {
+        return Err(NavError::NonFiniteInput { input: "position" });
     }
     if !s.vel_ned_m_s.iter().all(|v| v.is_finite()) {
         return Err(NavError::NonFiniteInput {

@@ -32,8 +32,8 @@ pub mod mechanization;
 
 pub use error_model::STATES;
 pub use filter::{
-    ClipFlags, ImuFaultCounters, ImuFaultPolicy, LosCounters, LosReport, LosResidual,
-    RecoveryPolicy, SeekerIns, SeekerInsConfig,
+    ClipFlags, HealthCounters, ImuFaultCounters, ImuFaultPolicy, LosCounters, LosReport,
+    LosResidual, LosSkipReason, RecoveryPolicy, SeekerIns, SeekerInsConfig, VARIANCE_CEILING,
 };
 pub use measurement::{GimbalAngles, Landmark, LosModel};
 pub use mechanization::{ImuIncrement, Ins, InsState, Position};

@@ -504,7 +504,7 @@ fn seeker_setup() {
     let state = landmark().and_then(|lm| {
         let cfg = SeekerInsConfig {
             imu_dt_s: INS_DT_S,
-            covariance_interval_steps: 1000,
+            covariance_interval_steps: 100,
             accel_noise_density_m_s2_rt_hz: 5.0 * 9.80665e-6,
             gyro_noise_density_rad_s_rt_hz: 0.01 * core::f32::consts::PI / 180.0 / 60.0,
             seeker_noise_rad: 0.17 * core::f32::consts::PI / 180.0,

@@ -14,7 +14,7 @@ use nav_core::seeker_ins::measurement::GimbalAngles;
 use nav_core::seeker_ins::mechanization::ImuIncrement;
 use nav_core::transfer_alignment::{MasterSample, SlaveHistory, SlaveSample};
 use nav_core::vertical_channel::{BaroSample, ImuSample, VelocitySample};
-use nav_core::NavError;
+use nav_core::{HealthState, NavError};
 use nav_golden::DesignSource;
 
 pub fn run(designs: &dyn DesignSource) -> ! {
@@ -115,6 +115,10 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
             1 => sk.propagate_clipped(&inc, bb(ClipFlags::default())),
             _ => sk.propagate_gap(bb(1)),
         });
+        if bb(sk.health()) == HealthState::NeedsReinitialisation {
+            let p_nav = bb(p0.fixed_view::<9, 9>(0, 0).into_owned());
+            count(sk.reinitialise(bb(nav_golden::seeker_initial()), &p_nav));
+        }
         if bb(true) {
             count(sk.predict_covariance());
             count(
@@ -133,6 +137,7 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
             cl.altitude_m(),
             ai.vz_up_m_s(),
             sk.state().vel_ned_m_s,
+            sk.health_counters(),
         ));
     }
     bb(refused);
