@@ -1221,7 +1221,7 @@ impl<T: Real> SeekerIns<T> {
 }
 
 /// Relative variance added to every state after a fused LOS update, in units of ε of the
-/// working precision ([`stabilise`]).
+/// working precision (`stabilise`).
 pub const STABILISING_EPS: f64 = 256.0;
 
 /// Stabilising noise `P ← P + δ diag(P)`, `δ = STABILISING_EPS · ε` (3.1e-5 in f32): the

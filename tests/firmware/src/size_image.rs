@@ -116,7 +116,11 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
             _ => sk.propagate_gap(bb(1)),
         });
         if bb(sk.health()) == HealthState::NeedsReinitialisation {
-            let p_nav = bb(p0.fixed_view::<9, 9>(0, 0).into_owned());
+            // The navigation block of the initial covariance (element-wise: no view copy, whose
+            // bounds checks the optimiser cannot remove).
+            let p_nav = bb(nalgebra::SMatrix::<f32, 9, 9>::from_fn(|i, j| {
+                p0.get((i, j)).copied().unwrap_or(0.0)
+            }));
             count(sk.reinitialise(bb(nav_golden::seeker_initial()), &p_nav));
         }
         if bb(true) {
