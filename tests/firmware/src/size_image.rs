@@ -80,9 +80,12 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
             count(ta9.propagate(bb(nav_core::time::Timestamp::ZERO)).map(|r| {
                 bb(r);
             }));
-            count(ta12.propagate(bb(nav_core::time::Timestamp::ZERO)).map(|r| {
-                bb(r);
-            }));
+            count(
+                ta12.propagate(bb(nav_core::time::Timestamp::ZERO))
+                    .map(|r| {
+                        bb(r);
+                    }),
+            );
         }
         let imu = bb(ImuSample {
             time: bb(nav_core::time::Timestamp::ZERO),
