@@ -15,7 +15,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use nav_core::vertical_channel::{
     aided::{AidedConfig, AidedLoop},
     classical::{ClassicalConfig, ClassicalLoop},
-    AidTimeouts, BaroSample, ImuSample, InitialState, InnovationGate, VelocitySample,
+    AidTimeouts, BaroSample, ImuSample, InitialState, VelocitySample,
 };
 use nav_core::{NavError, Timestamp};
 use serde::Deserialize;
@@ -50,7 +50,7 @@ pub struct ReplayConfig {
     /// GNSS vertical-velocity interval, s (the aided design).
     pub velocity_period_s: f64,
     /// Innovation gate of both loops; absent: ungated.
-    pub gate: Option<GateReplay>,
+    pub gate: Option<crate::scenarios::vertical_channel_faults::GateConfig>,
 }
 
 /// Classical-loop settings.
@@ -77,26 +77,6 @@ pub struct AidedReplay {
     pub baro_lag_s: f64,
     /// GNSS vertical-velocity noise per sample, 1σ, m/s.
     pub velocity_noise_m_s: f64,
-}
-
-/// Innovation gate settings (see `nav_core::vertical_channel::InnovationGate`).
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct GateReplay {
-    /// χ² threshold (1 dof).
-    pub nis_threshold: f64,
-    /// Baro innovation σ of a tracking loop, m.
-    pub baro_sigma_m: f64,
-    /// Velocity innovation σ of a tracking loop, m/s.
-    pub velocity_sigma_m_s: f64,
-    /// Velocity uncertainty driving the re-inflation, m/s.
-    pub starved_velocity_sigma_m_s: f64,
-    /// Acceleration uncertainty driving the re-inflation, m/s².
-    pub starved_accel_sigma_m_s2: f64,
-    /// Recovery hold, s.
-    pub recovery_hold_s: f64,
-    /// Starved this long, the loop re-anchors to the aid, s.
-    pub starved_reset_after_s: f64,
 }
 
 impl Default for ReplayConfig {
@@ -452,15 +432,7 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
         tally: Default::default(),
     };
     if let Some(g) = &cfg.gate {
-        let gate = InnovationGate {
-            nis_threshold: g.nis_threshold,
-            baro_sigma_m: g.baro_sigma_m,
-            velocity_sigma_m_s: g.velocity_sigma_m_s,
-            starved_velocity_sigma_m_s: g.starved_velocity_sigma_m_s,
-            starved_accel_sigma_m_s2: g.starved_accel_sigma_m_s2,
-            recovery_hold_s: g.recovery_hold_s,
-            starved_reset_after_s: g.starved_reset_after_s,
-        };
+        let gate = g.to_gate();
         loops.classical.set_gate(Some(&gate)).map_err(e("gate"))?;
         loops.aided.set_gate(Some(&gate)).map_err(e("gate"))?;
     }

@@ -24,7 +24,7 @@ use nav_core::earth::normal_gravity_m_s2;
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidStatus, AidedLoop, BaroSample, ClassicalLoop, GateCounters, ImuSample, InitialState,
-    InnovationGate, VelocitySample,
+    VelocitySample,
 };
 use nav_core::Real;
 use serde::Deserialize;
@@ -74,6 +74,21 @@ pub struct GateConfig {
     pub recovery_hold_s: f64,
     /// Starvation limit: samples rejected without a break this long re-anchor the loop, s.
     pub starved_reset_after_s: f64,
+}
+
+impl GateConfig {
+    /// The nav-core gate these values describe.
+    pub fn to_gate(&self) -> nav_core::vertical_channel::InnovationGate {
+        nav_core::vertical_channel::InnovationGate {
+            nis_threshold: self.nis_threshold,
+            baro_sigma_m: self.baro_sigma_m,
+            velocity_sigma_m_s: self.velocity_sigma_m_s,
+            starved_velocity_sigma_m_s: self.starved_velocity_sigma_m_s,
+            starved_accel_sigma_m_s2: self.starved_accel_sigma_m_s2,
+            recovery_hold_s: self.recovery_hold_s,
+            starved_reset_after_s: self.starved_reset_after_s,
+        }
+    }
 }
 
 /// `fault-baro` configuration.
@@ -160,15 +175,7 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
         accel_bias_m_s2: T::zero(),
     };
     let g = &fc.gate;
-    let gate = InnovationGate {
-        nis_threshold: g.nis_threshold,
-        baro_sigma_m: g.baro_sigma_m,
-        velocity_sigma_m_s: g.velocity_sigma_m_s,
-        starved_velocity_sigma_m_s: g.starved_velocity_sigma_m_s,
-        starved_accel_sigma_m_s2: g.starved_accel_sigma_m_s2,
-        recovery_hold_s: g.recovery_hold_s,
-        starved_reset_after_s: g.starved_reset_after_s,
-    };
+    let gate = g.to_gate();
     let e = |e: nav_core::NavError| anyhow!("{e}");
     let mut classical = [
         ClassicalLoop::<T>::new(&ccfg, &init).map_err(e)?,
