@@ -1,4 +1,4 @@
-//! Cross-crate tests of the seeker-aided INS (issue 5): INS against generated truth, Schuler
+//! Cross-crate tests of the seeker-aided INS: INS against generated truth, Schuler
 //! period, filter robustness, and the paper's claims at reduced run counts.
 
 use nalgebra::{SMatrix, Vector3};

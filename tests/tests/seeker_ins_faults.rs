@@ -1,4 +1,4 @@
-//! Fault injection of the seeker-aided INS (issue 7): the `fault-seeker` and `fault-imu`
+//! Fault injection of the seeker-aided INS: the `fault-seeker` and `fault-imu`
 //! scenarios at a reduced run count recover, and the IMU-gap API refuses bad calls without
 //! damage and bridges a gap like the held samples would.
 

@@ -1,4 +1,4 @@
-//! Vertical channel (issue 4): the simulator's reproduction of the paper's claims at reduced
+//! Vertical channel: the simulator's reproduction of the paper's claims at reduced
 //! run counts, the summary keys fixed by the issue, and the loops through an aid dropout.
 
 use nav_sim::scenario::{default_scenario_dir, resolve, run_file, RunOptions};

@@ -1,4 +1,4 @@
-//! Vertical channel fault injection (issue 7): the `fault-baro` scenario at a reduced run
+//! Vertical channel fault injection: the `fault-baro` scenario at a reduced run
 //! count — the gate rejects the spike and the frozen baro, both loops re-acquire after the
 //! dropout and return within their pre-fault error bound — and the soak test (`NAV_SOAK_STEPS`).
 

@@ -1,4 +1,4 @@
-//! Vertical channel (issue 7): property tests of both loops in f32 and f64 — random valid
+//! Vertical channel: property tests of both loops in f32 and f64 — random valid
 //! configurations and long random input sequences with extreme but legal dynamics, f32/f64
 //! agreement, every bad input and configuration field refused with a typed error and the loop
 //! unchanged bit for bit, and a soak run (`NAV_SOAK_STEPS`).

@@ -230,7 +230,7 @@ const fn nav_golden_case_count() -> usize {
     9
 }
 
-/// Budgets of issue 6 (Cortex-M4F, f32, default thumbv7em codegen): instructions per step.
+/// Instruction budgets (Cortex-M4F, f32, default thumbv7em codegen): instructions per step.
 const BUDGET_INSNS: [(&str, u64); 7] = [
     ("eskf17_predict", 8_000),
     ("eskf17_los_update", 12_000),

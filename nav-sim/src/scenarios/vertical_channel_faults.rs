@@ -1,4 +1,4 @@
-//! Vertical channel fault injection (issue 7), kind `vc-fault-baro` (scenario `fault-baro`).
+//! Vertical channel fault injection, kind `vc-fault-baro` (scenario `fault-baro`).
 //!
 //! The base experiment (`base_scenario`, the vertical-channel truth and sensors) is flown with
 //! three baro faults in sequence: a spike (the baro reads `offset_m` too high for

@@ -1,4 +1,4 @@
-//! `seeker-fault`: fault injection for the seeker-aided INS (issue 7): seeker loss of lock,
+//! `seeker-fault`: fault injection for the seeker-aided INS: seeker loss of lock,
 //! false lock on a point off the landmark, accelerometer clipping in a vibration burst, IMU
 //! sample gaps. The scenario file names a base scenario (`seeker-straight`, `seeker-s-turn`)
 //! whose trajectory, sensors and filter it reuses, and adds the faults. Each run is flown twice

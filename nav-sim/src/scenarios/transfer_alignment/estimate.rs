@@ -11,7 +11,7 @@ use nav_core::transfer_alignment::{
 };
 use nav_core::Real;
 
-/// Late-cruise window of the summary (issue 3), s.
+/// Late-cruise window of the summary, s.
 pub const CRUISE_WINDOW_S: (f64, f64) = (0.5, 1.0);
 /// Start of the "after the acceleration" window (to the end), s.
 pub const AFTER_ACCEL_FROM_S: f64 = 3.0;

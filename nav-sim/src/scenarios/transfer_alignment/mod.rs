@@ -1,4 +1,4 @@
-//! Transfer-alignment scenarios (spec `transfer-alignment.md`, issue 3):
+//! Transfer-alignment scenarios (spec `transfer-alignment.md`):
 //!
 //! - `ta-case` (files `ta-case1..3`): Monte Carlo of the conventional 9-state and proposed
 //!   12-state filters on one flexure case; Figs. 2-6 of the paper.
@@ -414,7 +414,7 @@ pub struct ObservabilityConfig {
     pub rel_tol: f64,
 }
 
-/// Segment and SOM names of the observability tables (issue 3).
+/// Segment and SOM names of the observability tables.
 pub const SEGMENT_NAMES: [&str; 4] = ["cruise", "accel_x", "accel_y", "accel_xy"];
 /// SOM names: cruise followed by each accelerated segment.
 pub const SOM_NAMES: [&str; 3] = ["cruise+accel_x", "cruise+accel_y", "cruise+accel_xy"];
