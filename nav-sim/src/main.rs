@@ -43,6 +43,10 @@ enum Cmd {
         /// Output directory.
         #[arg(long, default_value = "target/stress")]
         out: PathBuf,
+        /// Run one estimator's campaign only: transfer_alignment, seeker_ins or
+        /// vertical_channel (the report then says the others did not run).
+        #[arg(long)]
+        only: Option<String>,
     },
     /// Replay a flight log (a PX4 .ulg file or a directory of CSV files in the documented
     /// schema) through the vertical-channel loops; writes OUT/{summary.json, timeseries.csv,
@@ -118,14 +122,14 @@ fn main() -> Result<()> {
             );
             Ok(())
         }
-        Cmd::Stress { full, out } => {
+        Cmd::Stress { full, out, only } => {
             use nav_sim::stress::{self, StressLevel};
             let level = if full {
                 StressLevel::Full
             } else {
                 StressLevel::Short
             };
-            let report = stress::run(level);
+            let report = stress::run_only(level, only.as_deref())?;
             std::fs::create_dir_all(&out)?;
             let path = out.join("report.json");
             std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")?;

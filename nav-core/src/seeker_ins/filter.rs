@@ -181,6 +181,10 @@ pub enum LosSkipReason {
     /// The gimbal angles are valid but, corrected by the estimated gimbal errors, beyond the
     /// ±80° pitch (or ±π yaw) the LOS model accepts (both components skipped).
     GimbalBeyondLimit,
+    /// The INS position is outside the range where the error model holds (health
+    /// `NeedsReinitialisation`): the linearisation is not to be trusted and the update would
+    /// corrupt the covariance (both components skipped until `reinitialise`).
+    PositionOutOfRange,
 }
 
 /// The seeker-aided INS: INS + error covariance + bias and gimbal-error compensations.
@@ -928,6 +932,10 @@ impl<T: Real> SeekerIns<T> {
         let s = self.ins.state();
         let d = landmark_vector_ned(&s.position, &self.config.landmark);
         let range = d.norm();
+        if !s.position.is_in_range() {
+            let range = if range.is_finite() { range } else { T::zero() };
+            return Ok(self.skip_all(range, LosSkipReason::PositionOutOfRange));
+        }
         if !range.is_finite() || range < T::lit(MIN_LANDMARK_RANGE_M) {
             let range = if range.is_finite() { range } else { T::zero() };
             return Ok(self.skip_all(range, LosSkipReason::LandmarkTooClose));

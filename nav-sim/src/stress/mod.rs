@@ -281,6 +281,35 @@ pub struct StressReport {
     pub clean: bool,
 }
 
+/// Runs one estimator's campaign (`Some(name)`) or all three; the others report 0 cases.
+pub fn run_only(level: StressLevel, only: Option<&str>) -> anyhow::Result<StressReport> {
+    let Some(name) = only else {
+        return Ok(run(level));
+    };
+    let t0 = std::time::Instant::now();
+    let mut report = StressReport {
+        level: match level {
+            StressLevel::Short => "short",
+            StressLevel::Full => "full",
+        },
+        elapsed_s: 0.0,
+        transfer_alignment: EstimatorStress::default(),
+        seeker_ins: EstimatorStress::default(),
+        vertical_channel: EstimatorStress::default(),
+        clean: false,
+    };
+    match name {
+        "transfer_alignment" => report.transfer_alignment = transfer_alignment::run(level),
+        "seeker_ins" => report.seeker_ins = seeker_ins::run(level),
+        "vertical_channel" => report.vertical_channel = vertical_channel::run(level),
+        other => anyhow::bail!(
+            "unknown estimator `{other}` (transfer_alignment, seeker_ins, vertical_channel)"
+        ),
+    }
+    report.elapsed_s = t0.elapsed().as_secs_f64();
+    Ok(report)
+}
+
 /// Runs the three campaigns (in parallel).
 pub fn run(level: StressLevel) -> StressReport {
     let t0 = std::time::Instant::now();
