@@ -159,47 +159,6 @@ pub fn h_row<T: Real, const N: usize>(
     h
 }
 
-/// Row `row` of H as a [`SparseRow`] in the filters' internal axis-major ordering (`K` states
-/// per axis chain): the same entries as [`h_row`] with `axis_index::<K>`, ascending, at most 6
-/// (two axes × θ_m, θ_f, plus −1 on θ̇_f or up to two L_0 terms on θ̈_f).
-///
-/// Inlined: with a constant `row` the pattern folds to constants in the caller.
-#[inline(always)]
-pub fn h_row_sparse<T: Real, const K: usize>(
-    model: FlexureModel,
-    row: usize,
-    omega_m: &Vector3<T>,
-    f_h: &Vector3<T>,
-    lever_arm_m: &Vector3<T>,
-) -> SparseRow<T, 6> {
-    let mut h = SparseRow::<T, 6>::new();
-    let (i, gyro) = if row < 3 {
-        (row, true)
-    } else {
-        (row - 3, false)
-    };
-    let s = if gyro {
-        skew_row(omega_m, i)
-    } else {
-        skew_row(f_h, i)
-    };
-    let lever = skew_row(lever_arm_m, i);
-    // At most 2 (axes a ≠ i) × 2 + 2 ≤ 6 entries: `push` cannot fail.
-    for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
-        if a != i {
-            let _ = h.push(K * a, -v);
-            let _ = h.push(K * a + 1, -v);
-        }
-        if gyro && a == i {
-            let _ = h.push(K * a + 2, -T::one());
-        }
-        if !gyro && model == FlexureModel::Proposed && a != i {
-            let _ = h.push(K * a + 3, l);
-        }
-    }
-    h
-}
-
 /// Row `row` of H in the filters' own parametrisation: per axis chain `[θ, θ_f, θ̇_f(, θ̈_f)]`
 /// with the *total* misalignment θ = θ_m + θ_f in place of θ_m (axis-major, `K` states per
 /// chain). Since z depends on θ_m and θ_f only through their sum, the θ_f column of [`h_row`]
@@ -397,20 +356,29 @@ mod tests {
         let h9 = h_matrix::<f64, 3, 9>(&w, &f, &l0).unwrap();
         assert_eq!(h9.fixed_view::<3, 3>(3, 0).into_owned(), -fx);
         assert!(h_matrix::<f64, 3, 12>(&w, &f, &l0).is_err());
-        // The sparse rows are the dense rows in axis-major order.
+        // The filters' rows are the dense rows in axis-major order with θ_m replaced by the
+        // total θ = θ_m + θ_f: z depends on both through their sum (equal columns), so the
+        // θ column keeps that value and the θ_f column vanishes.
         let l1 = Vector3::new(0.3, 5.0, -0.2);
+        fn expected<const K: usize, const N: usize>(mut d: SVector<f64, N>) -> SVector<f64, N> {
+            for a in 0..3 {
+                assert_eq!(d[K * a], d[K * a + 1], "θ_m and θ_f columns differ");
+                d[K * a + 1] = 0.0;
+            }
+            d
+        }
         for row in 0..6 {
             let d: SVector<f64, 12> = h_row(FlexureModel::Proposed, row, &w, &f, &l1, |d, a| {
                 super::super::model::axis_index::<4>(d, a)
             });
-            let sp = h_row_sparse::<f64, 4>(FlexureModel::Proposed, row, &w, &f, &l1);
-            assert_eq!(sp.to_dense::<12>(), d);
+            let sp = h_row_total::<f64, 4>(FlexureModel::Proposed, row, &w, &f, &l1);
+            assert_eq!(sp.to_dense::<12>(), expected::<4, 12>(d));
             let d9: SVector<f64, 9> =
                 h_row(FlexureModel::Conventional, row, &w, &f, &l1, |d, a| {
                     super::super::model::axis_index::<3>(d, a)
                 });
-            let sp9 = h_row_sparse::<f64, 3>(FlexureModel::Conventional, row, &w, &f, &l1);
-            assert_eq!(sp9.to_dense::<9>(), d9);
+            let sp9 = h_row_total::<f64, 3>(FlexureModel::Conventional, row, &w, &f, &l1);
+            assert_eq!(sp9.to_dense::<9>(), expected::<3, 9>(d9));
         }
     }
 
