@@ -277,37 +277,37 @@ fn run_case(c: &Case) -> (Tally, Extra) {
             vz_up_m_s: z as f32,
         });
         values.clear();
-        let (est_h, health) = match &mut lp {
+        let (alt, vz, bias, health) = match &mut lp {
             Loop::Classical(l) => {
                 let r = l.step(&imu, b.as_ref());
-                if tally.call("classical step", &r) {
-                    if let Ok(rep) = &r {
-                        aid_values(&rep.baro, &mut values);
-                    }
+                tally.call("classical step", &r);
+                if let Ok(rep) = &r {
+                    aid_values(&rep.baro, &mut values);
                 }
-                values.extend([
-                    f64::from(l.altitude_m()),
-                    f64::from(l.vz_up_m_s()),
-                    f64::from(l.accel_bias_m_s2()),
-                ]);
-                (f64::from(l.altitude_m()), l.health())
+                (
+                    l.altitude_m(),
+                    l.vz_up_m_s(),
+                    l.accel_bias_m_s2(),
+                    l.health(),
+                )
             }
             Loop::Aided(l) => {
                 let r = l.step(&imu, b.as_ref(), vv.as_ref());
-                if tally.call("aided step", &r) {
-                    if let Ok(rep) = &r {
-                        aid_values(&rep.baro, &mut values);
-                        aid_values(&rep.velocity, &mut values);
-                    }
+                tally.call("aided step", &r);
+                if let Ok(rep) = &r {
+                    aid_values(&rep.baro, &mut values);
+                    aid_values(&rep.velocity, &mut values);
                 }
-                values.extend([
-                    f64::from(l.altitude_m()),
-                    f64::from(l.vz_up_m_s()),
-                    f64::from(l.accel_bias_m_s2()),
-                ]);
-                (f64::from(l.altitude_m()), l.health())
+                (
+                    l.altitude_m(),
+                    l.vz_up_m_s(),
+                    l.accel_bias_m_s2(),
+                    l.health(),
+                )
             }
         };
+        values.extend([alt, vz, bias].map(f64::from));
+        let est_h = f64::from(alt);
         tally.finite("report", values.iter().copied());
         if health == HealthState::NeedsReinitialisation {
             extra.needs_reinit_steps += 1;
