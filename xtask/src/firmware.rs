@@ -158,18 +158,8 @@ pub fn parse_bench(lines: &[String]) -> Vec<(String, u64, u64)> {
 /// Records the golden vectors on the host (`nav-sim golden`) into `target/golden`.
 fn record_golden() -> Result<PathBuf, String> {
     let dir = root().join("target/golden");
-    let mut cmd = crate::cargo();
-    cmd.args([
-        "run",
-        "--release",
-        "--quiet",
-        "-p",
-        "nav-sim",
-        "--",
-        "golden",
-        "--out",
-    ])
-    .arg(&dir);
+    let mut cmd = crate::nav_sim("golden");
+    cmd.args(["--out"]).arg(&dir);
     run("record golden vectors (host, f32)", &mut cmd)?;
     Ok(dir)
 }

@@ -80,6 +80,22 @@ pub(crate) fn cargo() -> Command {
     c
 }
 
+/// `cargo run --release --quiet -p nav-sim -- <subcommand>` (the simulator's CLI), ready for
+/// more arguments.
+pub(crate) fn nav_sim(subcommand: &str) -> Command {
+    let mut c = cargo();
+    c.args([
+        "run",
+        "--release",
+        "--quiet",
+        "-p",
+        "nav-sim",
+        "--",
+        subcommand,
+    ]);
+    c
+}
+
 pub(crate) fn run(what: &str, cmd: &mut Command) -> Result<(), String> {
     eprintln!("xtask: {what}: {cmd:?}");
     let t0 = Instant::now();
@@ -101,18 +117,8 @@ fn sim(rest: &[String]) -> Result<(), String> {
     let Some(scenario) = rest.first() else {
         return Err("sim needs a scenario name or `all`".into());
     };
-    let mut cmd = cargo();
-    cmd.args([
-        "run",
-        "--release",
-        "--quiet",
-        "-p",
-        "nav-sim",
-        "--",
-        "run",
-        scenario,
-    ]);
-    cmd.args(&rest[1..]);
+    let mut cmd = nav_sim("run");
+    cmd.arg(scenario).args(&rest[1..]);
     run(&format!("sim {scenario}"), &mut cmd)
 }
 
@@ -248,16 +254,7 @@ fn data_dir() -> PathBuf {
 /// the shipped ones (the real PX4 CSV flight and the SITL ULog) into `target/replay/<name>/`.
 fn replay(rest: &[String]) -> Result<(), String> {
     let cmd = |args: &[String]| {
-        let mut c = cargo();
-        c.args([
-            "run",
-            "--release",
-            "--quiet",
-            "-p",
-            "nav-sim",
-            "--",
-            "replay",
-        ]);
+        let mut c = nav_sim("replay");
         c.args(args);
         c
     };
@@ -292,17 +289,8 @@ fn replay(rest: &[String]) -> Result<(), String> {
 /// (what CI runs); writes `target/stress/report.json`, fails unless every count of failures
 /// is 0.
 fn stress(short: bool) -> Result<(), String> {
-    let mut cmd = cargo();
-    cmd.args([
-        "run",
-        "--release",
-        "--quiet",
-        "-p",
-        "nav-sim",
-        "--",
-        "stress",
-        "--out",
-    ]);
+    let mut cmd = nav_sim("stress");
+    cmd.arg("--out");
     cmd.arg(root().join("target/stress"));
     if !short {
         cmd.arg("--full");
