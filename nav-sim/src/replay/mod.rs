@@ -174,6 +174,8 @@ struct StreamStats {
     last: Option<Timestamp>,
     /// The first 512 intervals, µs (median for the gap threshold).
     early_intervals: Vec<u64>,
+    /// Their median once all 512 are in (it no longer changes).
+    median_cache: Option<u64>,
     min_us: u64,
     max_us: u64,
     gaps: Vec<(f64, f64)>,
@@ -191,6 +193,9 @@ impl StreamStats {
             }
             if self.early_intervals.len() < 512 {
                 self.early_intervals.push(d);
+                if self.early_intervals.len() == 512 {
+                    self.median_cache = Some(self.sorted_median());
+                }
             }
             self.min_us = if self.samples == 2 {
                 d
@@ -211,6 +216,9 @@ impl StreamStats {
         self.last = Some(t);
     }
     fn median_us(&self) -> u64 {
+        self.median_cache.unwrap_or_else(|| self.sorted_median())
+    }
+    fn sorted_median(&self) -> u64 {
         let mut v = self.early_intervals.clone();
         v.sort_unstable();
         v.get(v.len() / 2).copied().unwrap_or(0)
