@@ -16,6 +16,9 @@ pub enum ConfigIssue {
     Negative,
     /// Outside the documented valid range.
     OutOfRange,
+    /// A stored design computed for another configuration, or with another layout version
+    /// ([`crate::contract::DesignStamp`]).
+    DesignMismatch,
 }
 
 /// Every error nav-core can return.

@@ -52,6 +52,7 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod contract;
 pub mod design;
 pub mod earth;
 pub mod error;
@@ -63,6 +64,10 @@ pub mod time;
 pub mod transfer_alignment;
 pub mod vertical_channel;
 
+pub use contract::{
+    AidCounters, DesignStamp, Estimator, FusionOutcome, FusionReport, Gate, Health, RecoveryAction,
+    RecoveryPolicy,
+};
 pub use error::NavError;
 pub use health::HealthState;
 pub use real::Real;
