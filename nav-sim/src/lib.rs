@@ -19,3 +19,4 @@ pub mod scenario;
 pub mod scenarios;
 pub mod stats;
 pub mod stress;
+pub mod truth;
