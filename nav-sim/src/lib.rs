@@ -8,6 +8,7 @@
 //! [`scenario::REGISTRY`]. One seed gives the same output bit for bit: run `i` draws from
 //! ChaCha8 stream `i` of the seed, whatever the thread that runs it.
 
+pub mod consistency;
 pub mod golden;
 pub mod montecarlo;
 pub mod output;
