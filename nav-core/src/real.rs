@@ -56,19 +56,19 @@ impl Real for f32 {
     }
     #[inline]
     fn trig_sin_cos(self) -> (Self, Self) {
-        crate::math::trig::sin_cos_f32(self)
+        crate::math::sincos_f32::sin_cos_f32(self)
     }
     #[inline]
     fn trig_sin(self) -> Self {
-        crate::math::trig::sin_cos_f32(self).0
+        crate::math::sincos_f32::sin_cos_f32(self).0
     }
     #[inline]
     fn trig_cos(self) -> Self {
-        crate::math::trig::sin_cos_f32(self).1
+        crate::math::sincos_f32::sin_cos_f32(self).1
     }
     #[inline]
     fn trig_tan(self) -> Self {
-        let (s, c) = crate::math::trig::sin_cos_f32(self);
+        let (s, c) = crate::math::sincos_f32::sin_cos_f32(self);
         s / c
     }
 }

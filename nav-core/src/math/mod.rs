@@ -7,4 +7,5 @@ pub mod kalman;
 pub mod linalg;
 pub mod markov;
 pub mod rotation;
+pub(crate) mod sincos_f32;
 pub mod trig;
