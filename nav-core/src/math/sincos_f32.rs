@@ -18,7 +18,7 @@
 //!
 //! # Domain and accuracy (`f32`)
 //!
-//! * |x| ≤ [`F32_ACCURATE_DOMAIN_RAD`] = 8192 rad: error ≤ 2 ulp of the correctly rounded
+//! * |x| ≤ [`super::trig::F32_ACCURATE_DOMAIN_RAD`] = 8192 rad: error ≤ 2 ulp of the correctly rounded
 //!   result (measured exhaustively over every positive `f32` ≤ 8192 against `f64` libm: max
 //!   1.57 ulp for sin, 1.62 ulp for cos; 0.81 / 0.82 ulp on [0, π/4] where there is no
 //!   reduction; the module tests guard it with dense grids, random points and the neighbours
