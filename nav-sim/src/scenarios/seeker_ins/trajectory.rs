@@ -11,9 +11,11 @@
 //! * the IMU increments `Δv = ∫ fᵇ dt`, `Δθ = ∫ ω_ib^b dt` are integrated over each IMU
 //!   interval with 3-point Gauss-Legendre quadrature (error O(Δt⁷)).
 
+use crate::truth::{
+    dcm_from_euler, earth_rate_ned_rad_s, gravity_ned_m_s2, radii_of_curvature_m,
+    transport_rate_ned_rad_s,
+};
 use nalgebra::{Matrix3, Vector3};
-use nav_core::earth::{earth_rate_ned, gravity_ned, radii_m};
-use nav_core::math::rotation::euler_to_dcm;
 use nav_core::seeker_ins::{ImuIncrement, Position};
 use serde::Deserialize;
 
@@ -149,7 +151,7 @@ pub struct Truth {
 }
 
 fn pos_rate(p: &Position, v: &Vector3<f64>) -> (f64, f64) {
-    let (rm, rn) = radii_m(p.lat_rad);
+    let (rm, rn) = radii_of_curvature_m(p.lat_rad);
     (
         v.x / (rm + p.alt_m),
         v.y / ((rn + p.alt_m) * p.lat_rad.cos()),
@@ -159,10 +161,11 @@ fn pos_rate(p: &Position, v: &Vector3<f64>) -> (f64, f64) {
 /// Specific force and body rate at time t with the position there.
 fn sensed(cfg: &TrajectoryConfig, t: f64, p: &Position) -> (Vector3<f64>, Vector3<f64>) {
     let k = cfg.kin(t);
-    let c = euler_to_dcm(k.roll, 0.0, k.yaw);
-    let w_ie = earth_rate_ned(p.lat_rad);
-    let w_en = nav_core::earth::transport_rate_ned(p.lat_rad, p.alt_m, &k.v_ned);
-    let f_n = k.a_ned + (w_ie * 2.0 + w_en).cross(&k.v_ned) - gravity_ned(p.lat_rad, p.alt_m);
+    let c = dcm_from_euler(k.roll, 0.0, k.yaw);
+    let w_ie = earth_rate_ned_rad_s(p.lat_rad);
+    let w_en = transport_rate_ned_rad_s(p.lat_rad, p.alt_m, &k.v_ned);
+    let f_n = k.a_ned + (w_ie * 2.0 + w_en).cross(&k.v_ned)
+        - gravity_ned_m_s2(p.lat_rad, p.lon_rad, p.alt_m);
     // ω_nb^b from Euler rates (pitch 0): [φ̇, ψ̇ sin φ, ψ̇ cos φ].
     let w_nb_b = Vector3::new(
         k.roll_rate,
@@ -242,7 +245,7 @@ pub fn generate(cfg: &TrajectoryConfig, dt_s: f64) -> Truth {
         out.t_s.push(t);
         out.position.push(p);
         out.vel_ned_m_s.push(kin.v_ned);
-        out.c_b_n.push(euler_to_dcm(kin.roll, 0.0, kin.yaw));
+        out.c_b_n.push(dcm_from_euler(kin.roll, 0.0, kin.yaw));
     }
     out
 }

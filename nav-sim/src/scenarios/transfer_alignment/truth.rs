@@ -6,12 +6,11 @@
 use super::config::{CaseConfig, FlexureTruthConfig, ImuConfig, TruthModel};
 use crate::processes::{draw, psd_sqrt, LinearProcess};
 use crate::rng::{normal3, SimRng};
+use crate::truth::{cross_matrix, earth_rate_ned_rad_s, gravity_ned_m_s2, rotation_from_vector};
 use anyhow::{anyhow, bail, Result};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
-use nav_core::earth::{earth_rate_ned, normal_gravity_m_s2};
 use nav_core::math::discretize::{discretize, stationary_covariance};
 use nav_core::math::markov::{GaussMarkov, MarkovOrder};
-use nav_core::math::rotation::{exp_so3, skew};
 use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::{MasterSample, SlaveSample};
 
@@ -40,7 +39,7 @@ pub struct TruthRun {
 /// Right Jacobian of SO(3): for `R = exp([φ×])`, `Rᵀ Ṙ = [(J_r(φ) φ̇)×]`.
 pub fn right_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
     let th2 = phi.norm_squared();
-    let k = skew(phi);
+    let k = cross_matrix(phi);
     if th2 < 1e-12 {
         return Matrix3::identity() - k * 0.5 + k * k / 6.0;
     }
@@ -170,8 +169,8 @@ pub fn simulate(cfg: &CaseConfig, rng: &mut SimRng) -> Result<TruthRun> {
     let master_err = ImuErrors::draw(&cfg.master_imu, dt, rng);
     let slave_err = ImuErrors::draw(&cfg.slave_imu, dt, rng);
     let lat = cfg.latitude_deg.to_radians();
-    let g_n = Vector3::new(0.0, 0.0, normal_gravity_m_s2(lat, cfg.altitude_m));
-    let w_ie_n = earth_rate_ned(lat);
+    let g_n = gravity_ned_m_s2(lat, 0.0, cfg.altitude_m);
+    let w_ie_n = earth_rate_ned_rad_s(lat);
     let l0 = Vector3::from(cfg.lever_arm_m);
     let mut c_b_n = Matrix3::<f64>::identity(); // master body (m) to NED
     let mut run = TruthRun {
@@ -206,7 +205,7 @@ pub fn simulate(cfg: &CaseConfig, rng: &mut SimRng) -> Result<TruthRun> {
             + 2.0 * w.cross(&th_f_dot.cross(&l0))
             + th_f_dd.cross(&l0);
         let f_s_m = f_m + a_rel;
-        let c_m_s = exp_so3(&(-theta));
+        let c_m_s = rotation_from_vector(&(-theta));
         let f_s = c_m_s * f_s_m;
         let w_s = c_m_s * w + right_jacobian(&theta) * th_f_dot;
         run.t_s.push(t);
@@ -227,7 +226,7 @@ pub fn simulate(cfg: &CaseConfig, rng: &mut SimRng) -> Result<TruthRun> {
             angular_rate_rad_s: slave_err.gyro(&w_s, rng),
             specific_force_m_s2: slave_err.accel(&f_s, rng),
         });
-        c_b_n *= exp_so3(&(w_nb * dt));
+        c_b_n *= rotation_from_vector(&(w_nb * dt));
     }
     Ok(run)
 }
@@ -241,10 +240,15 @@ mod tests {
         let phi = Vector3::new(0.3, -0.2, 0.5);
         let dphi = Vector3::new(0.7, 0.1, -0.4);
         let h = 1e-6;
-        let r0 = exp_so3(&(phi - dphi * h));
-        let r1 = exp_so3(&(phi + dphi * h));
+        let r0 = rotation_from_vector(&(phi - dphi * h));
+        let r1 = rotation_from_vector(&(phi + dphi * h));
         let rdot = (r1 - r0) / (2.0 * h);
-        let w = nav_core::math::rotation::unskew(&(exp_so3(&phi).transpose() * rdot));
+        let m = rotation_from_vector(&phi).transpose() * rdot;
+        let w = Vector3::new(
+            m[(2, 1)] - m[(1, 2)],
+            m[(0, 2)] - m[(2, 0)],
+            m[(1, 0)] - m[(0, 1)],
+        ) * 0.5;
         assert!((w - right_jacobian(&phi) * dphi).norm() < 1e-8);
     }
 }
