@@ -404,9 +404,11 @@ fn vca_check() -> bool {
 
 use nalgebra::Vector2;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
-use nav_core::seeker_ins::filter::{LosResidual, SeekerIns, SeekerInsConfig};
-use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned, Landmark};
-use nav_core::seeker_ins::mechanization::{ImuIncrement, Ins, InsState, Position};
+use nav_core::contract::Estimator;
+use nav_core::seeker_ins::{
+    gimbal_angles_of, landmark_vector_ned, paper_initial_covariance, ImuIncrement, Ins, InsState,
+    Landmark, LosSample, Position, SeekerIns, SeekerInsConfig, SeekerInsInitial,
+};
 
 const INS_DT_S: f32 = 0.01;
 
@@ -475,50 +477,19 @@ fn ins_check() -> bool {
     })
 }
 
-fn seeker_p0() -> SMatrix<f32, 17, 17> {
-    let deg = core::f32::consts::PI / 180.0;
-    let r0 = 6_371_000.0f32;
-    let ug = 9.80665e-6f32;
-    let deg_h = deg / 3600.0;
-    let sig = [
-        40.0 / r0,
-        40.0 / r0,
-        40.0,
-        10.0,
-        10.0,
-        10.0,
-        deg,
-        deg,
-        5.0 * deg,
-        100.0 * ug,
-        100.0 * ug,
-        100.0 * ug,
-        0.01 * deg_h,
-        0.01 * deg_h,
-        0.01 * deg_h,
-        0.04 * deg,
-        0.04 * deg,
-    ];
-    let mut p = SMatrix::<f32, 17, 17>::zeros();
-    for (i, s) in sig.iter().enumerate() {
-        p[(i, i)] = s * s;
-    }
-    p
-}
-
 fn seeker_setup() {
     let state = landmark().and_then(|lm| {
+        // The paper's filter with the covariance step deferred: the kernels measure the
+        // prediction and the update separately.
         let cfg = SeekerInsConfig {
-            imu_dt_s: INS_DT_S,
             covariance_interval_steps: 100,
-            accel_noise_density_m_s2_rt_hz: 5.0 * 9.80665e-6,
-            gyro_noise_density_rad_s_rt_hz: 0.01 * core::f32::consts::PI / 180.0 / 60.0,
-            seeker_noise_rad: 0.17 * core::f32::consts::PI / 180.0,
-            gate_nis: 16.0,
-            landmark: lm,
-            residual: LosResidual::Projected2d,
+            ..SeekerInsConfig::paper(lm)
         };
-        SeekerIns::new(cfg, ins_initial(), &seeker_p0()).ok()
+        let initial = SeekerInsInitial {
+            state: ins_initial(),
+            covariance: paper_initial_covariance(),
+        };
+        SeekerIns::new(&cfg, &initial).ok()
     });
     let mut state = state.map(|filter| Seeker { filter, ok: true });
     if let Some(s) = state.as_mut() {
@@ -552,8 +523,11 @@ fn eskf_los_update() {
         let st = *s.filter.state();
         let d = landmark_vector_ned(&st.position, &lm);
         let u_b = quat_to_dcm(&st.q_b_n).transpose() * d.normalize();
-        let g = core::hint::black_box(gimbal_angles_of(&u_b));
-        s.ok &= s.filter.update_los(&g).is_ok();
+        let sample = core::hint::black_box(LosSample {
+            time: s.filter.time().unwrap_or_default(),
+            gimbal: gimbal_angles_of(&u_b),
+        });
+        s.ok &= s.filter.update_los(&sample).is_ok();
     });
 }
 

@@ -18,13 +18,14 @@ use crate::scenario::{Context, Kind};
 use crate::stats::ensemble;
 use anyhow::{bail, Result};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector2, Vector3};
+use nav_core::contract::{Estimator, Gate};
 use nav_core::earth::radii_m;
 use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_euler, dcm_to_quat, euler_to_dcm, log_so3, quat_to_dcm};
-use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned};
 use nav_core::seeker_ins::{
-    GimbalAngles, ImuIncrement, InsState, Landmark, LosResidual, Position, SeekerIns,
-    SeekerInsConfig, STATES,
+    default_recovery, gimbal_angles_of, landmark_vector_ned, GimbalAngles, ImuFaultPolicy,
+    ImuIncrement, InsState, Landmark, LosResidual, LosSample, Position, SeekerAid, SeekerIns,
+    SeekerInsConfig, SeekerInsInitial, STATES,
 };
 use nav_core::Real;
 use serde::Deserialize;
@@ -161,6 +162,17 @@ fn default_residual() -> String {
     "projected-2d".into()
 }
 
+/// The filter's IMU fault counters at the end of a run.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ImuFaultTally {
+    /// Gaps bridged (`Health::gaps_bridged`).
+    pub gaps: u32,
+    /// IMU samples bridged by the hold.
+    pub held_samples: u32,
+    /// Clipped samples integrated.
+    pub clipped_samples: u32,
+}
+
 /// Output of one run (sampled at the output rate).
 #[derive(Debug, Clone, Default)]
 pub struct RunOutput {
@@ -185,7 +197,7 @@ pub struct RunOutput {
     /// Filter counters at the end of the run: LOS gate re-inflations.
     pub inflations: u32,
     /// IMU fault counters at the end of the run.
-    pub imu_faults: nav_core::seeker_ins::ImuFaultCounters,
+    pub imu_faults: ImuFaultTally,
     /// Seeker epochs without a measurement because of an injected fault (loss of lock, IMU gap).
     pub seeker_dropped: usize,
     /// Seeker updates during an injected false lock, components fused / rejected.
@@ -306,6 +318,7 @@ pub fn simulate_run_faulted<T: Real>(
     let arw = s.gyro_arw_deg_rt_h.to_radians() / 60.0; // rad/√s
     let sd_dv = vrw * dt.sqrt();
     let sd_dth = arw * dt.sqrt();
+    let dt_us = (dt * 1e6).round() as u64;
     let seeker_sd = s.seeker_noise_deg.to_radians();
     // Initial errors (Table 4).
     let ie = &cfg.initial_error;
@@ -370,7 +383,12 @@ pub fn simulate_run_faulted<T: Real>(
         accel_noise_density_m_s2_rt_hz: T::lit(vrw),
         gyro_noise_density_rad_s_rt_hz: T::lit(arw),
         seeker_noise_rad: T::lit(fc.seeker_noise_deg.to_radians()),
-        gate_nis: T::lit(fc.gate_nis),
+        gate: Gate::Nis(T::lit(fc.gate_nis)),
+        recovery: default_recovery(),
+        imu_faults: faults
+            .policy
+            .as_ref()
+            .map_or_else(ImuFaultPolicy::default, fault::policy_cast::<T>),
         landmark: Landmark::new(lm_pos).map_err(|e| anyhow::anyhow!("landmark: {e}"))?,
         residual: match fc.residual.as_str() {
             "projected-2d" => LosResidual::Projected2d,
@@ -378,14 +396,14 @@ pub fn simulate_run_faulted<T: Real>(
             r => bail!("filter.residual `{r}`: must be \"projected-2d\" or \"full-rank-3d\""),
         },
     };
-    let mut filter = SeekerIns::new(config, init, &p0m.cast::<T>())
-        .map_err(|e| anyhow::anyhow!("filter init: {e}"))?;
-    if let Some(pol) = &faults.policy {
-        filter
-            .set_imu_fault_policy(fault::policy_cast::<T>(pol))
-            .map_err(|e| anyhow::anyhow!("IMU fault policy: {e}"))?;
-    }
-    let mut missing: u16 = 0;
+    let initial = SeekerInsInitial {
+        state: init,
+        covariance: p0m.cast::<T>(),
+    };
+    let mut filter =
+        SeekerIns::new(&config, &initial).map_err(|e| anyhow::anyhow!("filter init: {e}"))?;
+    // The last sample sent (the output inside a gap holds it, as the filter's bridge does).
+    let mut last_sample: Option<ImuIncrement<T>> = None;
     let lm64 = Landmark::<f64>::new(lm_pos).map_err(|e| anyhow::anyhow!("{e}"))?;
     let limit = cfg.rates.gimbal_limit_deg.to_radians();
     let mut out = RunOutput::default();
@@ -396,32 +414,33 @@ pub fn simulate_run_faulted<T: Real>(
         if k > 0 {
             let inc = &truth.imu[k];
             let t_k = truth.t_s[k];
+            // The actual interval of the sample (a jittered truth), else the nominal one.
+            let h_us = inc
+                .time
+                .micros_since(truth.imu[k - 1].time)
+                .unwrap_or(dt_us);
+            let (h, sd_v, sd_th) = if h_us == dt_us {
+                (dt, sd_dv, sd_dth)
+            } else {
+                let h = h_us as f64 * 1e-6;
+                (h, vrw * h.sqrt(), arw * h.sqrt())
+            };
             // The sensed increment of the true motion, clipped at the range in a burst.
-            let (true_dv, clipped) = faults.accel_increment(t_k, dt, &inc.delta_v_m_s);
+            let (true_dv, clipped) = faults.accel_increment(t_k, h, &inc.delta_v_m_s);
             let dv = acc_m * true_dv
-                + acc_b * dt
-                + Vector3::new(normal(rng, sd_dv), normal(rng, sd_dv), normal(rng, sd_dv));
+                + acc_b * h
+                + Vector3::new(normal(rng, sd_v), normal(rng, sd_v), normal(rng, sd_v));
             let dth = gyr_m * inc.delta_theta_rad
-                + gyr_b * dt
-                + Vector3::new(
-                    normal(rng, sd_dth),
-                    normal(rng, sd_dth),
-                    normal(rng, sd_dth),
-                );
+                + gyr_b * h
+                + Vector3::new(normal(rng, sd_th), normal(rng, sd_th), normal(rng, sd_th));
             let sample = ImuIncrement {
                 time: inc.time,
                 delta_theta_rad: dth.cast::<T>(),
                 delta_v_m_s: dv.cast::<T>(),
             };
-            if in_gap {
-                missing = missing.saturating_add(1);
-            } else {
-                if missing > 0 {
-                    filter
-                        .propagate_gap(missing)
-                        .map_err(|e| anyhow::anyhow!("gap of {missing} at k = {k}: {e}"))?;
-                    missing = 0;
-                }
+            if !in_gap {
+                // The filter detects a gap from the time stamps and bridges it itself.
+                last_sample = Some(sample);
                 if clipped && faults.flag_clipped {
                     filter.propagate_clipped(
                         &sample,
@@ -447,11 +466,14 @@ pub fn simulate_run_faulted<T: Real>(
                     out.seeker_dropped += 1;
                 } else if aided {
                     let false_yaw = faults.false_lock_yaw_rad(t_k);
-                    let meas = GimbalAngles {
-                        pitch_rad: T::lit(g.pitch_rad + seeker_bias.x + noise.x),
-                        yaw_rad: T::lit(
-                            g.yaw_rad + seeker_bias.y + noise.y + false_yaw.unwrap_or(0.0),
-                        ),
+                    let meas = LosSample {
+                        time: inc.time,
+                        gimbal: GimbalAngles {
+                            pitch_rad: T::lit(g.pitch_rad + seeker_bias.x + noise.x),
+                            yaw_rad: T::lit(
+                                g.yaw_rad + seeker_bias.y + noise.y + false_yaw.unwrap_or(0.0),
+                            ),
+                        },
                     };
                     match filter.update_los(&meas) {
                         Ok(rep) => {
@@ -476,12 +498,18 @@ pub fn simulate_run_faulted<T: Real>(
             filter
                 .predict_covariance()
                 .map_err(|e| anyhow::anyhow!("{e}"))?;
-            if missing > 0 {
+            let held = last_sample.filter(|_| in_gap);
+            if let Some(held) = held {
                 // Inside an IMU gap: the output a flight computer would give, the INS bridged
-                // by the hold up to this epoch (on a copy; the filter bridges at the gap end).
+                // by the hold up to this epoch (on a copy, fed the last sample again at this
+                // epoch's time; the filter bridges at the gap end).
                 let mut bridged = filter;
+                let at_epoch = ImuIncrement {
+                    time: truth.imu[k].time,
+                    ..held
+                };
                 bridged
-                    .propagate_gap(missing)
+                    .propagate(&at_epoch)
                     .and_then(|()| bridged.predict_covariance())
                     .map_err(|e| anyhow::anyhow!("gap output at k = {k}: {e}"))?;
                 record(&mut out, &bridged, truth, k, &acc_b, &gyr_b, &seeker_bias);
@@ -490,8 +518,13 @@ pub fn simulate_run_faulted<T: Real>(
             }
         }
     }
-    out.inflations = filter.counters().inflations;
-    out.imu_faults = filter.imu_fault_counters();
+    out.inflations = filter.aid_counters(SeekerAid::Los).recoveries;
+    let counters = filter.seeker_counters();
+    out.imu_faults = ImuFaultTally {
+        gaps: filter.health().gaps_bridged,
+        held_samples: counters.held_samples,
+        clipped_samples: counters.clipped_samples,
+    };
     Ok(out)
 }
 
