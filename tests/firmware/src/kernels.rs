@@ -403,8 +403,8 @@ fn vca_check() -> bool {
 // ---------------------------------------------------------------- seeker-aided INS
 
 use nalgebra::Vector2;
-use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::contract::Estimator;
+use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
     gimbal_angles_of, landmark_vector_ned, paper_initial_covariance, ImuIncrement, Ins, InsState,
     Landmark, LosSample, Position, SeekerIns, SeekerInsConfig, SeekerInsInitial,
