@@ -345,28 +345,9 @@ impl<T: Real> Ins<T> {
     /// [`MAX_DELTA_V_M_S`]).
     pub fn step(&mut self, inc: &ImuIncrement<T>) -> Result<(), NavError> {
         let dt = self.interval_to(inc.time)?;
+        validate_increment(inc)?;
         let dth = inc.delta_theta_rad;
         let dv = inc.delta_v_m_s;
-        if !dth.iter().all(|v| v.is_finite()) {
-            return Err(NavError::NonFiniteInput {
-                input: "delta_theta_rad",
-            });
-        }
-        if !dv.iter().all(|v| v.is_finite()) {
-            return Err(NavError::NonFiniteInput {
-                input: "delta_v_m_s",
-            });
-        }
-        if dth.norm_squared() > T::lit(MAX_DELTA_THETA_RAD * MAX_DELTA_THETA_RAD) {
-            return Err(NavError::InputOutOfRange {
-                input: "delta_theta_rad",
-            });
-        }
-        if dv.norm_squared() > T::lit(MAX_DELTA_V_M_S * MAX_DELTA_V_M_S) {
-            return Err(NavError::InputOutOfRange {
-                input: "delta_v_m_s",
-            });
-        }
         let half = T::lit(0.5);
         let twelfth = T::lit(1.0 / 12.0);
         let s = &self.state;
@@ -475,6 +456,33 @@ impl<T: Real> Ins<T> {
         self.q_lo = Vector4::zeros();
         Ok(())
     }
+}
+
+/// The increments of a sample: finite, |Δθ| ≤ [`MAX_DELTA_THETA_RAD`], |Δv| ≤
+/// [`MAX_DELTA_V_M_S`].
+fn validate_increment<T: Real>(inc: &ImuIncrement<T>) -> Result<(), NavError> {
+    let (dth, dv) = (&inc.delta_theta_rad, &inc.delta_v_m_s);
+    if !dth.iter().all(|v| v.is_finite()) {
+        return Err(NavError::NonFiniteInput {
+            input: "delta_theta_rad",
+        });
+    }
+    if !dv.iter().all(|v| v.is_finite()) {
+        return Err(NavError::NonFiniteInput {
+            input: "delta_v_m_s",
+        });
+    }
+    if dth.norm_squared() > T::lit(MAX_DELTA_THETA_RAD * MAX_DELTA_THETA_RAD) {
+        return Err(NavError::InputOutOfRange {
+            input: "delta_theta_rad",
+        });
+    }
+    if dv.norm_squared() > T::lit(MAX_DELTA_V_M_S * MAX_DELTA_V_M_S) {
+        return Err(NavError::InputOutOfRange {
+            input: "delta_v_m_s",
+        });
+    }
+    Ok(())
 }
 
 /// C_b^n of a quaternion of any non-zero norm: the homogeneous DCM formula divided by |q|².

@@ -92,7 +92,11 @@
 //! // The way back after NeedsReinitialisation (here: on demand).
 //! ins.reinitialise(&initial)?;
 //! assert_eq!(ins.health().reinitialisations, 1);
-//! let _ = RecoveryAction::Inflate { variance_factor: 4.0_f32 };
+//! // The paper's recovery: 5 s of rejections, then the navigation variances × 4.
+//! assert!(matches!(
+//!     config.recovery.action,
+//!     RecoveryAction::Inflate { variance_factor } if variance_factor == 4.0
+//! ));
 //! # Ok::<(), nav_core::NavError>(())
 //! ```
 //!
