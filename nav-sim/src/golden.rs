@@ -9,7 +9,7 @@ use crate::scenarios::transfer_alignment::{config::load_scenario, config::CaseCo
 use crate::scenarios::vertical_channel::{self, Profile};
 use anyhow::{anyhow, Context, Result};
 use nav_core::earth::normal_gravity_m_s2;
-use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned, Landmark};
+use nav_core::seeker_ins::{gimbal_angles_of, landmark_vector_ned, Landmark};
 use nav_golden::{
     design_values, replay, replay_with, Case, Stored, CASES, LOS_EVERY, MAX_DESIGN_VALUES,
 };

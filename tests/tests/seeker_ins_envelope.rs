@@ -5,16 +5,36 @@
 //! landmark as far from it, and a landmark closer than the minimum range is skipped.
 
 use nalgebra::{SMatrix, Vector3};
+use nav_core::contract::{Estimator, Gate, RecoveryAction, RecoveryPolicy};
 use nav_core::error::ConfigIssue;
 use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
-use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned};
 use nav_core::seeker_ins::{
-    ClipFlags, GimbalAngles, ImuFaultPolicy, ImuIncrement, InsState, Landmark, LosResidual,
-    LosSkipReason, Position, RecoveryPolicy, SeekerIns, SeekerInsConfig, VARIANCE_CEILING,
+    gimbal_angles_of, landmark_vector_ned, ClipFlags, GimbalAngles, ImuFaultPolicy, ImuIncrement,
+    InsState, Landmark, LosSample, LosSkipReason, Position, SeekerAid, SeekerIns, SeekerInsConfig,
+    SeekerInsInitial, VARIANCE_CEILING,
 };
+use nav_core::time::Timestamp;
 use nav_core::{HealthState, NavError, Real};
 use nav_sim::stress::psd_defect;
+
+/// `inc` stamped one nominal IMU interval after the filter's last sample (the first sample at
+/// one interval after the epoch): a regular-rate IMU clock.
+fn stamped<T: Real>(f: &SeekerIns<T>, mut inc: ImuIncrement<T>) -> ImuIncrement<T> {
+    let dt_us = f.ins().dt_us();
+    inc.time = f
+        .time()
+        .map_or(Timestamp::from_micros(dt_us), |t| t.add_micros(dt_us));
+    inc
+}
+
+/// `inc` stamped `n` nominal IMU intervals after the filter's last sample (`n − 1` samples
+/// lost: an IMU gap).
+fn after_gap<T: Real>(f: &SeekerIns<T>, n: u64, mut inc: ImuIncrement<T>) -> ImuIncrement<T> {
+    let dt_us = f.ins().dt_us();
+    inc.time = f.time().unwrap_or_default().add_micros(n * dt_us);
+    inc
+}
 
 const LAT0: f64 = 0.645_771_823_237_901_2; // 37°
 const LON0: f64 = 2.216_568_150_032_737; // 127°
@@ -38,14 +58,10 @@ fn offset(north_m: f64, east_m: f64, alt_m: f64) -> Position {
 
 fn config<T: Real>(landmark: Position) -> SeekerInsConfig<T> {
     SeekerInsConfig {
-        imu_dt_s: T::lit(0.01),
-        covariance_interval_steps: 10,
         accel_noise_density_m_s2_rt_hz: T::lit(5e-5),
         gyro_noise_density_rad_s_rt_hz: T::lit(3e-6),
         seeker_noise_rad: T::lit(0.003),
-        gate_nis: T::lit(16.0),
-        landmark: Landmark::new(landmark).unwrap(),
-        residual: LosResidual::Projected2d,
+        ..SeekerInsConfig::paper(Landmark::new(landmark).unwrap())
     }
 }
 
@@ -64,6 +80,13 @@ fn p0<T: Real>() -> SMatrix<T, 17, 17> {
     })
 }
 
+/// The start with P0 (the navigation block replaced by `p_nav`).
+fn start_with<T: Real>(state: InsState<T>, p_nav: &SMatrix<T, 9, 9>) -> SeekerInsInitial<T> {
+    let mut covariance = p0::<T>();
+    covariance.fixed_view_mut::<9, 9>(0, 0).copy_from(p_nav);
+    SeekerInsInitial { state, covariance }
+}
+
 fn initial<T: Real>() -> InsState<T> {
     InsState {
         position: start(),
@@ -76,8 +99,15 @@ fn initial<T: Real>() -> InsState<T> {
     }
 }
 
+fn start_state<T: Real>() -> SeekerInsInitial<T> {
+    SeekerInsInitial {
+        state: initial(),
+        covariance: p0(),
+    }
+}
+
 fn filter<T: Real>(landmark: Position) -> SeekerIns<T> {
-    SeekerIns::new(config(landmark), initial(), &p0()).unwrap()
+    SeekerIns::new(&config(landmark), &start_state()).unwrap()
 }
 
 /// Level flight east at 200 m/s: the increments of a perfect IMU, plus `up_m_s2` of climb
@@ -85,6 +115,7 @@ fn filter<T: Real>(landmark: Position) -> SeekerIns<T> {
 fn increment<T: Real>(up_m_s2: f64) -> ImuIncrement<T> {
     let dt = 0.01;
     ImuIncrement {
+        time: Timestamp::ZERO,
         delta_theta_rad: Vector3::new(
             T::lit(1.0e-5 * dt),
             T::lit(4.4e-5 * dt),
@@ -94,8 +125,17 @@ fn increment<T: Real>(up_m_s2: f64) -> ImuIncrement<T> {
     }
 }
 
-/// Gimbal angles pointing from the filter's own estimate at the landmark, plus offsets (rad).
-fn los_from_estimate<T: Real>(f: &SeekerIns<T>, d_pitch: f64, d_yaw: f64) -> GimbalAngles<T> {
+/// A LOS sample of `gimbal` at the filter's time (its last IMU sample).
+fn at_ins_time<T: Real>(f: &SeekerIns<T>, gimbal: GimbalAngles<T>) -> LosSample<T> {
+    LosSample {
+        time: f.time().unwrap_or_default(),
+        gimbal,
+    }
+}
+
+/// Gimbal angles pointing from the filter's own estimate at the landmark, plus offsets (rad),
+/// at the filter's time.
+fn los_from_estimate<T: Real>(f: &SeekerIns<T>, d_pitch: f64, d_yaw: f64) -> LosSample<T> {
     let s = f.state();
     let d = landmark_vector_ned(&s.position, &f.config().landmark);
     let g = gimbal_angles_of(&(quat_to_dcm(&s.q_b_n).transpose() * d));
@@ -106,10 +146,13 @@ fn los_from_estimate<T: Real>(f: &SeekerIns<T>, d_pitch: f64, d_yaw: f64) -> Gim
     } else if yaw < -pi {
         yaw += pi + pi;
     }
-    GimbalAngles {
-        pitch_rad: g.pitch_rad + T::lit(d_pitch),
-        yaw_rad: yaw,
-    }
+    at_ins_time(
+        f,
+        GimbalAngles {
+            pitch_rad: g.pitch_rad + T::lit(d_pitch),
+            yaw_rad: yaw,
+        },
+    )
 }
 
 /// `None` when P is symmetric PSD to the float type's precision (the stress campaign's check).
@@ -138,14 +181,15 @@ fn all_finite<T: Real>(f: &SeekerIns<T>) -> bool {
 fn long_clipping<T: Real>() {
     let mut f = filter::<T>(offset(2000.0, 70_000.0, 0.0));
     for _ in 0..100 {
-        f.propagate(&increment(0.0)).unwrap();
+        f.propagate(&stamped(&f, increment(0.0))).unwrap();
     }
     let gyro = ClipFlags {
         accel: false,
         gyro: true,
     };
     for k in 0..5000 {
-        f.propagate_clipped(&increment(0.0), gyro).unwrap();
+        f.propagate_clipped(&stamped(&f, increment(0.0)), gyro)
+            .unwrap();
         if k % 10 == 9 {
             assert_eq!(p_defect(&f), None, "clipped sample {k}");
         }
@@ -154,12 +198,12 @@ fn long_clipping<T: Real>() {
         let v = f.covariance()[(i, i)].to_f64();
         assert!(v <= ceiling * (1.0 + 1e-5), "attitude variance {v}");
     }
-    assert!(f.health_counters().variance_limits > 0);
-    assert_eq!(f.health(), HealthState::NeedsReinitialisation);
+    assert!(f.health().limits_hit > 0);
+    assert_eq!(f.health().state, HealthState::NeedsReinitialisation);
     let mut fused = 0;
     for k in 0..200 {
         for _ in 0..10 {
-            f.propagate(&increment(0.0)).unwrap();
+            f.propagate(&stamped(&f, increment(0.0))).unwrap();
         }
         let off = 0.003 * ((k as f64) * 0.7).sin();
         let r = f.update_los(&los_from_estimate(&f, off, -off));
@@ -174,7 +218,7 @@ fn long_clipping<T: Real>() {
     assert!(fused >= 300, "{fused} of 400 components fused");
     if T::EPS.to_f64() > 1e-10 {
         // f32: the first updates after the burst exceed the precision's information ratio.
-        assert!(f.counters().conditioned > 0);
+        assert!(f.seeker_counters().conditioned > 0);
     }
     // The updates bring the attitude back from its ceiling.
     assert!(
@@ -195,12 +239,12 @@ fn refused_unchanged<T: Real>(
     field: &str,
     call: impl FnOnce(&mut SeekerIns<T>) -> Result<(), NavError>,
 ) {
-    let before = format!("{f:?}");
+    let before = *f;
     match call(f) {
         Err(NavError::InvalidConfig { field: got, .. }) => assert_eq!(got, field),
         other => panic!("{field}: {other:?}"),
     }
-    assert_eq!(format!("{f:?}"), before, "{field}: filter changed");
+    assert_eq!(*f, before, "{field}: filter changed");
 }
 
 /// The run-time setters refuse values that the old filter accepted and then broke on
@@ -210,7 +254,7 @@ fn refused_unchanged<T: Real>(
 fn setters<T: Real>() {
     let mut f = filter::<T>(offset(2000.0, 70_000.0, 0.0));
     for _ in 0..20 {
-        f.propagate(&increment(0.0)).unwrap();
+        f.propagate(&stamped(&f, increment(0.0))).unwrap();
     }
     let d = ImuFaultPolicy::<T>::default();
     for v in [f64::from(f32::MAX), 1e19, 1001.0, -1.0, f64::NAN] {
@@ -218,15 +262,15 @@ fn setters<T: Real>() {
             clip_accel_sigma_m_s2: T::lit(v),
             ..d
         };
-        refused_unchanged(&mut f, "clip_accel_sigma_m_s2", |f| {
-            f.set_imu_fault_policy(pol)
+        refused_unchanged(&mut f, "imu_faults.clip_accel_sigma_m_s2", |f| {
+            f.set_imu_faults(pol)
         });
         let pol = ImuFaultPolicy {
             gap_accel_sigma_m_s2: T::lit(v),
             ..d
         };
-        refused_unchanged(&mut f, "gap_accel_sigma_m_s2", |f| {
-            f.set_imu_fault_policy(pol)
+        refused_unchanged(&mut f, "imu_faults.gap_accel_sigma_m_s2", |f| {
+            f.set_imu_faults(pol)
         });
     }
     for v in [51.0, 1e19, -1e-3] {
@@ -234,62 +278,78 @@ fn setters<T: Real>() {
             clip_rate_sigma_rad_s: T::lit(v),
             ..d
         };
-        refused_unchanged(&mut f, "clip_rate_sigma_rad_s", |f| {
-            f.set_imu_fault_policy(pol)
+        refused_unchanged(&mut f, "imu_faults.clip_rate_sigma_rad_s", |f| {
+            f.set_imu_faults(pol)
         });
     }
     // Joint condition: 30 rad/s over a 0.5 s gap would add 15 rad of attitude σ.
     let pol = ImuFaultPolicy {
         gap_rate_sigma_rad_s: T::lit(30.0),
-        max_gap_samples: 50,
+        max_gap_s: T::lit(0.5),
         ..d
     };
-    refused_unchanged(&mut f, "gap_rate_sigma_rad_s", |f| {
-        f.set_imu_fault_policy(pol)
+    refused_unchanged(&mut f, "imu_faults.gap_rate_sigma_rad_s", |f| {
+        f.set_imu_faults(pol)
     });
-    for n in [0u16, 101, 501, u16::MAX] {
+    // Shorter than one IMU interval, longer than 5 s, not finite.
+    for g in [0.0, 0.005, 5.1, f64::NAN] {
         let pol = ImuFaultPolicy {
-            max_gap_samples: n,
+            max_gap_s: T::lit(g),
             ..d
         };
-        refused_unchanged(&mut f, "max_gap_samples", |f| f.set_imu_fault_policy(pol));
+        refused_unchanged(&mut f, "imu_faults.max_gap_s", |f| f.set_imu_faults(pol));
     }
+    let hostile = |factor: f64, after_s: Option<f64>| RecoveryPolicy {
+        starved_after_s: after_s.map(T::lit),
+        action: RecoveryAction::Inflate {
+            variance_factor: T::lit(factor),
+        },
+    };
     for factor in [1e30, 100.1, 1.0, 0.5, f64::INFINITY] {
-        let pol = RecoveryPolicy {
-            max_consecutive_rejections: 1,
-            inflation_factor: T::lit(factor),
-        };
-        refused_unchanged(&mut f, "inflation_factor", |f| f.set_recovery_policy(pol));
+        let pol = hostile(factor, Some(0.1));
+        refused_unchanged(&mut f, "recovery.action", |f| f.set_recovery(pol));
+    }
+    for after_s in [0.0, -1.0, 1e9, f64::NAN] {
+        let pol = hostile(4.0, Some(after_s));
+        refused_unchanged(&mut f, "recovery.starved_after_s", |f| f.set_recovery(pol));
+    }
+    let reset = RecoveryPolicy {
+        starved_after_s: Some(T::lit(1.0)),
+        action: RecoveryAction::ResetToPrior,
+    };
+    refused_unchanged(&mut f, "recovery.action", |f| f.set_recovery(reset));
+    for gate in [0.5, 2e4, f64::NAN] {
+        refused_unchanged(&mut f, "gate", |f| f.set_gate(Gate::Nis(T::lit(gate))));
     }
     // The extremes that are accepted: every call accepted, P PSD, everything finite.
     let extreme = ImuFaultPolicy {
-        max_gap_samples: 100,
+        max_gap_s: T::lit(1.0),
         gap_accel_sigma_m_s2: T::lit(100.0),
         gap_rate_sigma_rad_s: T::lit(1.0),
         clip_accel_sigma_m_s2: T::lit(1000.0),
         clip_rate_sigma_rad_s: T::lit(50.0),
     };
-    f.set_imu_fault_policy(extreme).unwrap();
-    f.set_recovery_policy(RecoveryPolicy {
-        max_consecutive_rejections: 1,
-        inflation_factor: T::lit(100.0),
-    })
-    .unwrap();
+    f.set_imu_faults(extreme).unwrap();
+    // Inflation at the first fully rejected LOS sample (0.1 s after the one before).
+    f.set_recovery(hostile(100.0, Some(0.1))).unwrap();
     let both = ClipFlags {
         accel: true,
         gyro: true,
     };
     for k in 0..3000 {
         match k % 500 {
-            0 => f.propagate_gap(100).unwrap(),
-            1..=200 => f.propagate_clipped(&increment(0.0), both).unwrap(),
-            _ => f.propagate(&increment(0.0)).unwrap(),
+            // 100 samples lost (1 s): bridged by the filter.
+            0 => f.propagate(&after_gap(&f, 101, increment(0.0))).unwrap(),
+            1..=200 => f
+                .propagate_clipped(&stamped(&f, increment(0.0)), both)
+                .unwrap(),
+            _ => f.propagate(&stamped(&f, increment(0.0))).unwrap(),
         }
         if k % 10 == 9 {
             // A 2° false lock half of the time (gate rejections, recovery inflations).
             let off = if (k / 100) % 2 == 0 { 0.035 } else { 0.001 };
             let g = los_from_estimate(&f, off, off);
-            if g.pitch_rad.to_f64().abs() < 1.3 {
+            if g.gimbal.pitch_rad.to_f64().abs() < 1.3 {
                 let r = f.update_los(&g);
                 assert!(r.is_ok(), "update at {k}: {r:?}");
                 assert_eq!(p_defect(&f), None, "after update {k}");
@@ -297,7 +357,8 @@ fn setters<T: Real>() {
         }
         assert!(all_finite(&f), "step {k}");
     }
-    assert!(f.counters().inflations > 0);
+    assert!(f.aid_counters(SeekerAid::Los).recoveries > 0);
+    assert!(f.health().gaps_bridged >= 6);
 }
 
 #[test]
@@ -308,7 +369,7 @@ fn setters_refuse_values_outside_their_ranges() {
 
 fn config_ranges<T: Real>() {
     let good = config::<T>(offset(2000.0, 70_000.0, 0.0));
-    assert!(SeekerIns::new(good, initial(), &p0()).is_ok());
+    assert!(SeekerIns::new(&good, &start_state()).is_ok());
     type Set<T> = fn(&mut SeekerInsConfig<T>, f64);
     type Field<'a, T> = (&'a str, Set<T>, &'a [f64], &'a [f64]);
     let cases: [Field<T>; 5] = [
@@ -337,8 +398,8 @@ fn config_ranges<T: Real>() {
             &[1e-5, 0.1],
         ),
         (
-            "gate_nis",
-            |c, v| c.gate_nis = T::lit(v),
+            "gate",
+            |c, v| c.gate = Gate::Nis(T::lit(v)),
             &[0.5, 2e4, 1e30],
             &[1.0, 1e4],
         ),
@@ -352,7 +413,7 @@ fn config_ranges<T: Real>() {
                 c.covariance_interval_steps = 1;
             }
             assert_eq!(
-                SeekerIns::new(c, initial(), &p0()).err(),
+                SeekerIns::new(&c, &start_state()).err(),
                 Some(NavError::InvalidConfig {
                     field,
                     issue: ConfigIssue::OutOfRange
@@ -364,21 +425,24 @@ fn config_ranges<T: Real>() {
             let mut c = good;
             set(&mut c, *v);
             c.covariance_interval_steps = 1;
-            assert!(SeekerIns::new(c, initial(), &p0()).is_ok(), "{field} = {v}");
+            // A gap bound the IMU rate allows (at most 500 held samples).
+            let gap_s = (100.0 * c.imu_dt_s.to_f64()).min(0.5);
+            c.imu_faults.max_gap_s = T::lit(gap_s);
+            assert!(SeekerIns::new(&c, &start_state()).is_ok(), "{field} = {v}");
         }
     }
     // Joint: covariance interval × IMU interval ≤ 1 s.
     let mut c = good;
     c.covariance_interval_steps = 101;
     assert_eq!(
-        SeekerIns::new(c, initial(), &p0()).err(),
+        SeekerIns::new(&c, &start_state()).err(),
         Some(NavError::InvalidConfig {
             field: "covariance_interval_steps",
             issue: ConfigIssue::OutOfRange
         })
     );
     c.covariance_interval_steps = 100;
-    assert!(SeekerIns::new(c, initial(), &p0()).is_ok());
+    assert!(SeekerIns::new(&c, &start_state()).is_ok());
 }
 
 #[test]
@@ -394,15 +458,15 @@ fn configuration_ranges_are_enforced() {
 fn out_of_range_and_back<T: Real>() {
     let mut f = filter::<T>(offset(2000.0, 70_000.0, 0.0));
     for _ in 0..100 {
-        f.propagate(&increment(0.0)).unwrap();
+        f.propagate(&stamped(&f, increment(0.0))).unwrap();
     }
-    assert_eq!(f.health(), HealthState::Nominal);
+    assert_eq!(f.health().state, HealthState::Nominal);
     for k in 0..20_000 {
-        f.propagate(&increment(90.0))
+        f.propagate(&stamped(&f, increment(90.0)))
             .unwrap_or_else(|e| panic!("sample {k} refused: {e:?}"));
         if k % 10 == 9 {
             let g = los_from_estimate(&f, 0.0, 0.0);
-            if g.pitch_rad.to_f64().abs() < 1.3 {
+            if g.gimbal.pitch_rad.to_f64().abs() < 1.3 {
                 f.update_los(&g)
                     .unwrap_or_else(|e| panic!("update {k} refused: {e:?}"));
             }
@@ -415,8 +479,8 @@ fn out_of_range_and_back<T: Real>() {
         "{}",
         f.state().position.alt_m
     );
-    assert_eq!(f.health(), HealthState::NeedsReinitialisation);
-    assert!(f.health_counters().out_of_range_samples > 0);
+    assert_eq!(f.health().state, HealthState::NeedsReinitialisation);
+    assert!(f.seeker_counters().out_of_range_samples > 0);
     // Refused re-initialisations change nothing.
     let mut p_nav = SMatrix::<T, 9, 9>::from_fn(|i, j| {
         if i == j {
@@ -430,17 +494,17 @@ fn out_of_range_and_back<T: Real>() {
     bad[(3, 4)] = T::lit(150.0);
     bad[(4, 3)] = T::lit(150.0);
     assert_eq!(
-        f.reinitialise(initial(), &bad),
+        f.reinitialise(&start_with(initial(), &bad)),
         Err(NavError::CovarianceNotPositiveSemiDefinite)
     );
     bad = p_nav;
     bad[(6, 6)] = T::lit(11.0);
-    assert!(f.reinitialise(initial(), &bad).is_err());
+    assert!(f.reinitialise(&start_with(initial(), &bad)).is_err());
     bad[(6, 6)] = T::lit(f64::NAN);
-    assert!(f.reinitialise(initial(), &bad).is_err());
+    assert!(f.reinitialise(&start_with(initial(), &bad)).is_err());
     let mut far = initial::<T>();
     far.position.alt_m = 2.0e6;
-    assert!(f.reinitialise(far, &p_nav).is_err());
+    assert!(f.reinitialise(&start_with(far, &p_nav)).is_err());
     assert_eq!(format!("{f:?}"), before);
     // The way back.
     let biases = (
@@ -451,8 +515,8 @@ fn out_of_range_and_back<T: Real>() {
     let p_bias = f.covariance().fixed_view::<8, 8>(9, 9).into_owned();
     p_nav[(0, 2)] = T::lit(1e-6 * 6e-6 * 40.0);
     p_nav[(2, 0)] = p_nav[(0, 2)];
-    f.reinitialise(initial(), &p_nav).unwrap();
-    assert_eq!(f.health(), HealthState::Initialising);
+    f.reinitialise(&start_with(initial(), &p_nav)).unwrap();
+    assert_eq!(f.health().state, HealthState::Initialising);
     assert_eq!(
         biases,
         (
@@ -468,13 +532,13 @@ fn out_of_range_and_back<T: Real>() {
         .fixed_view::<9, 8>(0, 9)
         .iter()
         .all(|v| *v == T::zero()));
-    assert_eq!(f.health_counters().reinitialisations, 1);
+    assert_eq!(f.health().reinitialisations, 1);
     for _ in 0..100 {
-        f.propagate(&increment(0.0)).unwrap();
+        f.propagate(&stamped(&f, increment(0.0))).unwrap();
     }
     let r = f.update_los(&los_from_estimate(&f, 0.001, 0.0)).unwrap();
     assert_eq!(r.pitch.outcome, FusionOutcome::Fused);
-    assert_eq!(f.health(), HealthState::Nominal);
+    assert_eq!(f.health().state, HealthState::Nominal);
 }
 
 #[test]
@@ -492,11 +556,11 @@ fn rare_landmark_sightings_never_stall() {
     let mut degraded_seen = false;
     for k in 0..300_000u32 {
         let t_s = f64::from(k) * 0.01;
-        f.propagate(&increment(0.02))
+        f.propagate(&stamped(&f, increment(0.02)))
             .unwrap_or_else(|e| panic!("sample {k} refused: {e:?}"));
         if t_s % 1000.0 < 20.0 && k % 10 == 9 {
             let g = los_from_estimate(&f, 0.001, -0.001);
-            if g.pitch_rad.abs() < 1.3 {
+            if g.gimbal.pitch_rad.abs() < 1.3 {
                 f.update_los(&g)
                     .unwrap_or_else(|e| panic!("update {k} refused: {e:?}"));
             }
@@ -504,11 +568,13 @@ fn rare_landmark_sightings_never_stall() {
         if k % 1000 == 999 {
             assert_eq!(p_defect(&f), None, "sample {k}");
             assert!(all_finite(&f));
-            degraded_seen |= f.health() == HealthState::Degraded;
+            degraded_seen |= f.health().state == HealthState::Degraded;
         }
     }
     assert!(degraded_seen);
-    assert!(f.health_counters().samples_since_fusion > 90_000);
+    // The last sighting ended 980 s before the end: the aid is lost (and the unaided vertical
+    // channel may have left the model range).
+    assert_ne!(f.health().state, HealthState::Nominal);
 }
 
 /// In f32 the old landmark vector formed both ECEF positions (≈ 6.4e6 m) and subtracted them:
@@ -540,29 +606,38 @@ fn landmark_vector_precision_does_not_depend_on_the_position() {
 fn close_landmark<T: Real>() {
     let mut f = filter::<T>(offset(1.0, 0.5, 1000.5));
     for _ in 0..10 {
-        f.propagate(&increment(0.0)).unwrap();
+        f.propagate(&stamped(&f, increment(0.0))).unwrap();
     }
     // 10 samples at 200 m/s east moved the vehicle 20 m: start over from a state at the
     // landmark's side (reinitialise keeps the rest).
     let mut s = *f.state();
     s.position = offset(0.0, 0.0, 1000.0);
     let p_nav = f.covariance().fixed_view::<9, 9>(0, 0).into_owned();
-    f.reinitialise(s, &p_nav).unwrap();
-    let (p, st) = (*f.covariance(), *f.state());
+    f.reinitialise(&start_with(s, &p_nav)).unwrap();
+    // A LOS sample before the first IMU sample after the re-initialisation: the INS has no
+    // time yet, the sample is skipped.
     let g = GimbalAngles {
         pitch_rad: T::lit(-0.3),
         yaw_rad: T::lit(0.4),
     };
-    let r = f.update_los(&g).unwrap();
+    let r = f.update_los(&at_ins_time(&f, g)).unwrap();
+    assert_eq!(r.skipped, Some(LosSkipReason::NotAtInsTime), "{r:?}");
+    // One sample (2 m east, still within the minimum range), P up to date.
+    f.propagate(&stamped(&f, increment(0.0))).unwrap();
+    f.predict_covariance().unwrap();
+    let (p, st) = (*f.covariance(), *f.state());
+    let r = f.update_los(&at_ins_time(&f, g)).unwrap();
     assert_eq!(r.skipped, Some(LosSkipReason::LandmarkTooClose), "{r:?}");
     assert_eq!(
         (r.pitch.outcome, r.yaw.outcome),
         (FusionOutcome::Skipped, FusionOutcome::Skipped)
     );
     assert_eq!((p, st), (*f.covariance(), *f.state()));
-    assert!(matches!(f.health(), HealthState::Initialising));
+    assert_eq!(f.health().state, HealthState::Degraded);
     // At 150 m, the true LOS (f64 geometry) against the f32 model: residual ≪ the noise.
     let mut f = filter::<T>(offset(100.0, 110.0, 1000.0 - 30.0));
+    f.propagate(&stamped(&f, increment(0.0))).unwrap();
+    f.predict_covariance().unwrap();
     let s = *f.state();
     let d = landmark_vector_ned(
         &s.position,
@@ -574,7 +649,7 @@ fn close_landmark<T: Real>() {
         pitch_rad: T::lit(g.pitch_rad),
         yaw_rad: T::lit(g.yaw_rad),
     };
-    let r = f.update_los(&g).unwrap();
+    let r = f.update_los(&at_ins_time(&f, g)).unwrap();
     assert_eq!(r.skipped, None);
     for c in [r.pitch, r.yaw] {
         assert!(c.innovation.to_f64().abs() < 1e-5, "{r:?}");

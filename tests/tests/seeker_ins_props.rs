@@ -1,16 +1,27 @@
-//! Issue 7 for the seeker-aided INS: property tests (f32 and f64), bad input refused without
+//! Robustness of the seeker-aided INS: property tests (f32 and f64), bad input refused without
 //! damage, χ² gate counters and the recovery path, f32/f64 agreement and a soak run.
 
 use nalgebra::{SMatrix, Vector3};
+use nav_core::contract::{Estimator, Gate, RecoveryAction, RecoveryPolicy};
 use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
-use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned};
 use nav_core::seeker_ins::{
-    GimbalAngles, ImuIncrement, InsState, Landmark, LosResidual, LosSkipReason, Position,
-    RecoveryPolicy, SeekerIns, SeekerInsConfig,
+    gimbal_angles_of, landmark_vector_ned, GimbalAngles, ImuIncrement, InsState, Landmark,
+    LosSample, LosSkipReason, Position, SeekerAid, SeekerIns, SeekerInsConfig, SeekerInsInitial,
 };
+use nav_core::time::Timestamp;
 use nav_core::{NavError, Real};
 use proptest::prelude::*;
+
+/// `inc` stamped one nominal IMU interval after the filter's last sample (the first sample at
+/// one interval after the epoch): a regular-rate IMU clock.
+fn stamped<T: Real>(f: &SeekerIns<T>, mut inc: ImuIncrement<T>) -> ImuIncrement<T> {
+    let dt_us = f.ins().dt_us();
+    inc.time = f
+        .time()
+        .map_or(Timestamp::from_micros(dt_us), |t| t.add_micros(dt_us));
+    inc
+}
 
 const LAT0: f64 = 0.645_771_823_237_901_2; // 37°
 const LON0: f64 = 2.216_568_150_032_737; // 127°
@@ -31,14 +42,10 @@ fn config<T: Real>(lm_north_m: f64, lm_east_m: f64) -> SeekerInsConfig<T> {
     })
     .unwrap();
     SeekerInsConfig {
-        imu_dt_s: T::lit(0.01),
-        covariance_interval_steps: 10,
         accel_noise_density_m_s2_rt_hz: T::lit(5e-5),
         gyro_noise_density_rad_s_rt_hz: T::lit(3e-6),
         seeker_noise_rad: T::lit(0.003),
-        gate_nis: T::lit(16.0),
-        landmark: lm,
-        residual: LosResidual::Projected2d,
+        ..SeekerInsConfig::paper(lm)
     }
 }
 
@@ -55,18 +62,28 @@ fn p0<T: Real>() -> SMatrix<T, 17, 17> {
     p
 }
 
-fn filter<T: Real>(cfg: SeekerInsConfig<T>) -> SeekerIns<T> {
+fn initial<T: Real>() -> SeekerInsInitial<T> {
     let c = euler_to_dcm(T::zero(), T::zero(), T::lit(std::f64::consts::FRAC_PI_2));
-    SeekerIns::new(
-        cfg,
-        InsState {
+    SeekerInsInitial {
+        state: InsState {
             position: start_position(),
             vel_ned_m_s: Vector3::new(T::zero(), T::lit(200.0), T::zero()),
             q_b_n: dcm_to_quat(&c),
         },
-        &p0(),
-    )
-    .unwrap()
+        covariance: p0(),
+    }
+}
+
+fn filter<T: Real>(cfg: SeekerInsConfig<T>) -> SeekerIns<T> {
+    SeekerIns::new(&cfg, &initial()).unwrap()
+}
+
+/// A LOS sample of `gimbal` at the filter's time (its last IMU sample).
+fn at_ins_time<T: Real>(f: &SeekerIns<T>, gimbal: GimbalAngles<T>) -> LosSample<T> {
+    LosSample {
+        time: f.time().unwrap_or_default(),
+        gimbal,
+    }
 }
 
 /// Level flight east at 200 m/s: the increments a perfect IMU would give (gravity, earth rate),
@@ -74,6 +91,7 @@ fn filter<T: Real>(cfg: SeekerInsConfig<T>) -> SeekerIns<T> {
 fn increment<T: Real>(man: &[f64; 6]) -> ImuIncrement<T> {
     let dt = 0.01;
     ImuIncrement {
+        time: Timestamp::ZERO,
         delta_theta_rad: Vector3::new(
             T::lit((1.0e-5 + man[3]) * dt),
             T::lit((4.4e-5 + man[4]) * dt),
@@ -87,15 +105,19 @@ fn increment<T: Real>(man: &[f64; 6]) -> ImuIncrement<T> {
     }
 }
 
-/// Gimbal angles pointing from the filter's own estimate at the landmark, plus offsets (rad).
-fn los_from_estimate<T: Real>(f: &SeekerIns<T>, d_pitch: f64, d_yaw: f64) -> GimbalAngles<T> {
+/// Gimbal angles pointing from the filter's own estimate at the landmark, plus offsets (rad),
+/// at the filter's time.
+fn los_from_estimate<T: Real>(f: &SeekerIns<T>, d_pitch: f64, d_yaw: f64) -> LosSample<T> {
     let s = f.state();
     let d = landmark_vector_ned(&s.position, &f.config().landmark);
     let g = gimbal_angles_of(&(quat_to_dcm(&s.q_b_n).transpose() * d));
-    GimbalAngles {
-        pitch_rad: g.pitch_rad + T::lit(d_pitch),
-        yaw_rad: g.yaw_rad + T::lit(d_yaw),
-    }
+    at_ins_time(
+        f,
+        GimbalAngles {
+            pitch_rad: g.pitch_rad + T::lit(d_pitch),
+            yaw_rad: g.yaw_rad + T::lit(d_yaw),
+        },
+    )
 }
 
 /// Smallest eigenvalue of the correlation form D⁻¹PD⁻¹ (D = √diag P), in f64.
@@ -154,12 +176,12 @@ fn run<T: Real>(
 ) -> Result<(), String> {
     for k in 0..seconds * 100 {
         let m = man[(k / 200) % man.len()];
-        f.propagate(&increment::<T>(&m))
+        f.propagate(&stamped(f, increment::<T>(&m)))
             .map_err(|e| format!("{e}"))?;
         if k % 10 == 9 {
             let (a, b) = noise[(k / 10) % noise.len()];
             let g = los_from_estimate(f, a, b);
-            if g.pitch_rad.to_f64().abs() < 1.3 && g.yaw_rad.to_f64().abs() < 1.3 {
+            if g.gimbal.pitch_rad.to_f64().abs() < 1.3 && g.gimbal.yaw_rad.to_f64().abs() < 1.3 {
                 f.update_los(&g).map_err(|e| format!("{e}"))?;
             }
         }
@@ -238,15 +260,50 @@ fn f32_and_f64_agree_over_a_long_run() {
     }
 }
 
+/// `call` is refused and changes nothing but the refusal counters (one more refused IMU
+/// sample or LOS sample, or neither for a setter).
 fn assert_refused<T: Real, R: std::fmt::Debug>(
     f: &mut SeekerIns<T>,
     what: &str,
     call: impl FnOnce(&mut SeekerIns<T>) -> Result<R, NavError>,
 ) {
-    let before = format!("{f:?}");
+    let before = *f;
     let r = call(f);
     assert!(r.is_err(), "{what}: accepted ({r:?})");
-    assert_eq!(format!("{f:?}"), before, "{what}: state changed");
+    let (h0, h1) = (before.health(), f.health());
+    let (a0, a1) = (
+        before.aid_counters(SeekerAid::Los),
+        f.aid_counters(SeekerAid::Los),
+    );
+    let refusals = (h1.imu_refused - h0.imu_refused) + (a1.refused - a0.refused);
+    assert!(refusals <= 1, "{what}: {refusals} refusals counted");
+    let mut h = h1;
+    h.imu_refused = h0.imu_refused;
+    let mut a = a1;
+    a.refused = a0.refused;
+    assert_eq!((h, a), (h0, a0), "{what}: counters changed");
+    assert_eq!(
+        format!(
+            "{:?}{:?}{:?}{:?}{:?}{:?}",
+            f.ins(),
+            f.covariance(),
+            f.accel_bias_m_s2(),
+            f.gyro_bias_rad_s(),
+            f.gimbal_bias_rad(),
+            f.config()
+        ),
+        format!(
+            "{:?}{:?}{:?}{:?}{:?}{:?}",
+            before.ins(),
+            before.covariance(),
+            before.accel_bias_m_s2(),
+            before.gyro_bias_rad_s(),
+            before.gimbal_bias_rad(),
+            before.config()
+        ),
+        "{what}: state changed"
+    );
+    assert_eq!(f.time(), before.time(), "{what}: clock changed");
 }
 
 fn bad_values() -> [f64; 5] {
@@ -257,7 +314,8 @@ fn bad_input_is_refused_without_damage<T: Real>() {
     let mut f = filter::<T>(config(2000.0, 70_000.0));
     // Some history first (pending covariance steps, biases, counters non-trivial).
     for k in 0..95 {
-        f.propagate(&increment::<T>(&[0.0; 6])).unwrap();
+        f.propagate(&stamped(&f, increment::<T>(&[0.0; 6])))
+            .unwrap();
         if k % 10 == 9 {
             let g = los_from_estimate(&f, 0.001, -0.001);
             f.update_los(&g).unwrap();
@@ -272,40 +330,53 @@ fn bad_input_is_refused_without_damage<T: Real>() {
                 inc.delta_v_m_s[i - 3] = T::lit(v);
             }
             assert_refused(&mut f, &format!("increment {i} = {v}"), |f| {
-                f.propagate(&inc)
+                f.propagate(&stamped(f, inc))
             });
         }
         let g = los_from_estimate(&f, 0.0, 0.0);
         let mut bad = g;
-        bad.pitch_rad = T::lit(v);
+        bad.gimbal.pitch_rad = T::lit(v);
         assert_refused(&mut f, &format!("pitch {v}"), |f| f.update_los(&bad));
         let mut bad = g;
-        bad.yaw_rad = T::lit(v);
+        bad.gimbal.yaw_rad = T::lit(v);
         assert_refused(&mut f, &format!("yaw {v}"), |f| f.update_los(&bad));
     }
     // Gimbal pitch beyond the ±80° the update accepts.
     for p in [1.45, -1.45, 3.0] {
-        let bad = GimbalAngles {
-            pitch_rad: T::lit(p),
-            yaw_rad: T::zero(),
-        };
+        let bad = at_ins_time(
+            &f,
+            GimbalAngles {
+                pitch_rad: T::lit(p),
+                yaw_rad: T::zero(),
+            },
+        );
         assert_refused(&mut f, &format!("pitch {p}"), |f| f.update_los(&bad));
     }
     for y in [3.2, -3.2, 10.0] {
-        let bad = GimbalAngles {
-            pitch_rad: T::zero(),
-            yaw_rad: T::lit(y),
-        };
+        let bad = at_ins_time(
+            &f,
+            GimbalAngles {
+                pitch_rad: T::zero(),
+                yaw_rad: T::lit(y),
+            },
+        );
         assert_refused(&mut f, &format!("yaw {y}"), |f| f.update_los(&bad));
     }
     // Recovery policy.
     for factor in [f64::NAN, 0.0, -1.0, 1.0, f64::INFINITY] {
         let pol = RecoveryPolicy {
-            max_consecutive_rejections: 5,
-            inflation_factor: T::lit(factor),
+            starved_after_s: Some(T::lit(0.5)),
+            action: RecoveryAction::Inflate {
+                variance_factor: T::lit(factor),
+            },
         };
         assert_refused(&mut f, &format!("inflation {factor}"), |f| {
-            f.set_recovery_policy(pol)
+            f.set_recovery(pol)
+        });
+    }
+    for gate in [f64::NAN, 0.0, 0.5, 1e5] {
+        assert_refused(&mut f, &format!("gate {gate}"), |f| {
+            f.set_gate(Gate::Nis(T::lit(gate)))
         });
     }
     // A landmark at the vehicle position: valid input, geometrically meaningless: skipped
@@ -313,17 +384,26 @@ fn bad_input_is_refused_without_damage<T: Real>() {
     let mut cfg = config::<T>(0.0, 0.0);
     cfg.landmark = Landmark::new(start_position()).unwrap();
     let mut g = filter::<T>(cfg);
-    let any = GimbalAngles {
-        pitch_rad: T::lit(-0.1),
-        yaw_rad: T::zero(),
-    };
+    g.propagate(&ImuIncrement {
+        time: Timestamp::from_micros(10_000),
+        ..increment::<T>(&[0.0; 6])
+    })
+    .unwrap();
+    g.predict_covariance().unwrap();
+    let any = at_ins_time(
+        &g,
+        GimbalAngles {
+            pitch_rad: T::lit(-0.1),
+            yaw_rad: T::zero(),
+        },
+    );
     let (p_before, s_before) = (*g.covariance(), *g.state());
     let r = g.update_los(&any).unwrap();
     assert_eq!(r.skipped, Some(LosSkipReason::LandmarkTooClose));
     assert_eq!(r.pitch.outcome, FusionOutcome::Skipped);
     assert_eq!(r.yaw.outcome, FusionOutcome::Skipped);
     assert_eq!((p_before, s_before), (*g.covariance(), *g.state()));
-    assert_eq!(g.counters().skipped, 2);
+    assert_eq!(g.aid_counters(SeekerAid::Los).skipped, 2);
 }
 
 #[test]
@@ -338,7 +418,7 @@ fn bad_input_is_refused_without_damage_f64() {
 
 fn every_bad_config_field_is_refused<T: Real>() {
     let good = config::<T>(2000.0, 70_000.0);
-    let init = *filter::<T>(good).state();
+    let init = initial::<T>();
     let bad = [0.0, -1.0, f64::NAN, f64::INFINITY];
     type Setter<T> = fn(&mut SeekerInsConfig<T>, T);
     let fields: [(&str, Setter<T>, bool); 5] = [
@@ -346,7 +426,7 @@ fn every_bad_config_field_is_refused<T: Real>() {
         ("accel", |c, v| c.accel_noise_density_m_s2_rt_hz = v, false),
         ("gyro", |c, v| c.gyro_noise_density_rad_s_rt_hz = v, false),
         ("seeker", |c, v| c.seeker_noise_rad = v, true),
-        ("gate", |c, v| c.gate_nis = v, true),
+        ("gate", |c, v| c.gate = Gate::Nis(v), true),
     ];
     for (name, set, zero_is_bad) in fields {
         for v in bad {
@@ -355,26 +435,23 @@ fn every_bad_config_field_is_refused<T: Real>() {
             }
             let mut c = good;
             set(&mut c, T::lit(v));
-            assert!(
-                SeekerIns::new(c, init, &p0()).is_err(),
-                "{name} = {v} accepted"
-            );
+            assert!(SeekerIns::new(&c, &init).is_err(), "{name} = {v} accepted");
         }
     }
     let mut c = good;
     c.covariance_interval_steps = 0;
-    assert!(SeekerIns::new(c, init, &p0()).is_err());
+    assert!(SeekerIns::new(&c, &init).is_err());
     let mut c = good;
     c.imu_dt_s = T::lit(1e6); // huge dt
-    assert!(SeekerIns::new(c, init, &p0()).is_err());
+    assert!(SeekerIns::new(&c, &init).is_err());
     for v in bad_values() {
-        let mut p = p0::<T>();
-        p[(3, 3)] = T::lit(v);
-        assert!(SeekerIns::new(good, init, &p).is_err(), "p0 {v} accepted");
+        let mut p = init;
+        p.covariance[(3, 3)] = T::lit(v);
+        assert!(SeekerIns::new(&good, &p).is_err(), "p0 {v} accepted");
     }
-    let mut p = p0::<T>();
-    p[(3, 3)] = T::lit(-1.0);
-    assert!(SeekerIns::new(good, init, &p).is_err());
+    let mut p = init;
+    p.covariance[(3, 3)] = T::lit(-1.0);
+    assert!(SeekerIns::new(&good, &p).is_err());
     assert!(Landmark::<T>::new(Position {
         lat_rad: f64::NAN,
         lon_rad: 0.0,
@@ -389,8 +466,8 @@ fn every_bad_config_field_is_refused_f32_f64() {
     every_bad_config_field_is_refused::<f64>();
 }
 
-/// False lock 2° off: every component rejected and counted; after the policy's number of
-/// fully rejected updates P's navigation block is re-inflated (σ × 2), once per 50; true LOS
+/// False lock 2° off: every component rejected and counted; after the policy's 5 s of fully
+/// rejected updates P's navigation block is re-inflated (σ × 2), once per 50 at 10 Hz; true LOS
 /// afterwards is fused again. Loss of lock (no updates) needs no recovery: P grows by itself.
 #[test]
 fn gate_counts_rejections_and_recovery_inflates() {
@@ -400,7 +477,7 @@ fn gate_counts_rejections_and_recovery_inflates() {
         let mut k = 0;
         let mut step_and_update = |f: &mut SeekerIns<T>, off: Option<f64>| {
             for _ in 0..10 {
-                f.propagate(&increment::<T>(&[0.0; 6])).unwrap();
+                f.propagate(&stamped(f, increment::<T>(&[0.0; 6]))).unwrap();
             }
             k += 1;
             // A false lock `o` off the landmark, split equally between pitch and yaw.
@@ -410,7 +487,7 @@ fn gate_counts_rejections_and_recovery_inflates() {
         for _ in 0..50 {
             step_and_update(&mut f, Some(0.0));
         }
-        let c0 = f.counters();
+        let c0 = f.aid_counters(SeekerAid::Los);
         assert_eq!(c0.rejected, 0);
         assert_eq!(c0.fused, 100);
         let var_before = f.covariance()[(6, 6)];
@@ -426,9 +503,9 @@ fn gate_counts_rejections_and_recovery_inflates() {
                 nav_core::math::kalman::FusionOutcome::Rejected
             );
         }
-        let c1 = f.counters();
+        let c1 = f.aid_counters(SeekerAid::Los);
         assert_eq!(c1.rejected, 200);
-        assert_eq!(c1.inflations, 2);
+        assert_eq!(c1.recoveries, 2);
         assert!(f.covariance()[(6, 6)] > var_before * T::lit(10.0));
         check_health(&f, if T::EPS > T::lit(1e-10) { 1e-3 } else { 1e-9 }).unwrap();
         // Lock regained.
@@ -437,7 +514,7 @@ fn gate_counts_rejections_and_recovery_inflates() {
             r.pitch.outcome,
             nav_core::math::kalman::FusionOutcome::Fused
         );
-        assert_eq!(f.counters().consecutive_rejections, 0);
+        assert_eq!(f.aid_counters(SeekerAid::Los).consecutive_rejected, 0);
         // 30 s loss of lock: no updates, P grows, then the first LOS is fused.
         let v0 = f.covariance()[(2, 2)];
         for _ in 0..300 {
@@ -496,11 +573,11 @@ fn soak_f32() {
             man[4] - 0.2 * pitch,
             man[5],
         ];
-        f.propagate(&increment::<f32>(&m)).unwrap();
+        f.propagate(&stamped(&f, increment::<f32>(&m))).unwrap();
         if k % 10 == 9 {
             let (a, b) = (uni(0.005), uni(0.005));
             let g = los_from_estimate(&f, a, b);
-            if g.pitch_rad.abs() < 1.3 {
+            if g.gimbal.pitch_rad.abs() < 1.3 {
                 // Every input here is valid: no error is allowed (a landmark passed or behind
                 // is fused, rejected or skipped, never refused); the report is finite.
                 match f.update_los(&g) {

@@ -180,7 +180,10 @@ fn thumb_toolchain() -> Result<ThumbToolchain, String> {
     Ok(ThumbToolchain::DebianBuildStd)
 }
 
-/// Builds nav-core for both thumb targets, with and without defmt. Returns the toolchain used.
+/// The flight-program examples of `tests/firmware/examples` (`cargo xtask thumb` builds them).
+const FIRMWARE_EXAMPLES: [&str; 1] = ["seeker_ins"];
+
+/// Builds nav-core for both thumb targets, with and without defmt, and the firmware examples.
 fn thumb() -> Result<(), String> {
     let tc = thumb_toolchain()?;
     let mut failures = Vec::new();
@@ -209,6 +212,21 @@ fn thumb() -> Result<(), String> {
                 features.map(|f| format!(" +{f}")).unwrap_or_default()
             );
             if let Err(e) = run(&label, &mut cmd) {
+                failures.push(e);
+            }
+        }
+    }
+    // The firmware examples (flight programs per estimator) build for the M4F target.
+    if matches!(tc, ThumbToolchain::Rustup) {
+        for example in FIRMWARE_EXAMPLES {
+            let mut cmd = cargo();
+            cmd.current_dir(root().join("tests/firmware")).args([
+                "build",
+                "--release",
+                "--example",
+                example,
+            ]);
+            if let Err(e) = run(&format!("thumb firmware example {example}"), &mut cmd) {
                 failures.push(e);
             }
         }

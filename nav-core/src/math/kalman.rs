@@ -508,6 +508,51 @@ fn check_scalar_inputs<T: Real>(innovation: T, r: T) -> Result<(), NavError> {
     Ok(())
 }
 
+/// The gate every scalar update of the crate shares: innovation variance `s = hᵀPh + r`
+/// (given as `hph` and `s`), NIS `ν²/s`, test ratio and outcome (`Fused` when within the gate),
+/// with `1/s`. `None` when s is not finite and positive or `hph < 0` (the measurement cannot be
+/// fused in the working precision).
+#[inline(always)]
+pub fn gate_scalar<T: Real>(
+    innovation: T,
+    hph: T,
+    s: T,
+    gate: Gate<T>,
+) -> Option<(FusionReport<T>, T)> {
+    if !finite(s) || s <= T::zero() || hph < T::zero() {
+        return None;
+    }
+    let inv_s = T::one() / s;
+    let nis = innovation * innovation * inv_s;
+    let (test_ratio, rejected) = match gate {
+        Gate::Off => (T::zero(), false),
+        Gate::Nis(threshold) => {
+            let ratio = nis / threshold;
+            // A NaN ratio or a non-positive threshold rejects.
+            let within = matches!(
+                ratio.partial_cmp(&T::one()),
+                Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
+            );
+            (ratio, !within || threshold <= T::zero())
+        }
+    };
+    let outcome = if rejected {
+        FusionOutcome::Rejected
+    } else {
+        FusionOutcome::Fused
+    };
+    Some((
+        FusionReport {
+            innovation,
+            innovation_variance: s,
+            nis,
+            test_ratio,
+            outcome,
+        },
+        inv_s,
+    ))
+}
+
 enum GainOutcome<T: Real, const N: usize> {
     Rejected(FusionReport<T>),
     Fuse {
@@ -526,31 +571,10 @@ fn gain<T: Real, const N: usize>(
     b: &SVector<T, N>,
     gate: Gate<T>,
 ) -> Result<GainOutcome<T, N>, NavError> {
-    if !finite(s) || s <= T::zero() || hph < T::zero() {
-        return Err(NavError::InnovationVarianceNotPositive);
-    }
-    let inv_s = T::one() / s;
-    let nis = innovation * innovation * inv_s;
-    let (test_ratio, rejected) = match gate {
-        Gate::Off => (T::zero(), false),
-        Gate::Nis(threshold) => {
-            let ratio = nis / threshold;
-            let within = matches!(
-                ratio.partial_cmp(&T::one()),
-                Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
-            );
-            (ratio, !within || threshold <= T::zero())
-        }
-    };
-    let report = |outcome| FusionReport {
-        innovation,
-        innovation_variance: s,
-        nis,
-        test_ratio,
-        outcome,
-    };
-    if rejected {
-        return Ok(GainOutcome::Rejected(report(FusionOutcome::Rejected)));
+    let (report, inv_s) =
+        gate_scalar(innovation, hph, s, gate).ok_or(NavError::InnovationVarianceNotPositive)?;
+    if report.outcome == FusionOutcome::Rejected {
+        return Ok(GainOutcome::Rejected(report));
     }
     let k = b * inv_s;
     let mut c = SVector::<T, N>::zeros();
@@ -562,11 +586,7 @@ fn gain<T: Real, const N: usize>(
     {
         *cj = s * kj - bj;
     }
-    Ok(GainOutcome::Fuse {
-        report: report(FusionOutcome::Fused),
-        k,
-        c,
-    })
+    Ok(GainOutcome::Fuse { report, k, c })
 }
 
 /// Refuses the update if a diagonal element of P⁺ would be negative or non-finite.

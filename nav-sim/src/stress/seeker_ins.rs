@@ -13,12 +13,14 @@
 use super::{EstimatorStress, StressLevel, Tally};
 use crate::rng::{gauss, run_rng, SimRng};
 use nalgebra::{SMatrix, Vector3};
+use nav_core::contract::{Estimator, Gate, RecoveryAction, RecoveryPolicy};
 use nav_core::math::rotation::{dcm_to_euler, dcm_to_quat, euler_to_dcm, quat_to_dcm};
-use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned};
 use nav_core::seeker_ins::{
-    ClipFlags, GimbalAngles, ImuFaultPolicy, ImuIncrement, Ins, InsState, Landmark, LosResidual,
-    Position, RecoveryPolicy, SeekerIns, SeekerInsConfig,
+    default_recovery, gimbal_angles_of, landmark_vector_ned, ClipFlags, GimbalAngles,
+    ImuFaultPolicy, ImuIncrement, Ins, InsState, Landmark, LosResidual, LosSample, Position,
+    SeekerAid, SeekerIns, SeekerInsConfig, SeekerInsInitial,
 };
+use nav_core::time::Timestamp;
 use nav_core::{HealthState, Real};
 use rayon::prelude::*;
 
@@ -98,13 +100,12 @@ fn default_policy() -> ImuFaultPolicy<f64> {
     ImuFaultPolicy::default()
 }
 
-/// The extremes of the documented ranges for a 100 Hz IMU: the longest gap (1 s) with the
-/// largest σ the joint conditions allow, the largest clipping σ.
+/// Near the extremes of the documented ranges for a 100 Hz IMU: a 1 s gap with the largest σ
+/// the joint conditions allow for it, the largest clipping σ.
 fn extreme_policy(dt: f64) -> ImuFaultPolicy<f64> {
-    let n = (1.0 / dt).round().min(500.0) as u16;
-    let gap_s = f64::from(n) * dt;
+    let gap_s = (1.0 / dt).round().min(500.0) * dt;
     ImuFaultPolicy {
-        max_gap_samples: n,
+        max_gap_s: gap_s,
         gap_accel_sigma_m_s2: 100.0 / gap_s,
         gap_rate_sigma_rad_s: 1.0 / gap_s,
         clip_accel_sigma_m_s2: 1000.0,
@@ -115,7 +116,7 @@ fn extreme_policy(dt: f64) -> ImuFaultPolicy<f64> {
 /// σ = 0 everywhere (legal: the filter then trusts held and clipped samples).
 fn zero_policy() -> ImuFaultPolicy<f64> {
     ImuFaultPolicy {
-        max_gap_samples: 100,
+        max_gap_s: 1.0,
         gap_accel_sigma_m_s2: 0.0,
         gap_rate_sigma_rad_s: 0.0,
         clip_accel_sigma_m_s2: 0.0,
@@ -138,7 +139,7 @@ fn cases(level: StressLevel) -> Vec<Case> {
         seeker_noise_rad: SEEKER_NOISE_RAD,
         gate_nis: 16.0,
         policy: default_policy(),
-        recovery: RecoveryPolicy::default(),
+        recovery: default_recovery(),
         sightings: Sightings::Continuous,
         faults: Faults::None,
         vertical_accel_error_m_s2: 0.0,
@@ -147,9 +148,12 @@ fn cases(level: StressLevel) -> Vec<Case> {
         reinitialise: false,
         f64: false,
     };
+    // Inflation at the first fully rejected LOS sample (0.1 s after the one before).
     let hostile_recovery = RecoveryPolicy {
-        max_consecutive_rejections: 1,
-        inflation_factor: 100.0,
+        starved_after_s: Some(0.1),
+        action: RecoveryAction::Inflate {
+            variance_factor: 100.0,
+        },
     };
     let rare = Sightings::Rare {
         on_s: 20.0,
@@ -368,7 +372,9 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
         accel_noise_density_m_s2_rt_hz: T::lit(c.accel_density),
         gyro_noise_density_rad_s_rt_hz: T::lit(c.gyro_density),
         seeker_noise_rad: T::lit(c.seeker_noise_rad),
-        gate_nis: T::lit(c.gate_nis),
+        gate: Gate::Nis(T::lit(c.gate_nis)),
+        recovery: recovery_cast(&c.recovery),
+        imu_faults: policy_cast(&c.policy),
         landmark: lm,
         residual: LosResidual::Projected2d,
     };
@@ -380,26 +386,19 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
             T::zero()
         }
     });
-    let mut f = match SeekerIns::new(config, init, &p0) {
+    let initial = SeekerInsInitial {
+        state: init,
+        covariance: p0,
+    };
+    let mut f = match SeekerIns::new(&config, &initial) {
         Ok(f) => f,
         Err(e) => {
             t.call("new", &Err::<(), _>(e));
             return (t, format!("{}: configuration refused: {e:?}", c.name));
         }
     };
-    let pol = ImuFaultPolicy {
-        max_gap_samples: c.policy.max_gap_samples,
-        gap_accel_sigma_m_s2: T::lit(c.policy.gap_accel_sigma_m_s2),
-        gap_rate_sigma_rad_s: T::lit(c.policy.gap_rate_sigma_rad_s),
-        clip_accel_sigma_m_s2: T::lit(c.policy.clip_accel_sigma_m_s2),
-        clip_rate_sigma_rad_s: T::lit(c.policy.clip_rate_sigma_rad_s),
-    };
-    t.call("set_imu_fault_policy", &f.set_imu_fault_policy(pol));
-    let rec = RecoveryPolicy {
-        max_consecutive_rejections: c.recovery.max_consecutive_rejections,
-        inflation_factor: T::lit(c.recovery.inflation_factor),
-    };
-    t.call("set_recovery_policy", &f.set_recovery_policy(rec));
+    t.call("set_imu_faults", &f.set_imu_faults(config.imu_faults));
+    t.call("set_recovery", &f.set_recovery(config.recovery));
     let acc_bias = Vector3::new(
         ACCEL_BIAS_M_S2 * gauss(&mut rng),
         ACCEL_BIAS_M_S2 * gauss(&mut rng),
@@ -418,14 +417,15 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
     let sd_dth = GYRO_DENSITY * dt.sqrt();
     let seeker_every = ((0.1 / dt).round() as u64).max(1);
     let psd_every = u64::from(c.covariance_interval_steps).max(10);
-    let max_gap = u64::from(c.policy.max_gap_samples);
+    let max_gap_s = c.policy.max_gap_s;
     let mut man = [0.0f64; 6];
-    let mut missing: u64 = 0;
     let mut health_steps = [0u64; 4];
     let mut reinits = 0u32;
     let mut min_eig = f64::INFINITY;
+    let dt_us = (dt * 1e6).round() as u64;
     for k in 1..=c.steps {
         let t_s = k as f64 * dt;
+        let time = Timestamp::from_micros(k * dt_us);
         // Random manoeuvre bursts: a new one every 2 s, large ones one time in five.
         if k % ((2.0 / dt) as u64).max(1) == 0 {
             let big = gauss(&mut rng).abs() > 1.28;
@@ -450,6 +450,7 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
         );
         let w_b = Vector3::new(man[3] - 0.2 * roll, man[4] - 0.2 * pitch, yaw_rate + man[5]);
         let true_inc = ImuIncrement {
+            time,
             delta_theta_rad: w_b * dt,
             delta_v_m_s: f_b * dt,
         };
@@ -461,7 +462,7 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
         let mut sensed_dv = true_inc.delta_v_m_s + acc_bias * dt + noise(&mut rng, sd_dv);
         let mut sensed_dth = true_inc.delta_theta_rad + gyro_bias * dt + noise(&mut rng, sd_dth);
         // Faults at this sample.
-        let (in_gap, clipped) = fault_at(c, t_s, dt, max_gap);
+        let (in_gap, clipped) = fault_at(c, t_s, dt, max_gap_s);
         if clipped {
             // The sensed increment is off by up to the excess the policy's σ models
             // (the truth-side excess: 10 m/s², 0.5 rad/s at most, whatever the policy).
@@ -469,16 +470,10 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
             sensed_dv += Vector3::new(u(10.0), u(10.0), u(10.0));
             sensed_dth += Vector3::new(u(0.5), u(0.5), u(0.5));
         }
-        if in_gap {
-            missing += 1;
-        } else {
-            if missing > 0 {
-                let n = missing.min(max_gap) as u16;
-                let r = f.propagate_gap(n);
-                t.call("propagate_gap", &r);
-                missing = 0;
-            }
+        if !in_gap {
+            // The filter detects a gap from the time stamps and bridges it itself.
             let inc = ImuIncrement {
+                time,
                 delta_theta_rad: sensed_dth.map(T::lit),
                 delta_v_m_s: sensed_dv.map(T::lit),
             };
@@ -498,7 +493,7 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
         if k % psd_every == 0 {
             min_eig = min_eig.min(check(&mut t, &f, eps, "propagate"));
         }
-        let idx = match f.health() {
+        let idx = match f.health().state {
             HealthState::Initialising => 0,
             HealthState::Nominal => 1,
             HealthState::Degraded => 2,
@@ -511,17 +506,17 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
         if k % seeker_every != 0 || in_gap || !sees(c, t_s) {
             continue;
         }
-        if c.reinitialise && f.health() == HealthState::NeedsReinitialisation {
+        if c.reinitialise && f.health().state == HealthState::NeedsReinitialisation {
             let s = perturbed::<T>(truth.state(), &mut rng);
-            let p_nav = SMatrix::<T, 9, 9>::from_fn(|i, j| {
-                let sig = [1.6e-5, 1.6e-5, 100.0, 5.0, 5.0, 5.0, 0.035, 0.035, 0.035];
-                if i == j {
-                    T::lit(sig[i] * sig[i])
-                } else {
-                    T::zero()
-                }
+            let sig = [1.6e-5, 1.6e-5, 100.0, 5.0, 5.0, 5.0, 0.035, 0.035, 0.035];
+            let covariance = SMatrix::<T, 17, 17>::from_fn(|i, j| match sig.get(i) {
+                Some(s) if i == j => T::lit(s * s),
+                _ => T::zero(),
             });
-            let r = f.reinitialise(s, &p_nav);
+            let r = f.reinitialise(&SeekerInsInitial {
+                state: s,
+                covariance,
+            });
             t.call("reinitialise", &r);
             reinits += 1;
         }
@@ -542,13 +537,16 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
         } else if yaw < -std::f64::consts::PI {
             yaw += 2.0 * std::f64::consts::PI;
         }
-        let meas = GimbalAngles {
-            pitch_rad: T::lit(
-                gimbal.pitch_rad
-                    + seeker_bias.0
-                    + c.seeker_noise_rad.min(SEEKER_NOISE_RAD) * gauss(&mut rng),
-            ),
-            yaw_rad: T::lit(yaw),
+        let meas = LosSample {
+            time,
+            gimbal: GimbalAngles {
+                pitch_rad: T::lit(
+                    gimbal.pitch_rad
+                        + seeker_bias.0
+                        + c.seeker_noise_rad.min(SEEKER_NOISE_RAD) * gauss(&mut rng),
+                ),
+                yaw_rad: T::lit(yaw),
+            },
         };
         let before = f;
         let r = f.update_los(&meas);
@@ -601,14 +599,23 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
                     accel_noise_density_m_s2_rt_hz: cfg.accel_noise_density_m_s2_rt_hz.to_f64(),
                     gyro_noise_density_rad_s_rt_hz: cfg.gyro_noise_density_rad_s_rt_hz.to_f64(),
                     seeker_noise_rad: cfg.seeker_noise_rad.to_f64().max(1e-5),
-                    gate_nis: cfg.gate_nis.to_f64(),
+                    gate: Gate::Nis(c.gate_nis),
+                    recovery: c.recovery,
+                    imu_faults: c.policy,
                     landmark: lm64,
                     residual: LosResidual::Projected2d,
                 };
-                let mut f64f = SeekerIns::new(cfg64, s64, &pf.map(|v| v)).unwrap();
-                let m64 = GimbalAngles {
-                    pitch_rad: meas.pitch_rad.to_f64(),
-                    yaw_rad: meas.yaw_rad.to_f64(),
+                let init64 = SeekerInsInitial {
+                    state: s64,
+                    covariance: pf,
+                };
+                let mut f64f = SeekerIns::new(&cfg64, &init64).unwrap();
+                let m64 = LosSample {
+                    time: meas.time,
+                    gimbal: GimbalAngles {
+                        pitch_rad: meas.gimbal.pitch_rad.to_f64(),
+                        yaw_rad: meas.gimbal.yaw_rad.to_f64(),
+                    },
                 };
                 let r64 = f64f.update_los(&m64);
                 let pa = *f64f.covariance();
@@ -636,13 +643,14 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
         min_eig = min_eig.min(check(&mut t, &f, eps, "update_los"));
     }
     min_eig = min_eig.min(check(&mut t, &f, eps, "end"));
-    let lc = f.counters();
-    let hc = f.health_counters();
+    let lc = f.aid_counters(SeekerAid::Los);
+    let sc = f.seeker_counters();
+    let hc = f.health();
     let total = health_steps.iter().sum::<u64>().max(1) as f64;
     let pct = |i: usize| 100.0 * health_steps.get(i).copied().unwrap_or(0) as f64 / total;
     let summary = format!(
         "{}: {} IMU samples; LOS components fused {} rejected {} skipped {} conditioned {}; \
-         inflations {}; variance limits {}; covariance repairs {}; out-of-range samples {}; \
+         inflations {}; limits hit {}; gaps bridged {} reset {}; out-of-range samples {}; \
          reinitialisations {}; health nominal {:.1} % degraded {:.1} % needs-reinit {:.1} %; \
          end {:?}; smallest correlation eigenvalue of P {:.2e}",
         c.name,
@@ -650,24 +658,24 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
         lc.fused,
         lc.rejected,
         lc.skipped,
-        lc.conditioned,
-        lc.inflations,
-        hc.variance_limits,
-        hc.covariance_repairs,
-        hc.out_of_range_samples,
+        sc.conditioned,
+        lc.recoveries,
+        hc.limits_hit,
+        hc.gaps_bridged,
+        hc.gaps_reset,
+        sc.out_of_range_samples,
         reinits,
         pct(1),
         pct(2),
         pct(3),
-        f.health(),
+        hc.state,
         min_eig
     );
     (t, summary)
 }
 
 /// Whether sample time `t_s` is in an IMU gap and whether the sample is clipped.
-fn fault_at(c: &Case, t_s: f64, dt: f64, max_gap: u64) -> (bool, bool) {
-    let gap_s = max_gap as f64 * dt;
+fn fault_at(c: &Case, t_s: f64, dt: f64, gap_s: f64) -> (bool, bool) {
     let in_gap = |every_s: f64| {
         let ph = (t_s % every_s) - (every_s - gap_s - 1.0);
         ph > 0.0 && ph <= gap_s + 0.5 * dt
@@ -764,4 +772,29 @@ fn check_outputs<T: Real>(t: &mut Tally, f: &SeekerIns<T>, eps: f64, at: &str) {
             .chain(f.gimbal_bias_rad().iter().map(|v| v.to_f64()))
             .chain(sig),
     );
+}
+
+/// The recovery policy in the filter's precision.
+fn recovery_cast<T: Real>(r: &RecoveryPolicy<f64>) -> RecoveryPolicy<T> {
+    RecoveryPolicy {
+        starved_after_s: r.starved_after_s.map(T::lit),
+        action: match r.action {
+            RecoveryAction::Inflate { variance_factor } => RecoveryAction::Inflate {
+                variance_factor: T::lit(variance_factor),
+            },
+            RecoveryAction::ResetToPrior => RecoveryAction::ResetToPrior,
+            RecoveryAction::Reanchor => RecoveryAction::Reanchor,
+        },
+    }
+}
+
+/// The IMU fault policy in the filter's precision.
+fn policy_cast<T: Real>(p: &ImuFaultPolicy<f64>) -> ImuFaultPolicy<T> {
+    ImuFaultPolicy {
+        max_gap_s: T::lit(p.max_gap_s),
+        gap_accel_sigma_m_s2: T::lit(p.gap_accel_sigma_m_s2),
+        gap_rate_sigma_rad_s: T::lit(p.gap_rate_sigma_rad_s),
+        clip_accel_sigma_m_s2: T::lit(p.clip_accel_sigma_m_s2),
+        clip_rate_sigma_rad_s: T::lit(p.clip_rate_sigma_rad_s),
+    }
 }

@@ -403,10 +403,12 @@ fn vca_check() -> bool {
 // ---------------------------------------------------------------- seeker-aided INS
 
 use nalgebra::Vector2;
+use nav_core::contract::Estimator;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
-use nav_core::seeker_ins::filter::{LosResidual, SeekerIns, SeekerInsConfig};
-use nav_core::seeker_ins::measurement::{gimbal_angles_of, landmark_vector_ned, Landmark};
-use nav_core::seeker_ins::mechanization::{ImuIncrement, Ins, InsState, Position};
+use nav_core::seeker_ins::{
+    gimbal_angles_of, landmark_vector_ned, paper_initial_covariance, ImuIncrement, Ins, InsState,
+    Landmark, LosSample, Position, SeekerIns, SeekerInsConfig, SeekerInsInitial,
+};
 
 const INS_DT_S: f32 = 0.01;
 
@@ -423,9 +425,15 @@ fn ins_initial() -> InsState<f32> {
     }
 }
 
-fn ins_increment() -> ImuIncrement<f32> {
+/// The sample after the INS's last one (a regular 100 Hz clock).
+fn ins_increment(ins: &Ins<f32>) -> ImuIncrement<f32> {
+    let dt_us = ins.dt_us();
+    let time = ins
+        .time()
+        .map_or(Timestamp::from_micros(dt_us), |t| t.add_micros(dt_us));
     // Level flight east: the accelerometers feel gravity (up), the gyros earth + transport rate.
     core::hint::black_box(ImuIncrement {
+        time,
         delta_theta_rad: Vector3::new(1.0e-7, 4.4e-7, -3.5e-7),
         delta_v_m_s: Vector3::new(0.0, 0.0, -9.80 * INS_DT_S),
     })
@@ -459,7 +467,7 @@ fn ins_setup() {
 
 fn ins_step() {
     with_state(&INS, |(ins, ok)| {
-        *ok &= ins.step(&ins_increment()).is_ok();
+        *ok &= ins.step(&ins_increment(ins)).is_ok();
     });
 }
 
@@ -469,55 +477,25 @@ fn ins_check() -> bool {
     })
 }
 
-fn seeker_p0() -> SMatrix<f32, 17, 17> {
-    let deg = core::f32::consts::PI / 180.0;
-    let r0 = 6_371_000.0f32;
-    let ug = 9.80665e-6f32;
-    let deg_h = deg / 3600.0;
-    let sig = [
-        40.0 / r0,
-        40.0 / r0,
-        40.0,
-        10.0,
-        10.0,
-        10.0,
-        deg,
-        deg,
-        5.0 * deg,
-        100.0 * ug,
-        100.0 * ug,
-        100.0 * ug,
-        0.01 * deg_h,
-        0.01 * deg_h,
-        0.01 * deg_h,
-        0.04 * deg,
-        0.04 * deg,
-    ];
-    let mut p = SMatrix::<f32, 17, 17>::zeros();
-    for (i, s) in sig.iter().enumerate() {
-        p[(i, i)] = s * s;
-    }
-    p
-}
-
 fn seeker_setup() {
     let state = landmark().and_then(|lm| {
+        // The paper's filter with the covariance step deferred: the kernels measure the
+        // prediction and the update separately.
         let cfg = SeekerInsConfig {
-            imu_dt_s: INS_DT_S,
             covariance_interval_steps: 100,
-            accel_noise_density_m_s2_rt_hz: 5.0 * 9.80665e-6,
-            gyro_noise_density_rad_s_rt_hz: 0.01 * core::f32::consts::PI / 180.0 / 60.0,
-            seeker_noise_rad: 0.17 * core::f32::consts::PI / 180.0,
-            gate_nis: 16.0,
-            landmark: lm,
-            residual: LosResidual::Projected2d,
+            ..SeekerInsConfig::paper(lm)
         };
-        SeekerIns::new(cfg, ins_initial(), &seeker_p0()).ok()
+        let initial = SeekerInsInitial {
+            state: ins_initial(),
+            covariance: paper_initial_covariance(),
+        };
+        SeekerIns::new(&cfg, &initial).ok()
     });
     let mut state = state.map(|filter| Seeker { filter, ok: true });
     if let Some(s) = state.as_mut() {
         for _ in 0..10 {
-            s.ok &= s.filter.propagate(&ins_increment()).is_ok();
+            let inc = ins_increment(s.filter.ins());
+            s.ok &= s.filter.propagate(&inc).is_ok();
         }
     }
     store(&SEEKER, state);
@@ -545,8 +523,11 @@ fn eskf_los_update() {
         let st = *s.filter.state();
         let d = landmark_vector_ned(&st.position, &lm);
         let u_b = quat_to_dcm(&st.q_b_n).transpose() * d.normalize();
-        let g = core::hint::black_box(gimbal_angles_of(&u_b));
-        s.ok &= s.filter.update_los(&g).is_ok();
+        let sample = core::hint::black_box(LosSample {
+            time: s.filter.time().unwrap_or_default(),
+            gimbal: gimbal_angles_of(&u_b),
+        });
+        s.ok &= s.filter.update_los(&sample).is_ok();
     });
 }
 

@@ -9,9 +9,8 @@ use core::hint::black_box as bb;
 use cortex_m_rt::{exception, ExceptionFrame};
 use cortex_m_semihosting::debug;
 use nalgebra::Vector3;
-use nav_core::seeker_ins::filter::{ClipFlags, SeekerIns};
-use nav_core::seeker_ins::measurement::GimbalAngles;
-use nav_core::seeker_ins::mechanization::ImuIncrement;
+use nav_core::contract::Estimator;
+use nav_core::seeker_ins::{ClipFlags, GimbalAngles, ImuIncrement, LosSample, SeekerIns};
 use nav_core::transfer_alignment::{MasterSample, SlaveHistory, SlaveSample};
 use nav_core::vertical_channel::{BaroSample, ImuSample, VelocitySample};
 use nav_core::{HealthState, NavError};
@@ -33,7 +32,7 @@ pub fn run(designs: &dyn DesignSource) -> ! {
 /// configurations opaque to the optimiser), set its gates and recovery policies, then at each
 /// cycle call every run-time entry point: both transfer-alignment filters (`step`, the delayed
 /// match from the slave history, `propagate` through master dropouts), both vertical loops
-/// (gated `step`, `reinitialise`), and the seeker INS (`propagate`, its clipped and gap forms,
+/// (gated `step`, `reinitialise`), and the seeker INS (`propagate` and its clipped form, gaps bridged inside,
 /// `predict_covariance`, `update_los`). Inputs are opaque values; the cycle count is opaque (0
 /// here: the image is only linked and measured).
 fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
@@ -41,15 +40,16 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
     let mut ta12 = designs.ta12()?;
     let mut cl = designs.vc_classical()?;
     let mut ai = designs.vc_aided()?;
-    let (cfg, p0) = nav_golden::seeker_config()?;
-    let mut sk = SeekerIns::new(bb(cfg), bb(nav_golden::seeker_initial()), &bb(p0))?;
+    let sk_initial = bb(nav_golden::seeker_start_state());
+    let mut sk = SeekerIns::new(&bb(nav_golden::seeker_config()?), &sk_initial)?;
     let gate = bb(nav_golden::vc_gate());
     cl.set_gate(Some(&gate))?;
     ai.set_gate(Some(&gate))?;
     ta9.set_recovery(bb(ta9.recovery()))?;
     ta12.set_recovery(bb(ta12.recovery()))?;
-    sk.set_recovery_policy(bb(sk.recovery_policy()))?;
-    sk.set_imu_fault_policy(bb(sk.imu_fault_policy()))?;
+    sk.set_gate(bb(sk.config().gate))?;
+    sk.set_recovery(bb(sk.config().recovery))?;
+    sk.set_imu_faults(bb(sk.config().imu_faults))?;
     let mut history = SlaveHistory::<f32, 8>::new();
     let v = |x: f32| bb(Vector3::new(x, x, x));
     // A flight loop does not stop on a refused sample: it counts the error (the filter is
@@ -110,28 +110,26 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
             count(ai.reinitialise(&bb(nav_golden::vc_initial())));
         }
         let inc = ImuIncrement {
+            time: bb(nav_core::time::Timestamp::ZERO),
             delta_theta_rad: v(0.0),
             delta_v_m_s: v(0.0),
         };
         count(match bb(0u8) {
             0 => sk.propagate(&inc),
-            1 => sk.propagate_clipped(&inc, bb(ClipFlags::default())),
-            _ => sk.propagate_gap(bb(1)),
+            _ => sk.propagate_clipped(&inc, bb(ClipFlags::default())),
         });
-        if bb(sk.health()) == HealthState::NeedsReinitialisation {
-            // The navigation block of the initial covariance (element-wise: no view copy, whose
-            // bounds checks the optimiser cannot remove).
-            let p_nav = bb(nalgebra::SMatrix::<f32, 9, 9>::from_fn(|i, j| {
-                p0.get((i, j)).copied().unwrap_or(0.0)
-            }));
-            count(sk.reinitialise(bb(nav_golden::seeker_initial()), &p_nav));
+        if bb(sk.health().state) == HealthState::NeedsReinitialisation {
+            count(sk.reinitialise(&sk_initial));
         }
         if bb(true) {
             count(sk.predict_covariance());
             count(
-                sk.update_los(&bb(GimbalAngles {
-                    pitch_rad: 0.0,
-                    yaw_rad: 0.0,
+                sk.update_los(&bb(LosSample {
+                    time: inc.time,
+                    gimbal: GimbalAngles {
+                        pitch_rad: 0.0,
+                        yaw_rad: 0.0,
+                    },
                 }))
                 .map(|r| {
                     bb(r);
@@ -144,7 +142,8 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
             cl.altitude_m(),
             ai.vz_up_m_s(),
             sk.state().vel_ned_m_s,
-            sk.health_counters(),
+            sk.health(),
+            sk.aid_counters(nav_core::seeker_ins::SeekerAid::Los),
         ));
     }
     bb(refused);

@@ -14,11 +14,13 @@
 #![forbid(unsafe_code)]
 
 use nalgebra::Vector3;
+use nav_core::contract::Estimator;
 use nav_core::design::DesignValues;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm};
-use nav_core::seeker_ins::filter::{LosResidual, SeekerIns, SeekerInsConfig};
-use nav_core::seeker_ins::measurement::{GimbalAngles, Landmark};
-use nav_core::seeker_ins::mechanization::{ImuIncrement, InsState, Position};
+use nav_core::seeker_ins::{
+    paper_initial_covariance, GimbalAngles, ImuIncrement, InsState, Landmark, LosSample, Position,
+    SeekerIns, SeekerInsConfig, SeekerInsInitial,
+};
 use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::{
     AxisFlexure, ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig, TaDesign,
@@ -112,6 +114,8 @@ pub const TA_DT_S: f32 = 0.01;
 pub const VC_DT_S: f64 = 0.01;
 /// IMU interval of the seeker case, s.
 pub const INS_DT_S: f32 = 0.01;
+/// [`INS_DT_S`] in µs (the seeker case's time stamps).
+pub const INS_DT_US: u64 = 10_000;
 /// Seeker case: LOS update every this many IMU samples.
 pub const LOS_EVERY: usize = 10;
 
@@ -240,47 +244,20 @@ pub fn seeker_initial() -> InsState<f32> {
     }
 }
 
-/// Seeker filter configuration and initial covariance.
-pub fn seeker_config() -> Result<(SeekerInsConfig<f32>, nalgebra::SMatrix<f32, 17, 17>), NavError> {
-    let deg = core::f32::consts::PI / 180.0;
-    let ug = 9.806_65e-6_f32;
-    let cfg = SeekerInsConfig {
-        imu_dt_s: INS_DT_S,
-        covariance_interval_steps: LOS_EVERY as u16,
-        accel_noise_density_m_s2_rt_hz: 5.0 * ug,
-        gyro_noise_density_rad_s_rt_hz: 0.01 * deg / 60.0,
-        seeker_noise_rad: 0.17 * deg,
-        gate_nis: 16.0,
-        landmark: Landmark::new(seeker_landmark_position())?,
-        residual: LosResidual::Projected2d,
-    };
-    let r0 = 6_371_000.0f32;
-    let sig = [
-        40.0 / r0,
-        40.0 / r0,
-        40.0,
-        10.0,
-        10.0,
-        10.0,
-        deg,
-        deg,
-        5.0 * deg,
-        100.0 * ug,
-        100.0 * ug,
-        100.0 * ug,
-        0.01 * deg / 3600.0,
-        0.01 * deg / 3600.0,
-        0.01 * deg / 3600.0,
-        0.04 * deg,
-        0.04 * deg,
-    ];
-    let mut p0 = nalgebra::SMatrix::<f32, 17, 17>::zeros();
-    for (i, s) in sig.iter().enumerate() {
-        if let Some(v) = p0.get_mut((i, i)) {
-            *v = s * s;
-        }
+/// Seeker filter configuration: the paper's ([`SeekerInsConfig::paper`]) with the case's
+/// landmark.
+pub fn seeker_config() -> Result<SeekerInsConfig<f32>, NavError> {
+    Ok(SeekerInsConfig::paper(Landmark::new(
+        seeker_landmark_position(),
+    )?))
+}
+
+/// Where the seeker filter starts: [`seeker_initial`] and the paper's P0.
+pub fn seeker_start_state() -> SeekerInsInitial<f32> {
+    SeekerInsInitial {
+        state: seeker_initial(),
+        covariance: paper_initial_covariance(),
     }
-    Ok((cfg, p0))
 }
 
 // ------------------------------------------------------------------ replay
@@ -552,23 +529,27 @@ pub fn replay_with(
             }
         }
         Case::SeekerIns => {
-            let (cfg, p0) = seeker_config()?;
-            let mut f = SeekerIns::<f32>::new(cfg, seeker_initial(), &p0)?;
+            let mut f = SeekerIns::<f32>::new(&seeker_config()?, &seeker_start_state())?;
             let start = seeker_start();
             for (k, bytes) in records.enumerate() {
                 for (d, v) in rec.iter_mut().zip(f32s(bytes)) {
                     *d = v;
                 }
                 let inc = ImuIncrement {
+                    // Record k covers the interval ending at (k + 1) × INS_DT_S.
+                    time: Timestamp::from_micros((k as u64 + 1) * INS_DT_US),
                     delta_theta_rad: v3(&rec, 0),
                     delta_v_m_s: v3(&rec, 3),
                 };
                 f.propagate(&inc)?;
                 if val(&rec, 6) != 0.0 {
                     f.predict_covariance()?;
-                    let g = GimbalAngles {
-                        pitch_rad: val(&rec, 7),
-                        yaw_rad: val(&rec, 8),
+                    let g = LosSample {
+                        time: inc.time,
+                        gimbal: GimbalAngles {
+                            pitch_rad: val(&rec, 7),
+                            yaw_rad: val(&rec, 8),
+                        },
                     };
                     f.update_los(&g)?;
                 }

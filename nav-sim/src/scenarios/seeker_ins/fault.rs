@@ -64,8 +64,8 @@ pub struct Clipping {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PolicyConfig {
-    /// Longest bridged gap, IMU samples.
-    pub max_gap_samples: u16,
+    /// Longest bridged gap, s.
+    pub max_gap_s: f64,
     /// σ of the specific-force change missed by the hold, m/s².
     pub gap_accel_sigma_m_s2: f64,
     /// σ of the rate change missed by the hold, rad/s.
@@ -149,7 +149,7 @@ fn inside(w: &Window, t: f64) -> bool {
 /// The policy in the filter's precision.
 pub fn policy_cast<T: Real>(p: &ImuFaultPolicy<f64>) -> ImuFaultPolicy<T> {
     ImuFaultPolicy {
-        max_gap_samples: p.max_gap_samples,
+        max_gap_s: T::lit(p.max_gap_s),
         gap_accel_sigma_m_s2: T::lit(p.gap_accel_sigma_m_s2),
         gap_rate_sigma_rad_s: T::lit(p.gap_rate_sigma_rad_s),
         clip_accel_sigma_m_s2: T::lit(p.clip_accel_sigma_m_s2),
@@ -339,7 +339,7 @@ pub fn analyse(fc: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Resu
         flag_clipped: fc.flag_clipped,
         imu_gap: fc.imu_gap.clone(),
         policy: fc.imu_policy.as_ref().map(|p| ImuFaultPolicy {
-            max_gap_samples: p.max_gap_samples,
+            max_gap_s: p.max_gap_s,
             gap_accel_sigma_m_s2: p.gap_accel_sigma_m_s2,
             gap_rate_sigma_rad_s: p.gap_rate_sigma_rad_s,
             clip_accel_sigma_m_s2: p.clip_accel_sigma_m_s2,

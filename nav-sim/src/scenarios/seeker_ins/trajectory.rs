@@ -17,6 +17,7 @@ use crate::truth::{
 };
 use nalgebra::{Matrix3, Vector3};
 use nav_core::seeker_ins::{ImuIncrement, Position};
+use nav_core::time::Timestamp;
 use serde::Deserialize;
 
 /// Shape of the trajectory.
@@ -146,7 +147,8 @@ pub struct Truth {
     pub vel_ned_m_s: Vec<Vector3<f64>>,
     /// C_b^n at t_k.
     pub c_b_n: Vec<Matrix3<f64>>,
-    /// Increments over (t_{k−1}, t_k]; `imu[0]` is zero (no interval before t_0).
+    /// Increments over (t_{k−1}, t_k], stamped t_k (k × the IMU interval in whole µs); `imu[0]`
+    /// is zero (no interval before t_0).
     pub imu: Vec<ImuIncrement<f64>>,
 }
 
@@ -179,6 +181,41 @@ fn sensed(cfg: &TrajectoryConfig, t: f64, p: &Position) -> (Vector3<f64>, Vector
 /// Generates the truth at IMU interval `dt_s`.
 pub fn generate(cfg: &TrajectoryConfig, dt_s: f64) -> Truth {
     let n = (cfg.duration_s / dt_s).round() as usize;
+    let dt_us = (dt_s * 1e6).round() as u64;
+    generate_with(cfg, dt_s, n, |k| {
+        (
+            k as f64 * dt_s,
+            dt_s,
+            Timestamp::from_micros(k as u64 * dt_us),
+        )
+    })
+}
+
+/// Generates the truth at the IMU time stamps `stamps_us` (µs, strictly increasing, the first
+/// at t = 0): increments over the actual intervals, e.g. of a jittered IMU clock. `dt_s` is
+/// the nominal interval recorded in [`Truth::dt_s`].
+pub fn generate_at(cfg: &TrajectoryConfig, dt_s: f64, stamps_us: &[u64]) -> Truth {
+    let n = stamps_us.len().saturating_sub(1);
+    let at = |k: usize| stamps_us.get(k).copied().unwrap_or(0);
+    generate_with(cfg, dt_s, n, |k| {
+        let t = at(k) as f64 * 1e-6;
+        let h = if k > 0 {
+            (at(k) - at(k - 1)) as f64 * 1e-6
+        } else {
+            dt_s
+        };
+        (t, h, Timestamp::from_micros(at(k)))
+    })
+}
+
+/// The truth at samples `0..=n`; `time(k)` gives the sample's time t_k (s), the length of
+/// the interval ending there (s) and its time stamp.
+fn generate_with(
+    cfg: &TrajectoryConfig,
+    dt_s: f64,
+    n: usize,
+    time: impl Fn(usize) -> (f64, f64, Timestamp),
+) -> Truth {
     let mut out = Truth {
         dt_s,
         t_s: Vec::with_capacity(n + 1),
@@ -192,55 +229,16 @@ pub fn generate(cfg: &TrajectoryConfig, dt_s: f64) -> Truth {
         lon_rad: cfg.start_lon_deg.to_radians(),
         alt_m: cfg.alt_m,
     };
-    let gl = [
-        (0.5 - 0.5 * (0.6f64).sqrt(), 5.0 / 18.0),
-        (0.5, 8.0 / 18.0),
-        (0.5 + 0.5 * (0.6f64).sqrt(), 5.0 / 18.0),
-    ];
     for k in 0..=n {
-        let t = k as f64 * dt_s;
+        let (t, h, stamp) = time(k);
         let kin = cfg.kin(t);
         if k > 0 {
-            let t0 = t - dt_s;
-            // Increments over (t0, t]; position inside the interval from the start-of-interval
-            // rate (its effect on earth and transport rate over 10 ms is ~1e-12 relative).
             let p0 = *out.position.last().unwrap_or(&p);
-            let (dl, dlon) = pos_rate(&p0, &cfg.kin(t0).v_ned);
-            let mut dth = Vector3::zeros();
-            let mut dv = Vector3::zeros();
-            for (x, w) in gl {
-                let tau = x * dt_s;
-                let pi = Position {
-                    lat_rad: p0.lat_rad + dl * tau,
-                    lon_rad: p0.lon_rad + dlon * tau,
-                    alt_m: p0.alt_m,
-                };
-                let (f_b, w_b) = sensed(cfg, t0 + tau, &pi);
-                dv += f_b * (w * dt_s);
-                dth += w_b * (w * dt_s);
-            }
-            out.imu.push(ImuIncrement {
-                delta_theta_rad: dth,
-                delta_v_m_s: dv,
-            });
-            // RK4 for (L, l) with the analytic velocity.
-            let f = |tt: f64, pp: &Position| pos_rate(pp, &cfg.kin(tt).v_ned);
-            let add = |pp: &Position, d: (f64, f64), s: f64| Position {
-                lat_rad: pp.lat_rad + d.0 * s,
-                lon_rad: pp.lon_rad + d.1 * s,
-                alt_m: pp.alt_m,
-            };
-            let k1 = f(t0, &p0);
-            let k2 = f(t0 + 0.5 * dt_s, &add(&p0, k1, 0.5 * dt_s));
-            let k3 = f(t0 + 0.5 * dt_s, &add(&p0, k2, 0.5 * dt_s));
-            let k4 = f(t, &add(&p0, k3, dt_s));
-            p = Position {
-                lat_rad: p0.lat_rad + dt_s / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0),
-                lon_rad: p0.lon_rad + dt_s / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1),
-                alt_m: p0.alt_m,
-            };
+            let (imu, p_next) = interval(cfg, &p0, Span { t0: t - h, t, h }, stamp);
+            out.imu.push(imu);
+            p = p_next;
         } else {
-            out.imu.push(ImuIncrement::zero());
+            out.imu.push(ImuIncrement::zero(stamp));
         }
         out.t_s.push(t);
         out.position.push(p);
@@ -248,4 +246,67 @@ pub fn generate(cfg: &TrajectoryConfig, dt_s: f64) -> Truth {
         out.c_b_n.push(dcm_from_euler(kin.roll, 0.0, kin.yaw));
     }
     out
+}
+
+/// An IMU interval `(t0, t]` of length `h`, s (`h` given: `t − t0` may round differently).
+struct Span {
+    t0: f64,
+    t: f64,
+    h: f64,
+}
+
+/// Increments over the span (stamped `stamp`) and the position at its end, from the position
+/// `p0` at its start.
+fn interval(
+    cfg: &TrajectoryConfig,
+    p0: &Position,
+    span: Span,
+    stamp: Timestamp,
+) -> (ImuIncrement<f64>, Position) {
+    let Span { t0, t, h } = span;
+    let gl = [
+        (0.5 - 0.5 * (0.6f64).sqrt(), 5.0 / 18.0),
+        (0.5, 8.0 / 18.0),
+        (0.5 + 0.5 * (0.6f64).sqrt(), 5.0 / 18.0),
+    ];
+    // Increments over (t0, t]; position inside the interval from the start-of-interval rate
+    // (its effect on earth and transport rate over 10 ms is ~1e-12 relative).
+    let (dl, dlon) = pos_rate(p0, &cfg.kin(t0).v_ned);
+    let mut dth = Vector3::zeros();
+    let mut dv = Vector3::zeros();
+    for (x, w) in gl {
+        let tau = x * h;
+        let pi = Position {
+            lat_rad: p0.lat_rad + dl * tau,
+            lon_rad: p0.lon_rad + dlon * tau,
+            alt_m: p0.alt_m,
+        };
+        let (f_b, w_b) = sensed(cfg, t0 + tau, &pi);
+        dv += f_b * (w * h);
+        dth += w_b * (w * h);
+    }
+    // RK4 for (L, l) with the analytic velocity.
+    let f = |tt: f64, pp: &Position| pos_rate(pp, &cfg.kin(tt).v_ned);
+    let add = |pp: &Position, d: (f64, f64), s: f64| Position {
+        lat_rad: pp.lat_rad + d.0 * s,
+        lon_rad: pp.lon_rad + d.1 * s,
+        alt_m: pp.alt_m,
+    };
+    let k1 = f(t0, p0);
+    let k2 = f(t0 + 0.5 * h, &add(p0, k1, 0.5 * h));
+    let k3 = f(t0 + 0.5 * h, &add(p0, k2, 0.5 * h));
+    let k4 = f(t, &add(p0, k3, h));
+    let p = Position {
+        lat_rad: p0.lat_rad + h / 6.0 * (k1.0 + 2.0 * k2.0 + 2.0 * k3.0 + k4.0),
+        lon_rad: p0.lon_rad + h / 6.0 * (k1.1 + 2.0 * k2.1 + 2.0 * k3.1 + k4.1),
+        alt_m: p0.alt_m,
+    };
+    (
+        ImuIncrement {
+            time: stamp,
+            delta_theta_rad: dth,
+            delta_v_m_s: dv,
+        },
+        p,
+    )
 }

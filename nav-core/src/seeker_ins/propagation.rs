@@ -1,0 +1,348 @@
+//! Propagation: time-stamped IMU samples, gap detection and bridging, clipped samples, and
+//! the covariance steps.
+
+use super::config::VARIANCE_CEILING;
+use super::error_model::{propagate_covariance_sparse, SparseF, ATT, STATES, VEL};
+use super::filter::SeekerIns;
+use super::mechanization::{ImuIncrement, Ins};
+use crate::contract::Health;
+use crate::math::checks::rolled_index;
+use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
+use crate::{NavError, Real};
+use nalgebra::{SMatrix, Vector3};
+
+/// Which sensor of an IMU sample is clipped ([`SeekerIns::propagate_clipped`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ClipFlags {
+    /// An accelerometer axis is at its range.
+    pub accel: bool,
+    /// A gyro axis is at its range.
+    pub gyro: bool,
+}
+
+impl<T: Real> SeekerIns<T> {
+    /// One IMU sample: bias compensation, INS step over the interval since the previous
+    /// sample ([`Ins::step`]) and (every `covariance_interval_steps` samples) covariance
+    /// propagation.
+    ///
+    /// **Gaps** are detected from the time stamps: an interval longer than 1.5 × `imu_dt_s`
+    /// means `round(interval / imu_dt_s) − 1` samples were lost (their increments with them;
+    /// the sample's own increments cover its last nominal interval). Up to
+    /// `ImuFaultPolicy::max_gap_s` they are bridged by a zero-order hold: the INS integrates
+    /// the last compensated increment at the nominal rate (body rate and specific force held
+    /// in the body frame), P is propagated as for real samples and the error of the hold is
+    /// accounted for in P per [`super::ImuFaultPolicy`] (`gap_*_sigma`, fully correlated over
+    /// the gap); counted in `Health::gaps_bridged`. A longer gap is not bridged: the INS
+    /// restarts its interval at the sample (the gap's motion is lost), the navigation block of
+    /// P goes to its ceilings ([`VARIANCE_CEILING`], correlations dropped) and the health to
+    /// `NeedsReinitialisation`; counted in `Health::gaps_reset`. Jitter within 1.5 × the
+    /// nominal interval is no gap: the sample is integrated over its actual interval.
+    ///
+    /// Errors (filter unchanged but for `Health::imu_refused`, the clock too: a later sample
+    /// is accepted): `TimeNotIncreasing`, `NonFiniteInput`, `InputOutOfRange` (increments
+    /// beyond their range).
+    pub fn propagate(&mut self, sample: &ImuIncrement<T>) -> Result<(), NavError> {
+        self.counted(sample, None)
+    }
+
+    /// One IMU sample that the IMU flags as clipped (over-range on at least one axis of the
+    /// sensors in `clipped`; the driver knows it from the status word or from a component at
+    /// full scale). As [`SeekerIns::propagate`]; only the flagged sensor's block of P is
+    /// inflated (accelerometer → velocity, gyro → attitude).
+    ///
+    /// Design: the sample is integrated as delivered: its unclipped axes are exact and a
+    /// clipped axis reads the range, the value closest to the truth that is known (a hold of
+    /// the previous sample is further off in a burst that grows past the range, and dropping
+    /// the sample loses the unclipped axes). The unknown excess is accounted for in P per
+    /// [`super::ImuFaultPolicy`] (`clip_*_sigma`, fully correlated over a burst of consecutive
+    /// clipped samples).
+    pub fn propagate_clipped(
+        &mut self,
+        sample: &ImuIncrement<T>,
+        clipped: ClipFlags,
+    ) -> Result<(), NavError> {
+        self.counted(sample, Some(clipped))
+    }
+
+    /// Counts a refused sample.
+    fn counted(
+        &mut self,
+        sample: &ImuIncrement<T>,
+        clip: Option<ClipFlags>,
+    ) -> Result<(), NavError> {
+        let r = self.propagate_sample(sample, clip);
+        if r.is_err() {
+            Health::bump(&mut self.health.imu_refused);
+        }
+        r
+    }
+
+    /// Time check, gap detection, then the sample; atomic.
+    fn propagate_sample(
+        &mut self,
+        sample: &ImuIncrement<T>,
+        clip: Option<ClipFlags>,
+    ) -> Result<(), NavError> {
+        if self.clock.is_some_and(|t| sample.time <= t) {
+            return Err(NavError::TimeNotIncreasing);
+        }
+        let Some(prev) = self.ins.time() else {
+            // First sample after construction or re-initialisation: the nominal interval.
+            return self.step_sample(sample, clip);
+        };
+        let us = sample
+            .time
+            .micros_since(prev)
+            .ok_or(NavError::TimeNotIncreasing)?;
+        let dt_us = self.ins.dt_us();
+        if us.saturating_mul(2) <= dt_us.saturating_mul(3) {
+            return self.step_sample(sample, clip);
+        }
+        // round(us / dt_us) − 1 ≥ 1 (dt_us > 0 by construction: no division by zero).
+        let missing = us
+            .saturating_add(dt_us / 2)
+            .checked_div(dt_us)
+            .unwrap_or(0)
+            .saturating_sub(1);
+        let max_us = seconds_to_micros(self.config.imu_faults.max_gap_s).unwrap_or(0);
+        let mut next = *self;
+        if missing.saturating_mul(dt_us) <= max_us {
+            next.bridge_gap(prev, missing)?;
+        } else {
+            next.reset_after_gap()?;
+        }
+        next.step_sample(sample, clip)?;
+        next.last_imu_fault = Some(sample.time);
+        *self = next;
+        Ok(())
+    }
+
+    /// Bias compensation, INS step and covariance step; the clipping inflation when flagged.
+    fn step_sample(
+        &mut self,
+        sample: &ImuIncrement<T>,
+        clip: Option<ClipFlags>,
+    ) -> Result<(), NavError> {
+        let dt = self.ins.interval_to(sample.time)?;
+        let compensated = ImuIncrement {
+            time: sample.time,
+            delta_theta_rad: sample.delta_theta_rad - self.gyro_bias_rad_s * dt,
+            delta_v_m_s: sample.delta_v_m_s - self.accel_bias_m_s2 * dt,
+        };
+        self.propagate_compensated(&compensated)?;
+        self.held_run = 0;
+        if self.fusion_ref.is_none() {
+            // The aid timeout runs from the start of the interval of the first sample.
+            self.fusion_ref = Some(Timestamp::from_micros(
+                sample.time.as_micros().saturating_sub(self.ins.dt_us()),
+            ));
+        }
+        self.clock = Some(sample.time);
+        match clip {
+            None => self.clipped_run = 0,
+            Some(flags) => {
+                self.clipped_run = self.clipped_run.saturating_add(1);
+                let pol = &self.config.imu_faults;
+                let pick = |on: bool, s: T| if on { s } else { T::zero() };
+                let sa = pick(flags.accel, pol.clip_accel_sigma_m_s2);
+                let sw = pick(flags.gyro, pol.clip_rate_sigma_rad_s);
+                let dt = self.ins.last_interval_s();
+                self.inflate_degraded(self.clipped_run, dt, sa, sw);
+                Health::bump(&mut self.counters.clipped_samples);
+                self.last_imu_fault = Some(sample.time);
+            }
+        }
+        Ok(())
+    }
+
+    /// The zero-order hold over `missing` samples after the one at `prev`.
+    fn bridge_gap(&mut self, prev: Timestamp, missing: u64) -> Result<(), NavError> {
+        let mut held = self.ins.last_increment().ok_or(NavError::InputOutOfRange {
+            input: "IMU gap before the first sample (nothing to hold)",
+        })?;
+        let (sa, sw) = (
+            self.config.imu_faults.gap_accel_sigma_m_s2,
+            self.config.imu_faults.gap_rate_sigma_rad_s,
+        );
+        let dt_us = self.ins.dt_us();
+        let dt = self.config.imu_dt_s;
+        self.clipped_run = 0;
+        held.time = prev;
+        for _ in 0..missing {
+            held.time = held.time.add_micros(dt_us);
+            self.propagate_compensated(&held)?;
+            self.held_run = self.held_run.saturating_add(1);
+            self.inflate_degraded(self.held_run, dt, sa, sw);
+        }
+        Health::bump(&mut self.health.gaps_bridged);
+        let held_samples = u32::try_from(missing).unwrap_or(u32::MAX);
+        self.counters.held_samples = self.counters.held_samples.saturating_add(held_samples);
+        Ok(())
+    }
+
+    /// A gap too long to bridge: the INS restarts its interval at the next sample, the
+    /// navigation block of P goes to its ceilings (correlations dropped).
+    fn reset_after_gap(&mut self) -> Result<(), NavError> {
+        self.ins = Ins::new(*self.ins.state(), self.config.imu_dt_s)?;
+        let zero = T::zero();
+        for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
+            for (i, v) in col.iter_mut().enumerate() {
+                if i < 9 || j < 9 {
+                    *v = if i == j {
+                        VARIANCE_CEILING.get(i).map_or(zero, |m| T::lit(*m))
+                    } else {
+                        zero
+                    };
+                }
+            }
+        }
+        self.steps_pending = 0;
+        self.pending_us = 0;
+        self.dv_ned_pending_m_s = Vector3::zeros();
+        self.held_run = 0;
+        self.clipped_run = 0;
+        Health::bump(&mut self.health.gaps_reset);
+        Ok(())
+    }
+
+    /// Adds `(2c − 1)(σ Δt)²` to the velocity and attitude variances ([`super::ImuFaultPolicy`]),
+    /// then limits them to their ceilings. Not inlined: one copy serves the gap and the
+    /// clipping paths.
+    #[inline(never)]
+    fn inflate_degraded(&mut self, c: u16, dt: T, accel_sigma: T, rate_sigma: T) {
+        let w = T::lit(2.0 * f64::from(c) - 1.0) * dt * dt;
+        let (qa, qw) = (w * accel_sigma * accel_sigma, w * rate_sigma * rate_sigma);
+        for i in VEL..VEL + 3 {
+            if let Some(v) = self.p.get_mut((i, i)) {
+                *v += qa;
+            }
+        }
+        for i in ATT..ATT + 3 {
+            if let Some(v) = self.p.get_mut((i, i)) {
+                *v += qw;
+            }
+        }
+        self.limit_variances();
+    }
+
+    /// Brings every navigation variance above its ceiling back to it by scaling its row and
+    /// column (a congruence: P stays symmetric PSD, correlations are kept). Nine compares when
+    /// nothing is limited.
+    #[inline(never)]
+    pub(super) fn limit_variances(&mut self) {
+        for (i, m) in VARIANCE_CEILING.iter().take(9).enumerate() {
+            let i = rolled_index(i);
+            let cap = T::lit(*m);
+            let Some(d) = self.p.get((i, i)).copied() else {
+                continue;
+            };
+            if d > cap {
+                let f = (cap / d).sqrt();
+                for v in self.p.column_mut(i).iter_mut() {
+                    *v *= f;
+                }
+                for v in self.p.row_mut(i).iter_mut() {
+                    *v *= f;
+                }
+                Health::bump(&mut self.health.limits_hit);
+            }
+        }
+    }
+
+    /// INS step with a bias-compensated increment and the covariance step when due; atomic.
+    fn propagate_compensated(&mut self, compensated: &ImuIncrement<T>) -> Result<(), NavError> {
+        // The INS steps on a copy (P, the large part, is not copied: the covariance step below
+        // is atomic), and everything is committed only when both succeeded.
+        let mut ins = self.ins;
+        let interval_us = ins
+            .time()
+            .and_then(|t| compensated.time.micros_since(t))
+            .unwrap_or(ins.dt_us());
+        ins.step(compensated)?;
+        let dt = ins.last_interval_s();
+        let dv_pending = self.dv_ned_pending_m_s + ins.specific_force_ned_m_s2() * dt;
+        let steps = self.steps_pending.saturating_add(1);
+        let pending_us = self.pending_us.saturating_add(interval_us);
+        if steps >= self.config.covariance_interval_steps {
+            let dt_total = self.pending_interval_s(steps, pending_us);
+            let repairs = covariance_step(
+                &mut self.p,
+                &ins,
+                dt_total,
+                &dv_pending,
+                self.design.accel_psd_m2_s3,
+                self.design.gyro_psd_rad2_s,
+            )?;
+            self.after_covariance_step(repairs);
+            self.steps_pending = 0;
+            self.pending_us = 0;
+            self.dv_ned_pending_m_s = Vector3::zeros();
+        } else {
+            self.steps_pending = steps;
+            self.pending_us = pending_us;
+            self.dv_ned_pending_m_s = dv_pending;
+        }
+        if !ins.state().position.is_in_range() {
+            Health::bump(&mut self.counters.out_of_range_samples);
+        }
+        self.ins = ins;
+        Ok(())
+    }
+
+    /// The interval of `steps` samples spanning `pending_us` µs, s: `steps × imu_dt_s` when
+    /// they were regular (the same bits as before time stamps), else the measured one.
+    fn pending_interval_s(&self, steps: u16, pending_us: u64) -> T {
+        if pending_us == u64::from(steps) * self.ins.dt_us() {
+            self.config.imu_dt_s * T::lit(f64::from(steps))
+        } else {
+            micros_to_seconds(pending_us)
+        }
+    }
+
+    /// Counts the repairs of a covariance step and limits the variances.
+    fn after_covariance_step(&mut self, repairs: u32) {
+        self.health.limits_hit = self.health.limits_hit.saturating_add(repairs);
+        self.limit_variances();
+    }
+
+    /// Propagates P over the IMU samples accumulated since the last covariance step (no-op if
+    /// none; the LOS update does it itself). Errors leave the filter unchanged.
+    pub fn predict_covariance(&mut self) -> Result<(), NavError> {
+        if self.steps_pending == 0 {
+            return Ok(());
+        }
+        let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
+        let repairs = covariance_step(
+            &mut self.p,
+            &self.ins,
+            dt_total,
+            &self.dv_ned_pending_m_s,
+            self.design.accel_psd_m2_s3,
+            self.design.gyro_psd_rad2_s,
+        )?;
+        self.after_covariance_step(repairs);
+        self.steps_pending = 0;
+        self.pending_us = 0;
+        self.dv_ned_pending_m_s = Vector3::zeros();
+        Ok(())
+    }
+}
+
+/// `P ← Φ P Φᵀ + Q_d` over `dt_total_s` with F at the INS state and the mean specific force
+/// `dv_ned / dt_total`; atomic (P unchanged on error). Not inlined: one copy serves every
+/// covariance step.
+#[inline(never)]
+fn covariance_step<T: Real>(
+    p: &mut SMatrix<T, STATES, STATES>,
+    ins: &Ins<T>,
+    dt_total_s: T,
+    dv_ned_m_s: &Vector3<T>,
+    q_accel: T,
+    q_gyro: T,
+) -> Result<u32, NavError> {
+    let f_ned = dv_ned_m_s / dt_total_s;
+    let s = ins.state();
+    let f = SparseF::new(&s.position, &s.vel_ned_m_s, &ins.c_b_n(), &f_ned);
+    propagate_covariance_sparse(p, &f, dt_total_s, q_accel, q_gyro)
+}
