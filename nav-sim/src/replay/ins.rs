@@ -947,18 +947,18 @@ impl InsReplay {
             .inits
             .first()
             .map_or(0.0, |r| r.t.signed_seconds_since::<f64>(self.first_imu));
-        let sigma3 = |sign: f64| {
+        let sigma1 = |sign: f64| {
             t.iter()
                 .map(|&x| {
                     if x < t0 {
                         f64::NAN
                     } else {
-                        sign * 3.0 * self.cfg.expected_attitude_sigma_rad(x - t0).to_degrees()
+                        sign * self.cfg.expected_attitude_sigma_rad(x - t0).to_degrees()
                     }
                 })
                 .collect::<Vec<f64>>()
         };
-        let (up, down) = (sigma3(1.0), sigma3(-1.0));
+        let (up, down) = (sigma1(1.0), sigma1(-1.0));
         let mut panels = Vec::new();
         for (k, name) in RPY.iter().enumerate() {
             panels.push(Panel {
@@ -972,7 +972,7 @@ impl InsReplay {
                         &col(&|r| r.relev_att_deg[k]),
                         1,
                     ),
-                    Series::dashed("±3σ expected (free, gyro quality)", &t, &up, 7),
+                    Series::dashed("±1σ expected (free, gyro quality)", &t, &up, 7),
                     Series::dashed("", &t, &down, 7),
                 ],
                 y_range: None,
