@@ -567,6 +567,7 @@ fn bad_gyro_columns_are_named() {
         })
     });
     let e = replay_err(&log);
+    let _ = std::fs::remove_dir_all(&log);
     assert!(
         e.contains("imu.csv") && e.contains("missing column `gyro_y_rad_s`"),
         "{e}"
@@ -581,6 +582,7 @@ fn bad_gyro_columns_are_named() {
         })
     });
     let e = replay_err(&log);
+    let _ = std::fs::remove_dir_all(&log);
     assert!(
         e.contains("imu.csv")
             && e.contains("line 51")
@@ -599,6 +601,7 @@ fn bad_gyro_columns_are_named() {
         })
     });
     let e = replay_err(&log);
+    let _ = std::fs::remove_dir_all(&log);
     assert!(
         e.contains("imu.csv") && e.contains("line 21") && e.contains("unit quaternion"),
         "{e}"
