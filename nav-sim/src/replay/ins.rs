@@ -51,6 +51,8 @@ const G_M_S2: f64 = 9.80665;
 const FRAME_CHECK_TOLERANCE_M_S2: f64 = 0.1 * G_M_S2;
 /// A reference (autopilot or GNSS velocity) older than this is not used to initialise, s.
 const REFERENCE_MAX_AGE_S: f64 = 1.0;
+/// Gaps listed in the summary (all are counted).
+const MAX_GAPS_LISTED: usize = 20;
 /// Interval of the plotted points, s.
 const PLOT_INTERVAL_S: f64 = 0.05;
 
@@ -294,6 +296,8 @@ struct Run {
     accepted: u64,
     refused: BTreeMap<String, u64>,
     gap_reinits: u64,
+    /// The first gaps: (start, length).
+    gaps: Vec<(Timestamp, f64)>,
     /// Initialisations nav-core refused (bad reference values), by reason.
     init_refused: BTreeMap<String, u64>,
     att: [AbsStat; 3],
@@ -561,6 +565,9 @@ impl InsReplay {
                 run.refuse("Gap");
                 run.ins = None;
                 run.gap_reinits += 1;
+                if run.gaps.len() < MAX_GAPS_LISTED {
+                    run.gaps.push((t_ins, dt_s));
+                }
                 continue;
             }
             match step_ins(ins, t, dt_s, nominal, body, &gyro) {
@@ -861,6 +868,10 @@ impl InsReplay {
             "initialisations": run.inits.len(),
             "reinitialised_after_gap": run.gap_reinits,
             "initialisations_refused": run.init_refused,
+            "gaps": run.gaps.iter().map(|(t, len)| json!({
+                "at_s": sig(t.signed_seconds_since::<f64>(self.first_imu), 6),
+                "length_s": sig(*len, 4),
+            })).collect::<Vec<_>>(),
             "first_initialisation": run.inits.first().map(|r| self.init_json(r)),
             "attitude_vs_autopilot": axes_json(&run.att, RPY, deg, "deg"),
             "velocity_vs_autopilot": axes_json(&run.vel_ap, NED, 1.0, "m_s"),
