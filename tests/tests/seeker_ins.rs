@@ -9,8 +9,20 @@ use nav_core::seeker_ins::{
     GimbalAngles, ImuIncrement, Ins, InsState, Landmark, LosResidual, Position, SeekerIns,
     SeekerInsConfig,
 };
+use nav_core::time::Timestamp;
 use nav_core::{NavError, Real};
 use nav_sim::scenarios::seeker_ins::{monte_carlo_batches, trajectory, Config};
+
+/// `inc` stamped one nominal IMU interval after the filter's last sample (the first sample at
+/// one interval after the epoch): a regular-rate IMU clock.
+fn stamped<T: Real>(f: &SeekerIns<T>, mut inc: ImuIncrement<T>) -> ImuIncrement<T> {
+    let dt_us = f.ins().dt_us();
+    inc.time = f
+        .ins()
+        .time()
+        .map_or(Timestamp::from_micros(dt_us), |t| t.add_micros(dt_us));
+    inc
+}
 
 fn load(name: &str) -> Config {
     nav_sim::scenarios::seeker_ins::load_config(name).unwrap()
@@ -29,6 +41,7 @@ fn perfect_ins_error<T: Real>(truth: &trajectory::Truth) -> (f64, f64, f64) {
     for k in 1..truth.t_s.len() {
         let inc = &truth.imu[k];
         ins.step(&ImuIncrement {
+            time: inc.time,
             delta_theta_rad: inc.delta_theta_rad.map(T::lit),
             delta_v_m_s: inc.delta_v_m_s.map(T::lit),
         })
@@ -84,6 +97,7 @@ fn tilt_error_gives_schuler_oscillation() {
     let g = nav_core::earth::normal_gravity_m_s2(lat, 0.0);
     let w_ie = nav_core::earth::earth_rate_ned(lat);
     let inc = ImuIncrement {
+        time: Timestamp::ZERO,
         delta_theta_rad: truth_c.transpose() * w_ie * dt,
         delta_v_m_s: truth_c.transpose() * Vector3::new(0.0, 0.0, -g) * dt,
     };
@@ -106,7 +120,11 @@ fn tilt_error_gives_schuler_oscillation() {
     let mut peak: f64 = 0.0;
     let steps = (2.2 * 84.4 * 60.0 / dt) as usize;
     for k in 1..=steps {
-        ins.step(&inc).unwrap();
+        ins.step(&ImuIncrement {
+            time: Timestamp::from_micros(k as u64 * 100_000),
+            ..inc
+        })
+        .unwrap();
         let s = *ins.state();
         // Hold the vertical channel at the truth (h = 0, V_D = 0).
         ins.correct(
@@ -195,9 +213,9 @@ fn filter_refuses_bad_input_and_keeps_its_state() {
         Err(NavError::NonFiniteInput { .. })
     ));
     assert_eq!(f, before);
-    let mut inc = ImuIncrement::zero();
+    let mut inc = ImuIncrement::zero(Timestamp::ZERO);
     inc.delta_v_m_s.y = f32::INFINITY;
-    assert!(f.propagate(&inc).is_err());
+    assert!(f.propagate(&stamped(&f, inc)).is_err());
     assert_eq!(f, before);
     // A gross outlier is gated, reported as rejected, and changes nothing.
     let outlier = GimbalAngles {

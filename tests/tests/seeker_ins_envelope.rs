@@ -13,8 +13,20 @@ use nav_core::seeker_ins::{
     ClipFlags, GimbalAngles, ImuFaultPolicy, ImuIncrement, InsState, Landmark, LosResidual,
     LosSkipReason, Position, RecoveryPolicy, SeekerIns, SeekerInsConfig, VARIANCE_CEILING,
 };
+use nav_core::time::Timestamp;
 use nav_core::{HealthState, NavError, Real};
 use nav_sim::stress::psd_defect;
+
+/// `inc` stamped one nominal IMU interval after the filter's last sample (the first sample at
+/// one interval after the epoch): a regular-rate IMU clock.
+fn stamped<T: Real>(f: &SeekerIns<T>, mut inc: ImuIncrement<T>) -> ImuIncrement<T> {
+    let dt_us = f.ins().dt_us();
+    inc.time = f
+        .ins()
+        .time()
+        .map_or(Timestamp::from_micros(dt_us), |t| t.add_micros(dt_us));
+    inc
+}
 
 const LAT0: f64 = 0.645_771_823_237_901_2; // 37°
 const LON0: f64 = 2.216_568_150_032_737; // 127°
@@ -85,6 +97,7 @@ fn filter<T: Real>(landmark: Position) -> SeekerIns<T> {
 fn increment<T: Real>(up_m_s2: f64) -> ImuIncrement<T> {
     let dt = 0.01;
     ImuIncrement {
+        time: Timestamp::ZERO,
         delta_theta_rad: Vector3::new(
             T::lit(1.0e-5 * dt),
             T::lit(4.4e-5 * dt),
@@ -138,14 +151,15 @@ fn all_finite<T: Real>(f: &SeekerIns<T>) -> bool {
 fn long_clipping<T: Real>() {
     let mut f = filter::<T>(offset(2000.0, 70_000.0, 0.0));
     for _ in 0..100 {
-        f.propagate(&increment(0.0)).unwrap();
+        f.propagate(&stamped(&f, increment(0.0))).unwrap();
     }
     let gyro = ClipFlags {
         accel: false,
         gyro: true,
     };
     for k in 0..5000 {
-        f.propagate_clipped(&increment(0.0), gyro).unwrap();
+        f.propagate_clipped(&stamped(&f, increment(0.0)), gyro)
+            .unwrap();
         if k % 10 == 9 {
             assert_eq!(p_defect(&f), None, "clipped sample {k}");
         }
@@ -159,7 +173,7 @@ fn long_clipping<T: Real>() {
     let mut fused = 0;
     for k in 0..200 {
         for _ in 0..10 {
-            f.propagate(&increment(0.0)).unwrap();
+            f.propagate(&stamped(&f, increment(0.0))).unwrap();
         }
         let off = 0.003 * ((k as f64) * 0.7).sin();
         let r = f.update_los(&los_from_estimate(&f, off, -off));
@@ -210,7 +224,7 @@ fn refused_unchanged<T: Real>(
 fn setters<T: Real>() {
     let mut f = filter::<T>(offset(2000.0, 70_000.0, 0.0));
     for _ in 0..20 {
-        f.propagate(&increment(0.0)).unwrap();
+        f.propagate(&stamped(&f, increment(0.0))).unwrap();
     }
     let d = ImuFaultPolicy::<T>::default();
     for v in [f64::from(f32::MAX), 1e19, 1001.0, -1.0, f64::NAN] {
@@ -282,8 +296,10 @@ fn setters<T: Real>() {
     for k in 0..3000 {
         match k % 500 {
             0 => f.propagate_gap(100).unwrap(),
-            1..=200 => f.propagate_clipped(&increment(0.0), both).unwrap(),
-            _ => f.propagate(&increment(0.0)).unwrap(),
+            1..=200 => f
+                .propagate_clipped(&stamped(&f, increment(0.0)), both)
+                .unwrap(),
+            _ => f.propagate(&stamped(&f, increment(0.0))).unwrap(),
         }
         if k % 10 == 9 {
             // A 2° false lock half of the time (gate rejections, recovery inflations).
@@ -394,11 +410,11 @@ fn configuration_ranges_are_enforced() {
 fn out_of_range_and_back<T: Real>() {
     let mut f = filter::<T>(offset(2000.0, 70_000.0, 0.0));
     for _ in 0..100 {
-        f.propagate(&increment(0.0)).unwrap();
+        f.propagate(&stamped(&f, increment(0.0))).unwrap();
     }
     assert_eq!(f.health(), HealthState::Nominal);
     for k in 0..20_000 {
-        f.propagate(&increment(90.0))
+        f.propagate(&stamped(&f, increment(90.0)))
             .unwrap_or_else(|e| panic!("sample {k} refused: {e:?}"));
         if k % 10 == 9 {
             let g = los_from_estimate(&f, 0.0, 0.0);
@@ -470,7 +486,7 @@ fn out_of_range_and_back<T: Real>() {
         .all(|v| *v == T::zero()));
     assert_eq!(f.health_counters().reinitialisations, 1);
     for _ in 0..100 {
-        f.propagate(&increment(0.0)).unwrap();
+        f.propagate(&stamped(&f, increment(0.0))).unwrap();
     }
     let r = f.update_los(&los_from_estimate(&f, 0.001, 0.0)).unwrap();
     assert_eq!(r.pitch.outcome, FusionOutcome::Fused);
@@ -492,7 +508,7 @@ fn rare_landmark_sightings_never_stall() {
     let mut degraded_seen = false;
     for k in 0..300_000u32 {
         let t_s = f64::from(k) * 0.01;
-        f.propagate(&increment(0.02))
+        f.propagate(&stamped(&f, increment(0.02)))
             .unwrap_or_else(|e| panic!("sample {k} refused: {e:?}"));
         if t_s % 1000.0 < 20.0 && k % 10 == 9 {
             let g = los_from_estimate(&f, 0.001, -0.001);
@@ -540,7 +556,7 @@ fn landmark_vector_precision_does_not_depend_on_the_position() {
 fn close_landmark<T: Real>() {
     let mut f = filter::<T>(offset(1.0, 0.5, 1000.5));
     for _ in 0..10 {
-        f.propagate(&increment(0.0)).unwrap();
+        f.propagate(&stamped(&f, increment(0.0))).unwrap();
     }
     // 10 samples at 200 m/s east moved the vehicle 20 m: start over from a state at the
     // landmark's side (reinitialise keeps the rest).

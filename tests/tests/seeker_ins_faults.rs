@@ -6,8 +6,20 @@ use nalgebra::{SMatrix, Vector3};
 use nav_core::seeker_ins::{
     ClipFlags, ImuIncrement, InsState, Landmark, LosResidual, Position, SeekerIns, SeekerInsConfig,
 };
+use nav_core::time::Timestamp;
 use nav_core::{NavError, Real};
 use nav_sim::scenarios::seeker_ins::fault::{analyse, load_fault_config, FaultConfig, Summary};
+
+/// `inc` stamped one nominal IMU interval after the filter's last sample (the first sample at
+/// one interval after the epoch): a regular-rate IMU clock.
+fn stamped<T: Real>(f: &SeekerIns<T>, mut inc: ImuIncrement<T>) -> ImuIncrement<T> {
+    let dt_us = f.ins().dt_us();
+    inc.time = f
+        .ins()
+        .time()
+        .map_or(Timestamp::from_micros(dt_us), |t| t.add_micros(dt_us));
+    inc
+}
 
 fn load(name: &str) -> FaultConfig {
     load_fault_config(name).unwrap()
@@ -125,6 +137,7 @@ fn filter<T: Real>() -> SeekerIns<T> {
 
 fn level_increment<T: Real>() -> ImuIncrement<T> {
     ImuIncrement {
+        time: Timestamp::ZERO,
         delta_theta_rad: Vector3::new(T::zero(), T::zero(), T::lit(1e-4)),
         delta_v_m_s: Vector3::new(T::lit(0.01), T::zero(), T::lit(-0.098_066_5)),
     }
@@ -141,7 +154,7 @@ fn gap_api<T: Real>() {
     assert_eq!(before, format!("{f:?}"));
     let inc = level_increment::<T>();
     for _ in 0..7 {
-        f.propagate(&inc).unwrap();
+        f.propagate(&stamped(&f, inc)).unwrap();
     }
     let before = format!("{f:?}");
     let max = f.imu_fault_policy().max_gap_samples;
@@ -154,7 +167,7 @@ fn gap_api<T: Real>() {
     let mut real = f;
     let mut gap = f;
     for _ in 0..10 {
-        real.propagate(&inc).unwrap();
+        real.propagate(&stamped(&real, inc)).unwrap();
     }
     gap.propagate_gap(10).unwrap();
     assert_eq!(real.state(), gap.state());
@@ -178,14 +191,14 @@ fn gap_api<T: Real>() {
     let mut clip = f;
     let mut plain = f;
     clip.propagate_clipped(
-        &inc,
+        &stamped(&clip, inc),
         ClipFlags {
             accel: true,
             gyro: false,
         },
     )
     .unwrap();
-    plain.propagate(&inc).unwrap();
+    plain.propagate(&stamped(&plain, inc)).unwrap();
     assert_eq!(clip.state(), plain.state());
     let (pc, pp) = (clip.covariance(), plain.covariance());
     assert!(pc[(4, 4)] > pp[(4, 4)]);
@@ -195,7 +208,9 @@ fn gap_api<T: Real>() {
     let before = format!("{clip:?}");
     let mut bad = inc;
     bad.delta_v_m_s.x = T::lit(f64::NAN);
-    assert!(clip.propagate_clipped(&bad, ClipFlags::default()).is_err());
+    assert!(clip
+        .propagate_clipped(&stamped(&clip, bad), ClipFlags::default())
+        .is_err());
     assert_eq!(before, format!("{clip:?}"));
 }
 

@@ -9,8 +9,20 @@ use nav_core::seeker_ins::{
     GimbalAngles, ImuIncrement, InsState, Landmark, LosResidual, LosSkipReason, Position,
     RecoveryPolicy, SeekerIns, SeekerInsConfig,
 };
+use nav_core::time::Timestamp;
 use nav_core::{NavError, Real};
 use proptest::prelude::*;
+
+/// `inc` stamped one nominal IMU interval after the filter's last sample (the first sample at
+/// one interval after the epoch): a regular-rate IMU clock.
+fn stamped<T: Real>(f: &SeekerIns<T>, mut inc: ImuIncrement<T>) -> ImuIncrement<T> {
+    let dt_us = f.ins().dt_us();
+    inc.time = f
+        .ins()
+        .time()
+        .map_or(Timestamp::from_micros(dt_us), |t| t.add_micros(dt_us));
+    inc
+}
 
 const LAT0: f64 = 0.645_771_823_237_901_2; // 37°
 const LON0: f64 = 2.216_568_150_032_737; // 127°
@@ -74,6 +86,7 @@ fn filter<T: Real>(cfg: SeekerInsConfig<T>) -> SeekerIns<T> {
 fn increment<T: Real>(man: &[f64; 6]) -> ImuIncrement<T> {
     let dt = 0.01;
     ImuIncrement {
+        time: Timestamp::ZERO,
         delta_theta_rad: Vector3::new(
             T::lit((1.0e-5 + man[3]) * dt),
             T::lit((4.4e-5 + man[4]) * dt),
@@ -154,7 +167,7 @@ fn run<T: Real>(
 ) -> Result<(), String> {
     for k in 0..seconds * 100 {
         let m = man[(k / 200) % man.len()];
-        f.propagate(&increment::<T>(&m))
+        f.propagate(&stamped(f, increment::<T>(&m)))
             .map_err(|e| format!("{e}"))?;
         if k % 10 == 9 {
             let (a, b) = noise[(k / 10) % noise.len()];
@@ -257,7 +270,8 @@ fn bad_input_is_refused_without_damage<T: Real>() {
     let mut f = filter::<T>(config(2000.0, 70_000.0));
     // Some history first (pending covariance steps, biases, counters non-trivial).
     for k in 0..95 {
-        f.propagate(&increment::<T>(&[0.0; 6])).unwrap();
+        f.propagate(&stamped(&f, increment::<T>(&[0.0; 6])))
+            .unwrap();
         if k % 10 == 9 {
             let g = los_from_estimate(&f, 0.001, -0.001);
             f.update_los(&g).unwrap();
@@ -272,7 +286,7 @@ fn bad_input_is_refused_without_damage<T: Real>() {
                 inc.delta_v_m_s[i - 3] = T::lit(v);
             }
             assert_refused(&mut f, &format!("increment {i} = {v}"), |f| {
-                f.propagate(&inc)
+                f.propagate(&stamped(f, inc))
             });
         }
         let g = los_from_estimate(&f, 0.0, 0.0);
@@ -400,7 +414,7 @@ fn gate_counts_rejections_and_recovery_inflates() {
         let mut k = 0;
         let mut step_and_update = |f: &mut SeekerIns<T>, off: Option<f64>| {
             for _ in 0..10 {
-                f.propagate(&increment::<T>(&[0.0; 6])).unwrap();
+                f.propagate(&stamped(f, increment::<T>(&[0.0; 6]))).unwrap();
             }
             k += 1;
             // A false lock `o` off the landmark, split equally between pitch and yaw.
@@ -496,7 +510,7 @@ fn soak_f32() {
             man[4] - 0.2 * pitch,
             man[5],
         ];
-        f.propagate(&increment::<f32>(&m)).unwrap();
+        f.propagate(&stamped(&f, increment::<f32>(&m))).unwrap();
         if k % 10 == 9 {
             let (a, b) = (uni(0.005), uni(0.005));
             let g = los_from_estimate(&f, a, b);

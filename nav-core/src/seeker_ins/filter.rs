@@ -668,6 +668,7 @@ impl<T: Real> SeekerIns<T> {
     pub fn propagate(&mut self, inc: &ImuIncrement<T>) -> Result<(), NavError> {
         let dt = self.config.imu_dt_s;
         let compensated = ImuIncrement {
+            time: inc.time,
             delta_theta_rad: inc.delta_theta_rad - self.gyro_bias_rad_s * dt,
             delta_v_m_s: inc.delta_v_m_s - self.accel_bias_m_s2 * dt,
         };
@@ -696,6 +697,7 @@ impl<T: Real> SeekerIns<T> {
     ) -> Result<(), NavError> {
         let dt = self.config.imu_dt_s;
         let compensated = ImuIncrement {
+            time: inc.time,
             delta_theta_rad: inc.delta_theta_rad - self.gyro_bias_rad_s * dt,
             delta_v_m_s: inc.delta_v_m_s - self.accel_bias_m_s2 * dt,
         };
@@ -749,7 +751,9 @@ impl<T: Real> SeekerIns<T> {
             self.imu_policy.gap_rate_sigma_rad_s,
         );
         next.clipped_run = 0;
+        let mut held = held;
         for _ in 0..missing_samples {
+            held.time = held.time.add_micros(self.ins.dt_us());
             next.propagate_compensated(&held)?;
             next.held_run = next.held_run.saturating_add(1);
             next.inflate_degraded(next.held_run, sa, sw);

@@ -9,7 +9,8 @@
 //! Ċ_b^n = C_b^n [ω_ib^b ×] − [ω_in^n ×] C_b^n,   ω_in^n = ω_ie^n + ω_en^n
 //! ```
 //!
-//! Discrete algorithm, one IMU interval `Δt` with increments `Δθ = ∫ω_ib^b dt`, `Δv = ∫fᵇ dt`
+//! Discrete algorithm, one IMU interval `Δt` (the time stamp of the sample minus that of the
+//! previous one; see [`Ins::step`]) with increments `Δθ = ∫ω_ib^b dt`, `Δv = ∫fᵇ dt`
 //! (previous increments `Δθ₋`, `Δv₋`):
 //!
 //! ```text
@@ -34,6 +35,7 @@
 use crate::earth::{normal_gravity_m_s2, EARTH_RATE_RAD_S};
 use crate::math::rotation::{quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm};
 use crate::math::trig;
+use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, Quaternion, Vector3, Vector4};
 
@@ -84,10 +86,13 @@ pub(crate) fn model_lat_alt<T: Real>(pos: &Position) -> (T, T) {
     )
 }
 
-/// One IMU sample: angle and velocity increments over one IMU interval, body axes.
+/// One IMU sample: angle and velocity increments over one IMU interval, body axes, with the
+/// time stamp of the end of that interval (the interval starts at the previous sample's time).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ImuIncrement<T> {
+    /// End of the interval the increments cover (integer µs of the flight computer's clock).
+    pub time: Timestamp,
     /// Δθ = ∫ ω_ib^b dt, rad.
     pub delta_theta_rad: Vector3<T>,
     /// Δv = ∫ fᵇ dt, m/s.
@@ -95,9 +100,10 @@ pub struct ImuIncrement<T> {
 }
 
 impl<T: Real> ImuIncrement<T> {
-    /// Zero increments.
-    pub fn zero() -> Self {
+    /// Zero increments over the interval ending at `time`.
+    pub fn zero(time: Timestamp) -> Self {
         Self {
+            time,
             delta_theta_rad: Vector3::zeros(),
             delta_v_m_s: Vector3::zeros(),
         }
@@ -129,6 +135,12 @@ impl<T: Real> PartialEq for InsState<T> {
 pub const MAX_DELTA_THETA_RAD: f64 = 1.0;
 /// Largest accepted velocity increment per IMU sample, m/s (1000 g over 10 ms ≈ 98 m/s).
 pub const MAX_DELTA_V_M_S: f64 = 100.0;
+/// Longest interval between two IMU samples [`Ins::step`] integrates in one step, s (the
+/// largest nominal interval [`Ins::new`] accepts): beyond it gravity, transport and earth
+/// rate held over the step are no model of the motion (`InvalidTimeStep`).
+pub const MAX_INTERVAL_S: f64 = 1.0;
+/// [`MAX_INTERVAL_S`] in µs.
+const MAX_INTERVAL_US: u64 = 1_000_000;
 
 /// Earth-related rates and radii at a navigation state.
 #[derive(Debug, Clone, Copy)]
@@ -203,7 +215,11 @@ pub(crate) fn normal_gravity_from_sin<T: Real>(sin_lat: T, alt_m: T) -> T {
 #[derive(Debug, Clone, Copy)]
 pub struct Ins<T> {
     state: InsState<T>,
+    /// Nominal IMU interval, s, and the same rounded to whole µs.
     dt_s: T,
+    dt_us: u64,
+    /// Interval integrated by the last step (the nominal one before the first), s.
+    last_interval_s: T,
     prev: ImuIncrement<T>,
     has_prev: bool,
     /// Specific force in NED averaged over the last step, m/s².
@@ -217,6 +233,8 @@ impl<T: Real> PartialEq for Ins<T> {
     fn eq(&self, o: &Self) -> bool {
         self.state == o.state
             && self.dt_s == o.dt_s
+            && self.dt_us == o.dt_us
+            && self.last_interval_s == o.last_interval_s
             && self.prev == o.prev
             && self.has_prev == o.has_prev
             && self.f_ned_m_s2 == o.f_ned_m_s2
@@ -226,19 +244,26 @@ impl<T: Real> PartialEq for Ins<T> {
 }
 
 impl<T: Real> Ins<T> {
-    /// INS at `initial` with IMU interval `imu_dt_s` (s).
+    /// INS at `initial` with nominal IMU interval `imu_dt_s` (s): the interval the first
+    /// sample is integrated over (it has no predecessor to measure it from).
     ///
-    /// Errors: `InvalidTimeStep` unless `imu_dt_s` is finite and in (0, 1] s; `NonFiniteInput`
-    /// or `InputOutOfRange` for a bad initial state (|L| < 86°, |h| < 1000 km, unit quaternion).
+    /// Errors: `InvalidTimeStep` unless `imu_dt_s` is finite and in (1 µs, [`MAX_INTERVAL_S`]];
+    /// `NonFiniteInput` or `InputOutOfRange` for a bad initial state (|L| < 86°, |h| <
+    /// 1000 km, unit quaternion).
     pub fn new(initial: InsState<T>, imu_dt_s: T) -> Result<Self, NavError> {
-        if !imu_dt_s.is_finite() || imu_dt_s <= T::zero() || imu_dt_s > T::one() {
+        if !imu_dt_s.is_finite() || imu_dt_s <= T::zero() || imu_dt_s > T::lit(MAX_INTERVAL_S) {
             return Err(NavError::InvalidTimeStep);
         }
+        let dt_us = seconds_to_micros(imu_dt_s)
+            .filter(|us| *us > 0)
+            .ok_or(NavError::InvalidTimeStep)?;
         let state = validate_state(&initial)?;
         Ok(Self {
             state,
             dt_s: imu_dt_s,
-            prev: ImuIncrement::zero(),
+            dt_us,
+            last_interval_s: imu_dt_s,
+            prev: ImuIncrement::zero(Timestamp::ZERO),
             has_prev: false,
             f_ned_m_s2: Vector3::zeros(),
             vel_lo: Vector3::zeros(),
@@ -251,9 +276,47 @@ impl<T: Real> Ins<T> {
         &self.state
     }
 
-    /// IMU interval, s.
+    /// Nominal IMU interval, s.
     pub fn dt_s(&self) -> T {
         self.dt_s
+    }
+
+    /// Nominal IMU interval rounded to whole µs.
+    pub fn dt_us(&self) -> u64 {
+        self.dt_us
+    }
+
+    /// The interval the last [`Ins::step`] integrated over, s (the nominal interval before
+    /// the first sample).
+    pub fn last_interval_s(&self) -> T {
+        self.last_interval_s
+    }
+
+    /// Time stamp of the last integrated sample (`None` before the first).
+    pub fn time(&self) -> Option<Timestamp> {
+        self.has_prev.then_some(self.prev.time)
+    }
+
+    /// The interval from the last sample to `time`, s, as [`Ins::step`] would integrate it:
+    /// the nominal `imu_dt_s` for the first sample and for an interval equal to it to the µs
+    /// (so that a regular-rate stream integrates exactly the configured interval), else the
+    /// measured one. Errors: `TimeNotIncreasing` (not strictly later), `InvalidTimeStep`
+    /// (longer than [`MAX_INTERVAL_S`]).
+    pub fn interval_to(&self, time: Timestamp) -> Result<T, NavError> {
+        if !self.has_prev {
+            return Ok(self.dt_s);
+        }
+        let us = time
+            .micros_since(self.prev.time)
+            .filter(|us| *us > 0)
+            .ok_or(NavError::TimeNotIncreasing)?;
+        if us > MAX_INTERVAL_US {
+            Err(NavError::InvalidTimeStep)
+        } else if us == self.dt_us {
+            Ok(self.dt_s)
+        } else {
+            Ok(micros_to_seconds(us))
+        }
     }
 
     /// C_b^n of the current attitude (of the normalised quaternion).
@@ -272,12 +335,16 @@ impl<T: Real> Ins<T> {
         self.has_prev.then_some(self.prev)
     }
 
-    /// Advances the INS by one IMU interval.
+    /// Advances the INS to `inc.time`: gravity, Coriolis, transport and earth rate are
+    /// integrated over the interval from the previous sample ([`Ins::interval_to`]; the
+    /// nominal interval for the first sample after [`Ins::new`]).
     ///
-    /// Errors (state unchanged): `NonFiniteInput`, `InputOutOfRange` (|Δθ| >
-    /// [`MAX_DELTA_THETA_RAD`], |Δv| > [`MAX_DELTA_V_M_S`], or a step that would leave the
-    /// valid position range).
+    /// Errors (state unchanged, the clock too: a later sample is accepted):
+    /// `TimeNotIncreasing`, `InvalidTimeStep` (interval beyond [`MAX_INTERVAL_S`]),
+    /// `NonFiniteInput`, `InputOutOfRange` (|Δθ| > [`MAX_DELTA_THETA_RAD`], |Δv| >
+    /// [`MAX_DELTA_V_M_S`]).
     pub fn step(&mut self, inc: &ImuIncrement<T>) -> Result<(), NavError> {
+        let dt = self.interval_to(inc.time)?;
         let dth = inc.delta_theta_rad;
         let dv = inc.delta_v_m_s;
         if !dth.iter().all(|v| v.is_finite()) {
@@ -300,7 +367,6 @@ impl<T: Real> Ins<T> {
                 input: "delta_v_m_s",
             });
         }
-        let dt = self.dt_s;
         let half = T::lit(0.5);
         let twelfth = T::lit(1.0 / 12.0);
         let s = &self.state;
@@ -374,6 +440,7 @@ impl<T: Real> Ins<T> {
         let inv_dt = T::one() / dt;
         self.f_ned_m_s2 = dv_n * inv_dt;
         self.state = new_state;
+        self.last_interval_s = dt;
         self.prev = *inc;
         self.has_prev = true;
         Ok(())
@@ -523,7 +590,7 @@ mod tests {
     fn bad_inputs_leave_state_unchanged() {
         let mut ins = Ins::new(start::<f32>(), 0.01).unwrap();
         let before = ins;
-        let mut inc = ImuIncrement::zero();
+        let mut inc = ImuIncrement::zero(Timestamp::from_micros(10_000));
         inc.delta_v_m_s.x = f32::NAN;
         assert!(ins.step(&inc).is_err());
         inc.delta_v_m_s.x = 0.0;
@@ -552,12 +619,14 @@ mod tests {
             let dt = T::lit(0.01);
             let f_n = Vector3::new(T::zero(), T::zero(), -g);
             let w_n = crate::earth::earth_rate_ned(T::lit(lat));
-            let inc = ImuIncrement {
+            let mut inc = ImuIncrement {
+                time: Timestamp::ZERO,
                 delta_theta_rad: c.transpose() * w_n * dt,
                 delta_v_m_s: c.transpose() * f_n * dt,
             };
             let mut ins = Ins::new(s, dt).unwrap();
-            for _ in 0..6000 {
+            for k in 1..=6000 {
+                inc.time = Timestamp::from_micros(k * 10_000);
                 ins.step(&inc).unwrap();
             }
             let p = ins.state().position;
@@ -568,5 +637,97 @@ mod tests {
         // 60 s: f64 centimetres; f32 metres at most (vertical channel instability is slow).
         assert!(run::<f64>() < 0.05, "{}", run::<f64>());
         assert!(run::<f32>() < 2.0, "{}", run::<f32>());
+    }
+
+    /// A stationary sample over `dt_us` µs ending at `time_us` (the IMU senses −g and the
+    /// earth rate over the actual interval).
+    fn at_rest<T: Real>(s: &InsState<T>, time_us: u64, dt_us: u64) -> ImuIncrement<T> {
+        let lat = s.position.lat_rad;
+        let c = quat_to_dcm(&s.q_b_n);
+        let g = normal_gravity_m_s2(T::lit(lat), T::lit(s.position.alt_m));
+        let dt: T = micros_to_seconds(dt_us);
+        let w_n = crate::earth::earth_rate_ned(T::lit(lat));
+        ImuIncrement {
+            time: Timestamp::from_micros(time_us),
+            delta_theta_rad: c.transpose() * w_n * dt,
+            delta_v_m_s: c.transpose() * Vector3::new(T::zero(), T::zero(), -g) * dt,
+        }
+    }
+
+    fn resting<T: Real>() -> InsState<T> {
+        let mut s = start::<T>();
+        s.vel_ned_m_s = Vector3::zeros();
+        s
+    }
+
+    #[test]
+    fn time_stamps_are_checked_and_nothing_changes_on_refusal() {
+        fn run<T: Real>() {
+            let s = resting::<T>();
+            let mut ins = Ins::new(s, T::lit(0.01)).unwrap();
+            assert_eq!(ins.time(), None);
+            assert_eq!(ins.last_interval_s(), T::lit(0.01));
+            // The first sample is integrated over the nominal interval, whatever its stamp.
+            ins.step(&at_rest(&s, 5_000_000, 10_000)).unwrap();
+            assert_eq!(ins.time(), Some(Timestamp::from_micros(5_000_000)));
+            let before = ins;
+            for t in [5_000_000, 4_999_999, 0] {
+                assert_eq!(
+                    ins.step(&at_rest(&s, t, 10_000)),
+                    Err(NavError::TimeNotIncreasing)
+                );
+                assert_eq!(ins, before);
+            }
+            assert_eq!(
+                ins.step(&at_rest(&s, 5_000_000 + 1_000_001, 10_000)),
+                Err(NavError::InvalidTimeStep)
+            );
+            assert_eq!(ins, before);
+            // The clock is not frozen: a later sample is accepted, over its actual interval.
+            ins.step(&at_rest(&s, 5_013_000, 13_000)).unwrap();
+            assert_eq!(ins.last_interval_s(), T::lit(0.013));
+            ins.step(&at_rest(&s, 5_023_000, 10_000)).unwrap();
+            assert_eq!(ins.last_interval_s(), T::lit(0.01));
+            ins.step(&at_rest(&s, 6_023_000, 1_000_000)).unwrap();
+            assert_eq!(ins.last_interval_s(), T::one());
+        }
+        run::<f32>();
+        run::<f64>();
+    }
+
+    /// Gravity and earth rate integrated over the actual interval: a resting INS fed with
+    /// jittered intervals (±30 %) stays put as with regular ones, and the same stream 10⁶ s
+    /// later gives the same bits.
+    #[test]
+    fn jittered_intervals_and_late_clocks_integrate_the_actual_interval() {
+        fn run<T: Real>(t0_us: u64, jitter: bool) -> (f64, InsState<T>) {
+            let s = resting::<T>();
+            let mut ins = Ins::new(s, T::lit(0.01)).unwrap();
+            let mut t = t0_us;
+            let mut k = 0u64;
+            while t < t0_us + 60_000_000 {
+                // Deterministic jitter in [7 ms, 13 ms] after the first sample (which is
+                // integrated over the nominal interval).
+                let dt_us = if jitter && k > 0 {
+                    7_000 + (k * 7_919 % 6_001)
+                } else {
+                    10_000
+                };
+                t += dt_us;
+                k += 1;
+                ins.step(&at_rest(&s, t, dt_us)).unwrap();
+            }
+            let p = ins.state().position;
+            let dn = (p.lat_rad - s.position.lat_rad) * 6.4e6;
+            let de = (p.lon_rad - s.position.lon_rad) * 6.4e6 * s.position.lat_rad.cos();
+            let err = (dn * dn + de * de + (p.alt_m - 1000.0).powi(2)).sqrt();
+            (err, *ins.state())
+        }
+        let (regular, _) = run::<f64>(0, false);
+        let (jittered, _) = run::<f64>(0, true);
+        assert!(regular < 0.05 && jittered < 0.05, "{regular} {jittered}");
+        let (_, a) = run::<f32>(0, true);
+        let (_, b) = run::<f32>(1_000_000_000_000, true);
+        assert_eq!(a, b);
     }
 }

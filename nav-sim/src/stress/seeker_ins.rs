@@ -19,6 +19,7 @@ use nav_core::seeker_ins::{
     ClipFlags, GimbalAngles, ImuFaultPolicy, ImuIncrement, Ins, InsState, Landmark, LosResidual,
     Position, RecoveryPolicy, SeekerIns, SeekerInsConfig,
 };
+use nav_core::time::Timestamp;
 use nav_core::{HealthState, Real};
 use rayon::prelude::*;
 
@@ -424,8 +425,10 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
     let mut health_steps = [0u64; 4];
     let mut reinits = 0u32;
     let mut min_eig = f64::INFINITY;
+    let dt_us = (dt * 1e6).round() as u64;
     for k in 1..=c.steps {
         let t_s = k as f64 * dt;
+        let time = Timestamp::from_micros(k * dt_us);
         // Random manoeuvre bursts: a new one every 2 s, large ones one time in five.
         if k % ((2.0 / dt) as u64).max(1) == 0 {
             let big = gauss(&mut rng).abs() > 1.28;
@@ -450,6 +453,7 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
         );
         let w_b = Vector3::new(man[3] - 0.2 * roll, man[4] - 0.2 * pitch, yaw_rate + man[5]);
         let true_inc = ImuIncrement {
+            time,
             delta_theta_rad: w_b * dt,
             delta_v_m_s: f_b * dt,
         };
@@ -479,6 +483,7 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
                 missing = 0;
             }
             let inc = ImuIncrement {
+                time,
                 delta_theta_rad: sensed_dth.map(T::lit),
                 delta_v_m_s: sensed_dv.map(T::lit),
             };

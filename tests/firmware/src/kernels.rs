@@ -423,9 +423,15 @@ fn ins_initial() -> InsState<f32> {
     }
 }
 
-fn ins_increment() -> ImuIncrement<f32> {
+/// The sample after the INS's last one (a regular 100 Hz clock).
+fn ins_increment(ins: &Ins<f32>) -> ImuIncrement<f32> {
+    let dt_us = ins.dt_us();
+    let time = ins
+        .time()
+        .map_or(Timestamp::from_micros(dt_us), |t| t.add_micros(dt_us));
     // Level flight east: the accelerometers feel gravity (up), the gyros earth + transport rate.
     core::hint::black_box(ImuIncrement {
+        time,
         delta_theta_rad: Vector3::new(1.0e-7, 4.4e-7, -3.5e-7),
         delta_v_m_s: Vector3::new(0.0, 0.0, -9.80 * INS_DT_S),
     })
@@ -459,7 +465,7 @@ fn ins_setup() {
 
 fn ins_step() {
     with_state(&INS, |(ins, ok)| {
-        *ok &= ins.step(&ins_increment()).is_ok();
+        *ok &= ins.step(&ins_increment(ins)).is_ok();
     });
 }
 
@@ -517,7 +523,8 @@ fn seeker_setup() {
     let mut state = state.map(|filter| Seeker { filter, ok: true });
     if let Some(s) = state.as_mut() {
         for _ in 0..10 {
-            s.ok &= s.filter.propagate(&ins_increment()).is_ok();
+            let inc = ins_increment(s.filter.ins());
+            s.ok &= s.filter.propagate(&inc).is_ok();
         }
     }
     store(&SEEKER, state);

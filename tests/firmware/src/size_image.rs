@@ -110,6 +110,7 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
             count(ai.reinitialise(&bb(nav_golden::vc_initial())));
         }
         let inc = ImuIncrement {
+            time: bb(nav_core::time::Timestamp::ZERO),
             delta_theta_rad: v(0.0),
             delta_v_m_s: v(0.0),
         };

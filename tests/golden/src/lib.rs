@@ -112,6 +112,8 @@ pub const TA_DT_S: f32 = 0.01;
 pub const VC_DT_S: f64 = 0.01;
 /// IMU interval of the seeker case, s.
 pub const INS_DT_S: f32 = 0.01;
+/// [`INS_DT_S`] in µs (the seeker case's time stamps).
+pub const INS_DT_US: u64 = 10_000;
 /// Seeker case: LOS update every this many IMU samples.
 pub const LOS_EVERY: usize = 10;
 
@@ -560,6 +562,8 @@ pub fn replay_with(
                     *d = v;
                 }
                 let inc = ImuIncrement {
+                    // Record k covers the interval ending at (k + 1) × INS_DT_S.
+                    time: Timestamp::from_micros((k as u64 + 1) * INS_DT_US),
                     delta_theta_rad: v3(&rec, 0),
                     delta_v_m_s: v3(&rec, 3),
                 };

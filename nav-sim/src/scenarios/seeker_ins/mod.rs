@@ -409,6 +409,7 @@ pub fn simulate_run_faulted<T: Real>(
                     normal(rng, sd_dth),
                 );
             let sample = ImuIncrement {
+                time: inc.time,
                 delta_theta_rad: dth.cast::<T>(),
                 delta_v_m_s: dv.cast::<T>(),
             };

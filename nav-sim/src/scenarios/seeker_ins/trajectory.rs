@@ -15,6 +15,7 @@ use nalgebra::{Matrix3, Vector3};
 use nav_core::earth::{earth_rate_ned, gravity_ned, radii_m};
 use nav_core::math::rotation::euler_to_dcm;
 use nav_core::seeker_ins::{ImuIncrement, Position};
+use nav_core::time::Timestamp;
 use serde::Deserialize;
 
 /// Shape of the trajectory.
@@ -144,7 +145,8 @@ pub struct Truth {
     pub vel_ned_m_s: Vec<Vector3<f64>>,
     /// C_b^n at t_k.
     pub c_b_n: Vec<Matrix3<f64>>,
-    /// Increments over (t_{k−1}, t_k]; `imu[0]` is zero (no interval before t_0).
+    /// Increments over (t_{k−1}, t_k], stamped t_k (k × the IMU interval in whole µs); `imu[0]`
+    /// is zero (no interval before t_0).
     pub imu: Vec<ImuIncrement<f64>>,
 }
 
@@ -194,8 +196,10 @@ pub fn generate(cfg: &TrajectoryConfig, dt_s: f64) -> Truth {
         (0.5, 8.0 / 18.0),
         (0.5 + 0.5 * (0.6f64).sqrt(), 5.0 / 18.0),
     ];
+    let dt_us = (dt_s * 1e6).round() as u64;
     for k in 0..=n {
         let t = k as f64 * dt_s;
+        let time = Timestamp::from_micros(k as u64 * dt_us);
         let kin = cfg.kin(t);
         if k > 0 {
             let t0 = t - dt_s;
@@ -217,6 +221,7 @@ pub fn generate(cfg: &TrajectoryConfig, dt_s: f64) -> Truth {
                 dth += w_b * (w * dt_s);
             }
             out.imu.push(ImuIncrement {
+                time,
                 delta_theta_rad: dth,
                 delta_v_m_s: dv,
             });
@@ -237,7 +242,7 @@ pub fn generate(cfg: &TrajectoryConfig, dt_s: f64) -> Truth {
                 alt_m: p0.alt_m,
             };
         } else {
-            out.imu.push(ImuIncrement::zero());
+            out.imu.push(ImuIncrement::zero(time));
         }
         out.t_s.push(t);
         out.position.push(p);
