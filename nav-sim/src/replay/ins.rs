@@ -94,6 +94,40 @@ impl Default for InsReplayConfig {
 }
 
 impl InsReplayConfig {
+    /// Checks every field against its range; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        let max_s = nav_core::seeker_ins::mechanization::MAX_INTERVAL_S;
+        let checks = [
+            ("start_after_s", self.start_after_s, 0.0, 3600.0),
+            ("reinit_interval_s", self.reinit_interval_s, 0.0, 3600.0),
+            ("max_interval_s", self.max_interval_s, 1e-4, max_s),
+            (
+                "gyro_noise_rad_s_rt_hz",
+                self.gyro_noise_rad_s_rt_hz,
+                0.0,
+                1.0,
+            ),
+            ("gyro_bias_rad_s", self.gyro_bias_rad_s, 0.0, 1.0),
+            ("accel_bias_m_s2", self.accel_bias_m_s2, 0.0, 10.0),
+        ];
+        for (name, v, lo, hi) in checks {
+            if !(lo..=hi).contains(&v) {
+                anyhow::bail!("[ins] {name} = {v} is outside [{lo}, {hi}]");
+            }
+        }
+        if let Some(h) = self
+            .report_after_s
+            .iter()
+            .find(|h| !h.is_finite() || **h <= 0.0)
+        {
+            anyhow::bail!("[ins] report_after_s: {h} is not a positive number of seconds");
+        }
+        if self.report_after_s.windows(2).any(|w| w[1] <= w[0]) {
+            anyhow::bail!("[ins] report_after_s must increase");
+        }
+        Ok(())
+    }
+
     /// Expected 1σ attitude drift per axis after `t_s` of free integration, rad: angle random
     /// walk and bias, `√(N² t + (b t)²)`.
     pub fn expected_attitude_sigma_rad(&self, t_s: f64) -> f64 {
@@ -212,28 +246,21 @@ fn euler_diff(a: &[f64; 4], b: &[f64; 4]) -> [f64; 3] {
 // ---------------------------------------------------------------------------------------------
 // nav-core INS calls (the one place that knows the mechanization's API).
 
-/// A new f32 INS at `time` with the nominal IMU interval of the log.
-fn new_ins(state: InsState<f32>, nominal_dt_s: f64) -> Result<Ins<f32>, NavError> {
-    Ins::new(state, nominal_dt_s as f32)
+/// A new f32 INS whose first step integrates `first_interval_s` (nav-core measures every later
+/// interval from the time stamps; the first has no predecessor to measure it from).
+fn new_ins(state: InsState<f32>, first_interval_s: f64) -> Result<Ins<f32>, NavError> {
+    Ins::new(state, first_interval_s as f32)
 }
 
-/// One step over `[t_ins, time]` with the increments of that interval.
+/// One step to `time`: the increments are the logged rates times the interval nav-core
+/// integrates (`Ins::interval_to`), so the two agree to the µs.
 fn step_ins(
     ins: &mut Ins<f32>,
-    _time: Timestamp,
-    dt_s: f64,
-    nominal_dt_s: f64,
+    time: Timestamp,
     body: &BodyImu,
     gyro: &[f64; 3],
-) -> Result<(), String> {
-    if dt_s <= 0.0 {
-        return Err("RepeatedTimeStamp".into());
-    }
-    // Until the mechanization integrates over the stamped interval, only intervals within 1 %
-    // of the nominal one are integrated exactly.
-    if (dt_s - nominal_dt_s).abs() > 0.01 * nominal_dt_s {
-        return Err("IntervalNotNominal".into());
-    }
+) -> Result<(), NavError> {
+    let dt_s = f64::from(ins.interval_to(time)?);
     let v = |a: &[f64; 3]| {
         Vector3::new(
             (a[0] * dt_s) as f32,
@@ -241,11 +268,11 @@ fn step_ins(
             (a[2] * dt_s) as f32,
         )
     };
-    let inc = ImuIncrement {
+    ins.step(&ImuIncrement {
+        time,
         delta_theta_rad: v(gyro),
         delta_v_m_s: v(&body.acc_b_m_s2),
-    };
-    ins.step(&inc).map_err(|e| format!("{e:?}"))
+    })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -287,7 +314,12 @@ struct HorizonHit {
 #[derive(Debug, Default)]
 struct Run {
     ins: Option<Ins<f32>>,
+    /// Time of the state: the last integrated IMU sample, or the IMU sample before the
+    /// initialisation.
     t_ins: Option<Timestamp>,
+    /// The INS was (re-)initialised and has not integrated a sample yet: it is rebuilt with
+    /// the actual first interval at the next sample.
+    first_pending: bool,
     init_t: Option<Timestamp>,
     inits: Vec<InitRecord>,
     /// Product of the inverse attitude resets since the initialisation (reference without
@@ -553,7 +585,7 @@ impl InsReplay {
             return;
         };
         self.gyro_samples += 1;
-        let (nominal, max_dt) = (self.nominal_dt_s, self.cfg.max_interval_s);
+        let max_dt = self.cfg.max_interval_s;
         for run in [&mut self.free, &mut self.relev] {
             let (Some(ins), Some(t_ins)) = (run.ins.as_mut(), run.t_ins) else {
                 run.refuse("NotInitialised");
@@ -570,12 +602,26 @@ impl InsReplay {
                 }
                 continue;
             }
-            match step_ins(ins, t, dt_s, nominal, body, &gyro) {
+            if run.first_pending {
+                if dt_s <= 0.0 {
+                    run.refuse(&format!("{:?}", NavError::TimeNotIncreasing));
+                    continue;
+                }
+                match new_ins(*ins.state(), dt_s) {
+                    Ok(fresh) => *ins = fresh,
+                    Err(e) => {
+                        run.refuse(&format!("{e:?}"));
+                        continue;
+                    }
+                }
+            }
+            match step_ins(ins, t, body, &gyro) {
                 Ok(()) => {
                     run.accepted += 1;
                     run.t_ins = Some(t);
+                    run.first_pending = false;
                 }
-                Err(why) => run.refuse(&why),
+                Err(e) => run.refuse(&format!("{e:?}")),
             }
         }
     }
@@ -739,6 +785,7 @@ impl InsReplay {
                 Ok(ins) => {
                     run.ins = Some(ins);
                     run.t_ins = Some(t_imu);
+                    run.first_pending = true;
                     run.init_t = Some(t);
                     run.inits.push(rec);
                     run.reset_acc = Some([1.0, 0.0, 0.0, 0.0]);

@@ -401,6 +401,7 @@ fn prescan(log: &Path) -> Result<PreScan> {
 
 /// Replays `log` with `cfg`, writing into `out`; returns the summary.
 pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
+    cfg.ins.validate()?;
     let pre = prescan(log)?;
     let lat = cfg.latitude_deg.to_radians();
     let timeouts = AidTimeouts {
