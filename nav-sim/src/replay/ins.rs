@@ -934,6 +934,7 @@ impl InsReplay {
                 "reason": format!("{reason:?}"),
                 "detail": detail,
                 "imu_samples": self.imu_samples,
+                "imu_refused": self.free.refused,
                 "imu_samples_with_gyro": self.gyro_samples,
                 "attitude_samples": self.attitude_samples,
                 "frame_check": self.frame.json(),
