@@ -402,6 +402,11 @@ fn real_csv_without_gyro_reports_the_ins_not_available() {
         ins["detail"].as_str().unwrap().contains("gyro_x_rad_s"),
         "{ins}"
     );
+    // Every IMU sample accounted for, by that reason.
+    assert_eq!(
+        num(ins, &["imu_refused", "NoGyro"]),
+        num(&s, &["streams", "imu", "samples"])
+    );
     let fc = &ins["frame_check"];
     assert_eq!(fc["result"], "GravityUp", "{fc}");
     let h = |k: &str| at(&fc[k], 0).hypot(at(&fc[k], 1));
