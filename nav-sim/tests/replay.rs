@@ -682,3 +682,18 @@ fn ins_takes_irregular_intervals_gaps_and_glitches_as_they_come() {
         let _ = std::fs::remove_dir_all(d);
     }
 }
+
+#[test]
+fn an_ins_setting_out_of_range_is_named() {
+    let mut cfg = config("px4-sitl-hop");
+    cfg.ins.max_interval_s = 2.0;
+    let out = out_dir("ins-cfg");
+    let e = replay(&shipped("px4-sitl-hop/px4_sitl_hop.ulg"), &cfg, &out)
+        .expect_err("max_interval_s beyond the mechanization's 1 s accepted");
+    assert!(format!("{e:#}").contains("[ins] max_interval_s"), "{e:#}");
+    let mut cfg = config("px4-sitl-hop");
+    cfg.ins.report_after_s = vec![10.0, 5.0];
+    let e = replay(&shipped("px4-sitl-hop/px4_sitl_hop.ulg"), &cfg, &out).expect_err("accepted");
+    assert!(format!("{e:#}").contains("report_after_s"), "{e:#}");
+    let _ = std::fs::remove_dir_all(&out);
+}

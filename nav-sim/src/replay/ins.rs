@@ -51,6 +51,11 @@ const G_M_S2: f64 = 9.80665;
 const FRAME_CHECK_TOLERANCE_M_S2: f64 = 0.1 * G_M_S2;
 /// A reference (autopilot or GNSS velocity) older than this is not used to initialise, s.
 const REFERENCE_MAX_AGE_S: f64 = 1.0;
+/// Longest interval nav-core's `Ins::step` integrates, s (its `MAX_INTERVAL_S`; the path of
+/// that constant differs between nav-core versions, its value does not): `max_interval_s` must
+/// not exceed it, so that a longer interval is a replay `Gap`, never a refusal that would stop
+/// the INS clock.
+const INS_MAX_INTERVAL_S: f64 = 1.0;
 /// Gaps listed in the summary (all are counted).
 const MAX_GAPS_LISTED: usize = 20;
 /// Interval of the plotted points, s.
@@ -96,7 +101,7 @@ impl Default for InsReplayConfig {
 impl InsReplayConfig {
     /// Checks every field against its range; the error names the field.
     pub fn validate(&self) -> Result<()> {
-        let max_s = nav_core::seeker_ins::mechanization::MAX_INTERVAL_S;
+        let max_s = INS_MAX_INTERVAL_S;
         let checks = [
             ("start_after_s", self.start_after_s, 0.0, 3600.0),
             ("reinit_interval_s", self.reinit_interval_s, 0.0, 3600.0),
