@@ -49,8 +49,9 @@ enum Cmd {
         only: Option<String>,
     },
     /// Replay a flight log (a PX4 .ulg file or a directory of CSV files in the documented
-    /// schema) through the vertical-channel loops; writes OUT/{summary.json, timeseries.csv,
-    /// replay.png}.
+    /// schema) through the vertical-channel loops and, where the log has gyro, accelerometer and
+    /// attitude, the strapdown INS; writes OUT/{summary.json, timeseries.csv, replay.png,
+    /// ins.png}.
     Replay {
         /// The log: a `.ulg` file or a directory with imu.csv, baro.csv (gnss.csv,
         /// estimate.csv optional).
@@ -116,8 +117,17 @@ fn main() -> Result<()> {
             };
             let summary = nav_sim::replay::replay(&log, &cfg, &out)?;
             println!("{}", serde_json::to_string_pretty(&summary["loops"])?);
+            let ins = &summary["ins"];
+            match ins["status"].as_str() {
+                Some("Available") => println!(
+                    "INS: free {} / re-levelled {} (differences to the autopilot)",
+                    ins["free"]["attitude_vs_autopilot"],
+                    ins["relevelled"]["attitude_vs_autopilot"]
+                ),
+                _ => println!("INS not available: {}", ins["detail"]),
+            }
             println!(
-                "wrote {}/{{summary.json, timeseries.csv, replay.png}}",
+                "wrote {}/{{summary.json, timeseries.csv, replay.png, ins.png where the INS ran}}",
                 out.display()
             );
             Ok(())

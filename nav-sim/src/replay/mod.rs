@@ -5,8 +5,13 @@
 //! a flight loop would call nav-core. The loops are compared with the GNSS altitude and
 //! vertical velocity and with the autopilot's own estimate.
 //!
-//! Outputs in the output directory: `summary.json`, `timeseries.csv`, `replay.png`.
+//! Where the log has gyro, accelerometer and the autopilot's attitude, nav-core's strapdown INS
+//! runs from the same samples and is compared with the autopilot ([`ins`]).
+//!
+//! Outputs in the output directory: `summary.json`, `timeseries.csv`, `replay.png`, and
+//! `ins.png` where the INS ran.
 
+pub mod ins;
 pub mod source;
 
 use crate::output::sig;
@@ -51,6 +56,8 @@ pub struct ReplayConfig {
     pub velocity_period_s: f64,
     /// Innovation gate of both loops; absent: ungated.
     pub gate: Option<crate::scenarios::vertical_channel_faults::GateConfig>,
+    /// Strapdown INS replay (where the log has gyro, accelerometer and attitude).
+    pub ins: ins::InsReplayConfig,
 }
 
 /// Classical-loop settings.
@@ -93,6 +100,7 @@ impl Default for ReplayConfig {
             baro_period_s: 0.05,
             velocity_period_s: 0.2,
             gate: None,
+            ins: ins::InsReplayConfig::default(),
         }
     }
 }
@@ -340,7 +348,7 @@ fn prescan(log: &Path) -> Result<PreScan> {
     let mut f_down = Moments::default();
     for ev in src.by_ref() {
         match ev? {
-            LogEvent::Imu { t, f_down_m_s2 } => {
+            LogEvent::Imu { t, f_down_m_s2, .. } => {
                 first_imu.get_or_insert(t);
                 f_down.add(f_down_m_s2);
                 if let Some(l) = last {
@@ -393,6 +401,7 @@ fn prescan(log: &Path) -> Result<PreScan> {
 
 /// Replays `log` with `cfg`, writing into `out`; returns the summary.
 pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
+    cfg.ins.validate()?;
     let pre = prescan(log)?;
     let lat = cfg.latitude_deg.to_radians();
     let timeouts = AidTimeouts {
@@ -453,8 +462,10 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
     );
     writeln!(
         csv,
-        "t_s,f_up_m_s2,baro_alt_m,gnss_alt_m,gnss_vz_up_m_s,autopilot_alt_m,autopilot_vz_up_m_s,classical_alt_m,classical_vz_up_m_s,aided_alt_m,aided_vz_up_m_s"
+        "t_s,f_up_m_s2,baro_alt_m,gnss_alt_m,gnss_vz_up_m_s,autopilot_alt_m,autopilot_vz_up_m_s,classical_alt_m,classical_vz_up_m_s,aided_alt_m,aided_vz_up_m_s{}",
+        ins::InsReplay::CSV_HEADER
     )?;
+    let mut ins = ins::InsReplay::new(&cfg.ins, pre.first_imu, pre.imu_dt_s, cfg.latitude_deg);
 
     let mut stats: BTreeMap<Stream, StreamStats> = BTreeMap::new();
     let mut latest_baro = f64::NAN;
@@ -482,6 +493,7 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
         if ev.time() < pre.first_imu {
             continue; // aids before the first IMU sample: nothing to aid yet
         }
+        ins.on_event(&ev);
         match ev {
             LogEvent::Baro { t, alt_m } => {
                 latest_baro = alt_m;
@@ -493,7 +505,9 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
                     altitude_m: alt_m as f32,
                 });
             }
-            LogEvent::Gnss { t, alt_m, vd_m_s } => {
+            LogEvent::Gnss {
+                t, alt_m, vd_m_s, ..
+            } => {
                 latest_gnss = (alt_m, -vd_m_s);
                 if loops.pending_vel.is_some() {
                     superseded_gnss += 1;
@@ -513,7 +527,9 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
                     }
                 }
             }
-            LogEvent::Estimate { t, alt_m, vd_m_s } => {
+            LogEvent::Estimate {
+                t, alt_m, vd_m_s, ..
+            } => {
                 latest_est = (alt_m, -vd_m_s);
                 if settled(t) {
                     for tl in &mut loops.tally {
@@ -522,7 +538,8 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
                     }
                 }
             }
-            LogEvent::Imu { t, f_down_m_s2 } => {
+            LogEvent::Attitude { .. } => {}
+            LogEvent::Imu { t, f_down_m_s2, .. } => {
                 loops.step(t, -f_down_m_s2 as f32);
                 let row = [
                     t.signed_seconds_since::<f64>(pre.first_imu),
@@ -543,7 +560,7 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
                 if due(last_row, cfg.csv_interval_s) {
                     last_row = Some(t);
                     let line: Vec<String> = row.iter().map(|v| format!("{v}")).collect();
-                    writeln!(csv, "{}", line.join(","))?;
+                    writeln!(csv, "{}{}", line.join(","), ins.csv_fields())?;
                 }
                 if due(last_plot, 0.05) {
                     last_plot = Some(t);
@@ -619,10 +636,12 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
             "vz_rms_m_s": sig(ap_vs_gnss.1.rms(), 4),
             "samples": ap_vs_gnss.0.n,
         },
+        "ins": ins.summary(),
         "notes": "altitude differences are RMS about their mean: the mean (datum_offset) is the constant offset between altitude datums (baro vs GNSS MSL vs the autopilot's local origin); vertical velocities are compared as they are. Comparisons start settle_s after the first IMU sample.",
     });
     crate::output::write_summary(out, &summary)?;
     plot_replay(&plot_rows, &loops.tally, &out.join("replay.png"), &describe)?;
+    ins.plot(&out.join("ins.png"), &describe)?;
     Ok(summary)
 }
 

@@ -6,15 +6,22 @@
 //!
 //! | file | columns |
 //! | --- | --- |
-//! | `imu.csv` | `t_s`, `f_down_m_s2` (down component of the specific force, NED, ≈ −9.8 at rest), optional `acc_{x,y,z}_m_s2`, `gyro_{x,y,z}_rad_s`, `q_{w,x,y,z}` (body → NED) |
+//! | `imu.csv` | `t_s`, `f_down_m_s2` (down component of the specific force, NED, ≈ −9.8 at rest), optional `acc_{x,y,z}_m_s2` and `gyro_{x,y,z}_rad_s` (body axes forward-right-down), `q_{w,x,y,z}` (the autopilot's attitude, body → NED, Hamilton, scalar first) |
 //! | `baro.csv` | `t_s`, `baro_alt_m` |
-//! | `gnss.csv` | `t_s`, `gnss_alt_m`, `gnss_vd_m_s` (down positive) |
-//! | `estimate.csv` | `t_s`, `est_alt_m`, `est_vd_m_s` (the autopilot's own estimate) |
+//! | `gnss.csv` | `t_s`, `gnss_alt_m`, `gnss_vd_m_s` (down positive), optional `gnss_lat_deg`, `gnss_lon_deg`, optional `gnss_vn_m_s`, `gnss_ve_m_s` |
+//! | `estimate.csv` | `t_s`, `est_alt_m`, `est_vd_m_s` (the autopilot's own estimate), optional `est_vn_m_s`, `est_ve_m_s` |
+//!
+//! Optional columns come in groups (the three axes, the four quaternion components, latitude
+//! and longitude, the two horizontal velocities): a group is used whole or, if absent, not at
+//! all; part of a group is an error naming the missing column.
 //!
 //! ULog topics (instance 0): `sensor_combined` (`accelerometer_m_s2`, rotated to NED with the
-//! latest `vehicle_attitude.q`), `vehicle_air_data.baro_alt_meter`,
-//! `vehicle_gps_position` (`altitude_msl_m` or the older `alt` in mm, `vel_d_m_s`, used once
-//! `fix_type` ≥ 3), `vehicle_local_position` (`z`, `vz`: the autopilot's estimate).
+//! latest `vehicle_attitude.q`, and `gyro_rad`, both body FRD), `vehicle_attitude` (`q`,
+//! valid at `timestamp_sample`, with `quat_reset_counter` and `delta_q_reset`),
+//! `vehicle_air_data.baro_alt_meter`, `vehicle_gps_position` (`altitude_msl_m` or the older `alt`
+//! in mm, `vel_d_m_s`, latitude and longitude, `vel_n_m_s`/`vel_e_m_s` where `vel_ned_valid`;
+//! used once `fix_type` ≥ 3), `vehicle_local_position` (`z`, `vz`, and `vx`/`vy` where
+//! `v_xy_valid`: the autopilot's estimate).
 //!
 //! Every error names the file, the topic or column and the line or time stamp.
 
@@ -36,11 +43,19 @@ pub enum Stream {
     Gnss,
     /// The autopilot's own altitude and vertical velocity estimate.
     Estimate,
+    /// The autopilot's attitude estimate.
+    Attitude,
 }
 
 impl Stream {
     /// All streams, in report order.
-    pub const ALL: [Stream; 4] = [Stream::Imu, Stream::Baro, Stream::Gnss, Stream::Estimate];
+    pub const ALL: [Stream; 5] = [
+        Stream::Imu,
+        Stream::Baro,
+        Stream::Gnss,
+        Stream::Estimate,
+        Stream::Attitude,
+    ];
     /// Report name.
     pub fn name(self) -> &'static str {
         match self {
@@ -48,19 +63,68 @@ impl Stream {
             Stream::Baro => "baro",
             Stream::Gnss => "gnss",
             Stream::Estimate => "estimate",
+            Stream::Attitude => "attitude",
         }
     }
+}
+
+/// The IMU sample in body axes (forward-right-down), where the log has it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BodyImu {
+    /// Specific force, body axes, m/s² (≈ (0, 0, −9.8) level at rest).
+    pub acc_b_m_s2: [f64; 3],
+    /// Angular rate, body axes, rad/s; `None` where the log has no gyro.
+    pub gyro_b_rad_s: Option<[f64; 3]>,
+}
+
+/// The horizontal part of a velocity (NED), m/s.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HorizontalVelocity {
+    /// North, m/s.
+    pub vn_m_s: f64,
+    /// East, m/s.
+    pub ve_m_s: f64,
+}
+
+/// A GNSS fix's geodetic latitude and longitude, deg.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LatLon {
+    /// Latitude, deg.
+    pub lat_deg: f64,
+    /// Longitude, deg.
+    pub lon_deg: f64,
+}
+
+/// An attitude reset reported by the autopilot (PX4: `quat_reset_counter`, `delta_q_reset`):
+/// from this sample on, `q_new = delta_q ⊗ q_old`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AttitudeReset {
+    /// The autopilot's reset counter (it changes at every reset).
+    pub counter: u32,
+    /// The change of the last reset, (w, x, y, z).
+    pub delta_q: [f64; 4],
 }
 
 /// One sample of the log.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum LogEvent {
-    /// IMU: down component of the specific force in NED, m/s².
+    /// IMU: down component of the specific force in NED, m/s², and the body-axes sample.
     Imu {
         /// Time of validity.
         t: Timestamp,
         /// Specific force, down component (NED), m/s² (≈ −g at rest).
         f_down_m_s2: f64,
+        /// Accelerometer and gyro in body axes, where the log has them.
+        body: Option<BodyImu>,
+    },
+    /// The autopilot's attitude, body (FRD) → NED, Hamilton, scalar first, unit norm.
+    Attitude {
+        /// Time of validity.
+        t: Timestamp,
+        /// q_b^n (w, x, y, z).
+        q_b_n: [f64; 4],
+        /// The autopilot's reset bookkeeping, where the log has it.
+        reset: Option<AttitudeReset>,
     },
     /// Baro altitude, m (up).
     Baro {
@@ -77,6 +141,10 @@ pub enum LogEvent {
         alt_m: f64,
         /// Vertical velocity, down positive, m/s.
         vd_m_s: f64,
+        /// Latitude and longitude, where the log has them.
+        lat_lon: Option<LatLon>,
+        /// Horizontal velocity, where the log has it (and marks it valid).
+        v_ne: Option<HorizontalVelocity>,
     },
     /// The autopilot's estimate: altitude (m, up, its own datum) and vertical velocity (down).
     Estimate {
@@ -86,6 +154,8 @@ pub enum LogEvent {
         alt_m: f64,
         /// Vertical velocity, down positive, m/s.
         vd_m_s: f64,
+        /// Horizontal velocity, where the log has it (and marks it valid).
+        v_ne: Option<HorizontalVelocity>,
     },
 }
 
@@ -96,7 +166,8 @@ impl LogEvent {
             LogEvent::Imu { t, .. }
             | LogEvent::Baro { t, .. }
             | LogEvent::Gnss { t, .. }
-            | LogEvent::Estimate { t, .. } => t,
+            | LogEvent::Estimate { t, .. }
+            | LogEvent::Attitude { t, .. } => t,
         }
     }
     /// The event's stream.
@@ -106,6 +177,7 @@ impl LogEvent {
             LogEvent::Baro { .. } => Stream::Baro,
             LogEvent::Gnss { .. } => Stream::Gnss,
             LogEvent::Estimate { .. } => Stream::Estimate,
+            LogEvent::Attitude { .. } => Stream::Attitude,
         }
     }
 }
@@ -135,6 +207,22 @@ pub fn open(path: &Path) -> Result<Box<dyn LogSource>> {
 // ---------------------------------------------------------------------------------------------
 // CSV
 
+/// Optional column groups of each file, used whole or not at all.
+const IMU_GROUPS: [&[&str]; 3] = [
+    &["acc_x_m_s2", "acc_y_m_s2", "acc_z_m_s2"],
+    &["gyro_x_rad_s", "gyro_y_rad_s", "gyro_z_rad_s"],
+    &["q_w", "q_x", "q_y", "q_z"],
+];
+const GNSS_GROUPS: [&[&str]; 2] = [
+    &["gnss_lat_deg", "gnss_lon_deg"],
+    &["gnss_vn_m_s", "gnss_ve_m_s"],
+];
+const ESTIMATE_GROUPS: [&[&str]; 1] = [&["est_vn_m_s", "est_ve_m_s"]];
+
+/// A quaternion whose norm is outside this band is not a unit quaternion (a logging or
+/// convention error, not rounding).
+const UNIT_NORM_BAND: std::ops::Range<f64> = 0.9..1.1;
+
 /// One CSV file read line by line.
 struct CsvStream {
     path: PathBuf,
@@ -143,11 +231,29 @@ struct CsvStream {
     line_no: usize,
     /// Column index of each required field.
     cols: Vec<usize>,
+    /// Names of the required fields (messages).
+    names: Vec<String>,
+    /// Per optional group: the column indices, if the file has the group.
+    groups: Vec<Option<Vec<usize>>>,
     last_t: Option<Timestamp>,
+    /// An event formed from the same row, released next (the attitude of an `imu.csv` row).
+    pending: Option<LogEvent>,
+}
+
+/// One parsed row: time stamp, required fields (`t_s` first), optional groups.
+struct Row {
+    t: Timestamp,
+    values: Vec<f64>,
+    groups: Vec<Option<Vec<f64>>>,
 }
 
 impl CsvStream {
-    fn open(path: PathBuf, stream: Stream, required: &[&str]) -> Result<Self> {
+    fn open(
+        path: PathBuf,
+        stream: Stream,
+        required: &[&str],
+        optional: &[&[&str]],
+    ) -> Result<Self> {
         let file = File::open(&path).with_context(|| format!("{}: cannot open", path.display()))?;
         let mut lines = BufReader::new(file).lines();
         let header = lines
@@ -155,9 +261,10 @@ impl CsvStream {
             .ok_or_else(|| anyhow!("{}: empty file (no header row)", path.display()))?
             .with_context(|| format!("{}: reading the header", path.display()))?;
         let names: Vec<&str> = header.split(',').map(str::trim).collect();
+        let find = |want: &str| names.iter().position(|n| *n == want);
         let mut cols = Vec::new();
         for want in required {
-            let i = names.iter().position(|n| n == want).ok_or_else(|| {
+            let i = find(want).ok_or_else(|| {
                 anyhow!(
                     "{}: missing column `{want}` (header: {header})",
                     path.display()
@@ -165,18 +272,58 @@ impl CsvStream {
             })?;
             cols.push(i);
         }
+        let mut groups = Vec::new();
+        for group in optional {
+            let found: Vec<Option<usize>> = group.iter().map(|w| find(w)).collect();
+            if found.iter().all(Option::is_none) {
+                groups.push(None);
+                continue;
+            }
+            if let Some(k) = found.iter().position(Option::is_none) {
+                bail!(
+                    "{}: missing column `{}` (the columns {} are used together; header: {header})",
+                    path.display(),
+                    group[k],
+                    group.join(", ")
+                );
+            }
+            groups.push(Some(found.into_iter().flatten().collect()));
+        }
         Ok(Self {
             path,
             stream,
             lines,
             line_no: 1,
             cols,
+            names: required.iter().map(|s| s.to_string()).collect(),
+            groups,
             last_t: None,
+            pending: None,
         })
     }
 
-    /// The next row's required fields (`t_s` first) or `None` at the end.
-    fn next_row(&mut self) -> Result<Option<(Timestamp, Vec<f64>)>> {
+    fn parse(&self, fields: &[&str], c: usize, name: &str) -> Result<f64> {
+        let raw = fields.get(c).ok_or_else(|| {
+            anyhow!(
+                "{}: line {}: {} fields, column {} (`{name}`) missing",
+                self.path.display(),
+                self.line_no,
+                fields.len(),
+                c + 1
+            )
+        })?;
+        raw.parse().map_err(|_| {
+            anyhow!(
+                "{}: line {}: column {} (`{name}`): `{raw}` is not a number",
+                self.path.display(),
+                self.line_no,
+                c + 1
+            )
+        })
+    }
+
+    /// The next row or `None` at the end.
+    fn next_row(&mut self, optional: &[&[&str]]) -> Result<Option<Row>> {
         loop {
             let Some(line) = self.lines.next() else {
                 return Ok(None);
@@ -190,32 +337,27 @@ impl CsvStream {
             }
             let fields: Vec<&str> = line.split(',').map(str::trim).collect();
             let mut values = Vec::with_capacity(self.cols.len());
-            for (k, &c) in self.cols.iter().enumerate() {
-                let raw = fields.get(c).ok_or_else(|| {
-                    anyhow!(
-                        "{}: line {}: {} fields, column {} missing",
-                        self.path.display(),
-                        self.line_no,
-                        fields.len(),
-                        c + 1
-                    )
-                })?;
-                let v: f64 = raw.parse().map_err(|_| {
-                    anyhow!(
-                        "{}: line {}: column {}: `{raw}` is not a number",
-                        self.path.display(),
-                        self.line_no,
-                        c + 1
-                    )
-                })?;
-                if !v.is_finite() && k == 0 {
-                    bail!(
-                        "{}: line {}: `t_s` is not finite",
-                        self.path.display(),
-                        self.line_no
-                    );
-                }
-                values.push(v);
+            for (&c, name) in self.cols.iter().zip(&self.names) {
+                values.push(self.parse(&fields, c, name)?);
+            }
+            if !values[0].is_finite() {
+                bail!(
+                    "{}: line {}: `t_s` is not finite",
+                    self.path.display(),
+                    self.line_no
+                );
+            }
+            let mut groups = Vec::with_capacity(self.groups.len());
+            for (g, names) in self.groups.iter().zip(optional) {
+                groups.push(match g {
+                    None => None,
+                    Some(cols) => Some(
+                        cols.iter()
+                            .zip(names.iter())
+                            .map(|(&c, name)| self.parse(&fields, c, name))
+                            .collect::<Result<Vec<f64>>>()?,
+                    ),
+                });
             }
             let t = Timestamp::from_secs_f64(values[0]).map_err(|e| {
                 anyhow!(
@@ -237,30 +379,85 @@ impl CsvStream {
                 }
             }
             self.last_t = Some(t);
-            return Ok(Some((t, values)));
+            return Ok(Some(Row { t, values, groups }));
+        }
+    }
+
+    fn optional(&self) -> &'static [&'static [&'static str]] {
+        match self.stream {
+            Stream::Imu => &IMU_GROUPS,
+            Stream::Gnss => &GNSS_GROUPS,
+            Stream::Estimate => &ESTIMATE_GROUPS,
+            Stream::Baro | Stream::Attitude => &[],
         }
     }
 
     fn next_event(&mut self) -> Result<Option<LogEvent>> {
-        let Some((t, v)) = self.next_row()? else {
+        if let Some(ev) = self.pending.take() {
+            return Ok(Some(ev));
+        }
+        let Some(Row {
+            t,
+            values: v,
+            groups: g,
+        }) = self.next_row(self.optional())?
+        else {
             return Ok(None);
         };
+        // A reference group with a non-finite value is absent from that row (e.g. `nan` while
+        // the receiver or the estimator marks it invalid).
+        let finite = |k: usize| g[k].as_ref().filter(|v| v.iter().all(|x| x.is_finite()));
+        let horizontal = |k: usize| {
+            finite(k).map(|h| HorizontalVelocity {
+                vn_m_s: h[0],
+                ve_m_s: h[1],
+            })
+        };
+        let axes = |k: usize| g[k].as_ref().map(|a| [a[0], a[1], a[2]]);
         Ok(Some(match self.stream {
-            Stream::Imu => LogEvent::Imu {
-                t,
-                f_down_m_s2: v[1],
-            },
+            Stream::Imu => {
+                if let Some(q) = finite(2) {
+                    let n = q.iter().map(|x| x * x).sum::<f64>().sqrt();
+                    if !UNIT_NORM_BAND.contains(&n) {
+                        bail!(
+                            "{}: line {}: `q_w`, `q_x`, `q_y`, `q_z` have norm {n} (not a unit quaternion)",
+                            self.path.display(),
+                            self.line_no
+                        );
+                    }
+                    self.pending = Some(LogEvent::Attitude {
+                        t,
+                        q_b_n: [q[0] / n, q[1] / n, q[2] / n, q[3] / n],
+                        reset: None,
+                    });
+                }
+                LogEvent::Imu {
+                    t,
+                    f_down_m_s2: v[1],
+                    body: axes(0).map(|acc_b_m_s2| BodyImu {
+                        acc_b_m_s2,
+                        gyro_b_rad_s: axes(1),
+                    }),
+                }
+            }
             Stream::Baro => LogEvent::Baro { t, alt_m: v[1] },
             Stream::Gnss => LogEvent::Gnss {
                 t,
                 alt_m: v[1],
                 vd_m_s: v[2],
+                lat_lon: finite(0).map(|p| LatLon {
+                    lat_deg: p[0],
+                    lon_deg: p[1],
+                }),
+                v_ne: horizontal(1),
             },
             Stream::Estimate => LogEvent::Estimate {
                 t,
                 alt_m: v[1],
                 vd_m_s: v[2],
+                v_ne: horizontal(0),
             },
+            Stream::Attitude => bail!("{}: no attitude file in the schema", self.path.display()),
         }))
     }
 }
@@ -278,19 +475,33 @@ impl CsvLog {
     /// other two optional (no velocity aid / no comparison without them).
     pub fn open(dir: &Path) -> Result<Self> {
         let mut streams = Vec::new();
-        for (stream, file, cols, required) in [
-            (Stream::Imu, "imu.csv", &["t_s", "f_down_m_s2"][..], true),
-            (Stream::Baro, "baro.csv", &["t_s", "baro_alt_m"][..], true),
+        for (stream, file, cols, optional, required) in [
+            (
+                Stream::Imu,
+                "imu.csv",
+                &["t_s", "f_down_m_s2"][..],
+                &IMU_GROUPS[..],
+                true,
+            ),
+            (
+                Stream::Baro,
+                "baro.csv",
+                &["t_s", "baro_alt_m"][..],
+                &[][..],
+                true,
+            ),
             (
                 Stream::Gnss,
                 "gnss.csv",
                 &["t_s", "gnss_alt_m", "gnss_vd_m_s"][..],
+                &GNSS_GROUPS[..],
                 false,
             ),
             (
                 Stream::Estimate,
                 "estimate.csv",
                 &["t_s", "est_alt_m", "est_vd_m_s"][..],
+                &ESTIMATE_GROUPS[..],
                 false,
             ),
         ] {
@@ -301,7 +512,7 @@ impl CsvLog {
                 }
                 continue;
             }
-            streams.push(CsvStream::open(path, stream, cols)?);
+            streams.push(CsvStream::open(path, stream, cols, optional)?);
         }
         let heads = vec![None; streams.len()];
         Ok(Self {
@@ -442,6 +653,9 @@ impl ULogLog {
             V::ScalarU16(v) => f64::from(*v),
             V::ScalarI16(v) => f64::from(*v),
             V::ScalarU32(v) => f64::from(*v),
+            V::ScalarU64(v) => *v as f64,
+            V::ScalarI64(v) => *v as f64,
+            V::ScalarBool(v) => f64::from(u8::from(*v)),
             other => bail!(
                 "{}: topic `{topic}`: field `{name}` is {other:?}, expected a number",
                 self.path.display()
@@ -464,6 +678,121 @@ impl ULogLog {
                 self.path.display()
             ),
         }
+    }
+
+    /// A field the older or newer message formats may lack: `None` when absent.
+    fn optional_scalar(
+        &self,
+        topic: &str,
+        d: &yule_log::model::inst::Format,
+        name: &str,
+    ) -> Result<Option<f64>> {
+        if d.fields.iter().any(|f| &*f.name == name) {
+            self.scalar(topic, d, name).map(Some)
+        } else {
+            Ok(None)
+        }
+    }
+
+    /// An array field the message may lack: `None` when absent.
+    fn optional_array(
+        &self,
+        topic: &str,
+        d: &yule_log::model::inst::Format,
+        name: &str,
+        n: usize,
+    ) -> Result<Option<Vec<f64>>> {
+        if d.fields.iter().any(|f| &*f.name == name) {
+            self.array(topic, d, name, n).map(Some)
+        } else {
+            Ok(None)
+        }
+    }
+
+    /// `vehicle_attitude`: the attitude event (valid at `timestamp_sample` where the log has
+    /// it), with the reset bookkeeping.
+    fn attitude_event(
+        &mut self,
+        topic: &str,
+        d: &yule_log::model::inst::Format,
+        t_us: u64,
+    ) -> Result<LogEvent> {
+        let q = self.array(topic, d, "q", 4)?;
+        let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if !UNIT_NORM_BAND.contains(&n) {
+            bail!(
+                "{}: topic `{topic}`: field `q` has norm {n} at {t_us} µs (not a unit quaternion)",
+                self.path.display()
+            );
+        }
+        let q_b_n = [q[0] / n, q[1] / n, q[2] / n, q[3] / n];
+        self.attitude = Some(q_b_n);
+        let sample_us = self
+            .optional_scalar(topic, d, "timestamp_sample")?
+            .map(|v| v as u64)
+            .filter(|&s| s > 0 && s <= t_us)
+            .unwrap_or(t_us);
+        let reset = match (
+            self.optional_scalar(topic, d, "quat_reset_counter")?,
+            self.optional_array(topic, d, "delta_q_reset", 4)?,
+        ) {
+            (Some(c), Some(dq)) => Some(AttitudeReset {
+                counter: c as u32,
+                delta_q: [dq[0], dq[1], dq[2], dq[3]],
+            }),
+            _ => None,
+        };
+        Ok(LogEvent::Attitude {
+            t: Timestamp::from_micros(sample_us),
+            q_b_n,
+            reset,
+        })
+    }
+
+    /// `vehicle_gps_position` with a 3-D fix.
+    fn gnss_event(
+        &self,
+        topic: &str,
+        d: &yule_log::model::inst::Format,
+        t: Timestamp,
+    ) -> Result<LogEvent> {
+        let alt_m = match self.optional_scalar(topic, d, "altitude_msl_m")? {
+            Some(v) => v,
+            None => self.scalar(topic, d, "alt")? * 1e-3,
+        };
+        let lat_lon = match self.optional_scalar(topic, d, "latitude_deg")? {
+            Some(lat_deg) => Some(LatLon {
+                lat_deg,
+                lon_deg: self.scalar(topic, d, "longitude_deg")?,
+            }),
+            None => match self.optional_scalar(topic, d, "lat")? {
+                // Older messages: degrees × 1e7 as integers.
+                Some(lat) => Some(LatLon {
+                    lat_deg: lat * 1e-7,
+                    lon_deg: self.scalar(topic, d, "lon")? * 1e-7,
+                }),
+                None => None,
+            },
+        };
+        let valid = self
+            .optional_scalar(topic, d, "vel_ned_valid")?
+            .unwrap_or(1.0)
+            != 0.0;
+        let v_ne = match (
+            valid,
+            self.optional_scalar(topic, d, "vel_n_m_s")?,
+            self.optional_scalar(topic, d, "vel_e_m_s")?,
+        ) {
+            (true, Some(vn_m_s), Some(ve_m_s)) => Some(HorizontalVelocity { vn_m_s, ve_m_s }),
+            _ => None,
+        };
+        Ok(LogEvent::Gnss {
+            t,
+            alt_m,
+            vd_m_s: self.scalar(topic, d, "vel_d_m_s")?,
+            lat_lon,
+            v_ne,
+        })
     }
 
     /// Maps one data message to at most one event.
@@ -492,6 +821,9 @@ impl ULogLog {
                     return Ok(None); // no attitude yet: the down component is unknown
                 };
                 let a = self.array(topic, d, "accelerometer_m_s2", 3)?;
+                let gyro_b_rad_s = self
+                    .optional_array(topic, d, "gyro_rad", 3)?
+                    .map(|g| [g[0], g[1], g[2]]);
                 // Third row of C_b^n from q = (w, x, y, z) (body → NED).
                 let [w, x, y, z] = q;
                 let c20 = 2.0 * (x * z - w * y);
@@ -500,20 +832,13 @@ impl ULogLog {
                 Some(LogEvent::Imu {
                     t,
                     f_down_m_s2: c20 * a[0] + c21 * a[1] + c22 * a[2],
+                    body: Some(BodyImu {
+                        acc_b_m_s2: [a[0], a[1], a[2]],
+                        gyro_b_rad_s,
+                    }),
                 })
             }
-            1 => {
-                let q = self.array(topic, d, "q", 4)?;
-                let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-                if !(0.9..1.1).contains(&n) {
-                    bail!(
-                        "{}: topic `{topic}`: field `q` has norm {n} at {t_us} µs (not a unit quaternion)",
-                        self.path.display()
-                    );
-                }
-                self.attitude = Some([q[0] / n, q[1] / n, q[2] / n, q[3] / n]);
-                None
-            }
+            1 => Some(self.attitude_event(topic, d, t_us)?),
             2 => Some(LogEvent::Baro {
                 t,
                 alt_m: self.scalar(topic, d, "baro_alt_meter")?,
@@ -522,21 +847,25 @@ impl ULogLog {
                 if self.scalar(topic, d, "fix_type")? < 3.0 {
                     return Ok(None);
                 }
-                let alt_m = match self.scalar(topic, d, "altitude_msl_m") {
-                    Ok(v) => v,
-                    Err(_) => self.scalar(topic, d, "alt")? * 1e-3,
+                Some(self.gnss_event(topic, d, t)?)
+            }
+            _ => {
+                let valid = self.optional_scalar(topic, d, "v_xy_valid")?.unwrap_or(1.0) != 0.0;
+                let v_ne = if valid {
+                    Some(HorizontalVelocity {
+                        vn_m_s: self.scalar(topic, d, "vx")?,
+                        ve_m_s: self.scalar(topic, d, "vy")?,
+                    })
+                } else {
+                    None
                 };
-                Some(LogEvent::Gnss {
+                Some(LogEvent::Estimate {
                     t,
-                    alt_m,
-                    vd_m_s: self.scalar(topic, d, "vel_d_m_s")?,
+                    alt_m: -self.scalar(topic, d, "z")?,
+                    vd_m_s: self.scalar(topic, d, "vz")?,
+                    v_ne,
                 })
             }
-            _ => Some(LogEvent::Estimate {
-                t,
-                alt_m: -self.scalar(topic, d, "z")?,
-                vd_m_s: self.scalar(topic, d, "vz")?,
-            }),
         })
     }
 
