@@ -4,7 +4,8 @@
 //!   build) and write `DIR/<scenario>/{summary.json, *.csv, *.png}` (default DIR `target/sim`).
 //! * `thumb`: build nav-core for `thumbv7em-none-eabihf` and `thumbv7em-none-eabi`, with and
 //!   without the `defmt` feature, installing the rustup targets when missing (or falling back to
-//!   Debian's Rust with `-Zbuild-std=core`).
+//!   Debian's Rust with `-Zbuild-std=core`), and the firmware examples
+//!   (`tests/firmware/examples/`, panic-never).
 //! * `qemu`: record golden vectors on the host, replay them in the firmware on QEMU Cortex-M4F
 //!   and Cortex-M7, fail on any mismatch.
 //! * `bench`: instruction counts, stack and image sizes on QEMU → `target/bench/report.json`.
@@ -180,7 +181,7 @@ fn thumb_toolchain() -> Result<ThumbToolchain, String> {
     Ok(ThumbToolchain::DebianBuildStd)
 }
 
-/// Builds nav-core for both thumb targets, with and without defmt. Returns the toolchain used.
+/// Builds nav-core for both thumb targets, with and without defmt, and the firmware examples.
 fn thumb() -> Result<(), String> {
     let tc = thumb_toolchain()?;
     let mut failures = Vec::new();
@@ -212,6 +213,23 @@ fn thumb() -> Result<(), String> {
                 failures.push(e);
             }
         }
+    }
+    // The firmware examples (`tests/firmware/examples/*.rs`: one flight program per
+    // estimator), linked with the panic-never handler.
+    if matches!(tc, ThumbToolchain::Rustup) {
+        let mut cmd = cargo();
+        cmd.current_dir(root().join("tests/firmware")).args([
+            "build",
+            "--release",
+            "--examples",
+            "--features",
+            "panic-never",
+        ]);
+        if let Err(e) = run("thumb firmware examples", &mut cmd) {
+            failures.push(e);
+        }
+    } else {
+        eprintln!("xtask: thumb: firmware examples need rustup's thumbv7em target; skipped");
     }
     if failures.is_empty() {
         Ok(())
