@@ -205,7 +205,8 @@ impl<T: Real> TaConfig<T> {
     /// Validates every field against the envelope (typed `InvalidConfig` naming the field):
     /// finiteness and sign first, then the ranges of the `MIN_*`/`MAX_*` constants and the joint
     /// conditions (τ ≥ [`MIN_TAU_STEPS`] dt, tolerance < dt/2, dt a whole number of µs), the
-    /// gate ([`validate_gate`]) and the recovery policy ([`validate_recovery`]).
+    /// gate (`Nis` threshold within [`NIS_GATE_RANGE`]) and the recovery policy (at least one step,
+    /// at most [`MAX_STARVED_AFTER_S`], action `ResetToPrior`).
     pub fn validate(&self) -> Result<(), NavError> {
         self.derived().map(|_| ())
     }
@@ -271,7 +272,7 @@ impl<T: Real> TaConfig<T> {
 
 /// Validates a gate: [`Gate::Off`], or [`Gate::Nis`] with a finite threshold within
 /// [`NIS_GATE_RANGE`] (`InvalidConfig { field: "gate" }`).
-pub fn validate_gate<T: Real>(gate: &Gate<T>) -> Result<(), NavError> {
+pub(super) fn validate_gate<T: Real>(gate: &Gate<T>) -> Result<(), NavError> {
     match *gate {
         Gate::Off => Ok(()),
         Gate::Nis(g) => positive_within("gate", g, NIS_GATE_RANGE.0, NIS_GATE_RANGE.1),

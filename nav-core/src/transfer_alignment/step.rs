@@ -266,6 +266,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         self.plan(slave.time)
     }
 
+    #[inline(always)] // the report is built in the caller's return slot
     fn try_step(
         &mut self,
         master: &MasterSample<T>,
@@ -339,36 +340,43 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         })
     }
 
-    /// Commits an epoch's updates: counters, recovery, conditioning, state, buffer swap, grid.
+    /// Commits an epoch's updates: counters, recovery, conditioning, state, buffer swap, grid
+    /// (nothing here can fail: the counters are updated in place).
     fn commit_epoch(&mut self, mut x: SVector<T, N>, plan: &Plan, updates: &[FusionReport<T>; 6]) {
-        let mut mon = self.monitor;
-        let count = mon.record_updates(updates, self.starved_epochs);
+        let count = self.monitor.record_updates(updates, self.starved_epochs);
         let mut anomaly = count.skipped || plan.gap == GapOutcome::FlexureReinitialised;
-        Self::count_gap(&mut mon.health, plan);
+        Self::count_gap(&mut self.monitor.health, plan);
         if let (true, Some(n)) = (count.starved, self.starved_epochs) {
             anomaly = true;
-            mon.record_recovery(n);
-            let p0 = initial_covariance::<T, K, N>(&self.chains);
-            let (_, p) = self.buffers();
-            *p = p0;
-            let mount = core::array::from_fn::<T, 3, _>(|a| {
-                x.get(K * a).copied().unwrap_or_else(T::zero)
-                    - x.get(K * a + 1).copied().unwrap_or_else(T::zero)
-            });
-            set_mount_only::<T, K, N>(&mut x, &mount);
+            self.recover(&mut x, n);
         }
-        mon.end_epoch(anomaly, Self::diverged(&x));
-        self.finish(x, plan, mon);
+        self.monitor.end_epoch(anomaly, Self::diverged(&x));
+        self.finish(x, plan);
     }
 
-    /// Conditions the scratch covariance and makes it current with `x`, `monitor` and the grid.
-    fn finish(&mut self, x: SVector<T, N>, plan: &Plan, mut monitor: super::health::Monitor) {
+    /// The recovery of a starved channel ([`TransferAlignment`], "Recovery"): the scratch
+    /// covariance ← P0, the flexure states ← 0, θ_m kept; counted per starved channel.
+    #[cold]
+    #[inline(never)]
+    fn recover(&mut self, x: &mut SVector<T, N>, starved_epochs: u32) {
+        self.monitor.record_recovery(starved_epochs);
+        let p0 = initial_covariance::<T, K, N>(&self.chains);
+        let (_, p) = self.buffers();
+        *p = p0;
+        let mount = core::array::from_fn::<T, 3, _>(|a| {
+            x.get(K * a).copied().unwrap_or_else(T::zero)
+                - x.get(K * a + 1).copied().unwrap_or_else(T::zero)
+        });
+        set_mount_only::<T, K, N>(x, &mount);
+    }
+
+    /// Conditions the scratch covariance and makes it current with `x` and the grid.
+    fn finish(&mut self, x: SVector<T, N>, plan: &Plan) {
         let ceiling = self.ceiling;
         let (_, p) = self.buffers();
         if condition(p, &ceiling) {
-            Health::bump(&mut monitor.health.limits_hit);
+            Health::bump(&mut self.monitor.health.limits_hit);
         }
-        self.monitor = monitor;
         self.x = x;
         self.second = !self.second;
         self.grid = Some(plan.grid);
@@ -398,11 +406,10 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         };
         let mut x = self.x;
         self.advance_to_scratch(&mut x, &plan);
-        let mut mon = self.monitor;
-        Self::count_gap(&mut mon.health, &plan);
+        Self::count_gap(&mut self.monitor.health, &plan);
         let reset = plan.gap == GapOutcome::FlexureReinitialised;
-        mon.end_prediction(reset, Self::diverged(&x));
-        self.finish(x, &plan, mon);
+        self.monitor.end_prediction(reset, Self::diverged(&x));
+        self.finish(x, &plan);
         self.last = Some(time);
         Ok(Propagation {
             predictions: plan.predictions,
