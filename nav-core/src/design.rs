@@ -12,7 +12,7 @@
 //! each design is documented at its implementation; matrices are written column by column
 //! (nalgebra's storage order).
 //!
-//! [`crate::transfer_alignment::TaDesign`]: `15 K²` values;
+//! [`crate::transfer_alignment::TaDesign`]: `2 + 15 K²` values (its stamp first);
 //! [`crate::vertical_channel::ClassicalDesign`]: 68 values;
 //! [`crate::vertical_channel::AidedDesign`]: 108 values.
 //!

@@ -8,13 +8,14 @@ use nav_core::design::DesignValues;
 use nav_core::error::ConfigIssue;
 use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::{
-    AxisFlexure, MasterSample, SlaveSample, TaConfig, TaDesign, TransferAlignment,
+    MasterSample, PaperCase, SlaveSample, TaConfig, TaDesign, TaInitial, TransferAlignment,
+    TA_DESIGN_VERSION,
 };
 use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
     ClassicalLoop, ImuSample, InitialState, VelocitySample,
 };
-use nav_core::{NavError, Real};
+use nav_core::{Estimator, NavError, Real};
 
 const STEPS: usize = 400;
 
@@ -37,23 +38,19 @@ impl Lcg {
 
 // ---------------------------------------------------------------- transfer alignment
 
+/// The paper's case 2 with distinct mount σ per axis (so a mixed-up axis shows) and the
+/// golden vectors' rate noise.
 fn ta_config<T: Real>() -> TaConfig<T> {
-    let deg = core::f64::consts::PI / 180.0;
-    let fl = |s: f64, tau: f64| AxisFlexure {
-        sigma_rad: T::lit(s * deg),
-        tau_s: T::lit(tau),
-    };
+    let deg = |v: f64| T::lit(v.to_radians());
     TaConfig {
-        lever_arm_m: Vector3::new(T::zero(), T::lit(5.0), T::zero()),
-        flexure: [fl(0.5, 0.358), fl(0.1, 2.146), fl(0.1, 2.146)],
-        mount_sigma_rad: Vector3::new(T::lit(0.5 * deg), T::lit(0.4 * deg), T::lit(0.3 * deg)),
+        mount_sigma_rad: Vector3::new(deg(0.5), deg(0.4), deg(0.3)),
         rate_noise_sigma_rad_s: T::lit(2.0e-4),
-        accel_noise_sigma_m_s2: T::lit(5.0e-3),
-        dt_s: T::lit(0.01),
-        time_tolerance_s: T::lit(0.001),
-        max_gap_steps: 5,
-        nis_gate: Some(T::lit(25.0)),
+        ..TaConfig::paper(PaperCase::Case2)
     }
+}
+
+fn ta_design<T: Real, const K: usize, const N: usize>(cfg: &TaConfig<T>) -> TaDesign<T, K> {
+    TransferAlignment::<T, K, N>::design(cfg).unwrap()
 }
 
 fn ta_samples<T: Real>(k: usize, rng: &mut Lcg) -> (MasterSample<T>, SlaveSample<T>) {
@@ -83,16 +80,17 @@ fn ta_samples<T: Real>(k: usize, rng: &mut Lcg) -> (MasterSample<T>, SlaveSample
 
 fn ta_new_equals_from_design<T: Real, const K: usize, const N: usize>() {
     let cfg = ta_config::<T>();
-    let design = TaDesign::<T, K>::compute(&cfg).unwrap();
-    let mut a = TransferAlignment::<T, K, N>::new(cfg).unwrap();
-    let mut b = TransferAlignment::<T, K, N>::from_design(cfg, &design).unwrap();
+    let init = TaInitial::default();
+    let design = ta_design::<T, K, N>(&cfg);
+    let mut a = TransferAlignment::<T, K, N>::new(&cfg, &init).unwrap();
+    let mut b = TransferAlignment::<T, K, N>::from_design(&cfg, &design, &init).unwrap();
     assert_eq!(format!("{a:?}"), format!("{b:?}"));
     assert_eq!(a.chains(), &design.chains);
     // The design read back from its values builds the same filter too.
     let mut values = vec![0.0; TaDesign::<T, K>::COUNT];
     design.write_values(&mut values).unwrap();
     let read = TaDesign::<T, K>::read_values(&values).unwrap();
-    let mut c = TransferAlignment::<T, K, N>::from_design(cfg, &read).unwrap();
+    let mut c = TransferAlignment::<T, K, N>::from_design(&cfg, &read, &init).unwrap();
     let mut rng = Lcg(7);
     let mut fused = 0;
     for k in 0..STEPS {
@@ -135,17 +133,19 @@ fn ta_new_and_from_design_are_bit_identical_f32_f64() {
     ta_new_equals_from_design::<f64, 4, 12>();
 }
 
-fn ta_round_trip<T: Real, const K: usize>() {
-    let design = TaDesign::<T, K>::compute(&ta_config::<T>()).unwrap();
-    assert_eq!(TaDesign::<T, K>::COUNT, 15 * K * K);
+fn ta_round_trip<T: Real, const K: usize, const N: usize>() {
+    let design = ta_design::<T, K, N>(&ta_config::<T>());
+    assert_eq!(TaDesign::<T, K>::COUNT, 2 + 15 * K * K);
     let mut values = vec![f64::NAN; TaDesign::<T, K>::COUNT];
     design.write_values(&mut values).unwrap();
     assert!(values.iter().all(|v| v.is_finite()));
-    // Documented order: chain X's F first, column by column; chain Z's P0 last.
-    assert_eq!(values[1], design.chains[0].f[(1, 0)].to_f64());
-    assert_eq!(values[K], design.chains[0].f[(0, 1)].to_f64());
+    // Documented order: the stamp, then chain X's F, column by column; chain Z's P0 last.
+    assert_eq!(values[0], f64::from(TA_DESIGN_VERSION));
+    assert_eq!(values[1], f64::from(design.stamp.fingerprint));
+    assert_eq!(values[2 + 1], design.chains[0].f[(1, 0)].to_f64());
+    assert_eq!(values[2 + K], design.chains[0].f[(0, 1)].to_f64());
     assert_eq!(
-        values[2 * K * K + K + 1],
+        values[2 + 2 * K * K + K + 1],
         design.chains[0].phi[(1, 1)].to_f64()
     );
     assert_eq!(
@@ -163,10 +163,10 @@ fn ta_round_trip<T: Real, const K: usize>() {
 
 #[test]
 fn ta_design_values_round_trip_exactly_f32_f64() {
-    ta_round_trip::<f32, 3>();
-    ta_round_trip::<f32, 4>();
-    ta_round_trip::<f64, 3>();
-    ta_round_trip::<f64, 4>();
+    ta_round_trip::<f32, 3, 9>();
+    ta_round_trip::<f32, 4, 12>();
+    ta_round_trip::<f64, 3, 9>();
+    ta_round_trip::<f64, 4, 12>();
 }
 
 fn invalid(field: &'static str, issue: ConfigIssue) -> NavError {
@@ -175,8 +175,12 @@ fn invalid(field: &'static str, issue: ConfigIssue) -> NavError {
 
 fn ta_refusals<T: Real, const K: usize, const N: usize>() {
     let cfg = ta_config::<T>();
-    let good = TaDesign::<T, K>::compute(&cfg).unwrap();
-    let build = |d: &TaDesign<T, K>| TransferAlignment::<T, K, N>::from_design(cfg, d).err();
+    let init = TaInitial::default();
+    let good = ta_design::<T, K, N>(&cfg);
+    let from = |c: &TaConfig<T>, d: &TaDesign<T, K>| {
+        TransferAlignment::<T, K, N>::from_design(c, d, &init).err()
+    };
+    let build = |d: &TaDesign<T, K>| from(&cfg, d);
     assert_eq!(build(&good), None);
 
     let mut d = good;
@@ -226,24 +230,41 @@ fn ta_refusals<T: Real, const K: usize, const N: usize>() {
         build(&d),
         Some(invalid("design.phi", ConfigIssue::OutOfRange))
     );
-    // A design for another mount σ.
-    let mut other = cfg;
-    other.mount_sigma_rad.y *= T::lit(2.0);
+    // A θ_m variance that is not the configuration's mount σ².
+    let mut d = good;
+    d.chains[1].p0[(0, 0)] *= T::lit(4.0);
     assert_eq!(
-        TransferAlignment::<T, K, N>::from_design(other, &good).err(),
+        build(&d),
         Some(invalid("design.p0", ConfigIssue::OutOfRange))
     );
+    // A design computed for another mount σ, flexure or step, or stored with another layout
+    // version: the stamp does not match.
+    let mismatch = Some(invalid("design", ConfigIssue::DesignMismatch));
+    let mut other = cfg;
+    other.mount_sigma_rad.y *= T::lit(2.0);
+    assert_eq!(from(&other, &good), mismatch);
+    let mut other = cfg;
+    other.flexure[0].sigma_rad *= T::lit(1.5);
+    assert_eq!(from(&other, &good), mismatch);
+    let mut d = good;
+    d.stamp.version += 1;
+    assert_eq!(build(&d), mismatch);
+    // Settings the design does not depend on may change.
+    let mut other = cfg;
+    other.accel_noise_sigma_m_s2 *= T::lit(2.0);
+    other.max_gap_steps = 1;
+    assert_eq!(from(&other, &good), None);
     // The configuration is still validated.
     let mut bad = cfg;
     bad.dt_s = T::zero();
     assert_eq!(
-        TransferAlignment::<T, K, N>::from_design(bad, &good).err(),
-        TransferAlignment::<T, K, N>::new(bad).err()
+        from(&bad, &good),
+        TransferAlignment::<T, K, N>::new(&bad, &init).err()
     );
-    assert!(TransferAlignment::<T, K, N>::from_design(bad, &good).is_err());
+    assert!(from(&bad, &good).is_some());
     assert_eq!(
-        TaDesign::<T, K>::compute(&bad).err(),
-        TransferAlignment::<T, K, N>::new(bad).err()
+        TransferAlignment::<T, K, N>::design(&bad).err(),
+        TransferAlignment::<T, K, N>::new(&bad, &init).err()
     );
 
     // Value lists: wrong length, non-finite, f32 overflow; a short output buffer.
@@ -278,13 +299,19 @@ fn ta_refusals<T: Real, const K: usize, const N: usize>() {
     );
     // An asymmetric Q_d read from values is refused by from_design.
     let mut v = values.clone();
-    // Chain X, Q_d (4th matrix), element (1, 2) column-major: index 3K² + 2K + 1.
-    v[3 * K * K + 2 * K + 1] += 1e-3;
+    // Chain X, Q_d (4th matrix), element (1, 2) column-major: index 2 + 3K² + 2K + 1.
+    v[2 + 3 * K * K + 2 * K + 1] += 1e-3;
     let read = TaDesign::<T, K>::read_values(&v).unwrap();
     assert_eq!(
         build(&read),
         Some(invalid("design.q_d", ConfigIssue::OutOfRange))
     );
+    // The stamp's values must be integers in range.
+    for (i, bad_stamp) in [(0, 0.5), (0, 70_000.0), (1, -1.0), (1, 5.0e9)] {
+        let mut v = values.clone();
+        v[i] = bad_stamp;
+        assert_eq!(TaDesign::<T, K>::read_values(&v).err(), Some(bad_len));
+    }
 }
 
 #[test]
@@ -295,8 +322,7 @@ fn ta_from_design_refuses_corrupted_designs_f32_f64() {
     ta_refusals::<f64, 4, 12>();
     // f32 overflow of a finite f64 value.
     let mut values = vec![0.0; TaDesign::<f32, 4>::COUNT];
-    TaDesign::<f32, 4>::compute(&ta_config())
-        .unwrap()
+    ta_design::<f32, 4, 12>(&ta_config())
         .write_values(&mut values)
         .unwrap();
     values[3] = 1e300;

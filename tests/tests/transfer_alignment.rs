@@ -3,8 +3,7 @@
 //! paper's claims that reproduce, at reduced run counts.
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 use nav_core::math::rotation::{exp_so3, skew};
-use nav_core::transfer_alignment::measurement::h_matrix;
-use nav_core::transfer_alignment::model::{AxisChain, AxisFlexure};
+use nav_core::transfer_alignment::{h_matrix, AxisChain, AxisFlexure};
 use nav_core::Real;
 use nav_sim::processes::psd_sqrt;
 use nav_sim::rng::{gauss, run_rng};

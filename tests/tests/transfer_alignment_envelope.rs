@@ -5,24 +5,46 @@ use nalgebra::{SMatrix, Vector3};
 use nav_core::math::kalman::{asymmetry, FusionOutcome};
 use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::*;
-use nav_core::{HealthState, NavError, Real};
+use nav_core::{Estimator, Health, HealthState, NavError, Real};
 
+/// The paper's case 2 with one flexure model on every axis and the given rate and tolerances.
 fn cfg<T: Real>(sigma_deg: f64, tau_s: f64, dt_s: f64, tol_s: f64, gap: u32) -> TaConfig<T> {
     let ax = AxisFlexure {
         sigma_rad: T::lit(sigma_deg.to_radians()),
         tau_s: T::lit(tau_s),
     };
     TaConfig {
-        lever_arm_m: Vector3::new(T::zero(), T::lit(5.0), T::zero()),
         flexure: [ax; 3],
-        mount_sigma_rad: Vector3::repeat(T::lit(0.5_f64.to_radians())),
         rate_noise_sigma_rad_s: T::lit(3e-4),
-        accel_noise_sigma_m_s2: T::lit(5e-3),
         dt_s: T::lit(dt_s),
         time_tolerance_s: T::lit(tol_s),
         max_gap_steps: gap,
-        nis_gate: Some(T::lit(25.0)),
+        ..TaConfig::paper(PaperCase::Case2)
     }
+}
+
+/// A filter for `c`, starting from no prior knowledge of θ_m.
+fn filter<T: Real, const K: usize, const N: usize>(
+    c: TaConfig<T>,
+) -> Result<TransferAlignment<T, K, N>, NavError> {
+    TransferAlignment::new(&c, &TaInitial::default())
+}
+
+/// Everything a refused call must leave as it was: state, covariance, clock, channel counters
+/// and health except the count of refusals.
+fn snapshot<const K: usize, const N: usize>(f: &TransferAlignment<f32, K, N>) -> String {
+    let health = Health {
+        imu_refused: 0,
+        ..f.health()
+    };
+    let counters = Channel::ALL.map(|c| f.aid_counters(c));
+    format!(
+        "{:?} {:?} {:?} {:?} {health:?} {counters:?}",
+        f.state(),
+        f.covariance(),
+        f.time(),
+        f.grid_time()
+    )
 }
 
 /// Constant, noise-free master and slave samples at `time` (level, at rest: ω = 0, f = −g).
@@ -54,7 +76,7 @@ fn min_correlation_eigenvalue<const N: usize>(p: &SMatrix<f32, N, N>) -> f64 {
 fn runs_clean_at_500_hz<const K: usize, const N: usize>() {
     // The older filter refused step 1773 (proposed; the conventional one soon after) with
     // `InnovationVarianceNotPositive` and then every later step with `InvalidTimeStep`.
-    let mut f = TransferAlignment::<f32, K, N>::new(cfg(0.5, 2.146, 0.002, 0.0008, 3)).unwrap();
+    let mut f = filter::<f32, K, N>(cfg(0.5, 2.146, 0.002, 0.0008, 3)).unwrap();
     for k in 0..20_000u64 {
         let t = Timestamp::from_micros(2_000 * k);
         let (m, s) = still::<f32>(t);
@@ -74,19 +96,19 @@ fn runs_clean_at_500_hz<const K: usize, const N: usize>() {
     assert_eq!(f.health().state, HealthState::Nominal);
 }
 
-/// Issue reproduction 1: 500 Hz, σ = 0.5°, τ = 2.146 s, constant noise-free inputs.
+/// A stall the older filter showed: 500 Hz, σ = 0.5°, τ = 2.146 s, constant noise-free inputs.
 #[test]
 fn constant_inputs_at_500_hz_do_not_stall() {
     runs_clean_at_500_hz::<4, 12>();
     runs_clean_at_500_hz::<3, 9>();
 }
 
-/// Issue reproduction 1, second half: refused (invalid) samples never freeze the clock. The
+/// Refused (invalid) samples never freeze the clock. The
 /// older filter did not advance its clock on a refusal, so after `max_gap_steps` refused
 /// samples every later valid one was off its grid for good.
 #[test]
 fn refused_samples_do_not_stop_later_valid_ones() {
-    let mut f = ProposedFilter::<f32>::new(cfg(0.5, 2.146, 0.002, 0.0008, 3)).unwrap();
+    let mut f = filter::<f32, 4, 12>(cfg(0.5, 2.146, 0.002, 0.0008, 3)).unwrap();
     let mut k = 0u64;
     let t = |k: u64| Timestamp::from_micros(2_000 * k);
     while k < 100 {
@@ -94,16 +116,18 @@ fn refused_samples_do_not_stop_later_valid_ones() {
         f.step(&m, &s).unwrap();
         k += 1;
     }
-    // Ten invalid samples in a row (NaN specific force): refused, filter unchanged.
-    for _ in 0..10 {
+    // Ten invalid samples in a row (NaN specific force): refused, filter unchanged but for
+    // the count of refusals.
+    for j in 0..10 {
         let (m, mut s) = still::<f32>(t(k));
         s.specific_force_m_s2.x = f32::NAN;
-        let before = format!("{f:?}");
+        let before = snapshot(&f);
         assert!(matches!(
             f.step(&m, &s),
             Err(NavError::NonFiniteInput { .. })
         ));
-        assert_eq!(format!("{f:?}"), before);
+        assert_eq!(snapshot(&f), before);
+        assert_eq!(f.health().imu_refused, j + 1);
         k += 1;
     }
     // The next valid sample is 11 steps after the last accepted one (> max_gap_steps): the
@@ -119,15 +143,15 @@ fn refused_samples_do_not_stop_later_valid_ones() {
         assert_eq!(f.step(&m, &s).unwrap().predictions, 1);
     }
     assert_eq!(f.health().state, HealthState::Nominal);
-    assert_eq!(f.health().flexure_reinitialisations, 1);
+    assert_eq!(f.health().gaps_reset, 1);
 }
 
-/// Issue reproduction 2: f32 time stamps. At 100 Hz with a 1e-4 s tolerance the older filter
+/// f32 time stamps (the older filter's): At 100 Hz with a 1e-4 s tolerance the older filter
 /// (stamps in f32 seconds) refused almost every step beyond t ≈ 4000 s, and 999 of 1000 beyond
 /// 10⁶ s even with the largest tolerance. Integer-µs stamps: every step is one prediction.
 #[test]
 fn stamps_past_a_million_seconds_are_exact() {
-    let mut f = ProposedFilter::<f32>::new(cfg(0.5, 2.146, 0.01, 1e-4, 3)).unwrap();
+    let mut f = filter::<f32, 4, 12>(cfg(0.5, 2.146, 0.01, 1e-4, 3)).unwrap();
     let start = 1_000_000 * 1_000_000u64;
     for k in 0..1000u64 {
         let t = Timestamp::from_micros(start + 10_000 * k);
@@ -142,7 +166,7 @@ fn stamps_past_a_million_seconds_are_exact() {
 /// they come; the grid stays within dt/2 of the stamps and never drifts.
 #[test]
 fn jittered_stamps_are_taken_as_they_come() {
-    let mut f = ConventionalFilter::<f32>::new(cfg(0.5, 2.146, 0.001, 1e-4, 5)).unwrap();
+    let mut f = filter::<f32, 3, 9>(cfg(0.5, 2.146, 0.001, 1e-4, 5)).unwrap();
     let mut now = 3_600_000_000u64;
     let mut lcg = 12345u64;
     let mut predictions = 0u64;
@@ -164,21 +188,21 @@ fn jittered_stamps_are_taken_as_they_come() {
     assert!(predictions.abs_diff(elapsed_ms) <= 1);
 }
 
-/// Issue reproduction 8: `max_gap_steps` had no upper limit (u32::MAX: one step over a
+/// `max_gap_steps` had no upper limit (u32::MAX: one step over a
 /// 20 000 s gap ran 2 million predictions). Now it is bounded by `MAX_GAP_STEPS`, and a longer
 /// gap costs no prediction at all.
 #[test]
 fn max_gap_steps_is_bounded_and_long_gaps_cost_nothing() {
     for gap in [0, MAX_GAP_STEPS + 1, u32::MAX] {
         assert!(matches!(
-            ProposedFilter::<f32>::new(cfg(0.5, 2.146, 0.01, 1e-3, gap)),
+            filter::<f32, 4, 12>(cfg(0.5, 2.146, 0.01, 1e-3, gap)),
             Err(NavError::InvalidConfig {
                 field: "max_gap_steps",
                 ..
             })
         ));
     }
-    let mut f = ProposedFilter::<f64>::new(cfg(0.5, 2.146, 0.01, 1e-3, MAX_GAP_STEPS)).unwrap();
+    let mut f = filter::<f64, 4, 12>(cfg(0.5, 2.146, 0.01, 1e-3, MAX_GAP_STEPS)).unwrap();
     for k in 0..300u64 {
         let (m, s) = still::<f64>(Timestamp::from_micros(10_000 * k));
         f.step(&m, &s).unwrap();
@@ -209,42 +233,51 @@ fn max_gap_steps_is_bounded_and_long_gaps_cost_nothing() {
         assert!(grown >= var_m[(a, a)], "axis {a}");
         assert!(grown <= var_m[(a, a)] + var_f * (1.0 + 1e-9), "axis {a}");
     }
-    assert_eq!(f.health().flexure_reinitialisations, 1);
+    assert_eq!(f.health().gaps_reset, 1);
     assert_eq!(f.health().state, HealthState::Degraded);
 }
 
-/// The documented way back: `reinitialise` keeps θ_m, re-initialises the flexure, and the
-/// filter returns to `Nominal` after the hold.
+/// The documented way back: `reinitialise` restarts from what the caller hands over (here the
+/// filter's own θ_m), with the prior covariance, and the filter returns to `Nominal` after the
+/// hold.
 #[test]
-fn reinitialise_keeps_the_mounting_misalignment() {
-    let mut f = ProposedFilter::<f32>::new(cfg(0.5, 2.146, 0.01, 1e-3, 3)).unwrap();
+fn reinitialise_restarts_from_the_handed_over_misalignment() {
+    let mut f = filter::<f32, 4, 12>(cfg(0.5, 2.146, 0.01, 1e-3, 3)).unwrap();
+    let sigma0 = f.theta_sigma_rad();
     assert_eq!(f.health().state, HealthState::Initialising);
+    // A 0.2° roll misalignment of the slave: f_s = f − θ × f.
+    let th = Vector3::new(0.2_f32.to_radians(), 0.0, 0.0);
     for k in 0..500u64 {
         let (m, mut s) = still::<f32>(Timestamp::from_micros(10_000 * k));
-        // A 0.2° roll misalignment of the slave: f_s = f − θ × f.
-        let th = Vector3::new(0.2_f32.to_radians(), 0.0, 0.0);
         s.specific_force_m_s2 -= th.cross(&m.specific_force_m_s2);
         f.step(&m, &s).unwrap();
     }
     assert_eq!(f.health().state, HealthState::Nominal);
+    assert!((f.theta().x - th.x).abs() < 1e-4, "{}", f.theta());
     let theta_m = f.theta_m();
-    f.reinitialise();
+    f.reinitialise(&TaInitial {
+        mount_misalignment_rad: theta_m,
+    })
+    .unwrap();
     assert_eq!(f.theta_m(), theta_m);
     assert_eq!(f.theta_f(), Vector3::zeros());
+    assert_eq!(f.theta_sigma_rad(), sigma0);
     assert_eq!(f.health().state, HealthState::Degraded);
-    assert_eq!(f.health().flexure_reinitialisations, 1);
+    assert_eq!(f.health().reinitialisations, 1);
     for k in 500..(500 + u64::from(DEGRADED_HOLD_EPOCHS)) {
-        let (m, s) = still::<f32>(Timestamp::from_micros(10_000 * k));
+        let (m, mut s) = still::<f32>(Timestamp::from_micros(10_000 * k));
+        s.specific_force_m_s2 -= th.cross(&m.specific_force_m_s2);
         f.step(&m, &s).unwrap();
     }
     assert_eq!(f.health().state, HealthState::Nominal);
+    assert!((f.theta().x - th.x).abs() < 1e-4, "{}", f.theta());
 }
 
 /// The envelope is explicit: σ, τ, dt and the noise σ outside their ranges are refused naming
 /// the field.
 #[test]
 fn envelope_is_validated() {
-    let field = |c: TaConfig<f32>| match ProposedFilter::<f32>::new(c) {
+    let field = |c: TaConfig<f32>| match filter::<f32, 4, 12>(c).map(|_| ()) {
         Err(NavError::InvalidConfig { field, .. }) => field,
         other => panic!("{other:?}"),
     };
@@ -264,7 +297,7 @@ fn envelope_is_validated() {
     assert_eq!(field(c), "lever_arm_m");
     // The corners of the envelope are accepted.
     for (sigma, tau, dt) in [(0.01, 0.05, 0.01), (2.0, 1.0e4, 0.001), (2.0, 0.05, 0.01)] {
-        assert!(ProposedFilter::<f32>::new(cfg(sigma, tau, dt, 0.0, MAX_GAP_STEPS)).is_ok());
-        assert!(ConventionalFilter::<f32>::new(cfg(sigma, tau, dt, 0.0, 1)).is_ok());
+        assert!(filter::<f32, 4, 12>(cfg(sigma, tau, dt, 0.0, MAX_GAP_STEPS)).is_ok());
+        assert!(filter::<f32, 3, 9>(cfg(sigma, tau, dt, 0.0, 1)).is_ok());
     }
 }

@@ -1,12 +1,14 @@
-//! Issue 7 for transfer alignment: property tests (f32 and f64), bad input refused without
-//! damage, χ² gate counters and the covariance-reset recovery, soak, fault-transfer recovery.
+//! Transfer alignment under random configurations and inputs: property tests (f32 and f64), bad
+//! input refused without damage, χ² gate counters and the covariance-reset recovery, soak,
+//! fault-transfer recovery.
 use nalgebra::{SMatrix, Vector3};
 use nav_core::math::kalman::{asymmetry, is_psd, FusionOutcome};
 use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::*;
-use nav_core::{NavError, Real};
+use nav_core::{Estimator, Gate, Health, NavError, Real, RecoveryAction, RecoveryPolicy};
 use proptest::prelude::*;
 
+/// The paper's case 2 with the given flexure, lever arm and gate.
 fn cfg<T: Real>(sig: [f64; 3], tau: [f64; 3], lever: [f64; 3], gate: Option<f64>) -> TaConfig<T> {
     let ax = |i: usize| AxisFlexure {
         sigma_rad: T::lit(sig[i]),
@@ -15,14 +17,36 @@ fn cfg<T: Real>(sig: [f64; 3], tau: [f64; 3], lever: [f64; 3], gate: Option<f64>
     TaConfig {
         lever_arm_m: Vector3::from(lever).map(T::lit),
         flexure: [ax(0), ax(1), ax(2)],
-        mount_sigma_rad: Vector3::repeat(T::lit(0.5_f64.to_radians())),
         rate_noise_sigma_rad_s: T::lit(3e-4),
-        accel_noise_sigma_m_s2: T::lit(5e-3),
-        dt_s: T::lit(0.01),
         time_tolerance_s: T::lit(0.004),
         max_gap_steps: 3,
-        nis_gate: gate.map(T::lit),
+        gate: gate.map_or(Gate::Off, |g| Gate::Nis(T::lit(g))),
+        ..TaConfig::paper(PaperCase::Case2)
     }
+}
+
+/// A filter for `c`, starting from no prior knowledge of θ_m.
+fn filter<T: Real, const K: usize, const N: usize>(
+    c: TaConfig<T>,
+) -> Result<TransferAlignment<T, K, N>, NavError> {
+    TransferAlignment::new(&c, &TaInitial::default())
+}
+
+/// Everything a refused call must leave as it was: state, covariance, clock, channel counters
+/// and health except the count of refusals.
+fn snapshot<T: Real, const K: usize, const N: usize>(f: &TransferAlignment<T, K, N>) -> String {
+    let health = Health {
+        imu_refused: 0,
+        ..f.health()
+    };
+    let counters = Channel::ALL.map(|c| f.aid_counters(c));
+    format!(
+        "{:?} {:?} {:?} {:?} {health:?} {counters:?}",
+        f.state(),
+        f.covariance(),
+        f.time(),
+        f.grid_time()
+    )
 }
 
 /// Deterministic pseudo-random inputs: step k of a sequence with a manoeuvre amplitude.
@@ -66,7 +90,7 @@ fn healthy_run<T: Real, const K: usize, const N: usize>(
 ) where
     nalgebra::Const<N>: nalgebra::DimMin<nalgebra::Const<N>, Output = nalgebra::Const<N>>,
 {
-    let mut f = TransferAlignment::<T, K, N>::new(c).unwrap();
+    let mut f = filter::<T, K, N>(c).unwrap();
     let p0: SMatrix<T, N, N> = f.covariance();
     for k in 0..steps {
         let (m, s) = inputs::<T>(k, seed, amp);
@@ -135,11 +159,9 @@ fn f32_matches_f64_over_a_long_run() {
         0.1_f64.to_radians(),
     ];
     let mut a =
-        ProposedFilter::<f32>::new(cfg(sig, [0.358, 2.146, 2.146], [0.0, 5.0, 0.0], Some(25.0)))
-            .unwrap();
+        filter::<f32, 4, 12>(cfg(sig, [0.358, 2.146, 2.146], [0.0, 5.0, 0.0], Some(25.0))).unwrap();
     let mut b =
-        ProposedFilter::<f64>::new(cfg(sig, [0.358, 2.146, 2.146], [0.0, 5.0, 0.0], Some(25.0)))
-            .unwrap();
+        filter::<f64, 4, 12>(cfg(sig, [0.358, 2.146, 2.146], [0.0, 5.0, 0.0], Some(25.0))).unwrap();
     let mut worst = 0.0_f64;
     for k in 0..5000 {
         let (m, s) = inputs::<f32>(k, 11, 1.0);
@@ -167,13 +189,15 @@ fn refused<T: Real, const K: usize, const N: usize>(
     m: &MasterSample<T>,
     s: &SlaveSample<T>,
 ) -> NavError {
-    let before = format!("{f:?}");
+    let before = snapshot(f);
+    let refusals = f.health().imu_refused;
     let e = f.step(m, s).unwrap_err();
     assert_eq!(
-        format!("{f:?}"),
+        snapshot(f),
         before,
         "state changed by a refused step ({e:?})"
     );
+    assert_eq!(f.health().imu_refused, refusals + 1, "refusal not counted");
     e
 }
 
@@ -183,13 +207,8 @@ fn bad_inputs<T: Real, const K: usize, const N: usize>() {
         0.1_f64.to_radians(),
         0.1_f64.to_radians(),
     ];
-    let mut f = TransferAlignment::<T, K, N>::new(cfg(
-        sig,
-        [0.358, 2.146, 2.146],
-        [0.0, 5.0, 0.0],
-        Some(25.0),
-    ))
-    .unwrap();
+    let mut f =
+        filter::<T, K, N>(cfg(sig, [0.358, 2.146, 2.146], [0.0, 5.0, 0.0], Some(25.0))).unwrap();
     for k in 0..5 {
         let (m, s) = inputs::<T>(k, 3, 1.0);
         f.step(&m, &s).unwrap();
@@ -245,9 +264,9 @@ fn bad_inputs<T: Real, const K: usize, const N: usize>() {
     );
     // Propagation: bad times are refused without damage too.
     for t in [0, 40_000] {
-        let before = format!("{f:?}");
+        let before = snapshot(&f);
         assert!(f.propagate(Timestamp::from_micros(t)).is_err());
-        assert_eq!(format!("{f:?}"), before);
+        assert_eq!(snapshot(&f), before);
     }
     // Master data older than the slave history can match.
     let mut hist = SlaveHistory::<T, 4>::new();
@@ -255,7 +274,8 @@ fn bad_inputs<T: Real, const K: usize, const N: usize>() {
         hist.push(&inputs::<T>(k, 3, 1.0).1).unwrap();
     }
     let (m_old, _) = inputs::<T>(6, 3, 1.0); // history holds 8..11
-    let before = format!("{f:?}");
+    let before = snapshot(&f);
+    let refusals = f.health().imu_refused;
     assert_eq!(
         f.step_delayed(&m_old, &hist).unwrap_err(),
         NavError::MeasurementTimeOutOfWindow
@@ -265,9 +285,10 @@ fn bad_inputs<T: Real, const K: usize, const N: usize>() {
         f.step_delayed(&m_new, &hist).unwrap_err(),
         NavError::MeasurementTimeOutOfWindow
     );
-    assert_eq!(format!("{f:?}"), before);
+    assert_eq!(snapshot(&f), before);
+    assert_eq!(f.health().imu_refused, refusals + 2);
     // History refuses repeated / backwards / NaN slave samples without damage.
-    let hb = hist;
+    let hb = hist.clone();
     assert_eq!(
         hist.push(&inputs::<T>(11, 3, 1.0).1),
         Err(NavError::TimeNotIncreasing)
@@ -296,10 +317,10 @@ fn bad_configs<T: Real, const K: usize, const N: usize>() {
         0.1_f64.to_radians(),
     ];
     let ok = cfg::<T>(sig, [0.358, 2.146, 2.146], [0.0, 5.0, 0.0], Some(25.0));
-    assert!(TransferAlignment::<T, K, N>::new(ok).is_ok());
+    assert!(filter::<T, K, N>(ok).is_ok());
     let bads = [0.0, -1.0, f64::NAN, f64::INFINITY, f64::NEG_INFINITY];
     type Setter<T> = fn(&mut TaConfig<T>, T);
-    let fields: [(&str, Setter<T>); 11] = [
+    let fields: [(&str, Setter<T>); 12] = [
         ("flexure.sigma_rad", |c, v| c.flexure[0].sigma_rad = v),
         ("flexure.tau_s", |c, v| c.flexure[1].tau_s = v),
         ("flexure.sigma_rad", |c, v| c.flexure[2].sigma_rad = v),
@@ -310,7 +331,10 @@ fn bad_configs<T: Real, const K: usize, const N: usize>() {
             c.accel_noise_sigma_m_s2 = v
         }),
         ("dt_s", |c, v| c.dt_s = v),
-        ("nis_gate", |c, v| c.nis_gate = Some(v)),
+        ("gate", |c, v| c.gate = Gate::Nis(v)),
+        ("recovery.starved_after_s", |c, v| {
+            c.recovery.starved_after_s = Some(v)
+        }),
         ("mount_sigma_rad", |c, v| c.mount_sigma_rad.y = v),
         ("time_tolerance_s", |c, v| c.time_tolerance_s = v),
         ("lever_arm_m", |c, v| c.lever_arm_m.x = v),
@@ -327,7 +351,7 @@ fn bad_configs<T: Real, const K: usize, const N: usize>() {
             }
             let mut c = ok;
             set(&mut c, T::lit(b));
-            let e = TransferAlignment::<T, K, N>::new(c).unwrap_err();
+            let e = filter::<T, K, N>(c).unwrap_err();
             assert!(
                 matches!(e, NavError::InvalidConfig { .. }),
                 "{name} = {b}: {e:?}"
@@ -338,7 +362,7 @@ fn bad_configs<T: Real, const K: usize, const N: usize>() {
     let mut c = ok;
     c.accel_noise_sigma_m_s2 = T::lit(1e30);
     assert!(matches!(
-        TransferAlignment::<T, K, N>::new(c),
+        filter::<T, K, N>(c),
         Err(NavError::InvalidConfig {
             field: "accel_noise_sigma_m_s2",
             ..
@@ -347,7 +371,7 @@ fn bad_configs<T: Real, const K: usize, const N: usize>() {
     let mut c = ok;
     c.rate_noise_sigma_rad_s = T::lit(1e30);
     assert!(matches!(
-        TransferAlignment::<T, K, N>::new(c),
+        filter::<T, K, N>(c),
         Err(NavError::InvalidConfig {
             field: "rate_noise_sigma_rad_s",
             ..
@@ -355,13 +379,24 @@ fn bad_configs<T: Real, const K: usize, const N: usize>() {
     ));
     let mut c = ok;
     c.max_gap_steps = 0;
-    assert!(TransferAlignment::<T, K, N>::new(c).is_err());
-    let mut f = TransferAlignment::<T, K, N>::new(ok).unwrap();
-    assert!(f
-        .set_recovery(RecoveryPolicy {
-            reset_after_rejections: Some(0)
-        })
-        .is_err());
+    assert!(filter::<T, K, N>(c).is_err());
+    let mut f = filter::<T, K, N>(ok).unwrap();
+    // The run-time setters refuse what the configuration refuses, changing nothing.
+    let before = format!("{f:?}");
+    let zero = RecoveryPolicy {
+        starved_after_s: Some(T::zero()),
+        action: RecoveryAction::ResetToPrior,
+    };
+    assert!(f.set_recovery(zero).is_err());
+    let inflate = RecoveryPolicy {
+        action: RecoveryAction::Inflate {
+            variance_factor: T::lit(2.0),
+        },
+        ..zero
+    };
+    assert!(f.set_recovery(inflate).is_err());
+    assert!(f.set_gate(Gate::Nis(T::lit(f64::NAN))).is_err());
+    assert_eq!(format!("{f:?}"), before);
 }
 
 #[test]
@@ -371,8 +406,8 @@ fn every_config_field_is_validated_f32_f64() {
 }
 
 /// A persistent fault the gate rejects (a 1 m/s² offset on the slave X accelerometer) starves
-/// df_X: rejections are counted and after 50 consecutive ones the covariance is reset, then
-/// the filter keeps running healthy.
+/// df_X: rejections are counted and after 0.5 s of them (50 epochs at 100 Hz, the default
+/// policy) the covariance is reset, then the filter keeps running healthy.
 fn gate_and_recovery<T: Real, const K: usize, const N: usize>()
 where
     nalgebra::Const<N>: nalgebra::DimMin<nalgebra::Const<N>, Output = nalgebra::Const<N>>,
@@ -382,18 +417,13 @@ where
         0.1_f64.to_radians(),
         0.1_f64.to_radians(),
     ];
-    let mut f = TransferAlignment::<T, K, N>::new(cfg(
-        sig,
-        [0.358, 2.146, 2.146],
-        [0.0, 5.0, 0.0],
-        Some(25.0),
-    ))
-    .unwrap();
+    let mut f =
+        filter::<T, K, N>(cfg(sig, [0.358, 2.146, 2.146], [0.0, 5.0, 0.0], Some(25.0))).unwrap();
     for k in 0..300 {
         let (m, s) = inputs::<T>(k, 5, 0.3);
         f.step(&m, &s).unwrap();
     }
-    let h0 = f.health();
+    let h0 = f.aid_counters(Channel::ForceX);
     let mut rejected_df_x = 0;
     for k in 300..400 {
         let (m, mut s) = inputs::<T>(k, 5, 0.3);
@@ -404,20 +434,17 @@ where
         }
         assert!(is_psd(&f.covariance(), T::lit(1e-5)));
     }
-    let h = f.health();
+    let h = f.aid_counters(Channel::ForceX);
     assert!(rejected_df_x >= 50, "{rejected_df_x}");
-    assert_eq!(h.rejected[3] - h0.rejected[3], rejected_df_x);
-    assert!(h.covariance_resets >= 1);
+    assert_eq!(h.rejected - h0.rejected, rejected_df_x);
+    assert!(h.recoveries >= 1);
+    assert_eq!(f.aid_counters(Channel::RateX).recoveries, 0);
     // Without a recovery policy, no reset.
-    let mut g = TransferAlignment::<T, K, N>::new(cfg(
-        sig,
-        [0.358, 2.146, 2.146],
-        [0.0, 5.0, 0.0],
-        Some(25.0),
-    ))
-    .unwrap();
+    let mut g =
+        filter::<T, K, N>(cfg(sig, [0.358, 2.146, 2.146], [0.0, 5.0, 0.0], Some(25.0))).unwrap();
     g.set_recovery(RecoveryPolicy {
-        reset_after_rejections: None,
+        starved_after_s: None,
+        action: RecoveryAction::ResetToPrior,
     })
     .unwrap();
     for k in 0..400 {
@@ -427,8 +454,8 @@ where
         }
         g.step(&m, &s).unwrap();
     }
-    assert_eq!(g.health().covariance_resets, 0);
-    assert!(g.health().consecutive_rejected[3] >= 50);
+    assert_eq!(g.aid_counters(Channel::ForceX).recoveries, 0);
+    assert!(g.aid_counters(Channel::ForceX).consecutive_rejected >= 50);
 }
 
 #[test]
@@ -453,8 +480,8 @@ fn soak_f32() {
     let mut c = cfg::<f32>(sig, [0.358, 2.146, 2.146], [0.0, 5.0, 0.0], Some(25.0));
     // f32 time stamps up to 10⁴ s have a 1 ms ulp: the tolerance must cover it.
     c.time_tolerance_s = 0.004;
-    let mut a = ProposedFilter::<f32>::new(c).unwrap();
-    let mut b = ConventionalFilter::<f32>::new(c).unwrap();
+    let mut a = filter::<f32, 4, 12>(c).unwrap();
+    let mut b = filter::<f32, 3, 9>(c).unwrap();
     let p0a = a.covariance();
     let p0b = b.covariance();
     for k in 0..steps {

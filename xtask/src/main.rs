@@ -4,7 +4,8 @@
 //!   build) and write `DIR/<scenario>/{summary.json, *.csv, *.png}` (default DIR `target/sim`).
 //! * `thumb`: build nav-core for `thumbv7em-none-eabihf` and `thumbv7em-none-eabi`, with and
 //!   without the `defmt` feature, installing the rustup targets when missing (or falling back to
-//!   Debian's Rust with `-Zbuild-std=core`).
+//!   Debian's Rust with `-Zbuild-std=core`), and the firmware examples
+//!   (`tests/firmware/examples/`, panic-never).
 //! * `qemu`: record golden vectors on the host, replay them in the firmware on QEMU Cortex-M4F
 //!   and Cortex-M7, fail on any mismatch.
 //! * `bench`: instruction counts, stack and image sizes on QEMU → `target/bench/report.json`.
@@ -180,9 +181,6 @@ fn thumb_toolchain() -> Result<ThumbToolchain, String> {
     Ok(ThumbToolchain::DebianBuildStd)
 }
 
-/// The flight-program examples of `tests/firmware/examples` (`cargo xtask thumb` builds them).
-const FIRMWARE_EXAMPLES: [&str; 1] = ["seeker_ins"];
-
 /// Builds nav-core for both thumb targets, with and without defmt, and the firmware examples.
 fn thumb() -> Result<(), String> {
     let tc = thumb_toolchain()?;
@@ -216,20 +214,22 @@ fn thumb() -> Result<(), String> {
             }
         }
     }
-    // The firmware examples (flight programs per estimator) build for the M4F target.
+    // The firmware examples (`tests/firmware/examples/*.rs`: one flight program per
+    // estimator), linked with the panic-never handler.
     if matches!(tc, ThumbToolchain::Rustup) {
-        for example in FIRMWARE_EXAMPLES {
-            let mut cmd = cargo();
-            cmd.current_dir(root().join("tests/firmware")).args([
-                "build",
-                "--release",
-                "--example",
-                example,
-            ]);
-            if let Err(e) = run(&format!("thumb firmware example {example}"), &mut cmd) {
-                failures.push(e);
-            }
+        let mut cmd = cargo();
+        cmd.current_dir(root().join("tests/firmware")).args([
+            "build",
+            "--release",
+            "--examples",
+            "--features",
+            "panic-never",
+        ]);
+        if let Err(e) = run("thumb firmware examples", &mut cmd) {
+            failures.push(e);
         }
+    } else {
+        eprintln!("xtask: thumb: firmware examples need rustup's thumbv7em target; skipped");
     }
     if failures.is_empty() {
         Ok(())

@@ -102,6 +102,31 @@ pub fn first_row_and_column_unit<T: Real>(m: &[T], n: usize) -> bool {
     (1..n).all(|j| at(m, n, 0, j) == Some(T::zero()) && at(m, n, j, 0) == Some(T::zero()))
 }
 
+/// Writes the `k × k` blocks (column-major slices of `k²` values) on the block diagonal of the
+/// column-major `n × n` matrix `p` (block `a` at rows and columns `k·a ..`), leaving the rest
+/// of `p` as it is; a block that does not fit is not written. Equal to
+/// `p.fixed_view_mut::<K, K>(K a, K a).copy_from(&block_a)` for each block (nalgebra).
+/// Configuration time only: not generic over the dimensions, out of line and with opaque
+/// dimensions, so the image holds one looping copy per float type.
+#[inline(never)]
+pub fn set_block_diagonal<T: Real>(p: &mut [T], n: usize, blocks: &[&[T]], k: usize) {
+    let p = opaque(p);
+    let n = opaque(n);
+    let blocks = opaque(blocks);
+    let k = opaque(k);
+    if k == 0 {
+        return;
+    }
+    for (a, block) in blocks.iter().enumerate() {
+        for (c, col) in block.chunks_exact(k).enumerate() {
+            let start = (k * a + c) * n + k * a;
+            if let Some(dst) = p.get_mut(start..start + k) {
+                dst.copy_from_slice(col);
+            }
+        }
+    }
+}
+
 /// Equal to `(m - mᵀ).abs().max()` (nalgebra) for the column-major `n × n` matrix `m`: the
 /// values `|m[i,j] − m[j,i]|` in storage order folded with nalgebra's `simd_max`
 /// (`if acc >= v { acc } else { v }`, so a NaN is kept or dropped exactly as there), `0` for an

@@ -81,21 +81,29 @@ pub fn compensate_lever_arm<T: Real>(
         + w.cross(&w.cross(lever_arm_m))
 }
 
-/// Measurement `z = [ω_m − ω_s; f̃_m − f_s]` (rad/s, m/s²) and the compensated master specific
-/// force f̃_m.
+/// The matched measurement of one epoch.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Matching<T: Real> {
+    /// `z = [ω_m − ω_s; f̃_m − f_s]` (rad/s, m/s²), in the order dω_X..Z, df_X..Z.
+    pub z: SVector<T, 6>,
+    /// The lever-arm compensated master specific force f̃_m, m/s².
+    pub master_force_compensated_m_s2: Vector3<T>,
+}
+
+/// The measurement of one epoch ([`Matching`]).
 #[inline]
 pub fn measurement<T: Real>(
     master: &MasterSample<T>,
     slave: &SlaveSample<T>,
     lever_arm_m: &Vector3<T>,
-) -> (SVector<T, 6>, Vector3<T>) {
+) -> Matching<T> {
     let f_comp = compensate_lever_arm(master, lever_arm_m);
     let dw = master.angular_rate_rad_s - slave.angular_rate_rad_s;
     let df = f_comp - slave.specific_force_m_s2;
-    (
-        SVector::<T, 6>::new(dw.x, dw.y, dw.z, df.x, df.y, df.z),
-        f_comp,
-    )
+    Matching {
+        z: SVector::<T, 6>::new(dw.x, dw.y, dw.z, df.x, df.y, df.z),
+        master_force_compensated_m_s2: f_comp,
+    }
 }
 
 /// Row `i` of the skew matrix `[v×]`.
@@ -225,106 +233,6 @@ pub fn h_matrix<T: Real, const K: usize, const N: usize>(
         out.copy_from(&r.transpose());
     }
     Ok(h)
-}
-
-/// The last `H` slave samples, so that time-tagged master data arriving late (data-link
-/// latency) can be matched with the slave sample of its epoch
-/// ([`super::TransferAlignment::step_delayed`]). A fixed ring buffer: pushing into a full
-/// history drops the oldest sample. Capacity H must cover the master latency plus jitter in
-/// slave epochs (e.g. H = 16 covers 150 ms at 100 Hz).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct SlaveHistory<T: Real, const H: usize> {
-    buf: [SlaveSample<T>; H],
-    /// Index of the next write.
-    head: usize,
-    len: usize,
-}
-
-impl<T: Real, const H: usize> Default for SlaveHistory<T, H> {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl<T: Real, const H: usize> SlaveHistory<T, H> {
-    /// An empty history.
-    pub fn new() -> Self {
-        let z = SlaveSample {
-            time: Timestamp::ZERO,
-            angular_rate_rad_s: Vector3::zeros(),
-            specific_force_m_s2: Vector3::zeros(),
-        };
-        Self {
-            buf: [z; H],
-            head: 0,
-            len: 0,
-        }
-    }
-
-    /// Number of samples held.
-    pub fn len(&self) -> usize {
-        self.len
-    }
-
-    /// `true` when no sample is held.
-    pub fn is_empty(&self) -> bool {
-        self.len == 0
-    }
-
-    /// Stores a slave sample. Errors (history unchanged): `NonFiniteInput` (rates, forces),
-    /// `TimeNotIncreasing` (time stamp not after the newest held), `CapacityExceeded` if H = 0.
-    pub fn push(&mut self, slave: &SlaveSample<T>) -> Result<(), NavError> {
-        slave.validate()?;
-        if let Some(last) = self.newest() {
-            if slave.time <= last.time {
-                return Err(NavError::TimeNotIncreasing);
-            }
-        }
-        let Some(slot) = self.buf.get_mut(self.head) else {
-            return Err(NavError::CapacityExceeded);
-        };
-        *slot = *slave;
-        self.head = if self.head + 1 >= H { 0 } else { self.head + 1 };
-        self.len = (self.len + 1).min(H);
-        Ok(())
-    }
-
-    /// The `i`-th newest sample (0 = newest).
-    fn back(&self, i: usize) -> Option<&SlaveSample<T>> {
-        if i >= self.len {
-            return None;
-        }
-        let idx = (self.head + H - 1 - i) % H;
-        self.buf.get(idx)
-    }
-
-    /// The newest sample held.
-    pub fn newest(&self) -> Option<&SlaveSample<T>> {
-        self.back(0)
-    }
-
-    /// The oldest sample held.
-    pub fn oldest(&self) -> Option<&SlaveSample<T>> {
-        self.back(self.len.wrapping_sub(1))
-    }
-
-    /// The held slave sample whose time stamp is within `tolerance_us` µs of `time` (the
-    /// newest such sample). Errors: `MeasurementTimeOutOfWindow` when `time` is older than the
-    /// oldest sample held (master data too late for the history), newer than the newest, or
-    /// falls between two samples, or the history is empty.
-    pub fn find(&self, time: Timestamp, tolerance_us: u64) -> Result<SlaveSample<T>, NavError> {
-        (0..self.len)
-            .filter_map(|i| self.back(i))
-            .find(|s| {
-                let d = s
-                    .time
-                    .micros_since(time)
-                    .or_else(|| time.micros_since(s.time));
-                d.is_some_and(|d| d <= tolerance_us)
-            })
-            .copied()
-            .ok_or(NavError::MeasurementTimeOutOfWindow)
-    }
 }
 
 #[cfg(test)]

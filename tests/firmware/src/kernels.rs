@@ -9,6 +9,7 @@ use nav_core::math::kalman::{fuse_scalar, propagate_dense, FusionOutcome, Gate};
 use nav_core::transfer_alignment::{
     ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig,
 };
+use nav_core::Estimator;
 
 /// One measured kernel.
 pub struct Kernel {
@@ -250,7 +251,9 @@ macro_rules! ta_kernel {
             });
         }
         fn $setup() {
-            let mut state = <$ty>::new(ta_config()).ok().map(|filter| Ta { filter, k: 0, ok: true });
+            let mut state = <$ty>::new(&ta_config(), &nav_golden::ta_initial())
+                .ok()
+                .map(|filter| Ta { filter, k: 0, ok: true });
             // Warm up so the measured call is a steady-state predict + 6 updates.
             if let Some(s) = state.as_mut() {
                 for _ in 0..5 {

@@ -9,11 +9,10 @@ use core::hint::black_box as bb;
 use cortex_m_rt::{exception, ExceptionFrame};
 use cortex_m_semihosting::debug;
 use nalgebra::Vector3;
-use nav_core::contract::Estimator;
 use nav_core::seeker_ins::{ClipFlags, GimbalAngles, ImuIncrement, LosSample, SeekerIns};
-use nav_core::transfer_alignment::{MasterSample, SlaveHistory, SlaveSample};
+use nav_core::transfer_alignment::{Channel, MasterSample, SlaveHistory, SlaveSample};
 use nav_core::vertical_channel::{BaroSample, ImuSample, VelocitySample};
-use nav_core::{HealthState, NavError};
+use nav_core::{Estimator, HealthState, NavError};
 use nav_golden::DesignSource;
 
 pub fn run(designs: &dyn DesignSource) -> ! {
@@ -31,7 +30,8 @@ pub fn run(designs: &dyn DesignSource) -> ! {
 /// What a flight program does with nav-core: build every filter (designs from `designs`,
 /// configurations opaque to the optimiser), set its gates and recovery policies, then at each
 /// cycle call every run-time entry point: both transfer-alignment filters (`step`, the delayed
-/// match from the slave history, `propagate` through master dropouts), both vertical loops
+/// match from the slave history, `propagate` through master dropouts, `reinitialise`, the
+/// channel counters), both vertical loops
 /// (gated `step`, `reinitialise`), and the seeker INS (`propagate` and its clipped form, gaps bridged inside,
 /// `predict_covariance`, `update_los`). Inputs are opaque values; the cycle count is opaque (0
 /// here: the image is only linked and measured).
@@ -45,8 +45,10 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
     let gate = bb(nav_golden::vc_gate());
     cl.set_gate(Some(&gate))?;
     ai.set_gate(Some(&gate))?;
-    ta9.set_recovery(bb(ta9.recovery()))?;
-    ta12.set_recovery(bb(ta12.recovery()))?;
+    ta9.set_gate(bb(ta9.config().gate))?;
+    ta12.set_gate(bb(ta12.config().gate))?;
+    ta9.set_recovery(bb(ta9.config().recovery))?;
+    ta12.set_recovery(bb(ta12.config().recovery))?;
     sk.set_gate(bb(sk.config().gate))?;
     sk.set_recovery(bb(sk.config().recovery))?;
     sk.set_imu_faults(bb(sk.config().imu_faults))?;
@@ -86,6 +88,12 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
                         bb(r);
                     }),
             );
+        }
+        if bb(ta9.health().state) == HealthState::NeedsReinitialisation {
+            count(ta9.reinitialise(&bb(nav_golden::ta_initial())));
+        }
+        if bb(ta12.health().state) == HealthState::NeedsReinitialisation {
+            count(ta12.reinitialise(&bb(nav_golden::ta_initial())));
         }
         let imu = bb(ImuSample {
             time: bb(nav_core::time::Timestamp::ZERO),
@@ -139,6 +147,7 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
         bb((
             ta9.theta(),
             ta12.theta_sigma_rad(),
+            ta12.aid_counters(bb(Channel::ForceX)),
             cl.altitude_m(),
             ai.vz_up_m_s(),
             sk.state().vel_ned_m_s,

@@ -23,13 +23,14 @@ use nav_core::seeker_ins::{
 };
 use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::{
-    AxisFlexure, ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig, TaDesign,
+    ConventionalFilter, MasterSample, PaperCase, ProposedFilter, SlaveSample, TaConfig, TaDesign,
+    TaInitial,
 };
 use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
     ClassicalLoop, ImuSample, InitialState, InnovationGate, VelocitySample,
 };
-use nav_core::NavError;
+use nav_core::{Estimator, NavError};
 
 /// A recorded filter run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -119,33 +120,18 @@ pub const INS_DT_US: u64 = 10_000;
 /// Seeker case: LOS update every this many IMU samples.
 pub const LOS_EVERY: usize = 10;
 
-/// TA filter configuration (case-2 flexure, tactical slave).
+/// TA filter configuration: the paper's case 2 ([`TaConfig::paper`]) with the rate-difference
+/// noise the vectors were recorded with.
 pub fn ta_config() -> TaConfig<f32> {
-    let deg = core::f32::consts::PI / 180.0;
     TaConfig {
-        lever_arm_m: Vector3::new(0.0, 5.0, 0.0),
-        flexure: [
-            AxisFlexure {
-                sigma_rad: 0.5 * deg,
-                tau_s: 0.358,
-            },
-            AxisFlexure {
-                sigma_rad: 0.1 * deg,
-                tau_s: 2.146,
-            },
-            AxisFlexure {
-                sigma_rad: 0.1 * deg,
-                tau_s: 2.146,
-            },
-        ],
-        mount_sigma_rad: Vector3::new(0.5 * deg, 0.5 * deg, 0.5 * deg),
         rate_noise_sigma_rad_s: 2.0e-4,
-        accel_noise_sigma_m_s2: 5.0e-3,
-        dt_s: TA_DT_S,
-        time_tolerance_s: 0.001,
-        max_gap_steps: 5,
-        nis_gate: Some(25.0),
+        ..TaConfig::paper(PaperCase::Case2)
     }
+}
+
+/// What the coarse alignment hands over in the TA cases: no prior knowledge (θ_m = 0).
+pub fn ta_initial() -> TaInitial<f32> {
+    TaInitial::default()
 }
 
 fn vc_timeouts() -> AidTimeouts {
@@ -347,10 +333,10 @@ pub struct OnBoard;
 
 impl DesignSource for OnBoard {
     fn ta9(&self) -> Result<ConventionalFilter<f32>, NavError> {
-        ConventionalFilter::new(ta_config())
+        ConventionalFilter::new(&ta_config(), &ta_initial())
     }
     fn ta12(&self) -> Result<ProposedFilter<f32>, NavError> {
-        ProposedFilter::new(ta_config())
+        ProposedFilter::new(&ta_config(), &ta_initial())
     }
     fn vc_classical(&self) -> Result<ClassicalLoop<f32>, NavError> {
         ClassicalLoop::new(&vc_classical_config(), &vc_initial())
@@ -403,10 +389,10 @@ fn decode_f64s(bytes: &[u8], out: &mut [f64]) -> usize {
 
 impl DesignSource for Stored<'_> {
     fn ta9(&self) -> Result<ConventionalFilter<f32>, NavError> {
-        ConventionalFilter::from_design(ta_config(), &read_design(self.ta9)?)
+        ConventionalFilter::from_design(&ta_config(), &read_design(self.ta9)?, &ta_initial())
     }
     fn ta12(&self) -> Result<ProposedFilter<f32>, NavError> {
-        ProposedFilter::from_design(ta_config(), &read_design(self.ta12)?)
+        ProposedFilter::from_design(&ta_config(), &read_design(self.ta12)?, &ta_initial())
     }
     fn vc_classical(&self) -> Result<ClassicalLoop<f32>, NavError> {
         ClassicalLoop::from_design(
@@ -425,7 +411,7 @@ impl DesignSource for Stored<'_> {
 }
 
 /// Largest [`DesignValues::COUNT`] of the stored designs (the 12-state TA design).
-pub const MAX_DESIGN_VALUES: usize = 240;
+pub const MAX_DESIGN_VALUES: usize = 242;
 
 /// Computes the design of `case` (on the host, in f32 like the filters) and writes its
 /// [`DesignValues`] to `out`; returns how many were written (0 for the seeker case, which has
@@ -436,8 +422,8 @@ pub fn design_values(case: Case, out: &mut [f64; MAX_DESIGN_VALUES]) -> Result<u
         Ok(D::COUNT)
     }
     match case {
-        Case::Ta9 => put(&TaDesign::<f32, 3>::compute(&ta_config())?, out),
-        Case::Ta12 => put(&TaDesign::<f32, 4>::compute(&ta_config())?, out),
+        Case::Ta9 => put::<TaDesign<f32, 3>>(&ConventionalFilter::design(&ta_config())?, out),
+        Case::Ta12 => put::<TaDesign<f32, 4>>(&ProposedFilter::design(&ta_config())?, out),
         Case::VcClassical => put(
             &ClassicalDesign::<f32>::compute(&vc_classical_config())?,
             out,

@@ -1,7 +1,8 @@
 //! Scenario-file configuration of the transfer-alignment scenarios (units in the key names).
 use anyhow::{bail, Context as _, Result};
 use nalgebra::Vector3;
-use nav_core::transfer_alignment::{AxisFlexure, TaConfig};
+use nav_core::transfer_alignment::{AxisFlexure, PaperCase, TaConfig};
+use nav_core::Gate;
 use serde::Deserialize;
 
 /// Truth flexure model.
@@ -188,7 +189,10 @@ impl CaseConfig {
         None
     }
 
-    /// Filter configuration (f64) with the filter's τ scaled by `1 + tau_error_pct/100`.
+    /// Filter configuration (f64) with the filter's τ scaled by `1 + tau_error_pct/100`: the
+    /// scenario's lever arm, flexure, mount σ, noise (master and slave per sample, combined) and
+    /// step, pairing tolerance 0.1 `dt_s`, the gate of `[filter] nis_gate` (absent: off), and
+    /// the paper configuration's gap bridging and recovery policy ([`TaConfig::paper`]).
     pub fn filter_config(&self, tau_error_pct: f64) -> TaConfig<f64> {
         let sigma = self
             .filter
@@ -226,8 +230,8 @@ impl CaseConfig {
             accel_noise_sigma_m_s2: accel,
             dt_s: self.dt_s,
             time_tolerance_s: 0.1 * self.dt_s,
-            max_gap_steps: 1,
-            nis_gate: self.filter.nis_gate,
+            gate: self.filter.nis_gate.map_or(Gate::Off, Gate::Nis),
+            ..TaConfig::paper(PaperCase::Case2)
         }
     }
 }

@@ -7,9 +7,9 @@ use anyhow::{anyhow, Result};
 use nalgebra::Vector3;
 use nav_core::math::kalman::FusionOutcome;
 use nav_core::transfer_alignment::{
-    AxisFlexure, MasterSample, SlaveSample, TaConfig, TransferAlignment,
+    AxisFlexure, MasterSample, SlaveSample, TaConfig, TaInitial, TransferAlignment,
 };
-use nav_core::Real;
+use nav_core::{Estimator, Gate, Real, RecoveryAction, RecoveryPolicy};
 
 /// Late-cruise window of the summary, s.
 pub const CRUISE_WINDOW_S: (f64, f64) = (0.5, 1.0);
@@ -33,7 +33,8 @@ pub struct MethodRun {
     pub skipped: usize,
 }
 
-fn cast_config<T: Real>(c: &TaConfig<f64>) -> TaConfig<T> {
+/// The f64 configuration of a scenario in the float type T of the filter under test.
+pub fn cast_config<T: Real>(c: &TaConfig<f64>) -> TaConfig<T> {
     let v = |x: &Vector3<f64>| x.map(T::lit);
     let ax = |a: &AxisFlexure<f64>| AxisFlexure {
         sigma_rad: T::lit(a.sigma_rad),
@@ -48,7 +49,20 @@ fn cast_config<T: Real>(c: &TaConfig<f64>) -> TaConfig<T> {
         dt_s: T::lit(c.dt_s),
         time_tolerance_s: T::lit(c.time_tolerance_s),
         max_gap_steps: c.max_gap_steps,
-        nis_gate: c.nis_gate.map(T::lit),
+        gate: match c.gate {
+            Gate::Off => Gate::Off,
+            Gate::Nis(g) => Gate::Nis(T::lit(g)),
+        },
+        recovery: RecoveryPolicy {
+            starved_after_s: c.recovery.starved_after_s.map(T::lit),
+            action: match c.recovery.action {
+                RecoveryAction::Inflate { variance_factor } => RecoveryAction::Inflate {
+                    variance_factor: T::lit(variance_factor),
+                },
+                RecoveryAction::ResetToPrior => RecoveryAction::ResetToPrior,
+                RecoveryAction::Reanchor => RecoveryAction::Reanchor,
+            },
+        },
     }
 }
 
@@ -57,7 +71,8 @@ pub fn run_filter<T: Real, const K: usize, const N: usize>(
     cfg: &TaConfig<f64>,
     truth: &TruthRun,
 ) -> Result<MethodRun> {
-    let mut f = TransferAlignment::<T, K, N>::new(cast_config(cfg)).map_err(|e| anyhow!("{e}"))?;
+    let mut f = TransferAlignment::<T, K, N>::new(&cast_config(cfg), &TaInitial::default())
+        .map_err(|e| anyhow!("{e}"))?;
     let n = truth.t_s.len();
     let mut out = MethodRun {
         err_rad: [vec![0.0; n], vec![0.0; n], vec![0.0; n]],

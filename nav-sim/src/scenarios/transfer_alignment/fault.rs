@@ -10,6 +10,7 @@
 //! stays within the pre-fault bound (the largest RMS over the 2 s before the dropout) until
 //! the next dropout or the end.
 use super::config::CaseConfig;
+use super::estimate::cast_config;
 use super::truth::simulate;
 use crate::montecarlo::monte_carlo;
 use crate::output::{sig, write_csv};
@@ -20,8 +21,9 @@ use anyhow::{anyhow, Result};
 use nalgebra::Vector3;
 use nav_core::math::kalman::FusionOutcome;
 use nav_core::transfer_alignment::{
-    MasterSample, ProposedFilter, SlaveHistory, SlaveSample, TaConfig,
+    Channel, MasterSample, ProposedFilter, SlaveHistory, SlaveSample, TaInitial,
 };
+use nav_core::{Estimator, Gate};
 use serde::Deserialize;
 use serde_json::{json, Value};
 
@@ -59,34 +61,15 @@ pub struct FaultRun {
     pub sigma_rad: Vec<f64>,
     /// Measurements rejected by the gate.
     pub rejected: u64,
-    /// Covariance resets.
-    pub resets: u32,
+    /// Recoveries by the gate-starvation policy (covariance reset to the prior), counted on
+    /// each starved channel.
+    pub recoveries: u32,
     /// Steps refused with an error (should be 0).
     pub errors: u64,
     /// Master samples that could not be matched with the slave history.
     pub unmatched: u64,
     /// Propagation-only epochs.
     pub propagations: u64,
-}
-
-fn cast(c: &TaConfig<f64>) -> TaConfig<f32> {
-    let v = |x: &Vector3<f64>| x.map(|e| e as f32);
-    TaConfig {
-        lever_arm_m: v(&c.lever_arm_m),
-        flexure: c
-            .flexure
-            .map(|a| nav_core::transfer_alignment::AxisFlexure {
-                sigma_rad: a.sigma_rad as f32,
-                tau_s: a.tau_s as f32,
-            }),
-        mount_sigma_rad: v(&c.mount_sigma_rad),
-        rate_noise_sigma_rad_s: c.rate_noise_sigma_rad_s as f32,
-        accel_noise_sigma_m_s2: c.accel_noise_sigma_m_s2 as f32,
-        dt_s: c.dt_s as f32,
-        time_tolerance_s: c.time_tolerance_s as f32,
-        max_gap_steps: c.max_gap_steps,
-        nis_gate: c.nis_gate.map(|g| g as f32),
-    }
 }
 
 fn in_dropout(cfg: &FaultConfig, t: f64) -> bool {
@@ -98,9 +81,12 @@ fn in_dropout(cfg: &FaultConfig, t: f64) -> bool {
 /// Runs one seeded realisation.
 pub fn run_once(cfg: &FaultConfig, rng: &mut crate::rng::SimRng) -> Result<FaultRun> {
     let truth = simulate(&cfg.case, rng)?;
-    let mut fc = cast(&cfg.case.filter_config(0.0));
-    fc.nis_gate = Some(fc.nis_gate.unwrap_or(25.0));
-    let mut f = ProposedFilter::<f32>::new(fc).map_err(|e| anyhow!("{e}"))?;
+    let mut fc = cast_config::<f32>(&cfg.case.filter_config(0.0));
+    if fc.gate == Gate::Off {
+        fc.gate = Gate::Nis(25.0);
+    }
+    let mut f =
+        ProposedFilter::<f32>::new(&fc, &TaInitial::default()).map_err(|e| anyhow!("{e}"))?;
     let mut hist = SlaveHistory::<f32, HISTORY>::new();
     let lag = (cfg.master_latency_s / cfg.case.dt_s).round() as usize;
     let n = truth.t_s.len();
@@ -154,7 +140,10 @@ pub fn run_once(cfg: &FaultConfig, rng: &mut crate::rng::SimRng) -> Result<Fault
             out.sigma_rad[j] = f.theta_sigma_rad().map(f64::from).norm();
         }
     }
-    out.resets = f.health().covariance_resets;
+    out.recoveries = Channel::ALL
+        .iter()
+        .map(|c| f.aid_counters(*c).recoveries)
+        .sum();
     Ok(out)
 }
 
@@ -258,7 +247,7 @@ pub fn analyse(cfg: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Res
         "slave_history_epochs": HISTORY,
         "dropouts_s": cfg.dropouts_s,
         "rejections": sum(|r| r.rejected),
-        "covariance_resets": res.iter().map(|r| u64::from(r.resets)).sum::<u64>(),
+        "channel_recoveries": res.iter().map(|r| u64::from(r.recoveries)).sum::<u64>(),
         "step_errors": sum(|r| r.errors),
         "unmatched_master_samples": sum(|r| r.unmatched),
         "propagation_only_epochs": sum(|r| r.propagations),

@@ -19,8 +19,7 @@ use config::CaseConfig;
 use estimate::{run_case, AxisMetrics, CaseResult, MethodStats};
 use nalgebra::Vector3;
 use nav_core::math::markov::MarkovOrder;
-use nav_core::transfer_alignment::model::AxisFlexure;
-use nav_core::transfer_alignment::observability::{segment, som_rank, RankReport, Segment};
+use nav_core::transfer_alignment::{segment, som_rank, AxisFlexure, RankReport, Segment};
 use serde::Deserialize;
 use serde_json::{json, Value};
 

@@ -1,0 +1,437 @@
+//! The per-epoch work of the filters: the time plan, [`TransferAlignment::step`] (predict and
+//! fuse the six scalar measurements), [`TransferAlignment::propagate`] (prediction only) and
+//! [`TransferAlignment::step_delayed`] (match with the slave history).
+use super::config::{MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_SPECIFIC_FORCE_M_S2};
+use super::covariance::{
+    condition, fuse_bounded, initial_covariance, predict_cov, predict_state, reinit_flexure,
+    set_mount_only,
+};
+use super::filter::TransferAlignment;
+use super::health::Channel;
+use super::history::SlaveHistory;
+use super::measurement::{h_row_total, measurement, MasterSample, SlaveSample};
+use super::model::FlexureModel;
+use crate::contract::Health;
+#[allow(unused_imports)] // doc links
+use crate::math::kalman::fuse_scalar;
+use crate::math::kalman::{covariance_times_row, FusionOutcome, FusionReport};
+use crate::time::Timestamp;
+use crate::{NavError, Real};
+use nalgebra::{SMatrix, SVector, Vector3};
+
+/// How the filter got from its previous epoch to this one.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum GapOutcome {
+    /// The first epoch: the clock started here, nothing predicted.
+    Started,
+    /// Predicted `predictions` steps (0 when jitter put this sample in the previous one's step).
+    Predicted,
+    /// The gap was longer than `max_gap_steps`: the flexure states were re-initialised to their
+    /// stationary prior (mean 0, stationary covariance, no correlation with θ_m), θ_m was kept
+    /// and its variance grown by the flexure's stationary variance (the part of θ that the
+    /// filter may have put in θ_m), capped at the initial σ_m² plus that variance. Counted in
+    /// [`Health::gaps_reset`].
+    FlexureReinitialised,
+}
+
+/// What the prediction part of a call did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Propagation {
+    /// Prediction steps run (at most `max_gap_steps`).
+    pub predictions: u32,
+    /// How the gap was bridged.
+    pub gap: GapOutcome,
+}
+
+/// What one step did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct StepReport<T> {
+    /// Time stamp of the epoch (the slave sample's).
+    pub time: Timestamp,
+    /// Number of prediction steps done before the update (0 at the first epoch).
+    pub predictions: u32,
+    /// How the gap from the previous epoch was bridged.
+    pub gap: GapOutcome,
+    /// One report per scalar update, in the order of [`Channel::ALL`] (dω_X, dω_Y, dω_Z, df_X,
+    /// df_Y, df_Z). Every number is finite.
+    pub updates: [FusionReport<T>; 6],
+}
+
+impl<T: Copy> StepReport<T> {
+    /// The report of one channel's update.
+    pub fn update(&self, channel: Channel) -> Option<&FusionReport<T>> {
+        self.updates.get(channel.index())
+    }
+}
+
+/// The time plan of one call: predictions to run and the new grid time.
+#[derive(Debug, Clone, Copy)]
+struct Plan {
+    predictions: u32,
+    gap: GapOutcome,
+    grid: Timestamp,
+}
+
+/// `0` when every component is finite, NaN otherwise (`v·0` is ±0 for finite v and NaN for
+/// ±∞ or NaN): a finiteness test that costs one multiply-add per value on the target.
+#[inline(always)]
+fn zero_if_finite<T: Real>(v: &Vector3<T>) -> T {
+    v.x * T::zero() + v.y * T::zero() + v.z * T::zero()
+}
+
+fn in_range3<T: Real>(input: &'static str, v: &Vector3<T>, limit: f64) -> Result<(), NavError> {
+    let lim = T::lit(limit);
+    if v.as_slice().iter().all(|c| c.abs() <= lim) {
+        Ok(())
+    } else {
+        Err(NavError::InputOutOfRange { input })
+    }
+}
+
+/// Checks the physical range of the inputs (`InputOutOfRange`; limits
+/// [`MAX_ANGULAR_RATE_RAD_S`], [`MAX_ANGULAR_ACCEL_RAD_S2`], [`MAX_SPECIFIC_FORCE_M_S2`]).
+fn check_ranges<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> Result<(), NavError> {
+    let (rate, accel, force) = (
+        MAX_ANGULAR_RATE_RAD_S,
+        MAX_ANGULAR_ACCEL_RAD_S2,
+        MAX_SPECIFIC_FORCE_M_S2,
+    );
+    in_range3(
+        "master.angular_rate_rad_s",
+        &master.angular_rate_rad_s,
+        rate,
+    )?;
+    in_range3(
+        "master.angular_accel_rad_s2",
+        &master.angular_accel_rad_s2,
+        accel,
+    )?;
+    in_range3(
+        "master.specific_force_m_s2",
+        &master.specific_force_m_s2,
+        force,
+    )?;
+    in_range3("slave.angular_rate_rad_s", &slave.angular_rate_rad_s, rate)?;
+    in_range3(
+        "slave.specific_force_m_s2",
+        &slave.specific_force_m_s2,
+        force,
+    )
+}
+
+impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
+    /// (current, scratch) covariance buffers.
+    fn buffers(&mut self) -> (&SMatrix<T, N, N>, &mut SMatrix<T, N, N>) {
+        let [a, b] = &mut self.p;
+        if self.second {
+            (&*b, a)
+        } else {
+            (&*a, b)
+        }
+    }
+
+    /// One prediction on (x, P) in place (tests).
+    #[cfg(test)]
+    pub(super) fn predict_into(&self, x: &mut SVector<T, N>, p: &mut SMatrix<T, N, N>) {
+        predict_state(&self.phi, x);
+        predict_cov(&self.phi, &self.q_d, None, p);
+    }
+
+    /// Runs the time plan from the current covariance into the scratch buffer: `n`
+    /// predictions, a copy (n = 0), or the flexure re-initialisation of a long gap.
+    #[inline(never)] // one copy serves `step` and `propagate`
+    fn advance_to_scratch(&mut self, x: &mut SVector<T, N>, plan: &Plan) {
+        // Borrow the fields separately: no copy of the matrices.
+        let Self {
+            chains,
+            phi,
+            q_d,
+            p,
+            second,
+            ..
+        } = self;
+        let [a, b] = p;
+        let (cur, scratch) = if *second { (&*b, a) } else { (&*a, b) };
+        if plan.gap == GapOutcome::FlexureReinitialised {
+            scratch.copy_from(cur);
+            reinit_flexure(chains, x, scratch);
+            return;
+        }
+        if plan.predictions == 0 {
+            scratch.copy_from(cur);
+            return;
+        }
+        predict_state(phi, x);
+        predict_cov(phi, q_d, Some(cur), scratch);
+        for _ in 1..plan.predictions {
+            predict_state(phi, x);
+            predict_cov(phi, q_d, None, scratch);
+        }
+    }
+
+    /// The time plan to a sample stamped `time`: the filter predicts
+    /// `round((time − grid) / dt)` steps (possibly 0 when jitter puts two samples in one step),
+    /// so the grid never drifts from the flight computer's clock; a gap of more than
+    /// `max_gap_steps` re-initialises the flexure instead. `TimeNotIncreasing` unless later
+    /// than the last accepted sample.
+    fn plan(&self, time: Timestamp) -> Result<Plan, NavError> {
+        let (Some(grid), Some(last)) = (self.grid, self.last) else {
+            return Ok(Plan {
+                predictions: 0,
+                gap: GapOutcome::Started,
+                grid: time,
+            });
+        };
+        if time <= last {
+            return Err(NavError::TimeNotIncreasing);
+        }
+        // time > last ≥ grid − dt/2, so `ahead` > 0.
+        let ahead = time
+            .add_micros(self.dt_us / 2)
+            .micros_since(grid)
+            .unwrap_or(0);
+        let steps = ahead / self.dt_us.max(1);
+        let grid = grid.add_micros(steps.saturating_mul(self.dt_us));
+        match u32::try_from(steps) {
+            Ok(n) if n <= self.cfg.max_gap_steps => Ok(Plan {
+                predictions: n,
+                gap: GapOutcome::Predicted,
+                grid,
+            }),
+            _ => Ok(Plan {
+                predictions: 0,
+                gap: GapOutcome::FlexureReinitialised,
+                grid,
+            }),
+        }
+    }
+
+    /// Processes one epoch: checks the inputs and time stamps, predicts from the previous epoch
+    /// to the grid point nearest the slave's time stamp (none at the first epoch, the flexure
+    /// re-initialised after a gap longer than `max_gap_steps`), then fuses the six scalar
+    /// measurements (the sparse form of [`fuse_scalar`]) with the configured gate.
+    ///
+    /// Refused (`Err`, the estimate unchanged bit for bit, the refusal counted in
+    /// [`Health::imu_refused`]) only for invalid input: `NonFiniteInput`, `InputOutOfRange`
+    /// (an input beyond the `MAX_*` limits), `TimeNotIncreasing` (the slave's stamp not later
+    /// than the last accepted sample's), and `MeasurementTimeOutOfWindow` (master and slave
+    /// stamps differ by more than the tolerance; match delayed master data with a
+    /// [`SlaveHistory`]). Any later time stamp is accepted.
+    ///
+    /// A measurement rejected by the χ² gate is reported (`Rejected`) and counted in
+    /// [`Self::aid_counters`]; see "Recovery" ([`TransferAlignment`]) for what happens when a
+    /// channel is starved. A measurement that cannot be fused numerically is reported
+    /// `Skipped` and counted; the step still commits its prediction and the other updates.
+    pub fn step(
+        &mut self,
+        master: &MasterSample<T>,
+        slave: &SlaveSample<T>,
+    ) -> Result<StepReport<T>, NavError> {
+        let result = self.try_step(master, slave);
+        if result.is_err() {
+            Health::bump(&mut self.monitor.health.imu_refused);
+        }
+        result
+    }
+
+    /// Checks of [`Self::step`] that need no prediction: the plan, or the refusal.
+    fn check_epoch(
+        &self,
+        master: &MasterSample<T>,
+        slave: &SlaveSample<T>,
+    ) -> Result<Plan, NavError> {
+        // Fast path: one sum decides that all 15 inputs are finite; the per-field checks (which
+        // name the offending input) only run when some input is not.
+        let probe = zero_if_finite(&master.angular_rate_rad_s)
+            + zero_if_finite(&master.angular_accel_rad_s2)
+            + zero_if_finite(&master.specific_force_m_s2)
+            + zero_if_finite(&slave.angular_rate_rad_s)
+            + zero_if_finite(&slave.specific_force_m_s2);
+        if probe != T::zero() {
+            master.validate()?;
+            slave.validate()?;
+        }
+        check_ranges(master, slave)?;
+        let skew = master
+            .time
+            .micros_since(slave.time)
+            .or_else(|| slave.time.micros_since(master.time))
+            .unwrap_or(u64::MAX);
+        if skew > self.tol_us {
+            return Err(NavError::MeasurementTimeOutOfWindow);
+        }
+        self.plan(slave.time)
+    }
+
+    #[inline(always)] // the report is built in the caller's return slot
+    fn try_step(
+        &mut self,
+        master: &MasterSample<T>,
+        slave: &SlaveSample<T>,
+    ) -> Result<StepReport<T>, NavError> {
+        let plan = self.check_epoch(master, slave)?;
+        let matching = measurement(master, slave, &self.cfg.lever_arm_m);
+        let (z, f_comp) = (matching.z, matching.master_force_compensated_m_s2);
+        let z_probe = z
+            .as_slice()
+            .iter()
+            .fold(zero_if_finite(&f_comp), |acc, v| acc + *v * T::zero());
+        if z_probe != T::zero() {
+            return Err(NavError::InputOutOfRange {
+                input: "measurement",
+            });
+        }
+        let f_h = match self.model {
+            FlexureModel::Conventional => f_comp,
+            FlexureModel::Proposed => slave.specific_force_m_s2,
+        };
+        let (gate, lever) = (self.cfg.gate, self.cfg.lever_arm_m);
+        let (r_rate, r_accel) = (self.r_rate, self.r_accel);
+        let mut x = self.x;
+        self.advance_to_scratch(&mut x, &plan);
+        let (_, p) = self.buffers();
+        let empty = FusionReport {
+            innovation: T::zero(),
+            innovation_variance: T::zero(),
+            nis: T::zero(),
+            test_ratio: T::zero(),
+            outcome: FusionOutcome::Rejected,
+        };
+        let mut updates = [empty; 6];
+        // The six rows are written out with constant row indices (and the model follows from K
+        // at compile time), so each row's sparsity pattern is known to the compiler: the
+        // index-driven loops of the sparse update become straight-line code.
+        let model_k = if K == 4 {
+            FlexureModel::Proposed
+        } else {
+            FlexureModel::Conventional
+        };
+        let omega_m = master.angular_rate_rad_s;
+        macro_rules! fuse_row {
+            ($row:literal) => {
+                if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
+                    let h = h_row_total::<T, K>(model_k, $row, &omega_m, &f_h, &lever);
+                    let r = if $row < 3 { r_rate } else { r_accel };
+                    let innovation = zi - h.dot(&x);
+                    // Built from validated, range-checked inputs with in-range ascending
+                    // indices by construction (tested): no per-entry validation.
+                    let b = covariance_times_row(p, &h);
+                    let hph = h.dot(&b);
+                    *rep = fuse_bounded(&mut x, p, &b, hph, innovation, r, gate);
+                }
+            };
+        }
+        fuse_row!(0);
+        fuse_row!(1);
+        fuse_row!(2);
+        fuse_row!(3);
+        fuse_row!(4);
+        fuse_row!(5);
+        self.commit_epoch(x, &plan, &updates);
+        self.last = Some(slave.time);
+        Ok(StepReport {
+            time: slave.time,
+            predictions: plan.predictions,
+            gap: plan.gap,
+            updates,
+        })
+    }
+
+    /// Commits an epoch's updates: counters, recovery, conditioning, state, buffer swap, grid
+    /// (nothing here can fail: the counters are updated in place).
+    fn commit_epoch(&mut self, mut x: SVector<T, N>, plan: &Plan, updates: &[FusionReport<T>; 6]) {
+        let count = self.monitor.record_updates(updates, self.starved_epochs);
+        let mut anomaly = count.skipped || plan.gap == GapOutcome::FlexureReinitialised;
+        Self::count_gap(&mut self.monitor.health, plan);
+        if let (true, Some(n)) = (count.starved, self.starved_epochs) {
+            anomaly = true;
+            self.recover(&mut x, n);
+        }
+        self.monitor.end_epoch(anomaly, Self::diverged(&x));
+        self.finish(x, plan);
+    }
+
+    /// The recovery of a starved channel ([`TransferAlignment`], "Recovery"): the scratch
+    /// covariance ← P0, the flexure states ← 0, θ_m kept; counted per starved channel.
+    #[cold]
+    #[inline(never)]
+    fn recover(&mut self, x: &mut SVector<T, N>, starved_epochs: u32) {
+        self.monitor.record_recovery(starved_epochs);
+        let p0 = initial_covariance::<T, K, N>(&self.chains);
+        let (_, p) = self.buffers();
+        *p = p0;
+        let mount = core::array::from_fn::<T, 3, _>(|a| {
+            x.get(K * a).copied().unwrap_or_else(T::zero)
+                - x.get(K * a + 1).copied().unwrap_or_else(T::zero)
+        });
+        set_mount_only::<T, K, N>(x, &mount);
+    }
+
+    /// Conditions the scratch covariance and makes it current with `x` and the grid.
+    fn finish(&mut self, x: SVector<T, N>, plan: &Plan) {
+        let ceiling = self.ceiling;
+        let (_, p) = self.buffers();
+        if condition(p, &ceiling) {
+            Health::bump(&mut self.monitor.health.limits_hit);
+        }
+        self.x = x;
+        self.second = !self.second;
+        self.grid = Some(plan.grid);
+    }
+
+    /// Counts a bridged gap (more than one prediction) or a reset one.
+    fn count_gap(health: &mut Health, plan: &Plan) {
+        if plan.gap == GapOutcome::FlexureReinitialised {
+            Health::bump(&mut health.gaps_reset);
+        } else if plan.predictions > 1 {
+            Health::bump(&mut health.gaps_bridged);
+        }
+    }
+
+    /// Prediction only, to the grid point nearest `time`: how a firmware loop keeps the
+    /// filter running through a master-data dropout (call it at each slave epoch without
+    /// master data). Before the first epoch it starts the clock (nothing predicted). A gap
+    /// longer than `max_gap_steps` re-initialises the flexure as in [`Self::step`]. Errors:
+    /// `TimeNotIncreasing` (the estimate unchanged, counted in [`Health::imu_refused`]).
+    pub fn propagate(&mut self, time: Timestamp) -> Result<Propagation, NavError> {
+        let plan = match self.plan(time) {
+            Ok(plan) => plan,
+            Err(e) => {
+                Health::bump(&mut self.monitor.health.imu_refused);
+                return Err(e);
+            }
+        };
+        let mut x = self.x;
+        self.advance_to_scratch(&mut x, &plan);
+        Self::count_gap(&mut self.monitor.health, &plan);
+        let reset = plan.gap == GapOutcome::FlexureReinitialised;
+        self.monitor.end_prediction(reset, Self::diverged(&x));
+        self.finish(x, &plan);
+        self.last = Some(time);
+        Ok(Propagation {
+            predictions: plan.predictions,
+            gap: plan.gap,
+        })
+    }
+
+    /// Matches time-tagged (possibly delayed) master data with the slave sample of the same
+    /// epoch in `history` and runs [`Self::step`] on the pair. Errors: those of
+    /// [`SlaveHistory::find`] and of [`Self::step`]; on error the estimate is unchanged (the
+    /// refusal is counted in [`Health::imu_refused`]).
+    pub fn step_delayed<const H: usize>(
+        &mut self,
+        master: &MasterSample<T>,
+        history: &SlaveHistory<T, H>,
+    ) -> Result<StepReport<T>, NavError> {
+        match history.find(master.time, self.tol_us) {
+            Ok(slave) => self.step(master, &slave),
+            Err(e) => {
+                Health::bump(&mut self.monitor.health.imu_refused);
+                Err(e)
+            }
+        }
+    }
+}
