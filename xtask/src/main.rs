@@ -4,7 +4,8 @@
 //!   build) and write `DIR/<scenario>/{summary.json, *.csv, *.png}` (default DIR `target/sim`).
 //! * `thumb`: build nav-core for `thumbv7em-none-eabihf` and `thumbv7em-none-eabi`, with and
 //!   without the `defmt` feature, installing the rustup targets when missing (or falling back to
-//!   Debian's Rust with `-Zbuild-std=core`).
+//!   Debian's Rust with `-Zbuild-std=core`), and the firmware examples
+//!   (`tests/firmware/examples`).
 //! * `qemu`: record golden vectors on the host, replay them in the firmware on QEMU Cortex-M4F
 //!   and Cortex-M7, fail on any mismatch.
 //! * `bench`: instruction counts, stack and image sizes on QEMU → `target/bench/report.json`.
@@ -211,6 +212,16 @@ fn thumb() -> Result<(), String> {
             if let Err(e) = run(&label, &mut cmd) {
                 failures.push(e);
             }
+        }
+    }
+    // The firmware examples (`tests/firmware/examples`: one flight program per estimator) must
+    // build for the target (the firmware crate needs the rustup target, as `qemu` and `bench`).
+    if matches!(tc, ThumbToolchain::Rustup) {
+        let mut cmd = cargo();
+        cmd.current_dir(root().join("tests/firmware"))
+            .args(["build", "--release", "--examples"]);
+        if let Err(e) = run("thumb firmware examples", &mut cmd) {
+            failures.push(e);
         }
     }
     if failures.is_empty() {

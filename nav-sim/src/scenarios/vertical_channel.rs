@@ -28,7 +28,7 @@ use nav_core::vertical_channel::{
     AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
     InitialState, VelocitySample,
 };
-use nav_core::Real;
+use nav_core::{Estimator, Real};
 use serde::Deserialize;
 use serde_json::{json, Value};
 
@@ -319,44 +319,48 @@ fn in_dropout(cfg: &Config, aid: &str, t: f64) -> bool {
         .any(|d| d.aid == aid && t >= d.start_s && t < d.end_s)
 }
 
-/// Builds the nav-core loop configurations.
-pub fn loop_configs(cfg: &Config, tau_s: f64) -> (ClassicalConfig, AidedConfig) {
+/// Builds the nav-core loop configurations in the loops' float type (no gate; the aid
+/// model and recovery of the papers' configuration).
+pub fn loop_configs<T: Real>(cfg: &Config, tau_s: f64) -> (ClassicalConfig<T>, AidedConfig<T>) {
     let dt = 1.0 / cfg.imu_rate_hz;
     let baro_period = 1.0 / cfg.baro.rate_hz;
     let vel_period = 1.0 / cfg.velocity_aid.rate_hz;
     let baro_timeouts = AidTimeouts {
-        stale_after_s: 1.5 * baro_period,
-        lost_after_s: 0.5,
+        stale_after_s: T::lit(1.5 * baro_period),
+        lost_after_s: T::lit(0.5),
     };
     let vel_timeouts = AidTimeouts {
-        stale_after_s: 1.5 * vel_period,
-        lost_after_s: 1.0,
+        stale_after_s: T::lit(1.5 * vel_period),
+        lost_after_s: T::lit(1.0),
     };
-    let lat = cfg.latitude_deg.to_radians();
+    let lat = T::lit(cfg.latitude_deg.to_radians());
     (
         ClassicalConfig {
-            imu_dt_s: dt,
+            imu_dt_s: T::lit(dt),
             latitude_rad: lat,
-            tau_s,
-            baro_lag_s: cfg.classical.lag_compensation_s,
-            baro_period_s: baro_period,
+            tau_s: T::lit(tau_s),
+            baro_lag_s: T::lit(cfg.classical.lag_compensation_s),
+            baro_period_s: T::lit(baro_period),
             baro_timeouts,
+            ..ClassicalConfig::paper()
         },
         AidedConfig {
-            imu_dt_s: dt,
+            imu_dt_s: T::lit(dt),
             latitude_rad: lat,
-            accel_noise_m_s2_rt_hz: cfg
-                .aided
-                .accel_noise_design_m_s2_rt_hz
-                .unwrap_or(cfg.imu.noise_m_s2_rt_hz),
-            accel_bias_rw_m_s2_rt_s: cfg.aided.accel_bias_rw_m_s2_rt_s,
-            baro_noise_m: cfg.baro.noise_m,
-            baro_period_s: baro_period,
-            baro_lag_s: cfg.aided.lag_compensation_s,
-            velocity_noise_m_s: cfg.velocity_aid.noise_m_s,
-            velocity_period_s: vel_period,
+            accel_noise_m_s2_rt_hz: T::lit(
+                cfg.aided
+                    .accel_noise_design_m_s2_rt_hz
+                    .unwrap_or(cfg.imu.noise_m_s2_rt_hz),
+            ),
+            accel_bias_rw_m_s2_rt_s: T::lit(cfg.aided.accel_bias_rw_m_s2_rt_s),
+            baro_noise_m: T::lit(cfg.baro.noise_m),
+            baro_period_s: T::lit(baro_period),
+            baro_lag_s: T::lit(cfg.aided.lag_compensation_s),
+            velocity_noise_m_s: T::lit(cfg.velocity_aid.noise_m_s),
+            velocity_period_s: T::lit(vel_period),
             baro_timeouts,
             velocity_timeouts: vel_timeouts,
+            ..AidedConfig::paper()
         },
     )
 }
@@ -391,7 +395,7 @@ pub fn simulate<T: Real>(
     let out_every = ratio(cfg.output_interval_s, dt, "output_interval_s")?;
     let rmse_from = (cfg.rmse_after_s / dt).round() as usize;
     let lat = cfg.latitude_deg.to_radians();
-    let (ccfg, acfg) = loop_configs(cfg, tau_s);
+    let (ccfg, acfg) = loop_configs::<T>(cfg, tau_s);
     let (h0, v0, _) = profile.at(0.0);
     let init = InitialState {
         time: Timestamp::ZERO,
@@ -586,7 +590,7 @@ fn settle_json(s: Option<f64>) -> Value {
 }
 
 fn design_json(cfg: &Config, tau_s: f64) -> Result<Value> {
-    let (ccfg, acfg) = loop_configs(cfg, tau_s);
+    let (ccfg, acfg) = loop_configs::<f64>(cfg, tau_s);
     let init = InitialState {
         time: Timestamp::ZERO,
         altitude_m: 0.0,

@@ -44,8 +44,12 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
     let (cfg, p0) = nav_golden::seeker_config()?;
     let mut sk = SeekerIns::new(bb(cfg), bb(nav_golden::seeker_initial()), &bb(p0))?;
     let gate = bb(nav_golden::vc_gate());
-    cl.set_gate(Some(&gate))?;
-    ai.set_gate(Some(&gate))?;
+    cl.set_gate(gate)?;
+    ai.set_gate(gate)?;
+    cl.set_aid_model(bb(nav_golden::vc_classical_config().aid_model))?;
+    ai.set_aid_model(bb(nav_golden::vc_aided_config().aid_model))?;
+    cl.set_recovery(bb(nav_golden::vc_classical_config().recovery))?;
+    ai.set_recovery(bb(nav_golden::vc_aided_config().recovery))?;
     ta9.set_recovery(bb(ta9.recovery()))?;
     ta12.set_recovery(bb(ta12.recovery()))?;
     sk.set_recovery_policy(bb(sk.recovery_policy()))?;
