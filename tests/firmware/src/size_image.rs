@@ -14,6 +14,7 @@ use nav_core::seeker_ins::measurement::GimbalAngles;
 use nav_core::seeker_ins::mechanization::ImuIncrement;
 use nav_core::transfer_alignment::{MasterSample, SlaveHistory, SlaveSample};
 use nav_core::vertical_channel::{BaroSample, ImuSample, VelocitySample};
+use nav_core::Estimator;
 use nav_core::{HealthState, NavError};
 use nav_golden::DesignSource;
 
