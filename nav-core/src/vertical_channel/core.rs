@@ -243,13 +243,6 @@ impl<T: Real> LoopCore<T> {
         velocity: Option<&VelocitySample<T>>,
     ) -> Result<NewSamples<T>, NavError> {
         let long_gap = us > MAX_BRIDGED_GAP_US;
-        let channel = |ch: &AidChannel<T>| {
-            if long_gap {
-                AidChannel::after_long_gap()
-            } else {
-                *ch
-            }
-        };
         let baro = match baro {
             Some(s) => {
                 let rule = SampleRule {
@@ -257,7 +250,7 @@ impl<T: Real> LoopCore<T> {
                     range: ALTITUDE_RANGE_M,
                     lost_after_s: self.baro_timeouts.lost_after_s,
                 };
-                match channel(&self.baro).check(s.time, s.altitude_m, now, &rule) {
+                match self.baro.check(s.time, s.altitude_m, now, &rule, long_gap) {
                     Ok(v) => Some(v),
                     Err(e) => return Err(self.refused_aid(true, e)),
                 }
@@ -271,7 +264,10 @@ impl<T: Real> LoopCore<T> {
                     range: (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
                     lost_after_s: self.velocity_timeouts.lost_after_s,
                 };
-                match channel(&self.velocity).check(s.time, s.vz_up_m_s, now, &rule) {
+                match self
+                    .velocity
+                    .check(s.time, s.vz_up_m_s, now, &rule, long_gap)
+                {
                     Ok(v) => Some(v),
                     Err(e) => return Err(self.refused_aid(false, e)),
                 }

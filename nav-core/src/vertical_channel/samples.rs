@@ -191,14 +191,18 @@ impl<T: Real> AidChannel<T> {
     }
 
     /// Validates a new sample against the channel and the current IMU time `now` (self is
-    /// not modified). A sample older than the aid's `lost_after_s` at arrival would be `Lost`
-    /// at once: it is refused (`MeasurementTimeOutOfWindow`, as one from the future).
+    /// not modified); `emptied`: the channel is emptied before the sample enters (a gap too
+    /// long to bridge), so the previous sample's time does not count. A sample older than the
+    /// aid's `lost_after_s` at arrival would be `Lost` at once: it is refused
+    /// (`MeasurementTimeOutOfWindow`, as one from the future).
+    #[inline(always)]
     pub(crate) fn check(
         &self,
         time: Timestamp,
         value: T,
         now: Timestamp,
         rule: &SampleRule<T>,
+        emptied: bool,
     ) -> Result<ValidSample<T>, NavError> {
         if !value.is_finite() {
             return Err(NavError::NonFiniteInput {
@@ -214,7 +218,7 @@ impl<T: Real> AidChannel<T> {
             Some(age) if micros_to_seconds::<T>(age) <= rule.lost_after_s => {}
             _ => return Err(NavError::MeasurementTimeOutOfWindow),
         }
-        if self.received && time <= self.last_time {
+        if self.received && !emptied && time <= self.last_time {
             return Err(NavError::TimeNotIncreasing);
         }
         Ok(ValidSample { time, value })
