@@ -12,8 +12,8 @@ use nalgebra::Vector3;
 
 impl<T: Real> LoopCore<T> {
     /// An interval longer than 1.5 dt (rare path, on a copy): sub-steps, a coast first if
-    /// longer than [`MAX_SUBSTEPS`] intervals, or a re-anchoring beyond
-    /// [`MAX_BRIDGED_GAP_S`]. The new aid samples enter the last sub-step.
+    /// longer than [`super::MAX_SUBSTEPS`] intervals, or a re-anchoring beyond
+    /// [`super::MAX_BRIDGED_GAP_S`]. The new aid samples enter the last sub-step.
     #[cold]
     #[inline(never)]
     pub(crate) fn bridge(

@@ -75,7 +75,7 @@ pub(crate) struct StepReports<T> {
 /// converted to the float type as a duration. A step integrates the actual interval `Δt`
 /// since the last accepted sample: `Δt ≤ 1.5 dt` in one step (the stored exact step at the
 /// nominal `dt`, corrected for `Δt − dt` by [`off_nominal_increment`] when they differ),
-/// longer intervals in sub-steps ([`MAX_SUBSTEPS`]), beyond those by an exact inertial coast
+/// longer intervals in sub-steps ([`super::MAX_SUBSTEPS`]), beyond those by an exact inertial coast
 /// first, and gaps beyond [`MAX_BRIDGED_GAP_S`] by re-anchoring.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct LoopCore<T: Real> {
@@ -389,7 +389,7 @@ impl<T: Real> LoopCore<T> {
         ))
     }
 
-    /// Health after a committed step (see [`super::ClassicalLoop::health`]).
+    /// Health after a committed step (the rules are in the module documentation).
     #[inline(always)]
     fn health_state(&self, bridged: bool, use_baro: bool, use_vel: bool) -> HealthState {
         if self.baro.reanchor {
