@@ -12,24 +12,17 @@
 //! each design is documented at its implementation; matrices are written column by column
 //! (nalgebra's storage order).
 //!
-//! [`crate::transfer_alignment::TaDesign`]: `2 + 15 K²` values (its stamp first);
-//! [`crate::vertical_channel::ClassicalDesign`]: 68 values;
-//! [`crate::vertical_channel::AidedDesign`]: 108 values.
+//! [`crate::transfer_alignment::TaDesign`]: `2 + 15 K²` values;
+//! [`crate::vertical_channel::ClassicalDesign`]: 70 values;
+//! [`crate::vertical_channel::AidedDesign`]: 110 values (each with its
+//! [`crate::DesignStamp`] first).
 //!
 //! ```
 //! use nav_core::design::DesignValues;
-//! use nav_core::vertical_channel::{
-//!     AidTimeouts, ClassicalConfig, ClassicalDesign, ClassicalLoop, InitialState,
-//! };
+//! use nav_core::vertical_channel::{ClassicalConfig, ClassicalDesign, ClassicalLoop, InitialState};
+//! use nav_core::Estimator;
 //!
-//! let cfg = ClassicalConfig {
-//!     imu_dt_s: 0.01,
-//!     latitude_rad: 0.65,
-//!     tau_s: 20.0,
-//!     baro_lag_s: 0.2,
-//!     baro_period_s: 0.04,
-//!     baro_timeouts: AidTimeouts { stale_after_s: 0.06, lost_after_s: 0.5 },
-//! };
+//! let cfg = ClassicalConfig::<f32>::paper();
 //! let init = InitialState {
 //!     time: nav_core::time::Timestamp::ZERO,
 //!     altitude_m: 500.0_f32,
@@ -38,7 +31,7 @@
 //! };
 //!
 //! // On the ground (or at build time): design and store.
-//! let design = ClassicalDesign::<f32>::compute(&cfg)?;
+//! let design = ClassicalLoop::design(&cfg)?;
 //! let mut stored = [0.0_f64; ClassicalDesign::<f32>::COUNT];
 //! design.write_values(&mut stored)?;
 //!

@@ -43,7 +43,7 @@ fn vc_inputs(seed: u64) -> Result<Vec<f32>> {
     let cfg = vertical_channel::load_config("vc-response")?;
     let profile = Profile::new(&cfg.profile)?;
     let mut rng = run_rng(seed, 1);
-    let lat = nav_golden::vc_classical_config().latitude_rad;
+    let lat = nav_core::vertical_channel::PAPER_LATITUDE_RAD;
     let bias = 9.806_65e-3; // 1 mg, m/s²
     let dt = nav_golden::VC_DT_S;
     let mut v = Vec::new();

@@ -12,7 +12,7 @@ use nav_core::transfer_alignment::{
     TA_DESIGN_VERSION,
 };
 use nav_core::vertical_channel::{
-    AidTimeouts, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
+    Aid, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
     ClassicalLoop, ImuSample, InitialState, VelocitySample,
 };
 use nav_core::{Estimator, NavError, Real};
@@ -335,41 +335,13 @@ fn ta_from_design_refuses_corrupted_designs_f32_f64() {
 
 // ---------------------------------------------------------------- vertical channel
 
-fn timeouts() -> AidTimeouts {
-    AidTimeouts {
-        stale_after_s: 0.06,
-        lost_after_s: 0.5,
-    }
+/// The papers' configurations (the golden cases').
+fn classical_config<T: Real>() -> ClassicalConfig<T> {
+    ClassicalConfig::paper()
 }
 
-fn classical_config() -> ClassicalConfig {
-    ClassicalConfig {
-        imu_dt_s: 0.01,
-        latitude_rad: 0.645_771_823_2,
-        tau_s: 20.0,
-        baro_lag_s: 0.2,
-        baro_period_s: 0.04,
-        baro_timeouts: timeouts(),
-    }
-}
-
-fn aided_config() -> AidedConfig {
-    AidedConfig {
-        imu_dt_s: 0.01,
-        latitude_rad: 0.645_771_823_2,
-        accel_noise_m_s2_rt_hz: 1e-3,
-        accel_bias_rw_m_s2_rt_s: 1e-5,
-        baro_noise_m: 1.0,
-        baro_period_s: 0.04,
-        baro_lag_s: 0.2,
-        velocity_noise_m_s: 0.1,
-        velocity_period_s: 0.1,
-        baro_timeouts: timeouts(),
-        velocity_timeouts: AidTimeouts {
-            stale_after_s: 0.15,
-            lost_after_s: 1.0,
-        },
-    }
+fn aided_config<T: Real>() -> AidedConfig<T> {
+    AidedConfig::paper()
 }
 
 fn initial<T: Real>() -> InitialState<T> {
@@ -410,7 +382,7 @@ fn vc_samples<T: Real>(
 }
 
 fn classical_new_equals_from_design<T: Real>() {
-    let cfg = classical_config();
+    let cfg = classical_config::<T>();
     let design = ClassicalDesign::<T>::compute(&cfg).unwrap();
     let mut values = vec![0.0; ClassicalDesign::<T>::COUNT];
     design.write_values(&mut values).unwrap();
@@ -442,11 +414,12 @@ fn classical_new_equals_from_design<T: Real>() {
     }
     assert_eq!(a, b);
     assert_eq!(a, c);
-    assert!(a.baro_counters().accepted > 50, "{:?}", a.baro_counters());
+    let c = a.aid_counters(Aid::Baro);
+    assert!(c.fused > 50, "{c:?}");
 }
 
 fn aided_new_equals_from_design<T: Real>() {
-    let cfg = aided_config();
+    let cfg = aided_config::<T>();
     let design = AidedDesign::<T>::compute(&cfg).unwrap();
     let mut values = vec![0.0; AidedDesign::<T>::COUNT];
     design.write_values(&mut values).unwrap();
@@ -471,8 +444,8 @@ fn aided_new_equals_from_design<T: Real>() {
         let rc = c.step(&imu, baro.as_ref(), vel.as_ref()).unwrap();
         assert_eq!(format!("{ra:?}"), format!("{rb:?}"), "step {k}");
         assert_eq!(format!("{ra:?}"), format!("{rc:?}"), "step {k}");
-        used[0] += usize::from(ra.baro.innovation.is_some());
-        used[1] += usize::from(ra.velocity.innovation.is_some());
+        used[0] += usize::from(ra.baro.correction.is_some());
+        used[1] += usize::from(ra.velocity.correction.is_some());
         for (x, y) in [
             (a.altitude_m(), b.altitude_m()),
             (a.vz_up_m_s(), b.vz_up_m_s()),
@@ -497,22 +470,26 @@ fn vc_new_and_from_design_are_bit_identical_f32_f64() {
 }
 
 fn vc_values_and_refusals<T: Real>() {
-    assert_eq!(ClassicalDesign::<T>::COUNT, 68);
-    assert_eq!(AidedDesign::<T>::COUNT, 108);
+    assert_eq!(ClassicalDesign::<T>::COUNT, 70);
+    assert_eq!(AidedDesign::<T>::COUNT, 110);
+    let mismatch = invalid("design", ConfigIssue::DesignMismatch);
     let bad_len = invalid("design values", ConfigIssue::OutOfRange);
     let not_finite = invalid("design values", ConfigIssue::NotFinite);
 
-    // Classical: documented order (gains first, then gravity, then dt, dt/2, lag).
-    let cc = classical_config();
+    // Classical: documented order (stamp, gains, gravity, dt, dt/2, lag, modes).
+    let cc = classical_config::<T>();
     let cd = ClassicalDesign::<T>::compute(&cc).unwrap();
-    let mut v = vec![0.0; 68];
+    let mut v = vec![0.0; 70];
     cd.write_values(&mut v).unwrap();
-    assert_eq!(v[0], cd.gains().c1_per_s);
-    assert_eq!(v[3], cc.baro_lag_s);
-    assert_eq!(v[5], cd.gravity().g0_m_s2.to_f64());
-    assert_eq!(v[8], T::lit(cc.imu_dt_s).to_f64());
-    assert_eq!(v[11], cd.phi_with_baro()[(0, 0)].to_f64());
-    let mut again = vec![0.0; 68];
+    assert_eq!(v[0], f64::from(cd.stamp().version));
+    assert_eq!(v[1], f64::from(cd.stamp().fingerprint));
+    assert_eq!(cd.stamp(), nav_core::vertical_channel::classical_stamp(&cc));
+    assert_eq!(v[2], cd.gains().c1_per_s);
+    assert_eq!(v[5], cc.baro_lag_s.to_f64());
+    assert_eq!(v[7], cd.gravity().g0_m_s2.to_f64());
+    assert_eq!(v[10], cc.imu_dt_s.to_f64());
+    assert_eq!(v[13], cd.phi_with_baro()[(0, 0)].to_f64());
+    let mut again = vec![0.0; 70];
     ClassicalDesign::<T>::read_values(&v)
         .unwrap()
         .write_values(&mut again)
@@ -522,40 +499,40 @@ fn vc_values_and_refusals<T: Real>() {
         again.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
     );
     assert_eq!(
-        ClassicalDesign::<T>::read_values(&v[..67]).err(),
+        ClassicalDesign::<T>::read_values(&v[..69]).err(),
         Some(bad_len)
     );
     let mut w = v.clone();
-    w[40] = f64::NAN;
+    w[42] = f64::NAN;
     assert_eq!(
         ClassicalDesign::<T>::read_values(&w).err(),
         Some(not_finite)
     );
     assert_eq!(
-        cd.write_values(&mut [0.0; 69]).err(),
+        cd.write_values(&mut [0.0; 71]).err(),
         Some(NavError::CapacityExceeded)
     );
-    // A design for another IMU interval or baro lag is refused.
+    // A design for another IMU interval or baro lag is refused (its stamp).
     let mut other = cc;
-    other.imu_dt_s = 0.02;
+    other.imu_dt_s = T::lit(0.02);
     assert_eq!(
         ClassicalLoop::<T>::from_design(&other, &cd, &initial()).err(),
-        Some(invalid("design.imu_dt_s", ConfigIssue::OutOfRange))
+        Some(mismatch)
     );
     let mut other = cc;
-    other.baro_lag_s = 0.1;
+    other.baro_lag_s = T::lit(0.1);
     assert_eq!(
         ClassicalLoop::<T>::from_design(&other, &cd, &initial()).err(),
-        Some(invalid("design.baro_lag_s", ConfigIssue::OutOfRange))
+        Some(mismatch)
     );
     // A stored design with a wrong step value (read from values) is refused too.
     let mut w = v.clone();
-    w[8] *= 2.0;
+    w[10] *= 2.0;
     let wrong = ClassicalDesign::<T>::read_values(&w).unwrap();
     assert!(ClassicalLoop::<T>::from_design(&cc, &wrong, &initial()).is_err());
     // Configuration and initial state still validated, with the errors of `new`.
     let mut bad = cc;
-    bad.baro_timeouts.lost_after_s = 0.01;
+    bad.baro_timeouts.lost_after_s = T::lit(0.01);
     assert_eq!(
         ClassicalLoop::<T>::from_design(&bad, &cd, &initial()).err(),
         ClassicalLoop::<T>::new(&bad, &initial()).err()
@@ -570,16 +547,20 @@ fn vc_values_and_refusals<T: Real>() {
     assert!(ClassicalLoop::<T>::new(&cc, &init).is_err());
 
     // Aided.
-    let ac = aided_config();
+    let ac = aided_config::<T>();
     let ad = AidedDesign::<T>::compute(&ac).unwrap();
-    let mut v = vec![0.0; 108];
+    let mut v = vec![0.0; 110];
     ad.write_values(&mut v).unwrap();
-    assert_eq!(v[0], ad.gains().k[(0, 0)]);
-    assert_eq!(v[41], f64::from(ad.gains().riccati_iterations));
-    assert_eq!(v[43], ad.gravity().g0_m_s2.to_f64());
-    assert_eq!(v[49], ad.innovation_variances().0.to_f64());
-    assert_eq!(v[51], ad.phi_with_baro()[(0, 0)].to_f64());
-    let mut again = vec![0.0; 108];
+    assert_eq!(
+        v[1],
+        f64::from(nav_core::vertical_channel::aided_stamp(&ac).fingerprint)
+    );
+    assert_eq!(v[2], ad.gains().k[(0, 0)]);
+    assert_eq!(v[43], f64::from(ad.gains().riccati_iterations));
+    assert_eq!(v[45], ad.gravity().g0_m_s2.to_f64());
+    assert_eq!(v[51], ad.innovation_variances().0.to_f64());
+    assert_eq!(v[53], ad.phi_with_baro()[(0, 0)].to_f64());
+    let mut again = vec![0.0; 110];
     AidedDesign::<T>::read_values(&v)
         .unwrap()
         .write_values(&mut again)
@@ -592,12 +573,12 @@ fn vc_values_and_refusals<T: Real>() {
     longer.push(1.0);
     assert_eq!(AidedDesign::<T>::read_values(&longer).err(), Some(bad_len));
     let mut w = v.clone();
-    w[100] = f64::INFINITY;
+    w[102] = f64::INFINITY;
     assert_eq!(AidedDesign::<T>::read_values(&w).err(), Some(not_finite));
     // The iteration count must be a non-negative integer.
     for it in [2.5, -1.0, 1e10] {
         let mut w = v.clone();
-        w[41] = it;
+        w[43] = it;
         assert_eq!(
             AidedDesign::<T>::read_values(&w).err(),
             Some(bad_len),
@@ -606,7 +587,7 @@ fn vc_values_and_refusals<T: Real>() {
     }
     // Non-positive design innovation variance.
     let mut w = v.clone();
-    w[50] = 0.0;
+    w[52] = 0.0;
     let zero_var = AidedDesign::<T>::read_values(&w).unwrap();
     assert_eq!(
         AidedLoop::<T>::from_design(&ac, &zero_var, &initial()).err(),
@@ -616,13 +597,23 @@ fn vc_values_and_refusals<T: Real>() {
         ))
     );
     let mut other = ac;
-    other.imu_dt_s = 0.005;
+    other.imu_dt_s = T::lit(0.005);
     assert_eq!(
         AidedLoop::<T>::from_design(&other, &ad, &initial()).err(),
-        Some(invalid("design.imu_dt_s", ConfigIssue::OutOfRange))
+        Some(mismatch)
     );
+    // A stamp that is not an exact integer, or of another layout version, is refused.
+    let mut w = v.clone();
+    w[0] = 1.0;
+    let old = AidedDesign::<T>::read_values(&w).unwrap();
+    assert_eq!(
+        AidedLoop::<T>::from_design(&ac, &old, &initial()).err(),
+        Some(mismatch)
+    );
+    w[1] += 0.5;
+    assert_eq!(AidedDesign::<T>::read_values(&w).err(), Some(bad_len));
     let mut bad = ac;
-    bad.velocity_timeouts.stale_after_s = -1.0;
+    bad.velocity_timeouts.stale_after_s = T::lit(-1.0);
     assert_eq!(
         AidedLoop::<T>::from_design(&bad, &ad, &initial()).err(),
         AidedLoop::<T>::new(&bad, &initial()).err()
@@ -630,7 +621,7 @@ fn vc_values_and_refusals<T: Real>() {
     assert!(AidedLoop::<T>::new(&bad, &initial()).is_err());
     // compute refuses what new refuses, with the same error.
     let mut bad = ac;
-    bad.baro_noise_m = 0.0;
+    bad.baro_noise_m = T::zero();
     assert_eq!(
         AidedDesign::<T>::compute(&bad).err(),
         AidedLoop::<T>::new(&bad, &initial()).err()

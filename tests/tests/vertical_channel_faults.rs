@@ -4,11 +4,12 @@
 
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
-    AidStatus, AidedLoop, BaroSample, ClassicalLoop, FusionOutcome, ImuSample, InitialState,
-    InnovationGate, VelocitySample,
+    Aid, AidModel, AidStatus, AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState,
+    Reacquisition, VelocitySample,
 };
-use nav_core::HealthState;
-use nav_core::Real;
+use nav_core::{
+    Estimator, FusionOutcome, Gate, HealthState, NavError, Real, RecoveryAction, RecoveryPolicy,
+};
 use nav_sim::rng::{normal, run_rng};
 use nav_sim::scenarios::vertical_channel::{load_config, loop_configs};
 use nav_sim::scenarios::vertical_channel_faults::{
@@ -16,6 +17,44 @@ use nav_sim::scenarios::vertical_channel_faults::{
 };
 
 const RUNS: usize = 6;
+
+/// A gate of these tests: χ² `threshold` on the aid model, re-anchoring after 60 s of
+/// rejections.
+struct Gating<T> {
+    aid_model: AidModel<T>,
+    gate: Gate<T>,
+    recovery: RecoveryPolicy<T>,
+}
+
+impl<T: Real> Gating<T> {
+    /// σ₀ of the baro (m) and velocity (m/s), re-inflation σ_v0 = 0.5 m/s and `sigma_a0`.
+    fn new(threshold: f64, baro_sigma_m: f64, velocity_sigma_m_s: f64, sigma_a0: f64) -> Self {
+        Self {
+            aid_model: AidModel {
+                baro_sigma_m: T::lit(baro_sigma_m),
+                velocity_sigma_m_s: T::lit(velocity_sigma_m_s),
+                starved_velocity_sigma_m_s: T::lit(0.5),
+                starved_accel_sigma_m_s2: T::lit(sigma_a0),
+                recovery_hold_s: T::lit(60.0),
+            },
+            gate: Gate::Nis(T::lit(threshold)),
+            recovery: RecoveryPolicy {
+                starved_after_s: Some(T::lit(60.0)),
+                action: RecoveryAction::Reanchor,
+            },
+        }
+    }
+    fn classical(&self, lp: &mut ClassicalLoop<T>) -> Result<(), NavError> {
+        lp.set_aid_model(self.aid_model)?;
+        lp.set_recovery(self.recovery)?;
+        lp.set_gate(self.gate)
+    }
+    fn aided(&self, lp: &mut AidedLoop<T>) -> Result<(), NavError> {
+        lp.set_aid_model(self.aid_model)?;
+        lp.set_recovery(self.recovery)?;
+        lp.set_gate(self.gate)
+    }
+}
 
 fn ts(seconds: f64) -> Timestamp {
     Timestamp::from_secs_f64(seconds).unwrap()
@@ -88,7 +127,7 @@ fn fault_baro_gate_rejects_spike_and_frozen_and_loops_recover() {
 fn reacquisition_after_starvation_resets_large_errors_only() {
     for (bias_m_s2, expect_reset) in [(0.0, false), (0.3, true)] {
         let cfg = load_config("vc-response").unwrap();
-        let (ccfg, _) = loop_configs(&cfg, 20.0);
+        let (ccfg, _) = loop_configs::<f32>(&cfg, 20.0);
         let init = InitialState::<f32> {
             time: Timestamp::ZERO,
             altitude_m: 500.0,
@@ -96,16 +135,7 @@ fn reacquisition_after_starvation_resets_large_errors_only() {
             accel_bias_m_s2: 0.0,
         };
         let mut lp = ClassicalLoop::new(&ccfg, &init).unwrap();
-        lp.set_gate(Some(&InnovationGate {
-            nis_threshold: 16.0,
-            baro_sigma_m: 2.0,
-            velocity_sigma_m_s: 0.3,
-            starved_velocity_sigma_m_s: 0.5,
-            starved_accel_sigma_m_s2: 0.5,
-            recovery_hold_s: 60.0,
-            starved_reset_after_s: 60.0,
-        }))
-        .unwrap();
+        Gating::new(16.0, 2.0, 0.3, 0.5).classical(&mut lp).unwrap();
         let g = nav_core::earth::normal_gravity_m_s2(cfg.latitude_deg.to_radians(), 500.0);
         let mut max_dv: f32 = 0.0;
         let mut after = Vec::new();
@@ -131,12 +161,13 @@ fn reacquisition_after_starvation_resets_large_errors_only() {
                 max_dv = max_dv.max((lp.vz_up_m_s() - v0).abs());
                 after.push(lp.altitude_m());
             }
-            if let Some(c) = r.baro.new_sample {
-                if c.reacquired {
+            if let Some(c) = r.baro.sample {
+                let reset = r.baro.reacquisition == Reacquisition::Reset;
+                if r.baro.reacquisition != Reacquisition::Tracking {
                     assert_eq!(c.outcome, FusionOutcome::Fused);
-                    assert_eq!(c.reset, expect_reset, "bias {bias_m_s2}");
+                    assert_eq!(reset, expect_reset, "bias {bias_m_s2}");
                 }
-                if c.reset {
+                if reset {
                     println!("t = {t:.2}: reset by {:.1} m", c.innovation);
                 }
             }
@@ -144,7 +175,7 @@ fn reacquisition_after_starvation_resets_large_errors_only() {
                 assert!(matches!(r.baro.status, AidStatus::Lost { .. }));
             }
         }
-        let c = lp.baro_counters();
+        let c = lp.reacquisition_counters(Aid::Baro);
         if expect_reset {
             // The reset removes the altitude error but not the ≈ 18 m/s velocity error, so the
             // next samples fail the tracking gate again: a few reject / Lost / re-acquire /
@@ -156,7 +187,7 @@ fn reacquisition_after_starvation_resets_large_errors_only() {
         } else {
             assert_eq!((c.reacquisitions, c.resets), (1, 0), "{c:?}");
         }
-        assert_eq!(c.consecutive_rejected, 0, "{c:?}");
+        assert_eq!(lp.aid_counters(Aid::Baro).consecutive_rejected, 0, "{c:?}");
         // No destabilising jump: the velocity never moves by more than 0.05 m/s per step
         // (with the 0.3 m/s² bias the coast error is ≈ 540 m; without the reset the τ = 20 s
         // loop would turn it into a velocity transient of tens of m/s).
@@ -202,19 +233,11 @@ fn soak_vertical_channel_f32() {
         vz_up_m_s: v0 as f32,
         accel_bias_m_s2: 0.0,
     };
-    let gate = InnovationGate {
-        nis_threshold: 16.0,
-        baro_sigma_m: 3.0,
-        velocity_sigma_m_s: 0.3,
-        starved_velocity_sigma_m_s: 0.5,
-        starved_accel_sigma_m_s2: 0.05,
-        recovery_hold_s: 60.0,
-        starved_reset_after_s: 60.0,
-    };
+    let gate = Gating::new(16.0, 3.0, 0.3, 0.05);
     let mut c = ClassicalLoop::<f32>::new(&ccfg, &init).unwrap();
     let mut a = AidedLoop::<f32>::new(&acfg, &init).unwrap();
-    c.set_gate(Some(&gate)).unwrap();
-    a.set_gate(Some(&gate)).unwrap();
+    gate.classical(&mut c).unwrap();
+    gate.aided(&mut a).unwrap();
     let dt = 0.01;
     let bias = 0.5 * 9.81e-3;
     let mut v_prev = v0;
@@ -272,8 +295,8 @@ fn soak_vertical_channel_f32() {
     }
     // Every spike rejected, nothing lost for good.
     let spikes = (n as f64 * dt / 100.0).floor() as u32;
-    assert!(c.baro_counters().rejected >= 4 * spikes.saturating_sub(1));
-    assert!(a.baro_counters().rejected >= 4 * spikes.saturating_sub(1));
+    assert!(c.aid_counters(Aid::Baro).rejected >= 4 * spikes.saturating_sub(1));
+    assert!(a.aid_counters(Aid::Baro).rejected >= 4 * spikes.saturating_sub(1));
     println!(
         "soak {n} steps: worst |δh| classical {:.2} m, aided {:.2} m",
         worst[0], worst[1]
@@ -286,16 +309,8 @@ fn soak_vertical_channel_f32() {
 #[test]
 fn gate_variance_and_verdict_follow_the_formula() {
     let cfg = load_config("vc-response").unwrap();
-    let (_, acfg) = loop_configs(&cfg, 20.0);
-    let gate = InnovationGate {
-        nis_threshold: 9.0,
-        baro_sigma_m: 2.0,
-        velocity_sigma_m_s: 0.3,
-        starved_velocity_sigma_m_s: 0.5,
-        starved_accel_sigma_m_s2: 0.1,
-        recovery_hold_s: 60.0,
-        starved_reset_after_s: 60.0,
-    };
+    let (_, acfg) = loop_configs::<f64>(&cfg, 20.0);
+    let gate = Gating::new(9.0, 2.0, 0.3, 0.1);
     let init = InitialState::<f64> {
         time: Timestamp::ZERO,
         altitude_m: 500.0,
@@ -303,7 +318,7 @@ fn gate_variance_and_verdict_follow_the_formula() {
         accel_bias_m_s2: 0.0,
     };
     let mut lp = AidedLoop::new(&acfg, &init).unwrap();
-    lp.set_gate(Some(&gate)).unwrap();
+    gate.aided(&mut lp).unwrap();
     let g = nav_core::earth::normal_gravity_m_s2(cfg.latitude_deg.to_radians(), 500.0);
     let mut rng = run_rng(5, 0);
     let (mut last_b, mut last_v) = (None::<f64>, None::<f64>);
@@ -331,10 +346,11 @@ fn gate_variance_and_verdict_follow_the_formula() {
             (r.baro, &mut last_b, 2.0, true),
             (r.velocity, &mut last_v, 0.3, false),
         ] {
-            let Some(c) = rep.new_sample else { continue };
+            let Some(c) = rep.sample else { continue };
             let Some(prev) = *last else {
-                // First sample: acquisition, ungated.
-                assert!(c.gate_variance.is_none() && c.nis().is_none());
+                // First sample: acquisition, ungated (test ratio 0), S = σ₀².
+                assert_eq!(c.test_ratio, 0.0);
+                assert!((c.innovation_variance - sig0 * sig0).abs() < 1e-12);
                 *last = Some(t);
                 continue;
             };
@@ -345,18 +361,23 @@ fn gate_variance_and_verdict_follow_the_formula() {
                 0.1 * gap
             };
             let s = sig0 * sig0 + d * d;
-            let gv = c.gate_variance.unwrap();
+            let gv = c.innovation_variance;
             assert!(
                 (gv - s).abs() <= 1e-9 * s || gv > s,
                 "{is_baro} t {t}: S {gv} vs {s}"
             );
-            let pass = c.nis().unwrap() <= 9.0;
+            assert!((c.nis - c.innovation * c.innovation / gv).abs() <= 1e-12 * c.nis.max(1.0));
+            assert!((c.test_ratio - c.nis / 9.0).abs() <= 1e-12 * c.nis.max(1.0));
+            let pass = c.nis <= 9.0;
             assert_eq!(c.outcome == FusionOutcome::Fused, pass, "t {t}: {c:?}");
             if pass {
                 *last = Some(t);
                 n_pass += 1;
                 // The accepted sample is the one the loop now corrects with.
-                assert!((rep.innovation.unwrap() - c.innovation).abs() < 1e-9 || c.reset);
+                assert!(
+                    (rep.correction.unwrap() - c.innovation).abs() < 1e-9
+                        || rep.reacquisition != Reacquisition::Tracking
+                );
             } else {
                 n_rej += 1;
             }
@@ -372,7 +393,7 @@ fn gate_variance_and_verdict_follow_the_formula() {
 #[test]
 fn imu_gaps_are_bridged_or_reanchored_and_reinitialise_restarts() {
     let cfg = load_config("vc-response").unwrap();
-    let (ccfg, acfg) = loop_configs(&cfg, 20.0);
+    let (ccfg, acfg) = loop_configs::<f64>(&cfg, 20.0);
     let g = nav_core::earth::normal_gravity_m_s2(cfg.latitude_deg.to_radians(), 500.0);
     let init = InitialState::<f64> {
         time: Timestamp::ZERO,
@@ -396,15 +417,15 @@ fn imu_gaps_are_bridged_or_reanchored_and_reinitialise_restarts() {
         assert_eq!(c.step(&imu, Some(&baro)).unwrap().imu_intervals, sub);
         assert_eq!(a.step(&imu, Some(&baro), None).unwrap().imu_intervals, sub);
         assert!((c.altitude_m() - 500.0).abs() < 0.5 && (a.altitude_m() - 500.0).abs() < 0.5);
-        assert_eq!(c.time(), ts(t));
+        assert_eq!(c.time(), Some(ts(t)));
         let want = if n == 1 {
             HealthState::Nominal
         } else {
             HealthState::Degraded
         };
-        assert_eq!(c.health(), want, "{n}");
+        assert_eq!(c.health().state, want, "{n}");
     }
-    assert_eq!(c.status().gaps_bridged, 5);
+    assert_eq!(c.health().gaps_bridged, 5);
     // 20 s: not integrated, state kept, the baro sample with it re-anchors at once.
     let h_before = c.altitude_m();
     t += 20.0;
@@ -414,9 +435,9 @@ fn imu_gaps_are_bridged_or_reanchored_and_reinitialise_restarts() {
     };
     c.step(&imu, None).unwrap();
     a.step(&imu, None, None).unwrap();
-    assert_eq!(c.health(), HealthState::NeedsReinitialisation);
-    assert_eq!(a.health(), HealthState::NeedsReinitialisation);
-    assert_eq!(c.status().gaps_skipped, 1);
+    assert_eq!(c.health().state, HealthState::NeedsReinitialisation);
+    assert_eq!(a.health().state, HealthState::NeedsReinitialisation);
+    assert_eq!(c.health().gaps_reset, 1);
     assert!((c.altitude_m() - h_before).abs() < 1e-3);
     t += 0.01;
     let imu = ImuSample {
@@ -428,11 +449,10 @@ fn imu_gaps_are_bridged_or_reanchored_and_reinitialise_restarts() {
         altitude_m: 530.0,
     };
     let r = c.step(&imu, Some(&baro)).unwrap();
-    let chk = r.baro.new_sample.unwrap();
-    assert!(chk.reacquired && chk.reset, "{chk:?}");
+    assert_eq!(r.baro.reacquisition, Reacquisition::Reanchored, "{r:?}");
     assert!((c.altitude_m() - 530.0).abs() < 0.1, "{}", c.altitude_m());
-    assert_ne!(c.health(), HealthState::NeedsReinitialisation);
-    assert_eq!(c.baro_counters().forced_reanchors, 1);
+    assert_ne!(c.health().state, HealthState::NeedsReinitialisation);
+    assert_eq!(c.aid_counters(Aid::Baro).recoveries, 1);
     // reinitialise: refused input changes nothing; a valid one restarts (Initialising).
     let (bc, ba) = (format!("{c:?}"), format!("{a:?}"));
     let bad = InitialState {
@@ -447,7 +467,8 @@ fn imu_gaps_are_bridged_or_reanchored_and_reinitialise_restarts() {
     };
     c.reinitialise(&again).unwrap();
     a.reinitialise(&again).unwrap();
-    assert_eq!(c.health(), HealthState::Initialising);
+    assert_eq!(c.health().state, HealthState::Initialising);
+    assert_eq!(c.health().reinitialisations, 1);
     let imu = ImuSample {
         time: ts(t + 0.01),
         specific_force_up_m_s2: g,
@@ -461,7 +482,7 @@ fn imu_gaps_are_bridged_or_reanchored_and_reinitialise_restarts() {
 #[test]
 fn velocity_aid_reacquisition_resets_the_velocity() {
     let cfg = load_config("vc-response").unwrap();
-    let (_, acfg) = loop_configs(&cfg, 20.0);
+    let (_, acfg) = loop_configs::<f32>(&cfg, 20.0);
     let init = InitialState::<f32> {
         time: Timestamp::ZERO,
         altitude_m: 500.0,
@@ -469,16 +490,7 @@ fn velocity_aid_reacquisition_resets_the_velocity() {
         accel_bias_m_s2: 0.0,
     };
     let mut lp = AidedLoop::new(&acfg, &init).unwrap();
-    lp.set_gate(Some(&InnovationGate {
-        nis_threshold: 16.0,
-        baro_sigma_m: 2.0,
-        velocity_sigma_m_s: 0.3,
-        starved_velocity_sigma_m_s: 0.5,
-        starved_accel_sigma_m_s2: 0.5,
-        recovery_hold_s: 60.0,
-        starved_reset_after_s: 60.0,
-    }))
-    .unwrap();
+    Gating::new(16.0, 2.0, 0.3, 0.5).aided(&mut lp).unwrap();
     let g = nav_core::earth::normal_gravity_m_s2(cfg.latitude_deg.to_radians(), 500.0);
     let mut v_before_reacq = None;
     for k in 1..=12_000u32 {
@@ -495,8 +507,9 @@ fn velocity_aid_reacquisition_resets_the_velocity() {
         });
         let v0 = lp.vz_up_m_s();
         let r = lp.step(&imu, None, vel.as_ref()).unwrap();
-        if let Some(c) = r.velocity.new_sample.filter(|c| c.reacquired) {
-            assert!(c.reset, "{c:?}");
+        let reacquired = r.velocity.reacquisition != Reacquisition::Tracking;
+        if let Some(c) = r.velocity.sample.filter(|_| reacquired) {
+            assert_eq!(r.velocity.reacquisition, Reacquisition::Reset, "{c:?}");
             assert!(
                 (c.innovation + v0).abs() < 0.5,
                 "ν {} vs −V̂ {}",
@@ -508,7 +521,7 @@ fn velocity_aid_reacquisition_resets_the_velocity() {
     }
     let v0 = v_before_reacq.expect("a re-acquisition");
     assert!(v0 > 5.0, "coast velocity error {v0}");
-    let c = lp.velocity_counters();
+    let c = lp.reacquisition_counters(Aid::Velocity);
     assert_eq!((c.reacquisitions, c.resets), (1, 1), "{c:?}");
     assert!(lp.vz_up_m_s().abs() < 0.2, "V̂ {}", lp.vz_up_m_s());
 }

@@ -6,10 +6,10 @@
 use nav_core::earth::normal_gravity_m_s2;
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
-    AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
-    InitialState, InnovationGate, VelocitySample,
+    Aid, AidModel, AidReport, AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig,
+    ClassicalLoop, ImuSample, InitialState, VelocitySample,
 };
-use nav_core::{NavError, Real};
+use nav_core::{Estimator, Gate, NavError, Real, RecoveryAction, RecoveryPolicy};
 
 fn ts(seconds: f64) -> Timestamp {
     Timestamp::from_secs_f64(seconds).unwrap()
@@ -18,6 +18,20 @@ use nav_sim::rng::{normal, run_rng, SimRng};
 use proptest::prelude::*;
 
 // ------------------------------------------------------------------ a common driver
+
+/// Every number of a step report is finite; variances positive, NIS and test ratio ≥ 0.
+fn check_report<T: Real>(r: &AidReport<T>) {
+    assert!(r.correction.is_none_or(|v| v.is_finite()));
+    if let Some(c) = r.sample {
+        assert!(c.innovation.is_finite());
+        assert!(c.innovation_variance > T::zero() && c.innovation_variance.is_finite());
+        assert!(c.nis.is_finite() && c.nis >= T::zero(), "{c:?}");
+        assert!(
+            c.test_ratio.is_finite() && c.test_ratio >= T::zero(),
+            "{c:?}"
+        );
+    }
+}
 
 /// Both loops behind one interface (the aided loop ignores nothing, the classical loop ignores
 /// the velocity aid).
@@ -29,7 +43,8 @@ trait Loop<T: Real>: core::fmt::Debug {
         vel: Option<&VelocitySample<T>>,
     ) -> Result<(), NavError>;
     fn state(&self) -> [f64; 3];
-    fn gate(&mut self, g: Option<&InnovationGate>) -> Result<(), NavError>;
+    /// Refused inputs so far: IMU, baro, velocity.
+    fn refusals(&self) -> [u32; 3];
 }
 
 impl<T: Real> Loop<T> for ClassicalLoop<T> {
@@ -40,17 +55,7 @@ impl<T: Real> Loop<T> for ClassicalLoop<T> {
         _vel: Option<&VelocitySample<T>>,
     ) -> Result<(), NavError> {
         let r = self.step(imu, baro)?;
-        if let Some(nu) = r.baro.innovation {
-            assert!(nu.is_finite());
-        }
-        if let Some(c) = r.baro.new_sample {
-            assert!(c.innovation.is_finite());
-            assert!(
-                c.gate_variance
-                    .is_none_or(|g| g > T::zero() && g.is_finite())
-                    && c.nis().is_none_or(|n| n.is_finite() && n >= T::zero())
-            );
-        }
+        check_report(&r.baro);
         Ok(())
     }
     fn state(&self) -> [f64; 3] {
@@ -60,8 +65,12 @@ impl<T: Real> Loop<T> for ClassicalLoop<T> {
             self.accel_bias_m_s2().to_f64(),
         ]
     }
-    fn gate(&mut self, g: Option<&InnovationGate>) -> Result<(), NavError> {
-        self.set_gate(g)
+    fn refusals(&self) -> [u32; 3] {
+        [
+            self.health().imu_refused,
+            self.aid_counters(Aid::Baro).refused,
+            self.aid_counters(Aid::Velocity).refused,
+        ]
     }
 }
 
@@ -73,20 +82,8 @@ impl<T: Real> Loop<T> for AidedLoop<T> {
         vel: Option<&VelocitySample<T>>,
     ) -> Result<(), NavError> {
         let r = self.step(imu, baro, vel)?;
-        for a in [r.baro, r.velocity] {
-            assert!(a.innovation.is_none_or(|v| v.is_finite()));
-            assert!(a
-                .innovation_variance
-                .is_none_or(|v| v.is_finite() && v > T::zero()));
-            if let Some(c) = a.new_sample {
-                assert!(c.innovation.is_finite());
-                assert!(
-                    c.gate_variance
-                        .is_none_or(|g| g > T::zero() && g.is_finite())
-                        && c.nis().is_none_or(|n| n.is_finite() && n >= T::zero())
-                );
-            }
-        }
+        check_report(&r.baro);
+        check_report(&r.velocity);
         Ok(())
     }
     fn state(&self) -> [f64; 3] {
@@ -96,8 +93,12 @@ impl<T: Real> Loop<T> for AidedLoop<T> {
             self.accel_bias_m_s2().to_f64(),
         ]
     }
-    fn gate(&mut self, g: Option<&InnovationGate>) -> Result<(), NavError> {
-        self.set_gate(g)
+    fn refusals(&self) -> [u32; 3] {
+        [
+            self.health().imu_refused,
+            self.aid_counters(Aid::Baro).refused,
+            self.aid_counters(Aid::Velocity).refused,
+        ]
     }
 }
 
@@ -206,48 +207,66 @@ fn setup_strategy() -> impl Strategy<Value = Setup> {
 }
 
 impl Setup {
-    fn timeouts(&self, every: usize) -> AidTimeouts {
+    fn timeouts<T: Real>(&self, every: usize) -> AidTimeouts<T> {
         let period = every as f64 * self.dt_s;
         AidTimeouts {
-            stale_after_s: 1.5 * period,
-            lost_after_s: 2.5 * period,
+            stale_after_s: T::lit(1.5 * period),
+            lost_after_s: T::lit(2.5 * period),
         }
     }
-    fn classical(&self) -> ClassicalConfig {
+    /// The aid model of the setup (σ₀ from the aids' noise).
+    fn aid_model<T: Real>(&self) -> AidModel<T> {
+        AidModel {
+            baro_sigma_m: T::lit(3.0 * self.baro_noise_m + 5.0),
+            velocity_sigma_m_s: T::lit(3.0 * self.vel_noise_m_s + 0.5),
+            starved_velocity_sigma_m_s: T::lit(1.0),
+            starved_accel_sigma_m_s2: T::lit(0.5),
+            recovery_hold_s: T::lit(60.0),
+        }
+    }
+    fn gate<T: Real>(&self) -> Gate<T> {
+        if self.gate {
+            Gate::Nis(T::lit(16.0))
+        } else {
+            Gate::Off
+        }
+    }
+    fn recovery<T: Real>(&self) -> RecoveryPolicy<T> {
+        RecoveryPolicy {
+            starved_after_s: Some(T::lit(60.0)),
+            action: RecoveryAction::Reanchor,
+        }
+    }
+    fn classical<T: Real>(&self) -> ClassicalConfig<T> {
         ClassicalConfig {
-            imu_dt_s: self.dt_s,
-            latitude_rad: self.lat_rad,
-            tau_s: self.tau_s,
-            baro_lag_s: self.lag_s,
-            baro_period_s: self.baro_every as f64 * self.dt_s,
+            imu_dt_s: T::lit(self.dt_s),
+            latitude_rad: T::lit(self.lat_rad),
+            tau_s: T::lit(self.tau_s),
+            baro_lag_s: T::lit(self.lag_s),
+            baro_period_s: T::lit(self.baro_every as f64 * self.dt_s),
             baro_timeouts: self.timeouts(self.baro_every),
+            aid_model: self.aid_model(),
+            gate: self.gate(),
+            recovery: self.recovery(),
         }
     }
-    fn aided(&self) -> AidedConfig {
+    fn aided<T: Real>(&self) -> AidedConfig<T> {
         AidedConfig {
-            imu_dt_s: self.dt_s,
-            latitude_rad: self.lat_rad,
-            accel_noise_m_s2_rt_hz: self.accel_noise,
-            accel_bias_rw_m_s2_rt_s: self.bias_rw,
-            baro_noise_m: self.baro_noise_m,
-            baro_period_s: self.baro_every as f64 * self.dt_s,
-            baro_lag_s: self.lag_s,
-            velocity_noise_m_s: self.vel_noise_m_s,
-            velocity_period_s: self.vel_every as f64 * self.dt_s,
+            imu_dt_s: T::lit(self.dt_s),
+            latitude_rad: T::lit(self.lat_rad),
+            accel_noise_m_s2_rt_hz: T::lit(self.accel_noise),
+            accel_bias_rw_m_s2_rt_s: T::lit(self.bias_rw),
+            baro_noise_m: T::lit(self.baro_noise_m),
+            baro_period_s: T::lit(self.baro_every as f64 * self.dt_s),
+            baro_lag_s: T::lit(self.lag_s),
+            velocity_noise_m_s: T::lit(self.vel_noise_m_s),
+            velocity_period_s: T::lit(self.vel_every as f64 * self.dt_s),
             baro_timeouts: self.timeouts(self.baro_every),
             velocity_timeouts: self.timeouts(self.vel_every),
+            aid_model: self.aid_model(),
+            gate: self.gate(),
+            recovery: self.recovery(),
         }
-    }
-    fn gate_config(&self) -> Option<InnovationGate> {
-        self.gate.then_some(InnovationGate {
-            nis_threshold: 16.0,
-            baro_sigma_m: 3.0 * self.baro_noise_m + 5.0,
-            velocity_sigma_m_s: 3.0 * self.vel_noise_m_s + 0.5,
-            starved_velocity_sigma_m_s: 1.0,
-            starved_accel_sigma_m_s2: 0.5,
-            recovery_hold_s: 60.0,
-            starved_reset_after_s: 60.0,
-        })
     }
     fn truth(&self, t: f64) -> (f64, f64, f64) {
         let a = self.omega * t + self.phase;
@@ -382,13 +401,11 @@ const STEPS: usize = 6_000;
 fn check_setup<T: Real>(s: &Setup) {
     let ins = inputs(s, STEPS);
     let mut c = ClassicalLoop::<T>::new(&s.classical(), &s.init()).unwrap();
-    c.gate(s.gate_config().as_ref()).unwrap();
     run_checked(&mut c, &ins, s);
     // A design too fast for its IMU interval or aid rates is refused (the envelope).
     let Ok(mut a) = AidedLoop::<T>::new(&s.aided(), &s.init()) else {
         return;
     };
-    a.gate(s.gate_config().as_ref()).unwrap();
     // The design covariance: finite, symmetric, PSD, variances within physical bounds.
     let p = a.gains().p;
     assert!(p.iter().all(|v| v.is_finite()));
@@ -399,15 +416,29 @@ fn check_setup<T: Real>(s: &Setup) {
     // without a gate nothing is rejected; a reset only happens on a re-acquisition.
     let nb = ins.iter().filter(|i| i.baro.is_some()).count() as u32;
     let nv = ins.iter().filter(|i| i.vel.is_some()).count() as u32;
-    for (g, n) in [
-        (*c.baro_counters(), nb),
-        (*a.baro_counters(), nb),
-        (*a.velocity_counters(), nv),
+    for (g, r, n) in [
+        (
+            c.aid_counters(Aid::Baro),
+            c.reacquisition_counters(Aid::Baro),
+            nb,
+        ),
+        (
+            a.aid_counters(Aid::Baro),
+            a.reacquisition_counters(Aid::Baro),
+            nb,
+        ),
+        (
+            a.aid_counters(Aid::Velocity),
+            a.reacquisition_counters(Aid::Velocity),
+            nv,
+        ),
     ] {
-        assert_eq!(g.accepted + g.rejected, n, "{g:?}");
-        assert!(g.resets <= g.reacquisitions && g.consecutive_rejected <= g.rejected);
+        assert_eq!(g.fused + g.rejected, n, "{g:?}");
+        assert_eq!((g.skipped, g.refused), (0, 0), "{g:?}");
+        assert!(r.resets <= r.reacquisitions && g.consecutive_rejected <= g.rejected);
+        assert!(g.recoveries <= r.resets, "{g:?} {r:?}");
         if !s.gate {
-            assert_eq!((g.rejected, g.resets), (0, 0), "{g:?}");
+            assert_eq!((g.rejected, r.resets), (0, 0), "{g:?}");
         }
     }
 }
@@ -519,7 +550,6 @@ fn nominal_setup() -> Setup {
 
 /// Runs 100 good steps (aids received, gate on) so that every channel holds data.
 fn warmed<T: Real, L: Loop<T>>(mut lp: L, s: &Setup) -> (L, f64) {
-    lp.gate(s.gate_config().as_ref()).unwrap();
     let ins = inputs(s, 100);
     for i in &ins {
         feed(&mut lp, i).unwrap();
@@ -594,13 +624,29 @@ fn bad_step_cases(t: f64, dt: f64) -> Vec<Case> {
     c
 }
 
+/// A loop's `Debug` text with the refused-input counters blanked (they count the refusals;
+/// everything else must be unchanged).
+fn without_refusals(debug: &str) -> String {
+    let mut out = String::new();
+    let mut rest = debug;
+    while let Some(i) = rest.find("refused: ") {
+        let (head, tail) = rest.split_at(i + "refused: ".len());
+        out.push_str(head);
+        out.push('_');
+        rest = tail.trim_start_matches(|c: char| c.is_ascii_digit());
+    }
+    out.push_str(rest);
+    out
+}
+
 fn check_bad_steps<T: Real, L: Loop<T> + Clone>(lp: L, t: f64, dt: f64, has_velocity: bool) {
     let mut lp = lp;
     for (what, imu, b, v, want) in bad_step_cases(t, dt) {
         if what == "velocity" && !has_velocity {
             continue;
         }
-        let before = format!("{lp:?}");
+        let before = without_refusals(&format!("{lp:?}"));
+        let n0 = lp.refusals();
         let imu = ImuSample {
             time: ts(imu[0]),
             specific_force_up_m_s2: T::lit(imu[1]),
@@ -615,7 +661,20 @@ fn check_bad_steps<T: Real, L: Loop<T> + Clone>(lp: L, t: f64, dt: f64, has_velo
         });
         let r = lp.step_all(&imu, b.as_ref(), v.as_ref());
         assert_eq!(r, Err(want), "{what}: {imu:?} {b:?} {v:?}");
-        assert_eq!(format!("{lp:?}"), before, "{what}: state changed");
+        assert_eq!(
+            without_refusals(&format!("{lp:?}")),
+            before,
+            "{what}: state changed"
+        );
+        // The refusal is counted for the input that was refused.
+        let slot = match what {
+            "baro" => 1,
+            "velocity" => 2,
+            _ => 0,
+        };
+        let mut n1 = n0;
+        n1[slot] += 1;
+        assert_eq!(lp.refusals(), n1, "{what}");
     }
     // A good step still works afterwards.
     let imu = ImuSample {
@@ -659,8 +718,8 @@ fn bad_configs<T: Real>() {
     let s = nominal_setup();
     let init = s.init::<T>();
     // Classical: every field.
-    type CSet = fn(&mut ClassicalConfig, f64);
-    let fields: [(&str, CSet, &[f64]); 7] = [
+    type CSet<T> = fn(&mut ClassicalConfig<T>, T);
+    let fields: [(&str, CSet<T>, &[f64]); 7] = [
         ("imu_dt_s", |c, v| c.imu_dt_s = v, &[2.0, 1e-5]),
         ("latitude_rad", |c, v| c.latitude_rad = v, &[2.0, -2.0]),
         ("tau_s", |c, v| c.tau_s = v, &[1e5, 0.01]),
@@ -686,13 +745,13 @@ fn bad_configs<T: Real>() {
                 continue;
             }
             let mut c = s.classical();
-            set(&mut c, v);
+            set(&mut c, T::lit(v));
             expect_field(ClassicalLoop::<T>::new(&c, &init), field, v);
         }
     }
     // Aided: every field.
-    type ASet = fn(&mut AidedConfig, f64);
-    let fields: [(&str, ASet, &[f64]); 13] = [
+    type ASet<T> = fn(&mut AidedConfig<T>, T);
+    let fields: [(&str, ASet<T>, &[f64]); 13] = [
         ("imu_dt_s", |c, v| c.imu_dt_s = v, &[2.0]),
         ("latitude_rad", |c, v| c.latitude_rad = v, &[2.0]),
         (
@@ -743,7 +802,7 @@ fn bad_configs<T: Real>() {
                 continue;
             }
             let mut c = s.aided();
-            set(&mut c, v);
+            set(&mut c, T::lit(v));
             expect_field(AidedLoop::<T>::new(&c, &init), field, v);
         }
     }
@@ -774,50 +833,89 @@ fn bad_configs<T: Real>() {
             );
         }
     }
-    // Gate: every field, refused by set_gate with the loop unchanged.
-    type GSet = fn(&mut InnovationGate, f64);
-    let fields: [(&str, GSet, &[f64]); 7] = [
-        ("gate.nis_threshold", |g, v| g.nis_threshold = v, &[]),
-        ("gate.baro_sigma_m", |g, v| g.baro_sigma_m = v, &[1e-300]),
+    // Aid model, gate and recovery: every field, refused by the configuration and by the
+    // setters with the loop unchanged.
+    type MSet<T> = fn(&mut AidModel<T>, T);
+    let fields: [(&str, MSet<T>, &[f64]); 5] = [
         (
-            "gate.velocity_sigma_m_s",
+            "aid_model.baro_sigma_m",
+            |g, v| g.baro_sigma_m = v,
+            &[1e-300],
+        ),
+        (
+            "aid_model.velocity_sigma_m_s",
             |g, v| g.velocity_sigma_m_s = v,
             &[1e-300],
         ),
         (
-            "gate.starved_velocity_sigma_m_s",
+            "aid_model.starved_velocity_sigma_m_s",
             |g, v| g.starved_velocity_sigma_m_s = v,
             &[],
         ),
         (
-            "gate.starved_accel_sigma_m_s2",
+            "aid_model.starved_accel_sigma_m_s2",
             |g, v| g.starved_accel_sigma_m_s2 = v,
             &[],
         ),
-        ("gate.recovery_hold_s", |g, v| g.recovery_hold_s = v, &[1e7]),
         (
-            "gate.starved_reset_after_s",
-            |g, v| g.starved_reset_after_s = v,
+            "aid_model.recovery_hold_s",
+            |g, v| g.recovery_hold_s = v,
             &[1e7],
         ),
     ];
     let (mut c, _) = warmed(ClassicalLoop::<T>::new(&s.classical(), &init).unwrap(), &s);
     let (mut a, _) = warmed(AidedLoop::<T>::new(&s.aided(), &init).unwrap(), &s);
+    let (bc, ba) = (format!("{c:?}"), format!("{a:?}"));
     for (field, set, extra) in fields {
         for &v in BAD.iter().chain(extra) {
             // Zero drift is legal (a gate that never re-inflates).
-            if field.starts_with("gate.starved") && v == 0.0 {
+            if field.starts_with("aid_model.starved") && v == 0.0 {
                 continue;
             }
-            let mut g = s.gate_config().unwrap();
-            set(&mut g, v);
-            let (bc, ba) = (format!("{c:?}"), format!("{a:?}"));
-            expect_field(c.set_gate(Some(&g)), field, v);
-            expect_field(a.set_gate(Some(&g)), field, v);
-            assert_eq!(format!("{c:?}"), bc);
-            assert_eq!(format!("{a:?}"), ba);
+            let mut g = s.aid_model::<T>();
+            set(&mut g, T::lit(v));
+            expect_field(c.set_aid_model(g), field, v);
+            expect_field(a.set_aid_model(g), field, v);
+            let cfg = ClassicalConfig {
+                aid_model: g,
+                ..s.classical()
+            };
+            expect_field(ClassicalLoop::<T>::new(&cfg, &init), field, v);
         }
     }
+    for &v in BAD.iter().chain(&[1e-4, 1e4]) {
+        expect_field(c.set_gate(Gate::Nis(T::lit(v))), "gate", v);
+        expect_field(a.set_gate(Gate::Nis(T::lit(v))), "gate", v);
+        let cfg = AidedConfig {
+            gate: Gate::Nis(T::lit(v)),
+            ..s.aided()
+        };
+        expect_field(AidedLoop::<T>::new(&cfg, &init), "gate", v);
+        let r = RecoveryPolicy {
+            starved_after_s: Some(T::lit(v)),
+            action: RecoveryAction::Reanchor,
+        };
+        if v > 0.0 && v < 1e6 {
+            continue; // 1e-4 s and 1e4 s are valid starvation limits
+        }
+        expect_field(c.set_recovery(r), "recovery.starved_after_s", v);
+        expect_field(a.set_recovery(r), "recovery.starved_after_s", v);
+    }
+    for action in [
+        RecoveryAction::ResetToPrior,
+        RecoveryAction::Inflate {
+            variance_factor: T::lit(4.0),
+        },
+    ] {
+        let r = RecoveryPolicy {
+            starved_after_s: Some(T::lit(10.0)),
+            action,
+        };
+        expect_field(c.set_recovery(r), "recovery.action", 0.0);
+        expect_field(a.set_recovery(r), "recovery.action", 0.0);
+    }
+    assert_eq!(format!("{c:?}"), bc);
+    assert_eq!(format!("{a:?}"), ba);
 }
 
 #[test]
@@ -913,7 +1011,7 @@ fn regression_cases_found_by_proptest() {
     // 2. Extreme noise ratios: the Riccati design either refuses with a typed error or returns
     //    a solution that meets its own residual bound with a stable closed loop — never a wrong
     //    design silently (the property tests draw accel noise ≥ 1e-4 and bias RW ≥ 1e-6).
-    let mut a = nominal_setup().aided();
+    let mut a = nominal_setup().aided::<f64>();
     a.accel_noise_m_s2_rt_hz = 1e-5;
     a.accel_bias_rw_m_s2_rt_s = 1e-7;
     a.baro_noise_m = 5.0;
@@ -937,7 +1035,7 @@ fn regression_cases_found_by_proptest() {
     a.accel_noise_m_s2_rt_hz = 1e-7;
     a.accel_bias_rw_m_s2_rt_s = 1e-9;
     assert!(matches!(
-        AidedLoop::<f32>::new(&a, &nominal_setup().init()),
+        AidedLoop::<f64>::new(&a, &nominal_setup().init()),
         Err(NavError::NotConverged { .. })
     ));
 }

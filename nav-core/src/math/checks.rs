@@ -55,6 +55,43 @@ pub fn all_finite_parts<T: Real>(parts: &[&[T]]) -> bool {
     parts.iter().all(|p| all_finite(p))
 }
 
+/// Lower end of a [`RangeCheck`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum LowerBound<T> {
+    /// `value ≥ bound`.
+    AtLeast(T),
+    /// `value == 0` or `value ≥ bound` (a value that may be switched off with 0).
+    ZeroOrAtLeast(T),
+}
+
+/// One configuration value and its accepted range: finite, `< high`, and [`LowerBound`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RangeCheck<T> {
+    /// Field name reported when the value is outside.
+    pub field: &'static str,
+    /// The value.
+    pub value: T,
+    /// Lower end.
+    pub low: LowerBound<T>,
+    /// Upper end (excluded).
+    pub high: T,
+}
+
+/// The field of the first check whose value is outside its range (NaN and ±∞ are outside),
+/// `None` when all are inside. One looping copy per float type, as the other checks.
+#[inline(never)]
+pub fn first_outside<T: Real>(checks: &[RangeCheck<T>]) -> Option<&'static str> {
+    let checks = opaque(checks);
+    checks.iter().find_map(|c| {
+        let low_ok = match c.low {
+            LowerBound::AtLeast(b) => c.value >= b,
+            LowerBound::ZeroOrAtLeast(b) => c.value == T::zero() || c.value >= b,
+        };
+        let inside = c.value.is_finite() && c.value < c.high && low_ok;
+        (!inside).then_some(c.field)
+    })
+}
+
 /// The value at row `i`, column `j` of the column-major `n × n` matrix `m` (`None` out of
 /// bounds).
 #[inline(always)]

@@ -48,6 +48,11 @@ pub enum FusionOutcome {
 }
 
 /// Report of one scalar fusion (as PX4 EKF2 reports per sensor).
+///
+/// The fixed-gain vertical loops have no running covariance: their innovation variance is
+/// that of their aid model (`vertical_channel::AidModel`: tracking σ₀², widened by the
+/// inertial drift since the last accepted sample), σ₀ chosen from the design's steady state
+/// (`AidedLoop::design_innovation_sigmas`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct FusionReport<T> {

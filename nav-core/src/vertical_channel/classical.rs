@@ -20,199 +20,146 @@
 //! misprint). C4 is the baro lag compensation: a first-order lag of time constant τ_b reads
 //! `h_baro ≈ h − τ_b V_z`, so C4 = τ_b.
 
+use super::config::{validate_gate, validate_recovery, AidModel, ClassicalConfig};
+use super::core::{CoreParts, LoopCore};
 use super::design::ClassicalDesign;
-use super::{AidReport, AidTimeouts, BaroSample, ImuSample, InitialState, LoopCore};
-use crate::error::{require_non_negative, require_positive, ConfigIssue};
+use super::envelope::check_imu_dt;
+use super::gate::{AidReport, GateParams, ReacquisitionCounters};
+use super::samples::{Aid, BaroSample, ImuSample, InitialState};
+use crate::contract::{AidCounters, Estimator, Gate, Health, RecoveryPolicy};
+use crate::time::Timestamp;
 use crate::{NavError, Real};
-use nalgebra::{Matrix2x3, Matrix3, Matrix3x2};
+use nalgebra::Matrix3;
 
-/// Configuration of the classical loop (all in SI units; computed in `f64`).
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct ClassicalConfig {
-    /// IMU interval (the loop's step), s.
-    pub imu_dt_s: f64,
-    /// Geodetic latitude for the gravity model, rad.
-    pub latitude_rad: f64,
-    /// Time constant τ of the triple closed-loop pole at −1/τ, s.
-    pub tau_s: f64,
-    /// Altimeter lag compensation C4 (the baro's first-order lag time constant), s; 0 = none.
-    pub baro_lag_s: f64,
-    /// Baro sample interval, s (the longest expected; with the IMU interval it decides
-    /// whether τ is stable in the multirate loop, see [`ClassicalDesign::compute`]).
-    pub baro_period_s: f64,
-    /// Baro freshness timeouts.
-    pub baro_timeouts: AidTimeouts,
-}
-
-/// Gains of the classical loop.
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct ClassicalGains {
-    /// C1, 1/s.
-    pub c1_per_s: f64,
-    /// C2, 1/s².
-    pub c2_per_s2: f64,
-    /// C3, 1/s³.
-    pub c3_per_s3: f64,
-    /// C4 (lag compensation), s.
-    pub c4_s: f64,
-    /// c = 2ω_s² used in the design, 1/s².
-    pub c_per_s2: f64,
-}
-
-impl ClassicalGains {
-    /// Pole placement (seed eq. 1): all three poles at −1/τ.
-    ///
-    /// Errors: `InvalidConfig` for a non-positive τ, a negative C4, or `1 − c C4² ≤ 0`.
-    pub fn pole_placement(tau_s: f64, c4_s: f64, c_per_s2: f64) -> Result<Self, NavError> {
-        require_positive("tau_s", tau_s)?;
-        require_non_negative("baro_lag_s", c4_s)?;
-        if tau_s > super::MAX_TAU_S {
-            return Err(NavError::InvalidConfig {
-                field: "tau_s",
-                issue: ConfigIssue::OutOfRange,
-            });
-        }
-        require_non_negative("c_per_s2", c_per_s2)?;
-        let den0 = 1.0 - c_per_s2 * c4_s * c4_s;
-        if den0 <= 0.0 {
-            return Err(NavError::InvalidConfig {
-                field: "baro_lag_s",
-                issue: ConfigIssue::OutOfRange,
-            });
-        }
-        let t3 = tau_s * tau_s * tau_s;
-        let den = den0 * t3;
-        let c1 =
-            (c_per_s2 * c4_s * t3 + 3.0 * tau_s * tau_s + 3.0 * c4_s * tau_s + c4_s * c4_s) / den;
-        let c2 = (c_per_s2 * (t3 + 3.0 * c4_s * tau_s * tau_s) + 3.0 * tau_s + c4_s) / den;
-        Ok(Self {
-            c1_per_s: c1,
-            c2_per_s2: c2,
-            c3_per_s3: 1.0 / t3,
-            c4_s,
-            c_per_s2,
-        })
-    }
-
-    /// Error dynamics `δẋ = F δx` of `[δh, δV_z, δâ]` (estimate − truth) when the baro reads
-    /// `h − C4 V_z` exactly; its characteristic polynomial is
-    /// `s³ + (C1 − C2 C4) s² + (C2 − c(1 + C1 C4) − C3 C4) s + C3`.
-    pub fn error_matrix(&self) -> Matrix3<f64> {
-        let (c1, c2, c3, c4, c) = (
-            self.c1_per_s,
-            self.c2_per_s2,
-            self.c3_per_s3,
-            self.c4_s,
-            self.c_per_s2,
-        );
-        Matrix3::new(
-            -c1,
-            1.0 + c1 * c4,
-            0.0,
-            c - c2,
-            c2 * c4,
-            -1.0,
-            c3,
-            -c3 * c4,
-            0.0,
-        )
-    }
-
-    /// The loop as an observer gain `K` (columns baro, velocity) on `e = −(z − C x̂)`.
-    pub(crate) fn observer(&self) -> (Matrix3x2<f64>, Matrix2x3<f64>) {
-        let k = Matrix3x2::new(
-            self.c1_per_s,
-            0.0,
-            self.c2_per_s2,
-            0.0,
-            -self.c3_per_s3,
-            0.0,
-        );
-        let c = Matrix2x3::new(1.0, -self.c4_s, 0.0, 0.0, 1.0, 0.0);
-        (k, c)
-    }
-}
+pub use super::gains::ClassicalGains;
 
 /// Report of one classical step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ClassicalReport<T> {
-    /// The baro: status and innovation `h_baro − (ĥ − C4 V̂_z)` (= −e), m.
+    /// The baro: status, correction innovation `h_baro − (ĥ − C4 V̂_z)` (= −e, m) and the
+    /// verdict on a new sample.
     pub baro: AidReport<T>,
     /// Sub-steps the interval was integrated in: 1 for an interval up to 1.5 nominal IMU
-    /// intervals, up to [`super::MAX_SUBSTEPS`] for a longer one (see [`super::LoopStatus`]).
+    /// intervals, up to [`super::MAX_SUBSTEPS`] for a longer one.
     pub imu_intervals: u32,
 }
 
-/// The classical damping loop, discretised exactly at the IMU rate.
+/// The classical damping loop, discretised exactly at the IMU rate. Constructed through
+/// [`Estimator`] (`new`, or `from_design` with a stored [`ClassicalDesign`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ClassicalLoop<T: Real> {
-    pub(crate) core: LoopCore<T>,
+    core: LoopCore<T>,
     gains: ClassicalGains,
 }
 
-impl<T: Real> ClassicalLoop<T> {
-    /// Validates the configuration, places the poles and discretises the loop.
-    ///
-    /// Errors: `InvalidConfig` (field named), `NonFiniteInput`/`InputOutOfRange` for the
-    /// initial state, `NotConverged` if the discretisation fails.
-    pub fn new(config: &ClassicalConfig, init: &InitialState<T>) -> Result<Self, NavError> {
-        Self::from_design(config, &ClassicalDesign::compute(config)?, init)
+impl<T: Real> Estimator for ClassicalLoop<T> {
+    type Config = ClassicalConfig<T>;
+    type Design = ClassicalDesign<T>;
+    type Initial = InitialState<T>;
+
+    /// [`ClassicalDesign::compute`].
+    fn design(config: &ClassicalConfig<T>) -> Result<ClassicalDesign<T>, NavError> {
+        ClassicalDesign::compute(config)
     }
 
-    /// Builds the loop from a precomputed design ([`ClassicalDesign::compute`] of this
-    /// configuration, possibly stored as values, see [`crate::design`]) without running any
-    /// design code or f64 arithmetic (casts and compares only).
+    /// Builds the loop from a design (computed on the ground, possibly stored as values, see
+    /// [`crate::design`]) without running any design code or f64 arithmetic (compares and
+    /// copies only).
     ///
-    /// Checks: the IMU interval and the timeouts as [`Self::new`]; that the design's IMU
-    /// interval and baro lag are the configuration's (`InvalidConfig { field:
-    /// "design.imu_dt_s" | "design.baro_lag_s" }`); that its values are finite
-    /// (`InvalidConfig { field: "design", issue: NotFinite }`); the initial state. The latitude
-    /// and τ cannot be checked without the design code: that the design belongs to them is the
-    /// caller's contract.
-    pub fn from_design(
-        config: &ClassicalConfig,
+    /// Checks: the IMU interval and the timeouts as the design does; that the design was
+    /// computed for this configuration (its stamp, `InvalidConfig { field: "design", issue:
+    /// DesignMismatch }`) and its step values are the configuration's (`design.imu_dt_s`,
+    /// `design.baro_lag_s`); that its values are finite (`InvalidConfig { field: "design",
+    /// issue: NotFinite }`); the aid model, gate and recovery (fields named); the initial
+    /// state.
+    fn from_design(
+        config: &ClassicalConfig<T>,
         design: &ClassicalDesign<T>,
-        init: &InitialState<T>,
+        initial: &InitialState<T>,
     ) -> Result<Self, NavError> {
-        super::check_imu_dt(config.imu_dt_s)?;
+        check_imu_dt(config.imu_dt_s)?;
         config
             .baro_timeouts
             .validate("baro_timeouts.stale_after_s", "baro_timeouts.lost_after_s")?;
         design.check(config)?;
-        let (gains, modes, gravity) = design.parts();
+        let gate = GateParams::compile(&config.run_time())?;
         let core = LoopCore::new(
-            init,
-            -1.0,
-            design.step_values(),
-            gains.observer().0.cast::<T>(),
-            *modes,
-            gravity,
-            &config.baro_timeouts,
-            &config.baro_timeouts,
+            initial,
+            CoreParts {
+                bias_sign: -1.0,
+                step: design.step,
+                k: design.gains.observer().0.cast::<T>(),
+                modes: &design.modes,
+                gravity: &design.gravity,
+                baro_timeouts: config.baro_timeouts,
+                velocity_timeouts: config.baro_timeouts,
+                run_time: config.run_time(),
+                gate,
+            },
         )?;
         Ok(Self {
             core,
-            gains: *gains,
+            gains: design.gains,
         })
     }
 
+    /// Restarts the state and clock from `initial` (e.g. when the health is
+    /// `NeedsReinitialisation` and an external altitude is known), keeping the design, the
+    /// gate and the counters; held aid samples are dropped and the health is `Initialising`
+    /// until the next step. On error nothing changes.
+    fn reinitialise(&mut self, initial: &InitialState<T>) -> Result<(), NavError> {
+        self.core.reinitialise(initial)
+    }
+
+    /// Health after the last step and the counters (see the module documentation).
+    fn health(&self) -> Health {
+        self.core.health
+    }
+
+    /// Time of the estimate: of the last accepted IMU sample, or of the initial state.
+    fn time(&self) -> Option<Timestamp> {
+        Some(self.core.time)
+    }
+}
+
+impl<T: Real> ClassicalLoop<T> {
     /// One IMU step, with a new baro sample if one arrived since the last step.
-    /// On error the loop is unchanged.
+    /// On error the loop is unchanged but for the refused-input counter.
     pub fn step(
         &mut self,
         imu: &ImuSample<T>,
         baro: Option<&BaroSample<T>>,
     ) -> Result<ClassicalReport<T>, NavError> {
-        let (baro, _, imu_intervals) = self.core.step(imu, baro, None, (None, None))?;
+        let r = self.core.step(imu, baro, None)?;
         Ok(ClassicalReport {
-            baro,
-            imu_intervals,
+            baro: r.baro,
+            imu_intervals: r.imu_intervals,
         })
     }
 
+    /// Sets the χ² gate (validated as the configuration's `gate`; refused: nothing changes).
+    pub fn set_gate(&mut self, gate: Gate<T>) -> Result<(), NavError> {
+        validate_gate(&gate)?;
+        self.core.set_gate(gate)
+    }
+    /// Sets the starvation recovery (validated as the configuration's `recovery`).
+    pub fn set_recovery(&mut self, recovery: RecoveryPolicy<T>) -> Result<(), NavError> {
+        validate_recovery(&recovery)?;
+        self.core.set_recovery(recovery)
+    }
+    /// Sets the aid model (validated as the configuration's `aid_model`).
+    pub fn set_aid_model(&mut self, aid_model: AidModel<T>) -> Result<(), NavError> {
+        self.core.set_aid_model(aid_model)
+    }
+    /// Counters of one aid (the velocity aid's are zero: the classical loop has none).
+    pub fn aid_counters(&self, aid: Aid) -> AidCounters {
+        self.core.aid_counters(aid)
+    }
+    /// Re-acquisition counters of one aid.
+    pub fn reacquisition_counters(&self, aid: Aid) -> ReacquisitionCounters {
+        self.core.reacquisition_counters(aid)
+    }
     /// The gains in use.
     pub fn gains(&self) -> &ClassicalGains {
         &self.gains
@@ -229,36 +176,12 @@ impl<T: Real> ClassicalLoop<T> {
     pub fn accel_bias_m_s2(&self) -> T {
         self.core.accel_bias_m_s2()
     }
-    /// Time of the estimate (of the last accepted IMU sample).
-    pub fn time(&self) -> crate::time::Timestamp {
-        self.core.time
-    }
-    /// Health after the last step ([`super::LoopStatus`] says why).
-    pub fn health(&self) -> crate::HealthState {
-        self.core.status.health
-    }
-    /// Health and the interval / divergence counters.
-    pub fn status(&self) -> &super::LoopStatus {
-        &self.core.status
-    }
-    /// Installs the χ² innovation gate ([`super::InnovationGate`]), or removes it with `None`
-    /// (then every valid sample is accepted). Counters are kept. On error nothing changes.
-    pub fn set_gate(&mut self, gate: Option<&super::InnovationGate>) -> Result<(), NavError> {
-        self.core.set_gate(gate)
-    }
-    /// Restarts the state and clock from `init` (e.g. when the health is
-    /// `NeedsReinitialisation` and an external altitude is known), keeping the design, the
-    /// gate and the counters; held aid samples are dropped and the health is `Initialising`
-    /// until the next step. On error nothing changes.
-    pub fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
-        self.core.reinitialise(init)
-    }
-    /// Gate counters of the baro.
-    pub fn baro_counters(&self) -> &super::GateCounters {
-        &self.core.baro_counters
-    }
     /// Discrete transition matrix with the baro in use (for analysis).
     pub fn phi_with_baro(&self) -> Matrix3<T> {
         self.core.modes.phi_baro
+    }
+    #[cfg(test)]
+    pub(crate) fn core(&self) -> &LoopCore<T> {
+        &self.core
     }
 }

@@ -18,11 +18,10 @@ use crate::output::sig;
 use crate::plot::{self, Figure, Panel, Series};
 use anyhow::{anyhow, bail, Context, Result};
 use nav_core::vertical_channel::{
-    aided::{AidedConfig, AidedLoop},
-    classical::{ClassicalConfig, ClassicalLoop},
-    AidTimeouts, BaroSample, ImuSample, InitialState, VelocitySample,
+    Aid, AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop,
+    ImuSample, InitialState, VelocitySample,
 };
-use nav_core::{NavError, Timestamp};
+use nav_core::{Estimator, Health, NavError, Timestamp};
 use serde::Deserialize;
 use serde_json::{json, Value};
 use source::{LogEvent, Stream};
@@ -405,29 +404,31 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
     let pre = prescan(log)?;
     let lat = cfg.latitude_deg.to_radians();
     let timeouts = AidTimeouts {
-        stale_after_s: cfg.aid_stale_after_s,
-        lost_after_s: cfg.aid_lost_after_s,
+        stale_after_s: cfg.aid_stale_after_s as f32,
+        lost_after_s: cfg.aid_lost_after_s as f32,
     };
-    let ccfg = ClassicalConfig {
-        imu_dt_s: pre.imu_dt_s,
-        latitude_rad: lat,
-        tau_s: cfg.classical.tau_s,
-        baro_lag_s: cfg.classical.baro_lag_s,
-        baro_period_s: cfg.baro_period_s,
+    let ccfg = ClassicalConfig::<f32> {
+        imu_dt_s: pre.imu_dt_s as f32,
+        latitude_rad: lat as f32,
+        tau_s: cfg.classical.tau_s as f32,
+        baro_lag_s: cfg.classical.baro_lag_s as f32,
+        baro_period_s: cfg.baro_period_s as f32,
         baro_timeouts: timeouts,
+        ..ClassicalConfig::paper()
     };
-    let acfg = AidedConfig {
-        imu_dt_s: pre.imu_dt_s,
-        latitude_rad: lat,
-        accel_noise_m_s2_rt_hz: cfg.aided.accel_noise_m_s2_rt_hz,
-        accel_bias_rw_m_s2_rt_s: cfg.aided.accel_bias_rw_m_s2_rt_s,
-        baro_noise_m: cfg.aided.baro_noise_m,
-        baro_period_s: cfg.baro_period_s,
-        baro_lag_s: cfg.aided.baro_lag_s,
-        velocity_noise_m_s: cfg.aided.velocity_noise_m_s,
-        velocity_period_s: cfg.velocity_period_s,
+    let acfg = AidedConfig::<f32> {
+        imu_dt_s: pre.imu_dt_s as f32,
+        latitude_rad: lat as f32,
+        accel_noise_m_s2_rt_hz: cfg.aided.accel_noise_m_s2_rt_hz as f32,
+        accel_bias_rw_m_s2_rt_s: cfg.aided.accel_bias_rw_m_s2_rt_s as f32,
+        baro_noise_m: cfg.aided.baro_noise_m as f32,
+        baro_period_s: cfg.baro_period_s as f32,
+        baro_lag_s: cfg.aided.baro_lag_s as f32,
+        velocity_noise_m_s: cfg.aided.velocity_noise_m_s as f32,
+        velocity_period_s: cfg.velocity_period_s as f32,
         baro_timeouts: timeouts,
         velocity_timeouts: timeouts,
+        ..AidedConfig::paper()
     };
     let init = InitialState {
         // One nominal interval before the first IMU sample (the log's clock is ≥ it).
@@ -449,9 +450,21 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
         tally: Default::default(),
     };
     if let Some(g) = &cfg.gate {
-        let gate = g.to_gate();
-        loops.classical.set_gate(Some(&gate)).map_err(e("gate"))?;
-        loops.aided.set_gate(Some(&gate)).map_err(e("gate"))?;
+        loops
+            .classical
+            .set_aid_model(g.aid_model())
+            .map_err(e("gate"))?;
+        loops
+            .classical
+            .set_recovery(g.recovery())
+            .map_err(e("gate"))?;
+        loops.classical.set_gate(g.gate()).map_err(e("gate"))?;
+        loops
+            .aided
+            .set_aid_model(g.aid_model())
+            .map_err(e("gate"))?;
+        loops.aided.set_recovery(g.recovery()).map_err(e("gate"))?;
+        loops.aided.set_gate(g.gate()).map_err(e("gate"))?;
     }
 
     std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
@@ -577,12 +590,12 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
     csv.flush()?;
     let describe = src.describe();
 
-    let status = |st: &nav_core::vertical_channel::LoopStatus| {
+    let status = |st: &Health| {
         json!({
-            "health_at_end": format!("{:?}", st.health),
+            "health_at_end": format!("{:?}", st.state),
             "imu_gaps_bridged": st.gaps_bridged,
-            "imu_gaps_skipped": st.gaps_skipped,
-            "estimate_limited_steps": st.estimate_limited,
+            "imu_gaps_skipped": st.gaps_reset,
+            "estimate_limited_steps": st.limits_hit,
         })
     };
     let loop_summary = |tl: &LoopTally, counters: Value, st: Value| {
@@ -607,10 +620,11 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
             "final": { "alt_m": sig(tl.alt, 7), "vz_up_m_s": sig(tl.vz_up, 4) },
         })
     };
-    let counters = |c: &nav_core::vertical_channel::GateCounters| {
+    let counters = |c: nav_core::AidCounters,
+                    r: nav_core::vertical_channel::ReacquisitionCounters| {
         json!({
-            "accepted": c.accepted, "rejected": c.rejected,
-            "reacquisitions": c.reacquisitions, "resets": c.resets,
+            "accepted": c.fused, "rejected": c.rejected,
+            "reacquisitions": r.reacquisitions, "resets": r.resets,
         })
     };
     let summary = json!({
@@ -622,13 +636,22 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
         "loops": {
             "classical": loop_summary(
                 &loops.tally[0],
-                json!({ "baro": counters(loops.classical.baro_counters()) }),
-                status(loops.classical.status()),
+                json!({ "baro": counters(
+                    loops.classical.aid_counters(Aid::Baro),
+                    loops.classical.reacquisition_counters(Aid::Baro),
+                ) }),
+                status(&loops.classical.health()),
             ),
             "aided": loop_summary(&loops.tally[1], json!({
-                "baro": counters(loops.aided.baro_counters()),
-                "velocity": counters(loops.aided.velocity_counters()),
-            }), status(loops.aided.status())),
+                "baro": counters(
+                    loops.aided.aid_counters(Aid::Baro),
+                    loops.aided.reacquisition_counters(Aid::Baro),
+                ),
+                "velocity": counters(
+                    loops.aided.aid_counters(Aid::Velocity),
+                    loops.aided.reacquisition_counters(Aid::Velocity),
+                ),
+            }), status(&loops.aided.health())),
         },
         "autopilot_vs_gnss": {
             "alt_rms_m": sig(ap_vs_gnss.0.std(), 4),

@@ -4,7 +4,7 @@
 //! three baro faults in sequence: a spike (the baro reads `offset_m` too high for
 //! `duration_s`), a frozen baro (it repeats its last good reading with fresh time stamps), and
 //! a dropout (no samples). Both loops run twice on the same sensor stream: with the χ²
-//! innovation gate ([`nav_core::vertical_channel::InnovationGate`]) and without it. A
+//! innovation gate (([`nav_core::vertical_channel::AidModel`], [`nav_core::Gate`])) and without it. A
 //! fault-free twin (same noise, no faults) of each gated loop is the reference for "normal".
 //!
 //! Figures of merit, per loop and run: the pre-fault bound (max |δh| over
@@ -23,10 +23,10 @@ use anyhow::{anyhow, ensure, Result};
 use nav_core::earth::normal_gravity_m_s2;
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
-    AidStatus, AidedLoop, BaroSample, ClassicalLoop, GateCounters, ImuSample, InitialState,
-    VelocitySample,
+    Aid, AidModel, AidStatus, AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState,
+    ReacquisitionCounters, VelocitySample,
 };
-use nav_core::Real;
+use nav_core::{AidCounters, Estimator, Gate, Real, RecoveryAction, RecoveryPolicy};
 use serde::Deserialize;
 use serde_json::{json, Value};
 
@@ -56,7 +56,7 @@ impl Window {
     }
 }
 
-/// Gate configuration (units in the names; see `InnovationGate`).
+/// Gate configuration (units in the names; see `nav_core::vertical_channel::AidModel`).
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct GateConfig {
@@ -77,18 +77,38 @@ pub struct GateConfig {
 }
 
 impl GateConfig {
-    /// The nav-core gate these values describe.
-    pub fn to_gate(&self) -> nav_core::vertical_channel::InnovationGate {
-        nav_core::vertical_channel::InnovationGate {
-            nis_threshold: self.nis_threshold,
-            baro_sigma_m: self.baro_sigma_m,
-            velocity_sigma_m_s: self.velocity_sigma_m_s,
-            starved_velocity_sigma_m_s: self.starved_velocity_sigma_m_s,
-            starved_accel_sigma_m_s2: self.starved_accel_sigma_m_s2,
-            recovery_hold_s: self.recovery_hold_s,
-            starved_reset_after_s: self.starved_reset_after_s,
+    /// The nav-core aid model these values describe.
+    pub fn aid_model<T: Real>(&self) -> AidModel<T> {
+        AidModel {
+            baro_sigma_m: T::lit(self.baro_sigma_m),
+            velocity_sigma_m_s: T::lit(self.velocity_sigma_m_s),
+            starved_velocity_sigma_m_s: T::lit(self.starved_velocity_sigma_m_s),
+            starved_accel_sigma_m_s2: T::lit(self.starved_accel_sigma_m_s2),
+            recovery_hold_s: T::lit(self.recovery_hold_s),
         }
     }
+
+    /// The nav-core gate.
+    pub fn gate<T: Real>(&self) -> Gate<T> {
+        Gate::Nis(T::lit(self.nis_threshold))
+    }
+
+    /// The nav-core recovery: re-anchor after `starved_reset_after_s` of rejections.
+    pub fn recovery<T: Real>(&self) -> RecoveryPolicy<T> {
+        RecoveryPolicy {
+            starved_after_s: Some(T::lit(self.starved_reset_after_s)),
+            action: RecoveryAction::Reanchor,
+        }
+    }
+}
+
+/// The baro counters of one loop.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct BaroCounts {
+    /// Fused, rejected … samples.
+    pub counters: AidCounters,
+    /// Re-acquisitions and resets.
+    pub reacquisition: ReacquisitionCounters,
 }
 
 /// `fault-baro` configuration.
@@ -139,7 +159,7 @@ pub struct FaultRun {
     /// |δh| at the IMU rate per variant and twin (for the metrics), m.
     abs_err: [Vec<f64>; 6],
     /// Baro gate counters per variant (and twins).
-    pub counters: [GateCounters; 6],
+    pub counters: [BaroCounts; 6],
     /// IMU steps with the baro `Lost` per variant.
     pub lost_steps: [usize; 6],
 }
@@ -166,7 +186,7 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
         "aid rates above the IMU rate"
     );
     let lat = cfg.latitude_deg.to_radians();
-    let (ccfg, acfg) = loop_configs(cfg, cfg.classical.tau_s);
+    let (ccfg, acfg) = loop_configs::<T>(cfg, cfg.classical.tau_s);
     let (h0, v0, _) = profile.at(0.0);
     let init = InitialState {
         time: Timestamp::ZERO,
@@ -175,7 +195,6 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
         accel_bias_m_s2: T::zero(),
     };
     let g = &fc.gate;
-    let gate = g.to_gate();
     let e = |e: nav_core::NavError| anyhow!("{e}");
     let mut classical = [
         ClassicalLoop::<T>::new(&ccfg, &init).map_err(e)?,
@@ -189,8 +208,12 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
     ];
     // [0] gated, [1] ungated, [2] gated fault-free twin.
     for i in [0, 2] {
-        classical[i].set_gate(Some(&gate)).map_err(e)?;
-        aided[i].set_gate(Some(&gate)).map_err(e)?;
+        classical[i].set_aid_model(g.aid_model()).map_err(e)?;
+        classical[i].set_recovery(g.recovery()).map_err(e)?;
+        classical[i].set_gate(g.gate()).map_err(e)?;
+        aided[i].set_aid_model(g.aid_model()).map_err(e)?;
+        aided[i].set_recovery(g.recovery()).map_err(e)?;
+        aided[i].set_gate(g.gate()).map_err(e)?;
     }
 
     // Sensor error states (as in the base scenario).
@@ -268,7 +291,10 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
             let slot = [0, 1, 4][i];
             est[slot] = lp.altitude_m().to_f64();
             lost[slot] = matches!(r.baro.status, AidStatus::Lost { .. });
-            out.counters[slot] = *lp.baro_counters();
+            out.counters[slot] = BaroCounts {
+                counters: lp.aid_counters(Aid::Baro),
+                reacquisition: lp.reacquisition_counters(Aid::Baro),
+            };
         }
         for (i, lp) in aided.iter_mut().enumerate() {
             let b = if i == 2 { bc.as_ref() } else { bf.as_ref() };
@@ -278,7 +304,10 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
             let slot = [2, 3, 5][i];
             est[slot] = lp.altitude_m().to_f64();
             lost[slot] = matches!(r.baro.status, AidStatus::Lost { .. });
-            out.counters[slot] = *lp.baro_counters();
+            out.counters[slot] = BaroCounts {
+                counters: lp.aid_counters(Aid::Baro),
+                reacquisition: lp.reacquisition_counters(Aid::Baro),
+            };
         }
         for ((a, n), (e, l)) in out
             .abs_err
@@ -389,7 +418,7 @@ pub fn summarise(runs: &[FaultRun], dt: f64, fc: &FaultConfig) -> Value {
                 }),
             );
         }
-        let c = |f: fn(&GateCounters) -> u32| -> f64 {
+        let c = |f: fn(&BaroCounts) -> u32| -> f64 {
             runs.iter().map(|r| f(&r.counters[s]) as f64).sum::<f64>() / runs.len() as f64
         };
         let lost: Vec<f64> = runs.iter().map(|r| r.lost_steps[s] as f64 * dt).collect();
@@ -399,10 +428,10 @@ pub fn summarise(runs: &[FaultRun], dt: f64, fc: &FaultConfig) -> Value {
                 "pre_fault_bound_m": { "mean": mean(&bounds), "max": max(&bounds) },
                 "faults": fj,
                 "baro_gate_mean_per_run": {
-                    "accepted": c(|g| g.accepted),
-                    "rejected": c(|g| g.rejected),
-                    "reacquisitions": c(|g| g.reacquisitions),
-                    "resets": c(|g| g.resets),
+                    "accepted": c(|g| g.counters.fused),
+                    "rejected": c(|g| g.counters.rejected),
+                    "reacquisitions": c(|g| g.reacquisition.reacquisitions),
+                    "resets": c(|g| g.reacquisition.resets),
                 },
                 "baro_lost_time_s_mean": mean(&lost),
             }),

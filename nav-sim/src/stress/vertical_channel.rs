@@ -25,10 +25,10 @@ use crate::rng::{normal, run_rng, SimRng};
 use nav_core::earth::normal_gravity_m_s2;
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
-    AidReport, AidStatus, AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig,
-    ClassicalLoop, ImuSample, InitialState, InnovationGate, VelocitySample,
+    AidModel, AidReport, AidStatus, AidTimeouts, AidedConfig, AidedLoop, BaroSample,
+    ClassicalConfig, ClassicalLoop, ImuSample, InitialState, VelocitySample,
 };
-use nav_core::{HealthState, NavError};
+use nav_core::{Estimator, Gate, HealthState, NavError, RecoveryAction, RecoveryPolicy};
 use rand::Rng;
 use rayon::prelude::*;
 
@@ -96,38 +96,49 @@ fn aid_values(r: &AidReport<f32>, out: &mut Vec<f64>) {
             out.push(f64::from(x));
         }
     };
-    push(r.innovation);
-    push(r.innovation_variance);
+    push(r.correction);
     push(match r.status {
         AidStatus::Fresh { age_s } | AidStatus::Stale { age_s } | AidStatus::Lost { age_s } => {
             Some(age_s)
         }
         AidStatus::NoData => None,
     });
-    if let Some(c) = r.new_sample {
-        push(Some(c.innovation));
-        push(c.gate_variance);
-        push(c.nis());
+    if let Some(c) = r.sample {
+        out.extend([c.innovation, c.innovation_variance, c.nis, c.test_ratio].map(f64::from));
     }
 }
 
-fn gate() -> InnovationGate {
-    InnovationGate {
-        nis_threshold: 16.0,
+/// The gated cases' aid model, gate (χ² 16) and recovery (re-anchor after 30 s).
+fn aid_model() -> AidModel<f32> {
+    AidModel {
         baro_sigma_m: 5.0,
         velocity_sigma_m_s: 0.5,
         starved_velocity_sigma_m_s: 0.5,
         starved_accel_sigma_m_s2: 0.1,
         recovery_hold_s: 60.0,
-        starved_reset_after_s: 30.0,
+    }
+}
+
+fn gate(c: &Case) -> Gate<f32> {
+    if c.gate {
+        Gate::Nis(16.0)
+    } else {
+        Gate::Off
+    }
+}
+
+fn recovery() -> RecoveryPolicy<f32> {
+    RecoveryPolicy {
+        starved_after_s: Some(30.0),
+        action: RecoveryAction::Reanchor,
     }
 }
 
 fn build(c: &Case, t0: Timestamp, h0: f64, v0: f64) -> Result<Loop, NavError> {
     let dt = 1.0 / c.rate_hz;
     let to = |p: f64, lost: f64| AidTimeouts {
-        stale_after_s: 2.5 * p,
-        lost_after_s: lost,
+        stale_after_s: (2.5 * p) as f32,
+        lost_after_s: lost as f32,
     };
     let init = InitialState {
         time: t0,
@@ -135,40 +146,37 @@ fn build(c: &Case, t0: Timestamp, h0: f64, v0: f64) -> Result<Loop, NavError> {
         vz_up_m_s: v0 as f32,
         accel_bias_m_s2: 0.0,
     };
-    let g = gate();
     if c.aided {
         let cfg = AidedConfig {
-            imu_dt_s: dt,
-            latitude_rad: LAT_RAD,
-            accel_noise_m_s2_rt_hz: c.param,
+            imu_dt_s: dt as f32,
+            latitude_rad: LAT_RAD as f32,
+            accel_noise_m_s2_rt_hz: c.param as f32,
             accel_bias_rw_m_s2_rt_s: 1e-3,
             baro_noise_m: 1.0,
-            baro_period_s: BARO_PERIOD_S,
+            baro_period_s: BARO_PERIOD_S as f32,
             baro_lag_s: 0.0,
             velocity_noise_m_s: 0.2,
-            velocity_period_s: VEL_PERIOD_S,
+            velocity_period_s: VEL_PERIOD_S as f32,
             baro_timeouts: to(BARO_PERIOD_S, 1.0),
             velocity_timeouts: to(VEL_PERIOD_S, 2.0),
+            aid_model: aid_model(),
+            gate: gate(c),
+            recovery: recovery(),
         };
-        let mut l = AidedLoop::<f32>::new(&cfg, &init)?;
-        if c.gate {
-            l.set_gate(Some(&g))?;
-        }
-        Ok(Loop::Aided(Box::new(l)))
+        Ok(Loop::Aided(Box::new(AidedLoop::new(&cfg, &init)?)))
     } else {
         let cfg = ClassicalConfig {
-            imu_dt_s: dt,
-            latitude_rad: LAT_RAD,
-            tau_s: c.param,
+            imu_dt_s: dt as f32,
+            latitude_rad: LAT_RAD as f32,
+            tau_s: c.param as f32,
             baro_lag_s: 0.0,
-            baro_period_s: BARO_PERIOD_S,
+            baro_period_s: BARO_PERIOD_S as f32,
             baro_timeouts: to(BARO_PERIOD_S, 1.0),
+            aid_model: aid_model(),
+            gate: gate(c),
+            recovery: recovery(),
         };
-        let mut l = ClassicalLoop::<f32>::new(&cfg, &init)?;
-        if c.gate {
-            l.set_gate(Some(&g))?;
-        }
-        Ok(Loop::Classical(Box::new(l)))
+        Ok(Loop::Classical(Box::new(ClassicalLoop::new(&cfg, &init)?)))
     }
 }
 
@@ -288,7 +296,7 @@ fn run_case(c: &Case) -> (Tally, Extra) {
                     l.altitude_m(),
                     l.vz_up_m_s(),
                     l.accel_bias_m_s2(),
-                    l.health(),
+                    l.health().state,
                 )
             }
             Loop::Aided(l) => {
@@ -302,7 +310,7 @@ fn run_case(c: &Case) -> (Tally, Extra) {
                     l.altitude_m(),
                     l.vz_up_m_s(),
                     l.accel_bias_m_s2(),
-                    l.health(),
+                    l.health().state,
                 )
             }
         };

@@ -300,6 +300,7 @@ use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState, VelocitySample,
 };
+use nav_core::Estimator;
 
 // The χ² gate is on in the bench (its cost is part of the step): every sample is gated.
 use nav_golden::vc_gate;
@@ -348,7 +349,7 @@ fn vcc_setup() {
     let state = ClassicalLoop::new(&cfg, &vc_init())
         .ok()
         .and_then(|mut filter| {
-            filter.set_gate(Some(&vc_gate())).ok()?;
+            filter.set_gate(vc_gate()).ok()?;
             Some(Vc {
                 filter,
                 k: 0,
@@ -378,7 +379,7 @@ fn vca_setup() {
     let state = AidedLoop::new(&cfg, &vc_init())
         .ok()
         .and_then(|mut filter| {
-            filter.set_gate(Some(&vc_gate())).ok()?;
+            filter.set_gate(vc_gate()).ok()?;
             Some(Vc {
                 filter,
                 k: 0,

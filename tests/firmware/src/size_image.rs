@@ -43,8 +43,12 @@ fn flight_loop(designs: &dyn DesignSource) -> Result<(), NavError> {
     let sk_initial = bb(nav_golden::seeker_start_state());
     let mut sk = SeekerIns::new(&bb(nav_golden::seeker_config()?), &sk_initial)?;
     let gate = bb(nav_golden::vc_gate());
-    cl.set_gate(Some(&gate))?;
-    ai.set_gate(Some(&gate))?;
+    cl.set_gate(gate)?;
+    ai.set_gate(gate)?;
+    cl.set_aid_model(bb(nav_golden::vc_classical_config().aid_model))?;
+    ai.set_aid_model(bb(nav_golden::vc_aided_config().aid_model))?;
+    cl.set_recovery(bb(nav_golden::vc_classical_config().recovery))?;
+    ai.set_recovery(bb(nav_golden::vc_aided_config().recovery))?;
     ta9.set_gate(bb(ta9.config().gate))?;
     ta12.set_gate(bb(ta12.config().gate))?;
     ta9.set_recovery(bb(ta9.config().recovery))?;

@@ -27,10 +27,10 @@ use nav_core::transfer_alignment::{
     TaInitial,
 };
 use nav_core::vertical_channel::{
-    AidTimeouts, AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
-    ClassicalLoop, ImuSample, InitialState, InnovationGate, VelocitySample,
+    AidedConfig, AidedDesign, AidedLoop, BaroSample, ClassicalConfig, ClassicalDesign,
+    ClassicalLoop, ImuSample, InitialState, VelocitySample,
 };
-use nav_core::{Estimator, NavError};
+use nav_core::{Estimator, Gate, NavError};
 
 /// A recorded filter run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -134,58 +134,21 @@ pub fn ta_initial() -> TaInitial<f32> {
     TaInitial::default()
 }
 
-fn vc_timeouts() -> AidTimeouts {
-    AidTimeouts {
-        stale_after_s: 0.06,
-        lost_after_s: 0.5,
-    }
+/// Classical loop configuration: the papers' ([`ClassicalConfig::paper`], no gate).
+pub fn vc_classical_config() -> ClassicalConfig<f32> {
+    ClassicalConfig::paper()
 }
 
-/// Classical loop configuration.
-pub fn vc_classical_config() -> ClassicalConfig {
-    ClassicalConfig {
-        imu_dt_s: VC_DT_S,
-        latitude_rad: 0.645_771_823_2,
-        tau_s: 20.0,
-        baro_lag_s: 0.2,
-        baro_period_s: 0.04,
-        baro_timeouts: vc_timeouts(),
-    }
+/// Aided loop configuration: the papers' ([`AidedConfig::paper`], no gate).
+pub fn vc_aided_config() -> AidedConfig<f32> {
+    AidedConfig::paper()
 }
 
-/// Aided loop configuration.
-pub fn vc_aided_config() -> AidedConfig {
-    AidedConfig {
-        imu_dt_s: VC_DT_S,
-        latitude_rad: 0.645_771_823_2,
-        accel_noise_m_s2_rt_hz: 1e-3,
-        accel_bias_rw_m_s2_rt_s: 1e-5,
-        baro_noise_m: 1.0,
-        baro_period_s: 0.04,
-        baro_lag_s: 0.2,
-        velocity_noise_m_s: 0.1,
-        velocity_period_s: 0.1,
-        baro_timeouts: vc_timeouts(),
-        velocity_timeouts: AidTimeouts {
-            stale_after_s: 0.15,
-            lost_after_s: 1.0,
-        },
-    }
-}
-
-/// The χ² innovation gate the firmware images put on both VC loops (0.1 % false alarms; σ
-/// of a tracking loop 30 m baro, 3 m/s velocity; re-inflation from 0.5 m/s, 0.02 m/s²; 60 s
-/// recovery hold). The golden recording runs without a gate.
-pub fn vc_gate() -> InnovationGate {
-    InnovationGate {
-        nis_threshold: 10.83,
-        baro_sigma_m: 30.0,
-        velocity_sigma_m_s: 3.0,
-        starved_velocity_sigma_m_s: 0.5,
-        starved_accel_sigma_m_s2: 0.02,
-        recovery_hold_s: 60.0,
-        starved_reset_after_s: 60.0,
-    }
+/// The χ² innovation gate the firmware images put on both VC loops (0.1 % false alarms, on
+/// the papers' aid model [`nav_core::vertical_channel::AidModel::paper`]). The golden
+/// recording runs without a gate.
+pub fn vc_gate() -> Gate<f32> {
+    Gate::Nis(10.83)
 }
 
 /// Initial state of both VC loops (the truth starts at 500 m, level).

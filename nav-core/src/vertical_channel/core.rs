@@ -1,0 +1,604 @@
+//! The state and machinery shared by both loops: the variable-interval step, the gap
+//! handling, the commit with its envelope limits, the health and counters.
+
+use super::config::{AidModel, RunTime};
+use super::gate::{
+    admit, AidReport, AidTally, Extrapolation, GateParams, Reacquisition, ReacquisitionCounters,
+    Verdict,
+};
+use super::gravity::GravityModel;
+use super::modes::{off_nominal_increment, AidMask, Feedback, Modes};
+use super::samples::{
+    check_imu_values, check_initial, Aid, AidChannel, AidTimeouts, BaroSample, ImuSample,
+    InitialState, SampleRule, ValidSample, VelocitySample, NEVER,
+};
+use super::{
+    ALTITUDE_RANGE_M, ESTIMATE_RANGE_M, MAX_BRIDGED_GAP_S, MAX_ESTIMATE_BIAS_M_S2,
+    MAX_ESTIMATE_SPEED_M_S, MAX_VERTICAL_SPEED_M_S, RECENTRE_M,
+};
+use crate::contract::{AidCounters, Gate, Health, RecoveryPolicy};
+use crate::error::ConfigIssue;
+use crate::time::{micros_to_seconds, Timestamp};
+use crate::{HealthState, NavError, Real};
+use nalgebra::{Matrix3x2, Vector2, Vector3};
+
+/// Longest bridged gap in µs.
+pub(crate) const MAX_BRIDGED_GAP_US: u64 = 10_000_000;
+const _: () = assert!(MAX_BRIDGED_GAP_US as f64 == MAX_BRIDGED_GAP_S * 1.0e6);
+
+/// The loop's step values, fixed by the design: IMU interval, half of it, baro lag (s).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct StepValues<T> {
+    pub(crate) dt_s: T,
+    pub(crate) half_dt_s: T,
+    pub(crate) baro_lag_s: T,
+}
+
+/// What `LoopCore::new` copies from a design.
+pub(crate) struct CoreParts<'a, T: Real> {
+    pub(crate) bias_sign: f64,
+    pub(crate) step: StepValues<T>,
+    pub(crate) k: Matrix3x2<T>,
+    pub(crate) modes: &'a Modes<T>,
+    pub(crate) gravity: &'a GravityModel<T>,
+    pub(crate) baro_timeouts: AidTimeouts<T>,
+    pub(crate) velocity_timeouts: AidTimeouts<T>,
+    pub(crate) run_time: RunTime<T>,
+    pub(crate) gate: GateParams<T>,
+}
+
+/// The new aid samples of a step, validated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct NewSamples<T> {
+    pub(crate) baro: Option<ValidSample<T>>,
+    pub(crate) velocity: Option<ValidSample<T>>,
+}
+
+impl<T> NewSamples<T> {
+    pub(crate) const NONE: Self = Self {
+        baro: None,
+        velocity: None,
+    };
+}
+
+/// The reports of a step: baro, velocity, sub-steps.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct StepReports<T> {
+    pub(crate) baro: AidReport<T>,
+    pub(crate) velocity: AidReport<T>,
+    pub(crate) imu_intervals: u32,
+}
+
+/// The shared state of both loops.
+///
+/// Time: the clock is a [`Timestamp`]; every interval is formed in integer microseconds and
+/// converted to the float type as a duration. A step integrates the actual interval `Δt`
+/// since the last accepted sample: `Δt ≤ 1.5 dt` in one step (the stored exact step at the
+/// nominal `dt`, corrected for `Δt − dt` by [`off_nominal_increment`] when they differ),
+/// longer intervals in sub-steps ([`super::MAX_SUBSTEPS`]), beyond those by an exact inertial coast
+/// first, and gaps beyond [`MAX_BRIDGED_GAP_S`] by re-anchoring.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct LoopCore<T: Real> {
+    /// `[ĥ − h_ref (m), V̂_z (m/s), b̂ (m/s²)]`: the altitude relative to `h_ref_m`, so that
+    /// in f32 the per-step increments V̂_z Δt (µm to mm) are not lost to the altitude's
+    /// resolution (4 mm at 40 km).
+    pub(crate) x: Vector3<T>,
+    /// Reference altitude, m (moved to the estimate when |ĥ − h_ref| > [`RECENTRE_M`]).
+    pub(crate) h_ref_m: T,
+    pub(crate) time: Timestamp,
+    pub(crate) dt_s: T,
+    pub(crate) dt_us: u64,
+    /// `dt_us` when it is exactly `dt_s` in the float type (the stored step then applies
+    /// as is), else 0 (an interval of a whole number of µs is never exactly `dt_s`: every
+    /// step takes the corrected path).
+    pub(crate) nominal_us: u64,
+    pub(crate) half_dt_s: T,
+    pub(crate) modes: Modes<T>,
+    pub(crate) feedback: Feedback<T>,
+    pub(crate) gravity: GravityModel<T>,
+    pub(crate) baro: AidChannel<T>,
+    pub(crate) velocity: AidChannel<T>,
+    pub(crate) baro_timeouts: AidTimeouts<T>,
+    pub(crate) velocity_timeouts: AidTimeouts<T>,
+    /// The aid model, gate and recovery as configured.
+    pub(crate) run_time: RunTime<T>,
+    /// The same, compiled.
+    pub(crate) gate: GateParams<T>,
+    pub(crate) baro_tally: AidTally,
+    pub(crate) velocity_tally: AidTally,
+    pub(crate) health: Health,
+}
+
+/// The state a sub-step starts from and the interval it covers.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SubStep<T> {
+    pub(crate) x: Vector3<T>,
+    pub(crate) h_ref: T,
+    pub(crate) now: Timestamp,
+    pub(crate) h_us: u64,
+    pub(crate) specific_force: T,
+    pub(crate) bridged: bool,
+}
+
+impl<T: Real> LoopCore<T> {
+    /// The loop at `init` with a design's values (copies only: no f64 arithmetic).
+    pub(crate) fn new(init: &InitialState<T>, parts: CoreParts<'_, T>) -> Result<Self, NavError> {
+        check_initial(init)?;
+        let StepValues {
+            dt_s,
+            half_dt_s,
+            baro_lag_s,
+        } = parts.step;
+        let dt_us = match crate::time::seconds_to_micros(dt_s) {
+            Some(us) if us > 0 => us,
+            _ => {
+                return Err(NavError::InvalidConfig {
+                    field: "design.imu_dt_s",
+                    issue: ConfigIssue::OutOfRange,
+                })
+            }
+        };
+        if !crate::math::checks::all_finite(parts.k.as_slice()) {
+            return Err(NavError::InvalidConfig {
+                field: "design",
+                issue: ConfigIssue::NotFinite,
+            });
+        }
+        let bias_sign = T::lit(parts.bias_sign);
+        Ok(Self {
+            h_ref_m: init.altitude_m,
+            x: Vector3::new(T::zero(), init.vz_up_m_s, -init.accel_bias_m_s2 * bias_sign),
+            time: init.time,
+            dt_s,
+            dt_us,
+            nominal_us: if micros_to_seconds::<T>(dt_us) == dt_s {
+                dt_us
+            } else {
+                0
+            },
+            half_dt_s,
+            modes: *parts.modes,
+            feedback: Feedback {
+                k: parts.k,
+                lag_s: baro_lag_s,
+                bias_sign,
+            },
+            gravity: *parts.gravity,
+            baro: AidChannel::new(),
+            velocity: AidChannel::new(),
+            baro_timeouts: parts.baro_timeouts,
+            velocity_timeouts: parts.velocity_timeouts,
+            run_time: parts.run_time,
+            gate: parts.gate,
+            baro_tally: AidTally::default(),
+            velocity_tally: AidTally::default(),
+            health: Health::default(),
+        })
+    }
+
+    /// One IMU step with optional new aid samples, over the actual interval since the last
+    /// accepted sample. On error nothing changes but the refused-input counter of the input
+    /// that was refused.
+    #[inline(always)]
+    pub(crate) fn step(
+        &mut self,
+        imu: &ImuSample<T>,
+        baro: Option<&BaroSample<T>>,
+        velocity: Option<&VelocitySample<T>>,
+    ) -> Result<StepReports<T>, NavError> {
+        let us = match self.check_imu(imu) {
+            Ok(us) => us,
+            Err(e) => return Err(self.refused_imu(e)),
+        };
+        let samples = self.check_samples(imu.time, us, baro, velocity)?;
+        if us <= self.dt_us.saturating_add(self.dt_us / 2) {
+            let sub = SubStep {
+                x: self.x,
+                h_ref: self.h_ref_m,
+                now: imu.time,
+                h_us: us,
+                specific_force: imu.specific_force_up_m_s2,
+                bridged: false,
+            };
+            return match self.advance(&sub, &samples) {
+                Ok((baro, velocity)) => Ok(StepReports {
+                    baro,
+                    velocity,
+                    imu_intervals: 1,
+                }),
+                Err(e) => Err(self.refused_imu(e)),
+            };
+        }
+        match self.bridge(us, imu, &samples) {
+            Ok(r) => Ok(r),
+            Err(e) => Err(self.refused_imu(e)),
+        }
+    }
+
+    /// The IMU sample's values and interval (µs, > 0).
+    #[inline(always)]
+    fn check_imu(&self, imu: &ImuSample<T>) -> Result<u64, NavError> {
+        check_imu_values(imu)?;
+        match imu.time.micros_since(self.time) {
+            Some(d) if d > 0 => Ok(d),
+            _ => Err(NavError::TimeNotIncreasing),
+        }
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn refused_imu(&mut self, e: NavError) -> NavError {
+        Health::bump(&mut self.health.imu_refused);
+        e
+    }
+
+    /// Validates the new aid samples against their channels as they will be when the samples
+    /// enter (emptied by a gap too long to bridge); a refused sample is counted for its aid.
+    #[inline(always)]
+    fn check_samples(
+        &mut self,
+        now: Timestamp,
+        us: u64,
+        baro: Option<&BaroSample<T>>,
+        velocity: Option<&VelocitySample<T>>,
+    ) -> Result<NewSamples<T>, NavError> {
+        let long_gap = us > MAX_BRIDGED_GAP_US;
+        let baro = match baro {
+            Some(s) => {
+                let rule = SampleRule {
+                    value_name: "altitude_m",
+                    range: ALTITUDE_RANGE_M,
+                    lost_after_s: self.baro_timeouts.lost_after_s,
+                };
+                match self.baro.check(s.time, s.altitude_m, now, &rule, long_gap) {
+                    Ok(v) => Some(v),
+                    Err(e) => return Err(self.refused_aid(true, e)),
+                }
+            }
+            None => None,
+        };
+        let velocity = match velocity {
+            Some(s) => {
+                let rule = SampleRule {
+                    value_name: "vz_up_m_s",
+                    range: (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
+                    lost_after_s: self.velocity_timeouts.lost_after_s,
+                };
+                match self
+                    .velocity
+                    .check(s.time, s.vz_up_m_s, now, &rule, long_gap)
+                {
+                    Ok(v) => Some(v),
+                    Err(e) => return Err(self.refused_aid(false, e)),
+                }
+            }
+            None => None,
+        };
+        Ok(NewSamples { baro, velocity })
+    }
+
+    #[cold]
+    #[inline(never)]
+    fn refused_aid(&mut self, baro: bool, e: NavError) -> NavError {
+        let tally = if baro {
+            &mut self.baro_tally
+        } else {
+            &mut self.velocity_tally
+        };
+        tally.counters.record_refused();
+        e
+    }
+
+    /// Commits a new state: re-centres the relative altitude and holds the estimate inside
+    /// its limits; a held estimate marks both aids for re-anchoring.
+    #[inline(always)]
+    pub(crate) fn settle(&mut self, mut x: Vector3<T>, h_ref: T) {
+        let mut h_ref_new = h_ref;
+        let mut limited = false;
+        // `x` is finite here (checked by the caller, or bounded by construction in a coast).
+        if x.x.abs() > T::lit(RECENTRE_M) {
+            h_ref_new = h_ref + x.x;
+            x.x = T::zero();
+            let (lo, hi) = (T::lit(ESTIMATE_RANGE_M.0), T::lit(ESTIMATE_RANGE_M.1));
+            if h_ref_new < lo || h_ref_new > hi {
+                h_ref_new = if h_ref_new < lo { lo } else { hi };
+                limited = true;
+            }
+        }
+        let vmax = T::lit(MAX_ESTIMATE_SPEED_M_S);
+        if x.y.abs() > vmax {
+            x.y = if x.y < T::zero() { -vmax } else { vmax };
+            limited = true;
+        }
+        let bmax = T::lit(MAX_ESTIMATE_BIAS_M_S2);
+        if x.z.abs() > bmax {
+            x.z = if x.z < T::zero() { -bmax } else { bmax };
+            limited = true;
+        }
+        if limited {
+            Health::bump(&mut self.health.limits_hit);
+            self.baro.reanchor = true;
+            self.velocity.reanchor = true;
+        }
+        self.x = x;
+        self.h_ref_m = h_ref_new;
+    }
+
+    /// One (sub-)step: gate, propagation, commit. On error nothing changes.
+    #[inline(always)]
+    pub(crate) fn advance(
+        &mut self,
+        sub: &SubStep<T>,
+        samples: &NewSamples<T>,
+    ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
+        let nominal = sub.h_us == self.nominal_us;
+        let (h_s, half_h) = if nominal {
+            (self.dt_s, self.half_dt_s)
+        } else {
+            let h = micros_to_seconds::<T>(sub.h_us);
+            (h, h * T::lit(0.5))
+        };
+        let gated = self.gate_samples(sub, half_h, samples);
+        let x = gated.x;
+        let v = x.y;
+        let baro_status = gated.baro.status(gated.baro_age, &self.baro_timeouts);
+        let vel_status = gated
+            .velocity
+            .status(gated.velocity_age, &self.velocity_timeouts);
+        let use_baro = baro_status.in_use();
+        let use_vel = vel_status.in_use();
+        // Held samples extrapolated to the middle of the interval (ZOH of the continuous loop).
+        let half = T::lit(0.5);
+        let nu_h = use_baro.then(|| {
+            let age = gated.baro_age - half_h;
+            (gated.baro.last_value - sub.h_ref) + age * (v - half * gated.v_rate * age)
+                - gated.h_pred
+        });
+        let nu_v = use_vel
+            .then(|| gated.velocity.last_value + (gated.velocity_age - half_h) * gated.v_rate - v);
+        let mode = self.modes.select(use_baro, use_vel);
+        let nu = Vector2::new(nu_h.unwrap_or(T::zero()), nu_v.unwrap_or(T::zero()));
+        let drive = Vector2::new(v, gated.v_rate);
+        let dx = if nominal {
+            mode.n * drive + mode.g * nu
+        } else {
+            let mask = AidMask {
+                baro: if use_baro { T::one() } else { T::zero() },
+                velocity: if use_vel { T::one() } else { T::zero() },
+            };
+            off_nominal_increment(&self.feedback, mode, mask, h_s, self.dt_s, &drive, &nu)
+        };
+        let x_new = x + dx;
+        // One test for all three: a sum of finite values is finite unless it overflows, which
+        // is refused as well (unreachable with valid input: every term is bounded).
+        if !(x_new.x + x_new.y + x_new.z).is_finite() {
+            return Err(NavError::NonFiniteInput {
+                input: "state after step",
+            });
+        }
+        self.baro = gated.baro;
+        self.velocity = gated.velocity;
+        self.settle(x_new, sub.h_ref);
+        self.time = sub.now;
+        self.baro_tally.count(&gated.baro_verdict);
+        self.velocity_tally.count(&gated.velocity_verdict);
+        self.health.state = self.health_state(sub.bridged, use_baro, use_vel);
+        Ok((
+            report(baro_status, nu_h, gated.baro_verdict),
+            report(vel_status, nu_v, gated.velocity_verdict),
+        ))
+    }
+
+    /// Health after a committed step (the rules are in the module documentation).
+    #[inline(always)]
+    fn health_state(&self, bridged: bool, use_baro: bool, use_vel: bool) -> HealthState {
+        if self.baro.reanchor {
+            HealthState::NeedsReinitialisation
+        } else if bridged
+            || !use_baro
+            || (self.velocity.received && !use_vel)
+            || self.baro.rejected_since != NEVER
+            || self.velocity.rejected_since != NEVER
+            || self.baro.recovery_var > T::zero()
+            || self.velocity.recovery_var > T::zero()
+        {
+            HealthState::Degraded
+        } else {
+            HealthState::Nominal
+        }
+    }
+
+    /// The gate on the new samples and the resets they call for: the channels to use, the
+    /// state after the resets and the rates the held samples are extrapolated with.
+    #[inline(always)]
+    fn gate_samples(&self, sub: &SubStep<T>, half_h: T, samples: &NewSamples<T>) -> Gated<T> {
+        let mut x = sub.x;
+        let (alt, v, b) = (x.x, x.y, x.z);
+        let bias_sign = self.feedback.bias_sign;
+        let lag = self.feedback.lag_s;
+        let mut az = sub.specific_force - self.gravity.gravity_m_s2(sub.h_ref + alt);
+        // Predicted measurements at mid-interval (the baro's relative to h_ref) and the rates
+        // a held sample is extrapolated with (baro: second order, h(mid) = h(t) + age (V̂ −
+        // ½ a age); velocity: first order).
+        let mut h_pred = alt - lag * v;
+        let mut v_rate = az + bias_sign * b;
+        let half = T::lit(0.5);
+        let now = sub.now;
+        let (baro_ch, baro_age, baro_verdict) = admit::<T, true>(
+            &self.baro,
+            self.baro.age(now),
+            samples.baro,
+            &Extrapolation {
+                now,
+                lost_after_s: self.baro_timeouts.lost_after_s,
+                offset: sub.h_ref,
+                half_h,
+                rate: v,
+                rate_slope: half * v_rate,
+                pred: h_pred,
+            },
+            &self.gate,
+            &self.gate.baro,
+        );
+        let (vel_ch, vel_age, vel_verdict) = admit::<T, false>(
+            &self.velocity,
+            self.velocity.age(now),
+            samples.velocity,
+            &Extrapolation {
+                now,
+                lost_after_s: self.velocity_timeouts.lost_after_s,
+                offset: T::zero(),
+                half_h,
+                rate: v_rate,
+                rate_slope: T::zero(),
+                pred: v,
+            },
+            &self.gate,
+            &self.gate.velocity,
+        );
+        // A reset or re-anchoring moves the measured state so that its innovation is zero
+        // (baro: ĥ; velocity: V̂_z); the other states are kept.
+        let moved = |v: &Option<Verdict<T>>| {
+            v.filter(|v| {
+                matches!(
+                    v.reacquisition,
+                    Reacquisition::Reset | Reacquisition::Reanchored
+                )
+            })
+            .map(|v| v.report.innovation)
+        };
+        let (dh, dv) = (moved(&baro_verdict), moved(&vel_verdict));
+        if dh.is_some() || dv.is_some() {
+            if let Some(d) = dh {
+                x.x += d;
+            }
+            if let Some(d) = dv {
+                x.y += d;
+            }
+            az = sub.specific_force - self.gravity.gravity_m_s2(sub.h_ref + x.x);
+            h_pred = x.x - lag * x.y;
+            v_rate = az + bias_sign * x.z;
+        }
+        Gated {
+            x,
+            h_pred,
+            v_rate,
+            baro: baro_ch,
+            baro_age,
+            baro_verdict,
+            velocity: vel_ch,
+            velocity_age: vel_age,
+            velocity_verdict: vel_verdict,
+        }
+    }
+
+    /// Restarts the state and clock from `init`, keeping the design, the gate and the
+    /// counters (held aid samples are dropped; health `Initialising`). On error nothing
+    /// changes.
+    pub(crate) fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
+        check_initial(init)?;
+        self.h_ref_m = init.altitude_m;
+        self.x = Vector3::new(
+            T::zero(),
+            init.vz_up_m_s,
+            -init.accel_bias_m_s2 * self.feedback.bias_sign,
+        );
+        self.time = init.time;
+        self.baro = AidChannel::new();
+        self.velocity = AidChannel::new();
+        self.health.state = HealthState::Initialising;
+        Health::bump(&mut self.health.reinitialisations);
+        Ok(())
+    }
+
+    /// Installs a new run-time configuration (validated and compiled; refused: nothing
+    /// changes).
+    fn set_run_time(&mut self, rt: RunTime<T>) -> Result<(), NavError> {
+        self.gate = GateParams::compile(&rt)?;
+        self.run_time = rt;
+        Ok(())
+    }
+
+    pub(crate) fn set_gate(&mut self, gate: Gate<T>) -> Result<(), NavError> {
+        self.set_run_time(RunTime {
+            gate,
+            ..self.run_time
+        })
+    }
+
+    pub(crate) fn set_recovery(&mut self, recovery: RecoveryPolicy<T>) -> Result<(), NavError> {
+        self.set_run_time(RunTime {
+            recovery,
+            ..self.run_time
+        })
+    }
+
+    pub(crate) fn set_aid_model(&mut self, aid_model: AidModel<T>) -> Result<(), NavError> {
+        self.set_run_time(RunTime {
+            aid_model,
+            ..self.run_time
+        })
+    }
+
+    fn tally(&self, aid: Aid) -> &AidTally {
+        match aid {
+            Aid::Baro => &self.baro_tally,
+            Aid::Velocity => &self.velocity_tally,
+        }
+    }
+
+    pub(crate) fn aid_counters(&self, aid: Aid) -> AidCounters {
+        self.tally(aid).counters
+    }
+
+    pub(crate) fn reacquisition_counters(&self, aid: Aid) -> ReacquisitionCounters {
+        self.tally(aid).reacquisition
+    }
+
+    /// The loop with its refused-input counters cleared (tests compare everything else).
+    #[cfg(test)]
+    pub(crate) fn without_refusals(&self) -> Self {
+        let mut c = *self;
+        c.health.imu_refused = 0;
+        c.baro_tally.counters.refused = 0;
+        c.velocity_tally.counters.refused = 0;
+        c
+    }
+
+    /// Altitude estimate, m.
+    pub(crate) fn altitude_m(&self) -> T {
+        self.h_ref_m + self.x.x
+    }
+
+    /// Accelerometer bias estimate (measured − true), m/s².
+    pub(crate) fn accel_bias_m_s2(&self) -> T {
+        -self.x.z * self.feedback.bias_sign
+    }
+}
+
+/// The outcome of the gate in one sub-step.
+struct Gated<T: Real> {
+    x: Vector3<T>,
+    h_pred: T,
+    v_rate: T,
+    baro: AidChannel<T>,
+    baro_age: T,
+    baro_verdict: Option<Verdict<T>>,
+    velocity: AidChannel<T>,
+    velocity_age: T,
+    velocity_verdict: Option<Verdict<T>>,
+}
+
+#[inline(always)]
+fn report<T: Real>(
+    status: super::AidStatus<T>,
+    correction: Option<T>,
+    verdict: Option<Verdict<T>>,
+) -> AidReport<T> {
+    AidReport {
+        status,
+        correction,
+        sample: verdict.map(|v| v.report),
+        reacquisition: verdict.map_or(Reacquisition::Tracking, |v| v.reacquisition),
+    }
+}

@@ -1,0 +1,327 @@
+//! One run of both loops on the simulated sensors, and the Monte Carlo over runs.
+
+use super::sensors::Sensors;
+use super::truth::Profile;
+use super::{validate, Config};
+use crate::montecarlo::monte_carlo;
+use crate::rng::{normal, SimRng};
+use crate::stats::ensemble;
+use anyhow::{anyhow, ensure, Result};
+use nav_core::time::Timestamp;
+use nav_core::vertical_channel::{
+    AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
+    InitialState, VelocitySample,
+};
+use nav_core::{Estimator, Real};
+
+/// Series and statistics of one run.
+#[derive(Debug, Clone, Default)]
+pub struct RunOut {
+    /// Output epochs, s.
+    pub t: Vec<f64>,
+    /// True altitude, m.
+    pub h_true: Vec<f64>,
+    /// True vertical velocity, m/s.
+    pub vz_true: Vec<f64>,
+    /// Latest baro sample, m.
+    pub h_baro: Vec<f64>,
+    /// Estimates [classical, aided].
+    pub h_est: [Vec<f64>; 2],
+    /// Vertical velocity estimates [classical, aided].
+    pub vz_est: [Vec<f64>; 2],
+    /// Altitude errors (estimate − truth) [classical, aided].
+    pub err_h: [Vec<f64>; 2],
+    /// Vertical velocity errors [classical, aided].
+    pub err_vz: [Vec<f64>; 2],
+    /// Σ err² at the IMU rate after `rmse_after_s`: [loop][h, vz].
+    pub sumsq: [[f64; 2]; 2],
+    /// Number of samples in `sumsq`.
+    pub n: usize,
+    /// Settle time (|err_h| ≤ 1 m from then to the end), per loop.
+    pub settle_s: [Option<f64>; 2],
+}
+
+/// Sensor switches of a run.
+#[derive(Debug, Clone, Copy)]
+pub struct Noise {
+    /// Sensor noise, biases and correlated errors on.
+    pub on: bool,
+}
+
+fn in_dropout(cfg: &Config, aid: &str, t: f64) -> bool {
+    cfg.dropout
+        .iter()
+        .any(|d| d.aid == aid && t >= d.start_s && t < d.end_s)
+}
+
+/// Builds the nav-core loop configurations in the loops' float type (no gate; the aid
+/// model and recovery of the papers' configuration).
+pub fn loop_configs<T: Real>(cfg: &Config, tau_s: f64) -> (ClassicalConfig<T>, AidedConfig<T>) {
+    let dt = 1.0 / cfg.imu_rate_hz;
+    let baro_period = 1.0 / cfg.baro.rate_hz;
+    let vel_period = 1.0 / cfg.velocity_aid.rate_hz;
+    let baro_timeouts = AidTimeouts {
+        stale_after_s: T::lit(1.5 * baro_period),
+        lost_after_s: T::lit(0.5),
+    };
+    let vel_timeouts = AidTimeouts {
+        stale_after_s: T::lit(1.5 * vel_period),
+        lost_after_s: T::lit(1.0),
+    };
+    let lat = T::lit(cfg.latitude_deg.to_radians());
+    (
+        ClassicalConfig {
+            imu_dt_s: T::lit(dt),
+            latitude_rad: lat,
+            tau_s: T::lit(tau_s),
+            baro_lag_s: T::lit(cfg.classical.lag_compensation_s),
+            baro_period_s: T::lit(baro_period),
+            baro_timeouts,
+            ..ClassicalConfig::paper()
+        },
+        AidedConfig {
+            imu_dt_s: T::lit(dt),
+            latitude_rad: lat,
+            accel_noise_m_s2_rt_hz: T::lit(
+                cfg.aided
+                    .accel_noise_design_m_s2_rt_hz
+                    .unwrap_or(cfg.imu.noise_m_s2_rt_hz),
+            ),
+            accel_bias_rw_m_s2_rt_s: T::lit(cfg.aided.accel_bias_rw_m_s2_rt_s),
+            baro_noise_m: T::lit(cfg.baro.noise_m),
+            baro_period_s: T::lit(baro_period),
+            baro_lag_s: T::lit(cfg.aided.lag_compensation_s),
+            velocity_noise_m_s: T::lit(cfg.velocity_aid.noise_m_s),
+            velocity_period_s: T::lit(vel_period),
+            baro_timeouts,
+            velocity_timeouts: vel_timeouts,
+            ..AidedConfig::paper()
+        },
+    )
+}
+
+fn ratio(a: f64, b: f64, what: &str) -> Result<usize> {
+    let r = a / b;
+    let n = r.round();
+    ensure!(
+        n >= 1.0 && (r - n).abs() < 1e-6,
+        "{what}: must be an integer multiple of the IMU interval"
+    );
+    Ok(n as usize)
+}
+
+/// Simulates one run of both loops. `init_err` = (altitude m, vz m/s) estimate − truth.
+pub fn simulate<T: Real>(
+    cfg: &Config,
+    profile: &Profile,
+    tau_s: f64,
+    init_err: (f64, f64),
+    noise: Noise,
+    rng: &mut SimRng,
+) -> Result<RunOut> {
+    let dt = 1.0 / cfg.imu_rate_hz;
+    let steps = (cfg.duration_s / dt).round() as usize;
+    let baro_every = ratio(cfg.imu_rate_hz, cfg.baro.rate_hz, "baro.rate_hz")?;
+    let vel_every = ratio(
+        cfg.imu_rate_hz,
+        cfg.velocity_aid.rate_hz,
+        "velocity_aid.rate_hz",
+    )?;
+    let out_every = ratio(cfg.output_interval_s, dt, "output_interval_s")?;
+    let rmse_from = (cfg.rmse_after_s / dt).round() as usize;
+    let (ccfg, acfg) = loop_configs::<T>(cfg, tau_s);
+    let (h0, v0, _) = profile.at(0.0);
+    let init = InitialState {
+        time: Timestamp::ZERO,
+        altitude_m: T::lit(h0 + init_err.0),
+        vz_up_m_s: T::lit(v0 + init_err.1),
+        accel_bias_m_s2: T::zero(),
+    };
+    let mut classical = ClassicalLoop::<T>::new(&ccfg, &init).map_err(|e| anyhow!("{e}"))?;
+    let mut aided = AidedLoop::<T>::new(&acfg, &init).map_err(|e| anyhow!("{e}"))?;
+
+    let mut sensors = Sensors::new(cfg, noise, dt, baro_every, (h0, v0), rng);
+    let mut last_baro = f64::NAN;
+
+    let mut out = RunOut::default();
+    let mut last_big = [Some(0.0f64); 2]; // time after the last |err| > 1 m
+    let (mut h_prev, mut v_prev, _) = profile.at(0.0);
+    for k in 1..=steps {
+        let t = k as f64 * dt;
+        let stamp = Timestamp::from_secs_f64(t).map_err(|e| anyhow!("time stamp {t}: {e}"))?;
+        let (h, v, _) = profile.at(t);
+        // Mean specific force over the interval: Δv/Δt + g at mid-interval altitude.
+        let (h_mid, _, _) = profile.at(t - 0.5 * dt);
+        let f = sensors.specific_force((v - v_prev) / dt, h_mid, rng);
+        sensors.advance_baro_lag(h, h_prev);
+        let baro = if k % baro_every == 0 {
+            let z = sensors.baro(rng);
+            last_baro = z;
+            (!in_dropout(cfg, "baro", t)).then_some(BaroSample {
+                time: stamp,
+                altitude_m: T::lit(z),
+            })
+        } else {
+            None
+        };
+        let vel = if k % vel_every == 0 {
+            let z = sensors.velocity(v, rng);
+            (!in_dropout(cfg, "velocity", t)).then_some(VelocitySample {
+                time: stamp,
+                vz_up_m_s: T::lit(z),
+            })
+        } else {
+            None
+        };
+        let imu = ImuSample {
+            time: stamp,
+            specific_force_up_m_s2: T::lit(f),
+        };
+        classical
+            .step(&imu, baro.as_ref())
+            .map_err(|e| anyhow!("classical loop at t = {t}: {e}"))?;
+        aided
+            .step(&imu, baro.as_ref(), vel.as_ref())
+            .map_err(|e| anyhow!("aided loop at t = {t}: {e}"))?;
+        let est = [
+            (
+                classical.altitude_m().to_f64(),
+                classical.vz_up_m_s().to_f64(),
+            ),
+            (aided.altitude_m().to_f64(), aided.vz_up_m_s().to_f64()),
+        ];
+        for (l, (eh, ev)) in est.iter().enumerate() {
+            let (dh, dv) = (eh - h, ev - v);
+            if dh.abs() > 1.0 {
+                last_big[l] = None;
+            } else if last_big[l].is_none() {
+                last_big[l] = Some(t);
+            }
+            if k >= rmse_from {
+                out.sumsq[l][0] += dh * dh;
+                out.sumsq[l][1] += dv * dv;
+            }
+        }
+        if k >= rmse_from {
+            out.n += 1;
+        }
+        if k % out_every == 0 {
+            out.t.push(t);
+            out.h_true.push(h);
+            out.vz_true.push(v);
+            out.h_baro.push(last_baro);
+            for (l, (eh, ev)) in est.iter().enumerate() {
+                out.h_est[l].push(*eh);
+                out.vz_est[l].push(*ev);
+                out.err_h[l].push(eh - h);
+                out.err_vz[l].push(ev - v);
+            }
+        }
+        h_prev = h;
+        v_prev = v;
+    }
+    out.settle_s = last_big;
+    Ok(out)
+}
+
+/// One run (noisy and, when asked, its noise-free twin) in the configured precision.
+pub fn one_run(
+    cfg: &Config,
+    profile: &Profile,
+    tau_s: f64,
+    twin: bool,
+    rng: &mut SimRng,
+) -> Result<(RunOut, Option<RunOut>)> {
+    let init_err = if cfg.initial_error.mode == "gaussian" {
+        (
+            normal(rng, cfg.initial_error.altitude_m),
+            normal(rng, cfg.initial_error.vz_m_s),
+        )
+    } else {
+        (cfg.initial_error.altitude_m, cfg.initial_error.vz_m_s)
+    };
+    let f = |noise: Noise, rng: &mut SimRng| {
+        if cfg.precision == "f32" {
+            simulate::<f32>(cfg, profile, tau_s, init_err, noise, rng)
+        } else {
+            simulate::<f64>(cfg, profile, tau_s, init_err, noise, rng)
+        }
+    };
+    let noisy = f(Noise { on: true }, rng)?;
+    let quiet = if twin {
+        Some(f(Noise { on: false }, rng)?)
+    } else {
+        None
+    };
+    Ok((noisy, quiet))
+}
+
+/// Monte Carlo of both loops: per-epoch RMSE (over runs) and the overall RMSE.
+#[derive(Debug, Clone)]
+pub struct McResult {
+    /// Output epochs, s.
+    pub t: Vec<f64>,
+    /// RMSE over runs vs time: [loop][h, vz].
+    pub rmse_t: [[Vec<f64>; 2]; 2],
+    /// RMSE over runs and time after `rmse_after_s`: [loop][h, vz].
+    pub rmse: [[f64; 2]; 2],
+    /// Noise-free settle times (per loop) with the configured initial errors taken as fixed.
+    pub settle_s: [Option<f64>; 2],
+}
+
+/// Runs the Monte Carlo for one classical τ.
+pub fn monte_carlo_rmse(
+    cfg: &Config,
+    tau_s: f64,
+    runs: usize,
+    seed: u64,
+    progress: bool,
+) -> Result<McResult> {
+    validate(cfg)?;
+    let profile = Profile::new(&cfg.profile)?;
+    let results = monte_carlo("vertical channel", runs, seed, progress, |_, rng| {
+        one_run(cfg, &profile, tau_s, false, rng)
+    });
+    let results: Vec<(RunOut, Option<RunOut>)> = results.into_iter().collect::<Result<_>>()?;
+    // Settle time on the noise-free run with the configured (fixed) initial errors.
+    let fixed = (cfg.initial_error.altitude_m, cfg.initial_error.vz_m_s);
+    let mut unused = crate::rng::run_rng(seed, u64::MAX);
+    let quiet = if cfg.precision == "f32" {
+        simulate::<f32>(
+            cfg,
+            &profile,
+            tau_s,
+            fixed,
+            Noise { on: false },
+            &mut unused,
+        )?
+    } else {
+        simulate::<f64>(
+            cfg,
+            &profile,
+            tau_s,
+            fixed,
+            Noise { on: false },
+            &mut unused,
+        )?
+    };
+    let settle_s = quiet.settle_s;
+    let mut rmse_t: [[Vec<f64>; 2]; 2] = Default::default();
+    let mut rmse = [[0.0; 2]; 2];
+    let n_total: f64 = results.iter().map(|r| r.0.n as f64).sum();
+    for l in 0..2 {
+        let eh: Vec<Vec<f64>> = results.iter().map(|r| r.0.err_h[l].clone()).collect();
+        let ev: Vec<Vec<f64>> = results.iter().map(|r| r.0.err_vz[l].clone()).collect();
+        rmse_t[l][0] = ensemble(&eh).rms;
+        rmse_t[l][1] = ensemble(&ev).rms;
+        for (q, item) in rmse[l].iter_mut().enumerate() {
+            *item = (results.iter().map(|r| r.0.sumsq[l][q]).sum::<f64>() / n_total).sqrt();
+        }
+    }
+    Ok(McResult {
+        t: results.first().map(|r| r.0.t.clone()).unwrap_or_default(),
+        rmse_t,
+        rmse,
+        settle_s,
+    })
+}
