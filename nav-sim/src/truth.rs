@@ -235,7 +235,7 @@ mod tests {
 
     #[test]
     fn landmark_vector_agrees_with_nav_core_and_has_the_ecef_range() {
-        use nav_core::seeker_ins::measurement::landmark_vector_ned;
+        use nav_core::seeker_ins::landmark_vector_ned;
         use nav_core::seeker_ins::{Landmark, Position};
         let veh = (0.61, 2.2, 3_000.0);
         for (dlat, dlon, dalt) in [
@@ -283,7 +283,7 @@ mod tests {
         assert!((vector_from_rotation(&rotation_from_vector(&phi)) - phi).norm() < 1e-12);
         let u = Vector3::new(0.8, 0.3, -0.2);
         let (pitch, yaw) = gimbal_angles_rad(&u);
-        let core = nav_core::seeker_ins::measurement::gimbal_angles_of(&u.normalize());
+        let core = nav_core::seeker_ins::gimbal_angles_of(&u.normalize());
         assert!((pitch - core.pitch_rad).abs() < 1e-14 && (yaw - core.yaw_rad).abs() < 1e-14);
     }
 }

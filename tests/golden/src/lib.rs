@@ -14,7 +14,6 @@
 #![forbid(unsafe_code)]
 
 use nalgebra::Vector3;
-use nav_core::contract::Estimator;
 use nav_core::design::DesignValues;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm};
 use nav_core::seeker_ins::{
