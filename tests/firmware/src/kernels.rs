@@ -300,7 +300,6 @@ use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState, VelocitySample,
 };
-use nav_core::Estimator;
 
 // The χ² gate is on in the bench (its cost is part of the step): every sample is gated.
 use nav_golden::vc_gate;
@@ -407,7 +406,6 @@ fn vca_check() -> bool {
 // ---------------------------------------------------------------- seeker-aided INS
 
 use nalgebra::Vector2;
-use nav_core::contract::Estimator;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
     gimbal_angles_of, landmark_vector_ned, paper_initial_covariance, ImuIncrement, Ins, InsState,
