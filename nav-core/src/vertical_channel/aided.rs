@@ -26,7 +26,7 @@
 //! * `R = diag(σ_h² T_h, σ_v² T_v)`: the PSD equivalent of white noise of per-sample σ sampled
 //!   every T (m²·s and (m/s)²·s).
 
-use super::config::{validate_gate, validate_recovery, AidModel, AidedConfig};
+use super::config::{AidModel, AidedConfig};
 use super::core::{CoreParts, LoopCore};
 use super::design::AidedDesign;
 use super::envelope::check_imu_dt;
@@ -159,12 +159,10 @@ impl<T: Real> AidedLoop<T> {
 
     /// Sets the χ² gate (validated as the configuration's `gate`; refused: nothing changes).
     pub fn set_gate(&mut self, gate: Gate<T>) -> Result<(), NavError> {
-        validate_gate(&gate)?;
         self.core.set_gate(gate)
     }
     /// Sets the starvation recovery (validated as the configuration's `recovery`).
     pub fn set_recovery(&mut self, recovery: RecoveryPolicy<T>) -> Result<(), NavError> {
-        validate_recovery(&recovery)?;
         self.core.set_recovery(recovery)
     }
     /// Sets the aid model (validated as the configuration's `aid_model`).

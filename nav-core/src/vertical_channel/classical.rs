@@ -20,7 +20,7 @@
 //! misprint). C4 is the baro lag compensation: a first-order lag of time constant τ_b reads
 //! `h_baro ≈ h − τ_b V_z`, so C4 = τ_b.
 
-use super::config::{validate_gate, validate_recovery, AidModel, ClassicalConfig};
+use super::config::{AidModel, ClassicalConfig};
 use super::core::{CoreParts, LoopCore};
 use super::design::ClassicalDesign;
 use super::envelope::check_imu_dt;
@@ -140,12 +140,10 @@ impl<T: Real> ClassicalLoop<T> {
 
     /// Sets the χ² gate (validated as the configuration's `gate`; refused: nothing changes).
     pub fn set_gate(&mut self, gate: Gate<T>) -> Result<(), NavError> {
-        validate_gate(&gate)?;
         self.core.set_gate(gate)
     }
     /// Sets the starvation recovery (validated as the configuration's `recovery`).
     pub fn set_recovery(&mut self, recovery: RecoveryPolicy<T>) -> Result<(), NavError> {
-        validate_recovery(&recovery)?;
         self.core.set_recovery(recovery)
     }
     /// Sets the aid model (validated as the configuration's `aid_model`).
