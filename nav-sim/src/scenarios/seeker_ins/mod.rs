@@ -24,7 +24,7 @@ pub use config::{
     landmark_position, load_config, output_epochs, Config, FilterConfig, InitialErrorConfig,
     LandmarkConfig, RatesConfig, SensorConfig,
 };
-pub use report::{chi2_quantile, nees_summary, statistics, Stats, CHANNELS};
+pub use report::{nees_summary, statistics, Stats, CHANNELS};
 pub use run::{monte_carlo_batches, simulate_run, simulate_run_faulted, ImuFaultTally, RunOutput};
 
 use crate::output::sig;

@@ -19,12 +19,6 @@ pub(super) fn nees<const N: usize>(p: &SMatrix<f64, N, N>, e: &SVector<f64, N>) 
     }
 }
 
-/// χ² quantile (Wilson-Hilferty), k degrees of freedom, standard normal quantile z.
-pub fn chi2_quantile(k: f64, z: f64) -> f64 {
-    let a = 2.0 / (9.0 * k);
-    k * (1.0 - a + z * a.sqrt()).powi(3)
-}
-
 /// Ensemble statistics of a batch of runs.
 #[derive(Debug, Clone)]
 pub struct Stats {
@@ -141,8 +135,7 @@ pub fn nees_summary(st: &Stats) -> serde_json::Value {
             .filter(|x| x.is_finite())
             .collect();
         let mean = body.iter().sum::<f64>() / body.len().max(1) as f64;
-        let lo = chi2_quantile(dof * runs, -1.959_964) / runs;
-        let hi = chi2_quantile(dof * runs, 1.959_964) / runs;
+        let (lo, hi) = crate::consistency::nees_band_95(*dof as usize, runs as usize);
         let inside = body.iter().filter(|x| **x >= lo && **x <= hi).count() as f64
             / body.len().max(1) as f64;
         m.insert(format!("nees{name}_mean"), json!(sig(mean, 4)));
@@ -276,8 +269,7 @@ pub(super) fn write_outputs(
     .iter()
     .enumerate()
     {
-        let lo = chi2_quantile(dof * runs, -1.959_964) / runs;
-        let hi = chi2_quantile(dof * runs, 1.959_964) / runs;
+        let (lo, hi) = crate::consistency::nees_band_95(*dof as usize, runs as usize);
         panels.push(Panel {
             title: format!("NEES, {name} (averaged over runs)"),
             y_label: "NEES".into(),
