@@ -70,6 +70,7 @@ pub static REGISTRY: &[Kind] = &[
     crate::scenarios::vertical_channel::KIND_MONTECARLO,
     crate::scenarios::vertical_channel_faults::KIND,
     crate::scenarios::vertical_channel::KIND_TAU_SWEEP,
+    crate::scenarios::consistency_campaign::KIND,
 ];
 
 #[derive(Debug, Deserialize)]

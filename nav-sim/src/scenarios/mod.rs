@@ -1,5 +1,6 @@
 //! Scenario runners, one module per scenario kind.
 
+pub mod consistency_campaign;
 pub mod flexure_process;
 pub mod seeker_ins;
 pub mod transfer_alignment;

@@ -1,0 +1,373 @@
+//! The consistency campaign: every estimator's flight configuration over randomized variants
+//! of its scenario that nobody tuned, with the paper filter flown on the same runs for the
+//! accuracy comparison.
+//!
+//! Each estimator contributes one [`Campaign`]: a function that draws `variants` variants from
+//! the campaign seed (variant `v` uses stream `v` of it), flies `runs` seeded Monte Carlo runs
+//! of each, and returns one [`VariantResult`] per (variant, filter). This module judges them
+//! against the same targets for every estimator and writes the worst cases:
+//!
+//! - `frac_in_band` ≥ [`MIN_FRAC_IN_BAND`] (run-averaged NEES inside its 95 % χ² band),
+//! - every `normalized_error_sq` in [[`NES_MIN`], [`NES_MAX`]],
+//! - RMS error on every axis at most [`MAX_ACCURACY_LOSS`] × the paper filter's on the same
+//!   runs.
+//!
+//! Outputs in the scenario directory: `summary.json` (per estimator: variants, passes, the
+//! worst cases by each criterion, the targets), `variants.csv` (one row per variant and
+//! filter) and `consistency.png` (per estimator, each variant's mean NEES divided by its
+//! band's upper edge, and its fraction of epochs in band).
+
+use crate::consistency::{nees_band_95, Consistency};
+use crate::plot::{self, Figure, Panel, Series, Style};
+use crate::scenario::{Context, Kind};
+use anyhow::Result;
+use serde::Deserialize;
+use serde_json::{json, Map, Value};
+use std::fmt::Write as _;
+
+/// Minimum fraction of settled epochs with the run-averaged NEES in its 95 % band.
+pub const MIN_FRAC_IN_BAND: f64 = 0.9;
+/// Lower limit of every per-axis `normalized_error_sq` (σ at most √2 too large).
+pub const NES_MIN: f64 = 0.5;
+/// Upper limit of every per-axis `normalized_error_sq` (σ at most √2 too small).
+pub const NES_MAX: f64 = 2.0;
+/// Largest accepted ratio of the flight configuration's RMS error to the paper filter's, per
+/// axis (accuracy may not get worse by more than 10 %).
+pub const MAX_ACCURACY_LOSS: f64 = 1.1;
+
+/// What a campaign is asked to fly.
+#[derive(Debug, Clone, Copy)]
+pub struct CampaignPlan {
+    /// Randomized variants to draw.
+    pub variants: usize,
+    /// Monte Carlo runs per variant.
+    pub runs: usize,
+    /// Campaign seed: variant `v` draws its parameters from stream `v`, its runs from their own
+    /// streams derived from it.
+    pub seed: u64,
+    /// Draw progress bars.
+    pub progress: bool,
+}
+
+/// One variant flown by one filter.
+#[derive(Debug, Clone)]
+pub struct VariantResult {
+    /// Variant index (0-based) within the estimator's campaign.
+    pub variant: usize,
+    /// Filter flown: `"flight"` (judged) or `"paper"` (the paper's filter, for comparison).
+    pub filter: String,
+    /// The drawn parameters, with units in the key names (e.g. `"lever_arm_m"`).
+    pub params: Value,
+    /// The consistency over the variant's runs.
+    pub consistency: Consistency,
+    /// RMS error per axis over the runs and settled epochs, in the axis's unit
+    /// (`(axis name with unit, rms)`), same axes for both filters.
+    pub rms: Vec<(String, f64)>,
+}
+
+/// An estimator's contribution to the campaign.
+#[derive(Debug, Clone, Copy)]
+pub struct Campaign {
+    /// Estimator name as it appears in the outputs.
+    pub estimator: &'static str,
+    /// What is randomized, one line.
+    pub about: &'static str,
+    /// Flies the variants.
+    pub run: fn(&CampaignPlan) -> Result<Vec<VariantResult>>,
+}
+
+/// The campaigns, one per estimator's flight configuration.
+pub static CAMPAIGNS: &[Campaign] = &[];
+
+/// Scenario kind `consistency`.
+pub const KIND: Kind = Kind {
+    kind: "consistency",
+    about: "every estimator's flight configuration over randomized variants: NEES in band, \
+            normalized errors, accuracy against the paper filter; worst cases",
+    run,
+};
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Params {
+    /// Variants per estimator.
+    variants: usize,
+    /// Only these estimators (all when absent).
+    #[serde(default)]
+    only: Option<Vec<String>>,
+}
+
+/// Verdict of one flight variant against the targets.
+#[derive(Debug, Clone)]
+struct Verdict {
+    frac_in_band: f64,
+    nes_worst: (String, f64),
+    accuracy_worst: (String, f64),
+    pass: bool,
+}
+
+fn judge(flight: &VariantResult, paper: Option<&VariantResult>) -> Verdict {
+    let frac = flight.consistency.frac_in_band();
+    let nes_worst = flight
+        .consistency
+        .normalized_error_sq
+        .iter()
+        .map(|(n, v)| (n.clone(), *v))
+        .max_by(|a, b| nes_badness(a.1).total_cmp(&nes_badness(b.1)))
+        .unwrap_or_else(|| ("none".into(), f64::NAN));
+    let accuracy_worst = paper
+        .map(|p| {
+            flight
+                .rms
+                .iter()
+                .filter_map(|(axis, r)| {
+                    p.rms
+                        .iter()
+                        .find(|(a, _)| a == axis)
+                        .map(|(_, rp)| (axis.clone(), r / rp))
+                })
+                .max_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap_or_else(|| ("none".into(), f64::NAN))
+        })
+        .unwrap_or_else(|| ("no paper filter".into(), f64::NAN));
+    let nes_ok = flight
+        .consistency
+        .normalized_error_sq
+        .iter()
+        .all(|(_, v)| (NES_MIN..=NES_MAX).contains(v));
+    let acc_ok = !accuracy_worst.1.is_finite() || accuracy_worst.1 <= MAX_ACCURACY_LOSS;
+    Verdict {
+        frac_in_band: frac,
+        nes_worst,
+        accuracy_worst,
+        pass: frac >= MIN_FRAC_IN_BAND && nes_ok && acc_ok,
+    }
+}
+
+/// How far a normalized error squared is from 1, symmetric in log (0.5 and 2 are equally bad).
+fn nes_badness(v: f64) -> f64 {
+    if v.is_finite() && v > 0.0 {
+        v.ln().abs()
+    } else {
+        f64::INFINITY
+    }
+}
+
+fn run(ctx: &Context) -> Result<Value> {
+    let p: Params = ctx.config()?;
+    let plan = CampaignPlan {
+        variants: p.variants,
+        runs: ctx.runs,
+        seed: ctx.seed,
+        progress: ctx.progress,
+    };
+    let selected: Vec<&Campaign> = CAMPAIGNS
+        .iter()
+        .filter(|c| {
+            p.only
+                .as_ref()
+                .is_none_or(|o| o.iter().any(|n| n == c.estimator))
+        })
+        .collect();
+    let mut csv = String::from(
+        "estimator,variant,filter,nees_dof,runs,nees_mean,band_lo,band_hi,frac_in_band,\
+         worst_nes_axis,worst_nes,worst_accuracy_axis,worst_accuracy_ratio,pass,params\n",
+    );
+    let mut estimators = Map::new();
+    let mut panels = Vec::new();
+    for c in selected {
+        let results = (c.run)(&plan)?;
+        let mut verdicts = Vec::new();
+        for r in &results {
+            let paper = results
+                .iter()
+                .find(|q| q.variant == r.variant && q.filter == "paper");
+            let v = judge(r, if r.filter == "paper" { None } else { paper });
+            let (lo, hi) = nees_band_95(r.consistency.dof, r.consistency.runs);
+            let _ = writeln!(
+                csv,
+                "{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{:.4},{},\"{}\"",
+                c.estimator,
+                r.variant,
+                r.filter,
+                r.consistency.dof,
+                r.consistency.runs,
+                r.consistency.mean_nees(),
+                lo,
+                hi,
+                v.frac_in_band,
+                v.nes_worst.0,
+                v.nes_worst.1,
+                v.accuracy_worst.0,
+                v.accuracy_worst.1,
+                v.pass,
+                r.params.to_string().replace('"', "'")
+            );
+            verdicts.push((r, v));
+        }
+        estimators.insert(c.estimator.into(), estimator_summary(c, &verdicts));
+        panels.extend(estimator_panels(c, &verdicts));
+    }
+    std::fs::write(ctx.out_dir.join("variants.csv"), csv)?;
+    if !panels.is_empty() {
+        let fig = Figure {
+            title: format!(
+                "Consistency campaign: flight configurations over randomized variants \
+                 ({} runs each; target: in band ≥ {MIN_FRAC_IN_BAND} of epochs)",
+                ctx.runs
+            ),
+            x_label: "variant".into(),
+            panels,
+            columns: 2,
+        };
+        let rows = fig.panels.len().div_ceil(2) as u32;
+        plot::render(&fig, &ctx.out_dir.join("consistency.png"), 1400, 380 * rows)?;
+    }
+    Ok(json!({
+        "targets": {
+            "min_frac_in_band": MIN_FRAC_IN_BAND,
+            "normalized_error_sq": [NES_MIN, NES_MAX],
+            "max_rms_ratio_to_paper": MAX_ACCURACY_LOSS,
+        },
+        "variants_per_estimator": p.variants,
+        "estimators": Value::Object(estimators),
+    }))
+}
+
+fn estimator_summary(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Value {
+    let flight: Vec<&(&VariantResult, Verdict)> = verdicts
+        .iter()
+        .filter(|(r, _)| r.filter == "flight")
+        .collect();
+    let paper: Vec<&(&VariantResult, Verdict)> = verdicts
+        .iter()
+        .filter(|(r, _)| r.filter == "paper")
+        .collect();
+    let case = |(r, v): &(&VariantResult, Verdict)| {
+        json!({
+            "variant": r.variant,
+            "params": r.params,
+            "consistency": r.consistency.summary(),
+            "rms": r.rms.iter().map(|(a, x)| (a.clone(), json!(crate::output::sig(*x, 4))))
+                .collect::<Map<String, Value>>(),
+            "worst_normalized_error_sq": [v.nes_worst.0, crate::output::sig(v.nes_worst.1, 4)],
+            "worst_rms_ratio_to_paper": [v.accuracy_worst.0,
+                crate::output::sig(v.accuracy_worst.1, 4)],
+            "pass": v.pass,
+        })
+    };
+    let worst_by = |key: &dyn Fn(&Verdict) -> f64| -> Value {
+        flight
+            .iter()
+            .max_by(|a, b| key(&a.1).total_cmp(&key(&b.1)))
+            .map(|x| case(x))
+            .unwrap_or(Value::Null)
+    };
+    let paper_frac: Vec<f64> = paper.iter().map(|(_, v)| v.frac_in_band).collect();
+    json!({
+        "about": c.about,
+        "flight_variants": flight.len(),
+        "flight_pass": flight.iter().filter(|(_, v)| v.pass).count(),
+        "flight_min_frac_in_band": flight.iter().map(|(_, v)| v.frac_in_band)
+            .fold(f64::INFINITY, f64::min),
+        "paper_mean_frac_in_band": if paper_frac.is_empty() { Value::Null } else {
+            json!(paper_frac.iter().sum::<f64>() / paper_frac.len() as f64) },
+        "worst_frac_in_band": worst_by(&|v| -v.frac_in_band),
+        "worst_normalized_error_sq": worst_by(&|v| nes_badness(v.nes_worst.1)),
+        "worst_accuracy": worst_by(&|v| v.accuracy_worst.1),
+    })
+}
+
+fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec<Panel> {
+    let mut ratio = Panel {
+        title: format!(
+            "{}: mean NEES / upper 95 % band edge (≤ 1 when not overconfident)",
+            c.estimator
+        ),
+        y_label: "NEES / band edge".into(),
+        ..Panel::default()
+    };
+    let mut frac = Panel {
+        title: format!("{}: fraction of epochs in the NEES band", c.estimator),
+        y_label: "fraction in band".into(),
+        y_range: Some((0.0, 1.05)),
+        ..Panel::default()
+    };
+    for (color, filter) in [(0usize, "flight"), (1, "paper")] {
+        let rows: Vec<&(&VariantResult, Verdict)> = verdicts
+            .iter()
+            .filter(|(r, _)| r.filter == filter)
+            .collect();
+        if rows.is_empty() {
+            continue;
+        }
+        let x: Vec<f64> = rows.iter().map(|(r, _)| r.variant as f64).collect();
+        let y_ratio: Vec<f64> = rows
+            .iter()
+            .map(|(r, _)| {
+                let (_, hi) = nees_band_95(r.consistency.dof, r.consistency.runs);
+                r.consistency.mean_nees() / hi
+            })
+            .collect();
+        let y_frac: Vec<f64> = rows.iter().map(|(_, v)| v.frac_in_band).collect();
+        let mut s = Series::line(format!("{filter} filter"), &x, &y_ratio, color);
+        s.style = Style::Points;
+        ratio.series.push(s);
+        let mut s = Series::line(format!("{filter} filter"), &x, &y_frac, color);
+        s.style = Style::Points;
+        frac.series.push(s);
+    }
+    if let Some(n) = verdicts.iter().map(|(r, _)| r.variant).max() {
+        let x = [0.0, n as f64];
+        ratio
+            .series
+            .push(Series::dashed("band edge", &x, &[1.0, 1.0], 3));
+        frac.series.push(Series::dashed(
+            "target",
+            &x,
+            &[MIN_FRAC_IN_BAND, MIN_FRAC_IN_BAND],
+            3,
+        ));
+    }
+    vec![ratio, frac]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::consistency::RunConsistency;
+
+    fn result(filter: &str, scale: f64, rms: f64) -> VariantResult {
+        // Deterministic errors: e = scale·σ·(±1) alternating, σ = 1, 3 components.
+        let runs: Vec<RunConsistency> = (0..10)
+            .map(|r| {
+                let mut rc = RunConsistency::new(&["x", "y", "z"]);
+                for k in 0..100 {
+                    let sgn = if (k + r) % 2 == 0 { 1.0 } else { -1.0 };
+                    let e = [(scale * sgn, 1.0); 3];
+                    rc.push(f64::from(k) * 0.1, 3.0 * scale * scale, &e);
+                }
+                rc
+            })
+            .collect();
+        VariantResult {
+            variant: 0,
+            filter: filter.into(),
+            params: json!({}),
+            consistency: Consistency::from_runs(3, &runs),
+            rms: vec![("x_m".into(), rms)],
+        }
+    }
+
+    #[test]
+    fn judge_accepts_consistent_and_rejects_overconfident_or_less_accurate() {
+        let paper = result("paper", 3.0, 1.0);
+        assert!(judge(&result("flight", 1.0, 1.05), Some(&paper)).pass);
+        // Overconfident: e²/σ² = 4.
+        let v = judge(&result("flight", 2.0, 1.0), Some(&paper));
+        assert!(!v.pass && v.nes_worst.1 > 3.9, "{v:?}");
+        // Consistent but 20 % less accurate than the paper filter.
+        let v = judge(&result("flight", 1.0, 1.2), Some(&paper));
+        assert!(!v.pass && (v.accuracy_worst.1 - 1.2).abs() < 1e-12, "{v:?}");
+    }
+}
