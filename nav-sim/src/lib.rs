@@ -9,6 +9,7 @@
 //! ChaCha8 stream `i` of the seed, whatever the thread that runs it.
 
 pub mod consistency;
+pub mod flight_path;
 pub mod golden;
 pub mod montecarlo;
 pub mod output;

@@ -2,6 +2,7 @@
 
 pub mod consistency_campaign;
 pub mod flexure_process;
+pub mod mission;
 pub mod seeker_ins;
 pub mod transfer_alignment;
 pub mod vertical_channel;

@@ -1,0 +1,4 @@
+//! The mission: one truth from captive carry to the landmark area, the ground on which the
+//! three estimators are flown as one chain.
+
+pub mod profile;
