@@ -2,14 +2,13 @@
 //! perfect strapdown IMU on it measures.
 //!
 //! A [`Motion`] gives, at every time, the velocity over the earth in NED and its derivative, and
-//! the attitude as Euler angles (roll φ, pitch θ, yaw ψ, `C_b^n = C_z(ψ) C_y(θ) C_x(φ)`) with
-//! their rates, all analytic. [`generate`] turns it into the truth at the IMU epochs:
+//! the attitude `C_b^n` with the body rate `ω_nb^b`, all analytic (Euler angles and their rates
+//! through [`Kinematics::from_euler`]). [`generate`] turns it into the truth at the IMU epochs:
 //!
 //! * latitude, longitude and height integrate `L̇ = V_N/(R_M+h)`, `l̇ = V_E/((R_N+h) cos L)`,
 //!   `ḣ = −V_D` with RK4 at the IMU interval;
 //! * the specific force is `fⁿ = V̇ⁿ + (2ω_ie + ω_en) × Vⁿ − gⁿ` with the exact normal gravity of
-//!   [`crate::truth`] (not the INS's model), the body rate `ω_ib^b = ω_nb^b + C_n^b ω_in^n` with
-//!   `ω_nb^b = [φ̇ − ψ̇ sin θ, θ̇ cos φ + ψ̇ sin φ cos θ, −θ̇ sin φ + ψ̇ cos φ cos θ]`;
+//!   [`crate::truth`] (not the INS's model), the body rate `ω_ib^b = ω_nb^b + C_n^b ω_in^n`;
 //! * the IMU increments `Δv = ∫ fᵇ dt`, `Δθ = ∫ ω_ib^b dt` (what a real IMU outputs; coning and
 //!   sculling are the INS's business) are integrated over each interval with 3-point
 //!   Gauss-Legendre quadrature.
@@ -31,33 +30,36 @@ pub struct Kinematics {
     pub vel_ned_m_s: Vector3<f64>,
     /// Its time derivative, NED, m/s².
     pub accel_ned_m_s2: Vector3<f64>,
-    /// Euler angles (roll, pitch, yaw), rad.
-    pub euler_rad: Vector3<f64>,
-    /// Their time derivatives, rad/s.
-    pub euler_rate_rad_s: Vector3<f64>,
+    /// Attitude `C_b^n`.
+    pub c_b_n: Matrix3<f64>,
+    /// Body rate relative to the navigation frame, `ω_nb^b`, rad/s.
+    pub w_nb_b_rad_s: Vector3<f64>,
 }
 
 impl Kinematics {
-    /// `C_b^n`.
-    pub fn c_b_n(&self) -> Matrix3<f64> {
-        dcm_from_euler(self.euler_rad.x, self.euler_rad.y, self.euler_rad.z)
-    }
-
-    /// Body rate relative to the navigation frame, `ω_nb^b`, rad/s.
-    pub fn w_nb_b_rad_s(&self) -> Vector3<f64> {
-        let (phi, theta) = (self.euler_rad.x, self.euler_rad.y);
-        let (pd, td, yd) = (
-            self.euler_rate_rad_s.x,
-            self.euler_rate_rad_s.y,
-            self.euler_rate_rad_s.z,
-        );
+    /// The kinematics of a velocity and an attitude given as Euler angles (roll φ, pitch θ,
+    /// yaw ψ; `C_b^n = C_z(ψ) C_y(θ) C_x(φ)`), rad, with their rates, rad/s:
+    /// `ω_nb^b = [φ̇ − ψ̇ sin θ, θ̇ cos φ + ψ̇ sin φ cos θ, −θ̇ sin φ + ψ̇ cos φ cos θ]`.
+    pub fn from_euler(
+        vel_ned_m_s: Vector3<f64>,
+        accel_ned_m_s2: Vector3<f64>,
+        euler_rad: Vector3<f64>,
+        euler_rate_rad_s: Vector3<f64>,
+    ) -> Self {
+        let (phi, theta) = (euler_rad.x, euler_rad.y);
+        let (pd, td, yd) = (euler_rate_rad_s.x, euler_rate_rad_s.y, euler_rate_rad_s.z);
         let (sp, cp) = phi.sin_cos();
         let (st, ct) = theta.sin_cos();
-        Vector3::new(
-            pd - yd * st,
-            td * cp + yd * sp * ct,
-            -td * sp + yd * cp * ct,
-        )
+        Self {
+            vel_ned_m_s,
+            accel_ned_m_s2,
+            c_b_n: dcm_from_euler(euler_rad.x, euler_rad.y, euler_rad.z),
+            w_nb_b_rad_s: Vector3::new(
+                pd - yd * st,
+                td * cp + yd * sp * ct,
+                -td * sp + yd * cp * ct,
+            ),
+        }
     }
 }
 
@@ -106,13 +108,13 @@ fn moved(p: &Position, rate: &Vector3<f64>, dt_s: f64) -> Position {
 /// Specific force and body rate in body axes, at time `t_s` and position `p`.
 pub fn sensed(motion: &impl Motion, t_s: f64, p: &Position) -> (Vector3<f64>, Vector3<f64>) {
     let k = motion.at(t_s);
-    let c = k.c_b_n();
+    let c = k.c_b_n;
     let w_ie = earth_rate_ned_rad_s(p.lat_rad);
     let w_en = transport_rate_ned_rad_s(p.lat_rad, p.alt_m, &k.vel_ned_m_s);
     let f_n = k.accel_ned_m_s2 + (w_ie * 2.0 + w_en).cross(&k.vel_ned_m_s)
         - gravity_ned_m_s2(p.lat_rad, p.lon_rad, p.alt_m);
     let ct = c.transpose();
-    (ct * f_n, k.w_nb_b_rad_s() + ct * (w_ie + w_en))
+    (ct * f_n, k.w_nb_b_rad_s + ct * (w_ie + w_en))
 }
 
 /// The truth of `motion` from `start` at the time stamps `stamps_us` (µs, strictly increasing;
@@ -146,7 +148,7 @@ pub fn generate(motion: &impl Motion, start: Position, stamps_us: &[u64]) -> Fli
         out.t_s.push(t);
         out.position.push(p);
         out.vel_ned_m_s.push(k.vel_ned_m_s);
-        out.c_b_n.push(k.c_b_n());
+        out.c_b_n.push(k.c_b_n);
         out.specific_force_b_m_s2.push(f_b);
         out.rate_b_rad_s.push(w_b);
         prev_t = Some(t);
@@ -290,6 +292,16 @@ impl Schedule {
     }
 }
 
+/// `ω_nb^b` by central differences of `C_b^n` (`Ċ_b^n = C_b^n [ω_nb^b ×]`), for checking a
+/// motion's analytic body rate.
+#[cfg(test)]
+pub(crate) fn body_rate_by_differences(motion: &impl Motion, t_s: f64, h_s: f64) -> Vector3<f64> {
+    let c = motion.at(t_s).c_b_n;
+    let dc = (motion.at(t_s + h_s).c_b_n - motion.at(t_s - h_s).c_b_n) / (2.0 * h_s);
+    let w = c.transpose() * dc;
+    Vector3::new(w[(2, 1)], w[(0, 2)], w[(1, 0)])
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -333,20 +345,20 @@ mod tests {
     /// (`Ċ_b^n = C_b^n [ω_nb^b ×]`).
     #[test]
     fn body_rate_matches_attitude_finite_differences() {
-        let at = |t: f64| Kinematics {
-            vel_ned_m_s: Vector3::zeros(),
-            accel_ned_m_s2: Vector3::zeros(),
-            euler_rad: Vector3::new(0.4 * t.sin(), 0.3 * (0.7 * t).cos(), 1.0 + 0.5 * t),
-            euler_rate_rad_s: Vector3::new(0.4 * t.cos(), -0.21 * (0.7 * t).sin(), 0.5),
-        };
-        let h = 1e-6;
+        struct Weaving;
+        impl Motion for Weaving {
+            fn at(&self, t: f64) -> Kinematics {
+                Kinematics::from_euler(
+                    Vector3::zeros(),
+                    Vector3::zeros(),
+                    Vector3::new(0.4 * t.sin(), 0.3 * (0.7 * t).cos(), 1.0 + 0.5 * t),
+                    Vector3::new(0.4 * t.cos(), -0.21 * (0.7 * t).sin(), 0.5),
+                )
+            }
+        }
         for i in 0..50 {
             let t = f64::from(i) * 0.13;
-            let c = at(t).c_b_n();
-            let dc = (at(t + h).c_b_n() - at(t - h).c_b_n()) / (2.0 * h);
-            let w = c.transpose() * dc; // [ω×]
-            let w_fd = Vector3::new(w[(2, 1)], w[(0, 2)], w[(1, 0)]);
-            let e = (w_fd - at(t).w_nb_b_rad_s()).norm();
+            let e = (body_rate_by_differences(&Weaving, t, 1e-6) - Weaving.at(t).w_nb_b_rad_s).norm();
             assert!(e < 1e-7, "t {t}: {e}");
         }
     }

@@ -270,12 +270,12 @@ impl Motion for MissionMotion {
         let u = s * chid / G_BANK_M_S2;
         let ud = (sd * chid + s * chidd) / G_BANK_M_S2;
         let [dr, dp, dy] = self.tip_off.each_ref().map(|x| x.eval(t_s));
-        Kinematics {
-            vel_ned_m_s: vel,
-            accel_ned_m_s2: acc,
-            euler_rad: Vector3::new(u.atan() + dr.0, gam + dp.0, chi + dy.0),
-            euler_rate_rad_s: Vector3::new(ud / (1.0 + u * u) + dr.1, gamd + dp.1, chid + dy.1),
-        }
+        Kinematics::from_euler(
+            vel,
+            acc,
+            Vector3::new(u.atan() + dr.0, gam + dp.0, chi + dy.0),
+            Vector3::new(ud / (1.0 + u * u) + dr.1, gamd + dp.1, chid + dy.1),
+        )
     }
 }
 
@@ -323,12 +323,9 @@ mod tests {
         while t < 300.0 {
             let k = m.at(t);
             let da = (m.at(t + h).vel_ned_m_s - m.at(t - h).vel_ned_m_s) / (2.0 * h);
-            let de = (m.at(t + h).euler_rad - m.at(t - h).euler_rad) / (2.0 * h);
+            let w = crate::flight_path::body_rate_by_differences(&m, t, h);
             assert!((da - k.accel_ned_m_s2).norm() < 1e-5, "t {t}: accel");
-            assert!(
-                (de - k.euler_rate_rad_s).norm() < 1e-7,
-                "t {t}: euler rates"
-            );
+            assert!((w - k.w_nb_b_rad_s).norm() < 1e-7, "t {t}: body rate");
             t += 0.37;
         }
     }
