@@ -358,7 +358,8 @@ mod tests {
         }
         for i in 0..50 {
             let t = f64::from(i) * 0.13;
-            let e = (body_rate_by_differences(&Weaving, t, 1e-6) - Weaving.at(t).w_nb_b_rad_s).norm();
+            let e =
+                (body_rate_by_differences(&Weaving, t, 1e-6) - Weaving.at(t).w_nb_b_rad_s).norm();
             assert!(e < 1e-7, "t {t}: {e}");
         }
     }

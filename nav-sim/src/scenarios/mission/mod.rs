@@ -2,3 +2,4 @@
 //! three estimators are flown as one chain.
 
 pub mod profile;
+pub mod truth;

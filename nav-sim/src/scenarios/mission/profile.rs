@@ -280,7 +280,7 @@ impl Motion for MissionMotion {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::flight_path::generate;
     use nav_core::seeker_ins::{Ins, InsState, Position};

@@ -48,7 +48,7 @@ pub fn right_jacobian(phi: &Vector3<f64>) -> Matrix3<f64> {
 }
 
 /// Flexure time series of one axis: θ_f, θ̇_f, θ̈_f at every epoch.
-fn flexure_axis(
+pub(crate) fn flexure_axis(
     cfg: &FlexureTruthConfig,
     axis: usize,
     dt: f64,
