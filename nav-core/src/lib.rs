@@ -58,6 +58,7 @@ pub mod earth;
 pub mod error;
 pub mod health;
 pub mod math;
+pub mod navigator;
 pub mod real;
 pub mod seeker_ins;
 pub mod time;

@@ -1,0 +1,520 @@
+//! The launch hand-over: from the transfer alignment under the wing to the free-flight INS and
+//! its 17-state error-state EKF (spec `flight-navigator.md`, "Hand-over at separation").
+//!
+//! At the separation epoch the alignment gives the slave's total misalignment relative to the
+//! master body, `θ̂ = θ̂_m + θ̂_f` (`C_m^s = exp(−[θ×])`), with covariance `P_θ`, and the
+//! flexure deflection and rate `θ̂_f`, `θ̂̇_f`; the master gives its attitude `Ĉ_m^n`,
+//! velocity, position, body rate and their quality. Then:
+//!
+//! * attitude `Ĉ_s^n = Ĉ_m^n exp([θ̂×])`; with the seeker EKF's convention
+//!   `Ĉ = (I − [φ×]) C` (n frame) and independent master and alignment errors,
+//!   `φ_s = φ_m − C_s^n J_r(θ) δθ`, so `P_φ = P_φm + C_s^n J_r P_θ J_rᵀ C_n^s`
+//!   (`J_r` the right Jacobian of SO(3); the first-order form of the spec is `J_r = I`);
+//! * lever arm in master axes `l = l₀ + θ̂_f × l₀` (the wing's deflection moves the pylon);
+//!   position `r_s = r_m + Ĉ_m^n l`, velocity `v_s = v_m + Ĉ_m^n (ω_nm^m × l + θ̂̇_f × l₀)`;
+//!   their covariances add the master's, the attitude error's effect on the lever-arm terms
+//!   (`[(Ĉ l)×] P_φm [(Ĉ l)×]ᵀ`), the lever arm's own uncertainty and the flexure-rate
+//!   estimate's;
+//! * sensor biases and gimbal errors start from their priors (the alignment filter does not
+//!   hand them over: zero estimate, prior variance).
+//!
+//! Cross-covariances between the blocks are neglected (master and alignment errors are
+//! independent; the attitude–velocity coupling through the lever arm is `|ω × l| σ_φm`, below
+//! 10⁻³ m/s for any pylon).
+
+use crate::earth::radii_m;
+use crate::error::NavError;
+use crate::math::rotation::{dcm_to_quat, exp_so3, skew};
+use crate::seeker_ins::{
+    InsState, Position, SeekerInsInitial, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
+};
+use crate::Real;
+use nalgebra::{Matrix3, SMatrix, Vector3};
+
+/// The master (aircraft) INS at the separation epoch.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MasterAtRelease<T> {
+    /// Attitude `Ĉ_m^n` of the master body.
+    pub c_m_n: Matrix3<T>,
+    /// Velocity over the earth, NED, m/s.
+    pub vel_ned_m_s: Vector3<T>,
+    /// Geodetic position of the master IMU.
+    pub position: Position,
+    /// Body rate relative to NED, `ω_nm^m`, master axes, rad/s.
+    pub rate_nm_rad_s: Vector3<T>,
+    /// 1σ of the master's attitude error per NED axis, rad.
+    pub attitude_sigma_rad: Vector3<T>,
+    /// 1σ of the master's velocity error per NED axis, m/s.
+    pub velocity_sigma_m_s: Vector3<T>,
+    /// 1σ of the master's position error per NED axis, m.
+    pub position_sigma_m: Vector3<T>,
+    /// 1σ of the master's body-rate error per axis, rad/s.
+    pub rate_sigma_rad_s: T,
+}
+
+/// The transfer alignment's estimate at the separation epoch.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AlignmentAtRelease<T> {
+    /// Total misalignment θ̂ of the slave relative to the master body (`C_m^s = exp(−[θ×])`),
+    /// rad.
+    pub theta_rad: Vector3<T>,
+    /// Covariance of θ̂, rad².
+    pub theta_covariance_rad2: Matrix3<T>,
+    /// Flexure part θ̂_f of θ̂ (deflects the lever arm), rad.
+    pub flexure_rad: Vector3<T>,
+    /// Flexure rate θ̂̇_f, rad/s.
+    pub flexure_rate_rad_s: Vector3<T>,
+    /// Covariance of θ̂̇_f, (rad/s)².
+    pub flexure_rate_covariance: Matrix3<T>,
+}
+
+/// The pylon's lever arm from the master IMU to the slave IMU, master body axes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LeverArm<T> {
+    /// Nominal lever arm `l₀`, m.
+    pub nominal_m: Vector3<T>,
+    /// 1σ of its knowledge per axis, m.
+    pub sigma_m: Vector3<T>,
+}
+
+/// Priors of the states the alignment does not estimate (1σ).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HandoverPriors<T> {
+    /// Accelerometer bias 1σ per axis, m/s².
+    pub accel_bias_sigma_m_s2: T,
+    /// Gyro bias 1σ per axis, rad/s.
+    pub gyro_bias_sigma_rad_s: T,
+    /// Gimbal angle bias 1σ per axis, rad.
+    pub gimbal_bias_sigma_rad: T,
+}
+
+/// Right Jacobian of SO(3): `exp([(θ + δ)×]) = exp([θ×]) exp([(J_r(θ) δ)×])` to first order.
+pub fn right_jacobian<T: Real>(theta: &Vector3<T>) -> Matrix3<T> {
+    let th2 = theta.norm_squared();
+    let k = skew(theta);
+    let one = Matrix3::identity();
+    if th2 < T::lit(1e-8) {
+        return one - k * T::lit(0.5) + k * k * T::lit(1.0 / 6.0);
+    }
+    let th = th2.sqrt();
+    let (s, c) = crate::math::trig::sin_cos(th);
+    one - k * ((T::one() - c) / th2) + k * k * ((th - s) / (th2 * th))
+}
+
+fn finite3<T: Real>(v: &Vector3<T>, input: &'static str) -> Result<(), NavError> {
+    if v.iter().all(|x| x.is_finite()) {
+        Ok(())
+    } else {
+        Err(NavError::NonFiniteInput { input })
+    }
+}
+
+fn sigma3<T: Real>(v: &Vector3<T>, input: &'static str) -> Result<(), NavError> {
+    finite3(v, input)?;
+    if v.iter().all(|x| *x >= T::zero()) {
+        Ok(())
+    } else {
+        Err(NavError::InputOutOfRange { input })
+    }
+}
+
+/// A symmetric covariance with a non-negative diagonal and finite entries.
+fn covariance3<T: Real>(p: &Matrix3<T>, input: &'static str) -> Result<(), NavError> {
+    if !p.iter().all(|x| x.is_finite()) {
+        return Err(NavError::NonFiniteInput { input });
+    }
+    let tol = T::lit(1e-6) * (p[(0, 0)].abs() + p[(1, 1)].abs() + p[(2, 2)].abs());
+    let symmetric = (p - p.transpose()).iter().all(|x| x.abs() <= tol);
+    if symmetric && (0..3).all(|i| p[(i, i)] >= T::zero()) {
+        Ok(())
+    } else {
+        Err(NavError::InputOutOfRange { input })
+    }
+}
+
+/// `diag(σ²)`.
+fn diag_var<T: Real>(sigma: &Vector3<T>) -> Matrix3<T> {
+    Matrix3::from_diagonal(&sigma.component_mul(sigma))
+}
+
+/// The INS state and the 17-state P0 of the free-flight EKF at separation.
+///
+/// Errors (nothing computed): `NonFiniteInput` for a non-finite input, `InputOutOfRange` for a
+/// negative σ, an asymmetric covariance, an attitude matrix that is not a rotation (columns
+/// orthonormal within 10⁻³) or a master position outside the INS's model range.
+pub fn hand_over<T: Real>(
+    master: &MasterAtRelease<T>,
+    alignment: &AlignmentAtRelease<T>,
+    lever: &LeverArm<T>,
+    priors: &HandoverPriors<T>,
+) -> Result<SeekerInsInitial<T>, NavError> {
+    validate(master, alignment, lever, priors)?;
+    let c_m_n = master.c_m_n;
+    let theta = alignment.theta_rad;
+    // Attitude.
+    let c_s_n = c_m_n * exp_so3(&theta);
+    let jr = right_jacobian(&theta);
+    let a = c_s_n * jr;
+    let p_phi =
+        diag_var(&master.attitude_sigma_rad) + a * alignment.theta_covariance_rad2 * a.transpose();
+    // Lever arm, position, velocity.
+    let l0 = lever.nominal_m;
+    let l = l0 + alignment.flexure_rad.cross(&l0);
+    let l_n = c_m_n * l;
+    let p_phi_m = diag_var(&master.attitude_sigma_rad);
+    let lever_n = c_m_n * diag_var(&lever.sigma_m) * c_m_n.transpose();
+    let p_r_ned = diag_var(&master.position_sigma_m)
+        + skew(&l_n) * p_phi_m * skew(&l_n).transpose()
+        + lever_n;
+    let w = master.rate_nm_rad_s;
+    let rel_m = w.cross(&l) + alignment.flexure_rate_rad_s.cross(&l0);
+    let rel_n = c_m_n * rel_m;
+    let vel = master.vel_ned_m_s + rel_n;
+    // δv from δφ_m, δω, δl and δθ̇_f: [(C rel)×] φ_m, −C [l×] δω, C [ω×] δl, −C [l₀×] δθ̇_f.
+    let rate_var = master.rate_sigma_rad_s * master.rate_sigma_rad_s;
+    let c_l = c_m_n * skew(&l);
+    let c_w = c_m_n * skew(&w);
+    let c_l0 = c_m_n * skew(&l0);
+    let p_v = diag_var(&master.velocity_sigma_m_s)
+        + skew(&rel_n) * p_phi_m * skew(&rel_n).transpose()
+        + c_l * c_l.transpose() * rate_var
+        + c_w * diag_var(&lever.sigma_m) * c_w.transpose()
+        + c_l0 * alignment.flexure_rate_covariance * c_l0.transpose();
+    // Position of the slave (first order in |l|/R: metres over the ellipsoid, in f64).
+    let p = master.position;
+    let (rm, rn) = radii_m(p.lat_rad);
+    let (n_m, e_m, d_m) = (l_n.x.to_f64(), l_n.y.to_f64(), l_n.z.to_f64());
+    let position = Position {
+        lat_rad: p.lat_rad + n_m / (rm + p.alt_m),
+        lon_rad: p.lon_rad + e_m / ((rn + p.alt_m) * libm::cos(p.lat_rad)),
+        alt_m: p.alt_m - d_m,
+    };
+    if !position.is_in_range() {
+        return Err(NavError::InputOutOfRange {
+            input: "master.position",
+        });
+    }
+    // NED metres → (δL, δl, δh): rad, rad, m (δh = −δD).
+    let d = Vector3::new(
+        T::lit(1.0 / (rm + position.alt_m)),
+        T::lit(1.0 / ((rn + position.alt_m) * libm::cos(position.lat_rad))),
+        -T::one(),
+    );
+    let dm = Matrix3::from_diagonal(&d);
+    let p_pos = dm * p_r_ned * dm;
+    let mut p0 = SMatrix::<T, STATES, STATES>::zeros();
+    p0.fixed_view_mut::<3, 3>(POS, POS).copy_from(&p_pos);
+    p0.fixed_view_mut::<3, 3>(VEL, VEL).copy_from(&p_v);
+    p0.fixed_view_mut::<3, 3>(ATT, ATT).copy_from(&p_phi);
+    let ab = priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2;
+    let gb = priors.gyro_bias_sigma_rad_s * priors.gyro_bias_sigma_rad_s;
+    let sb = priors.gimbal_bias_sigma_rad * priors.gimbal_bias_sigma_rad;
+    p0.fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS).fill_diagonal(ab);
+    p0.fixed_view_mut::<3, 3>(GYRO_BIAS, GYRO_BIAS).fill_diagonal(gb);
+    p0.fixed_view_mut::<2, 2>(GIMBAL, GIMBAL).fill_diagonal(sb);
+    let p0 = (p0 + p0.transpose()) * T::lit(0.5);
+    Ok(SeekerInsInitial {
+        state: InsState {
+            position,
+            vel_ned_m_s: vel,
+            q_b_n: dcm_to_quat(&c_s_n),
+        },
+        covariance: p0,
+    })
+}
+
+fn validate<T: Real>(
+    master: &MasterAtRelease<T>,
+    alignment: &AlignmentAtRelease<T>,
+    lever: &LeverArm<T>,
+    priors: &HandoverPriors<T>,
+) -> Result<(), NavError> {
+    if !master.c_m_n.iter().all(|x| x.is_finite()) {
+        return Err(NavError::NonFiniteInput {
+            input: "master.c_m_n",
+        });
+    }
+    let ortho = master.c_m_n.transpose() * master.c_m_n - Matrix3::identity();
+    if ortho.iter().any(|x| x.abs() > T::lit(1e-3)) || master.c_m_n.determinant() <= T::zero() {
+        return Err(NavError::InputOutOfRange {
+            input: "master.c_m_n",
+        });
+    }
+    finite3(&master.vel_ned_m_s, "master.vel_ned_m_s")?;
+    finite3(&master.rate_nm_rad_s, "master.rate_nm_rad_s")?;
+    let p = master.position;
+    if !(p.lat_rad.is_finite() && p.lon_rad.is_finite() && p.alt_m.is_finite()) {
+        return Err(NavError::NonFiniteInput {
+            input: "master.position",
+        });
+    }
+    if !p.is_in_range() {
+        return Err(NavError::InputOutOfRange {
+            input: "master.position",
+        });
+    }
+    sigma3(&master.attitude_sigma_rad, "master.attitude_sigma_rad")?;
+    sigma3(&master.velocity_sigma_m_s, "master.velocity_sigma_m_s")?;
+    sigma3(&master.position_sigma_m, "master.position_sigma_m")?;
+    let scalars = [
+        (master.rate_sigma_rad_s, "master.rate_sigma_rad_s"),
+        (priors.accel_bias_sigma_m_s2, "priors.accel_bias_sigma_m_s2"),
+        (priors.gyro_bias_sigma_rad_s, "priors.gyro_bias_sigma_rad_s"),
+        (priors.gimbal_bias_sigma_rad, "priors.gimbal_bias_sigma_rad"),
+    ];
+    for (v, input) in scalars {
+        if !v.is_finite() {
+            return Err(NavError::NonFiniteInput { input });
+        }
+        if v < T::zero() {
+            return Err(NavError::InputOutOfRange { input });
+        }
+    }
+    finite3(&alignment.theta_rad, "alignment.theta_rad")?;
+    finite3(&alignment.flexure_rad, "alignment.flexure_rad")?;
+    finite3(
+        &alignment.flexure_rate_rad_s,
+        "alignment.flexure_rate_rad_s",
+    )?;
+    covariance3(
+        &alignment.theta_covariance_rad2,
+        "alignment.theta_covariance_rad2",
+    )?;
+    covariance3(
+        &alignment.flexure_rate_covariance,
+        "alignment.flexure_rate_covariance",
+    )?;
+    finite3(&lever.nominal_m, "lever.nominal_m")?;
+    sigma3(&lever.sigma_m, "lever.sigma_m")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::rotation::{euler_to_dcm, log_so3, quat_to_dcm};
+
+    fn master() -> MasterAtRelease<f64> {
+        MasterAtRelease {
+            c_m_n: euler_to_dcm(0.2, 0.05, 1.3),
+            vel_ned_m_s: Vector3::new(40.0, 170.0, -3.0),
+            position: Position {
+                lat_rad: 0.65,
+                lon_rad: 2.2,
+                alt_m: 3000.0,
+            },
+            rate_nm_rad_s: Vector3::new(0.02, -0.01, 0.05),
+            attitude_sigma_rad: Vector3::new(2e-4, 2e-4, 8e-4),
+            velocity_sigma_m_s: Vector3::new(0.05, 0.05, 0.08),
+            position_sigma_m: Vector3::new(3.0, 3.0, 5.0),
+            rate_sigma_rad_s: 1e-4,
+        }
+    }
+
+    fn alignment() -> AlignmentAtRelease<f64> {
+        let pt = Matrix3::new(1.0, 0.2, 0.0, 0.2, 2.0, 0.1, 0.0, 0.1, 4.0) * 1e-7;
+        AlignmentAtRelease {
+            theta_rad: Vector3::new(0.012, -0.008, 0.02),
+            theta_covariance_rad2: pt,
+            flexure_rad: Vector3::new(0.004, -0.001, 0.001),
+            flexure_rate_rad_s: Vector3::new(0.03, 0.005, -0.004),
+            flexure_rate_covariance: Matrix3::from_diagonal_element(1e-6),
+        }
+    }
+
+    const LEVER: LeverArm<f64> = LeverArm {
+        nominal_m: Vector3::new(1.5, 4.0, 0.6),
+        sigma_m: Vector3::new(0.01, 0.01, 0.01),
+    };
+    const PRIORS: HandoverPriors<f64> = HandoverPriors {
+        accel_bias_sigma_m_s2: 1e-3,
+        gyro_bias_sigma_rad_s: 5e-8,
+        gimbal_bias_sigma_rad: 7e-4,
+    };
+
+    /// The right Jacobian satisfies its defining relation (finite differences of exp).
+    #[test]
+    fn right_jacobian_matches_finite_differences() {
+        let th = Vector3::new(0.3, -0.2, 0.5);
+        let jr = right_jacobian(&th);
+        let h = 1e-6;
+        for i in 0..3 {
+            let mut d = Vector3::zeros();
+            d[i] = h;
+            let lhs = log_so3(&(exp_so3(&th).transpose() * exp_so3(&(th + d))));
+            let e = (lhs / h - jr.column(i)).norm();
+            assert!(e < 1e-5, "column {i}: {e}");
+        }
+    }
+
+    /// The attitude block is the covariance of `φ_s` obtained by perturbing the composition
+    /// `Ĉ_s^n = Ĉ_m^n exp([θ̂×])` itself: finite differences of the exact composition give
+    /// the Jacobians whose sandwich is P_φ (signs included).
+    #[test]
+    fn attitude_mapping_matches_finite_differences_of_the_composition() {
+        let m = master();
+        let a = alignment();
+        let init = hand_over(&m, &a, &LEVER, &PRIORS).unwrap();
+        let c_s_n = quat_to_dcm(&init.state.q_b_n);
+        // φ of an estimate Ĉ against the truth C: Ĉ = exp(−[φ×]) C.
+        let phi_of = |c_hat: &Matrix3<f64>| -log_so3(&(c_hat * c_s_n.transpose()));
+        let h = 1e-7;
+        let mut j_theta = Matrix3::zeros();
+        let mut j_phi_m = Matrix3::zeros();
+        for i in 0..3 {
+            let mut d = Vector3::zeros();
+            d[i] = h;
+            // An alignment error δθ: θ̂ = θ + δθ.
+            let c_hat = m.c_m_n * exp_so3(&(a.theta_rad + d));
+            j_theta.set_column(i, &(phi_of(&c_hat) / h));
+            // A master attitude error φ_m: Ĉ_m^n = exp(−[φ_m×]) C_m^n.
+            let c_hat = exp_so3(&(-d)) * m.c_m_n * exp_so3(&a.theta_rad);
+            j_phi_m.set_column(i, &(phi_of(&c_hat) / h));
+        }
+        let p_fd = j_phi_m * diag_var(&m.attitude_sigma_rad) * j_phi_m.transpose()
+            + j_theta * a.theta_covariance_rad2 * j_theta.transpose();
+        let p = init.covariance.fixed_view::<3, 3>(ATT, ATT).into_owned();
+        let e = (p - p_fd).abs().max() / p.abs().max();
+        assert!(e < 1e-5, "relative error {e}\n{p}\n{p_fd}");
+        // And the sign: φ_s = φ_m − C_s^n J_r δθ.
+        let expected = -(c_s_n * right_jacobian(&a.theta_rad));
+        assert!((j_theta - expected).abs().max() < 1e-6);
+    }
+
+    /// The velocity and position blocks match finite differences of the lever-arm transport
+    /// (the master's attitude, rate, lever arm and flexure rate perturbed one at a time).
+    #[test]
+    fn velocity_and_position_mapping_match_finite_differences() {
+        let m = master();
+        let a = alignment();
+        let init = hand_over(&m, &a, &LEVER, &PRIORS).unwrap();
+        let vel_of = |c: &Matrix3<f64>, w: &Vector3<f64>, l0: &Vector3<f64>, fr: &Vector3<f64>| {
+            let l = l0 + a.flexure_rad.cross(l0);
+            m.vel_ned_m_s + c * (w.cross(&l) + fr.cross(l0))
+        };
+        let v0 = vel_of(
+            &m.c_m_n,
+            &m.rate_nm_rad_s,
+            &LEVER.nominal_m,
+            &a.flexure_rate_rad_s,
+        );
+        assert!((v0 - init.state.vel_ned_m_s).norm() < 1e-12);
+        let h = 1e-6;
+        let mut cov = diag_var(&m.velocity_sigma_m_s);
+        for i in 0..3 {
+            let mut d = Vector3::zeros();
+            d[i] = h;
+            let dv_phi = (vel_of(
+                &(exp_so3(&(-d)) * m.c_m_n),
+                &m.rate_nm_rad_s,
+                &LEVER.nominal_m,
+                &a.flexure_rate_rad_s,
+            ) - v0)
+                / h;
+            let dv_w = (vel_of(
+                &m.c_m_n,
+                &(m.rate_nm_rad_s + d),
+                &LEVER.nominal_m,
+                &a.flexure_rate_rad_s,
+            ) - v0)
+                / h;
+            let dv_l = (vel_of(
+                &m.c_m_n,
+                &m.rate_nm_rad_s,
+                &(LEVER.nominal_m + d),
+                &a.flexure_rate_rad_s,
+            ) - v0)
+                / h;
+            let dv_f = (vel_of(
+                &m.c_m_n,
+                &m.rate_nm_rad_s,
+                &LEVER.nominal_m,
+                &(a.flexure_rate_rad_s + d),
+            ) - v0)
+                / h;
+            cov += dv_phi * dv_phi.transpose() * m.attitude_sigma_rad[i].powi(2)
+                + dv_w * dv_w.transpose() * m.rate_sigma_rad_s.powi(2)
+                + dv_l * dv_l.transpose() * LEVER.sigma_m[i].powi(2)
+                + dv_f * dv_f.transpose() * a.flexure_rate_covariance[(i, i)];
+        }
+        let p_v = init.covariance.fixed_view::<3, 3>(VEL, VEL).into_owned();
+        // The lever-arm σ enters through ω × δl only (δl's effect through the flexure
+        // deflection θ_f × δl is second order and left out).
+        let e = (p_v - cov).abs().max() / p_v.abs().max();
+        assert!(
+            e < 1e-4,
+            "velocity covariance relative error {e}\n{p_v}\n{cov}"
+        );
+        // Position: the handed-over position is the master's moved by Ĉ_m^n l.
+        let (rm, _) = radii_m(m.position.lat_rad);
+        let l = LEVER.nominal_m + a.flexure_rad.cross(&LEVER.nominal_m);
+        let north = (init.state.position.lat_rad - m.position.lat_rad) * (rm + m.position.alt_m);
+        assert!((north - (m.c_m_n * l).x).abs() < 1e-6);
+        let p_h = init.covariance[(POS + 2, POS + 2)];
+        assert!(p_h > m.position_sigma_m.z.powi(2));
+    }
+
+    /// P0 is symmetric and positive definite; refused inputs say which.
+    #[test]
+    fn p0_is_positive_definite_and_bad_inputs_are_named() {
+        let init = hand_over(&master(), &alignment(), &LEVER, &PRIORS).unwrap();
+        let p = init.covariance;
+        assert!((p - p.transpose()).abs().max() == 0.0);
+        assert!(p.cholesky().is_some());
+        let mut m = master();
+        m.c_m_n[(0, 0)] = 2.0;
+        assert_eq!(
+            hand_over(&m, &alignment(), &LEVER, &PRIORS).unwrap_err(),
+            NavError::InputOutOfRange {
+                input: "master.c_m_n"
+            }
+        );
+        let mut a = alignment();
+        a.theta_rad.x = f64::NAN;
+        assert_eq!(
+            hand_over(&master(), &a, &LEVER, &PRIORS).unwrap_err(),
+            NavError::NonFiniteInput {
+                input: "alignment.theta_rad"
+            }
+        );
+        let mut l = LEVER;
+        l.sigma_m.y = -0.1;
+        assert_eq!(
+            hand_over(&master(), &alignment(), &l, &PRIORS).unwrap_err(),
+            NavError::InputOutOfRange {
+                input: "lever.sigma_m"
+            }
+        );
+        // f32 gives the same state to f32 precision.
+        let m32 = MasterAtRelease::<f32> {
+            c_m_n: master().c_m_n.cast(),
+            vel_ned_m_s: master().vel_ned_m_s.cast(),
+            position: master().position,
+            rate_nm_rad_s: master().rate_nm_rad_s.cast(),
+            attitude_sigma_rad: master().attitude_sigma_rad.cast(),
+            velocity_sigma_m_s: master().velocity_sigma_m_s.cast(),
+            position_sigma_m: master().position_sigma_m.cast(),
+            rate_sigma_rad_s: 1e-4,
+        };
+        let a0 = alignment();
+        let a32 = AlignmentAtRelease::<f32> {
+            theta_rad: a0.theta_rad.cast(),
+            theta_covariance_rad2: a0.theta_covariance_rad2.cast(),
+            flexure_rad: a0.flexure_rad.cast(),
+            flexure_rate_rad_s: a0.flexure_rate_rad_s.cast(),
+            flexure_rate_covariance: a0.flexure_rate_covariance.cast(),
+        };
+        let l32 = LeverArm::<f32> {
+            nominal_m: LEVER.nominal_m.cast(),
+            sigma_m: LEVER.sigma_m.cast(),
+        };
+        let p32 = HandoverPriors::<f32> {
+            accel_bias_sigma_m_s2: 1e-3,
+            gyro_bias_sigma_rad_s: 5e-8,
+            gimbal_bias_sigma_rad: 7e-4,
+        };
+        let i32 = hand_over(&m32, &a32, &l32, &p32).unwrap();
+        let dv = (i32.state.vel_ned_m_s.cast::<f64>() - init.state.vel_ned_m_s).norm();
+        assert!(dv < 1e-4, "{dv}");
+        assert!(i32.covariance.cast::<f64>().cholesky().is_some());
+    }
+}
