@@ -145,6 +145,7 @@
 mod config;
 mod error_model;
 mod filter;
+mod flight_noise;
 mod health;
 mod measurement;
 mod mechanization;
@@ -168,6 +169,7 @@ pub use error_model::{
     SparseF, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
 };
 pub use filter::{SeekerIns, SeekerInsInitial};
+pub use flight_noise::{InstrumentErrors, MAX_MISALIGNMENT_RAD, MAX_SCALE_FACTOR};
 pub use health::{SeekerAid, SeekerCounters};
 pub use measurement::{
     gimbal_angles_of, landmark_vector_ned, los_body, los_model, los_model_3d, los_model_at,

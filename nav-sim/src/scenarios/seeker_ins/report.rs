@@ -3,7 +3,9 @@
 use super::config::Config;
 use super::run::RunOutput;
 use super::trajectory::Truth;
+use crate::consistency::Consistency;
 use crate::output::{sig, write_csv};
+use nav_core::seeker_ins::STATES;
 use crate::plot::{render, Figure, Panel, Series};
 use crate::scenario::Context;
 use crate::stats::ensemble;
@@ -46,6 +48,8 @@ pub struct Stats {
     pub errors: usize,
     /// Runs.
     pub runs: usize,
+    /// NEES of the 17 states against its band and per state group ([`super::run::GROUPS`]).
+    pub consistency: Consistency,
 }
 
 /// Statistics over runs.
@@ -63,6 +67,10 @@ pub fn statistics(runs: &[RunOutput], t_s: Vec<f64>) -> Stats {
         out_of_field: runs.first().map_or(0, |r| r.out_of_field),
         errors: runs.iter().map(|r| r.errors).sum(),
         runs: runs.len(),
+        consistency: Consistency::from_runs(
+            STATES,
+            &runs.iter().map(|r| r.consistency.clone()).collect::<Vec<_>>(),
+        ),
     };
     let comps = st.fused + st.rejected;
     st.nis_mean = runs.iter().map(|r| r.nis_sum).sum::<f64>() / comps.max(1) as f64;
