@@ -251,7 +251,11 @@ mod tests {
                 };
                 want += s * s * u[j] * u[j];
             }
-            assert!((v[i] - want).abs() <= 1e-15 * want, "axis {i}: {} vs {want}", v[i]);
+            assert!(
+                (v[i] - want).abs() <= 1e-15 * want,
+                "axis {i}: {} vs {want}",
+                v[i]
+            );
         }
         // Level flight: 200 ppm × g ≈ 196 µg on z, 10″ × g ≈ 48 µg on x and y.
         let lv = equivalent_variance(
@@ -289,7 +293,11 @@ mod tests {
             e.accel_misalignment_rad,
         );
         let added_x = p[(ACC_BIAS, ACC_BIAS)] - 1e-8 - v0.x;
-        assert!((added_x - want.x).abs() < 1e-6 * want.x, "{added_x} {}", want.x);
+        assert!(
+            (added_x - want.x).abs() < 1e-6 * want.x,
+            "{added_x} {}",
+            want.x
+        );
         // Back to level: nothing more.
         let before = p;
         let _ = add_instrument_noise(&mut p, &ch, &e, &i3, &f_level, &dth);

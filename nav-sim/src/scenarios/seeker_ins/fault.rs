@@ -412,9 +412,20 @@ pub fn analyse(fc: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Resu
     let sum = |f: fn(&RunOutput) -> u64| fr.iter().map(f).sum::<u64>();
     let base_sum = |f: fn(&RunOutput) -> u64| br.iter().map(f).sum::<u64>();
     let last = |v: &[f64]| sig(v.last().copied().unwrap_or(f64::NAN), 4);
+    let consistency = |rs: &[RunOutput]| {
+        crate::consistency::Consistency::from_runs(
+            nav_core::seeker_ins::STATES,
+            &rs.iter().map(|r| r.consistency.clone()).collect::<Vec<_>>(),
+        )
+        .summary()
+    };
     let summary = json!({
         "base": fc.base,
         "filter_precision": fc.precision,
+        "consistency": {
+            "paper_with_faults": consistency(&fr),
+            "paper_without_faults": consistency(&br),
+        },
         "bound_window_s": fc.bound_window_s,
         "filter_did": {
             "los_components_fused": sum(|r| r.fused as u64),

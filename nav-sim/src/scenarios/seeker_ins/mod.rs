@@ -34,8 +34,8 @@ pub use run::{
 use crate::output::sig;
 use crate::scenario::{Context, Kind};
 use anyhow::{bail, Result};
-use report::{summary_block, write_outputs};
 use nav_core::seeker_ins::STATES;
+use report::{summary_block, write_outputs};
 use serde_json::json;
 
 /// Registry entry.
@@ -57,7 +57,7 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
     let flight = b.flight.as_ref();
     write_consistency_plot(ctx, &cfg, aided, flight)?;
     let mut a = summary_block(aided);
-    if let (Some(obj), serde_json::Value::Object(n)) = (a.as_object_mut(), nees_summary(&aided)) {
+    if let (Some(obj), serde_json::Value::Object(n)) = (a.as_object_mut(), nees_summary(aided)) {
         for (k, v) in n {
             obj.insert(k, v);
         }

@@ -5,13 +5,13 @@ use super::run::RunOutput;
 use super::trajectory::Truth;
 use crate::consistency::Consistency;
 use crate::output::{sig, write_csv};
-use nav_core::seeker_ins::STATES;
 use crate::plot::{render, Figure, Panel, Series};
 use crate::scenario::Context;
 use crate::stats::ensemble;
 use anyhow::Result;
 use nalgebra::{SMatrix, SVector};
 use nav_core::earth::radii_m;
+use nav_core::seeker_ins::STATES;
 use serde_json::json;
 
 pub(super) fn nees<const N: usize>(p: &SMatrix<f64, N, N>, e: &SVector<f64, N>) -> f64 {
@@ -69,7 +69,10 @@ pub fn statistics(runs: &[RunOutput], t_s: Vec<f64>) -> Stats {
         runs: runs.len(),
         consistency: Consistency::from_runs(
             STATES,
-            &runs.iter().map(|r| r.consistency.clone()).collect::<Vec<_>>(),
+            &runs
+                .iter()
+                .map(|r| r.consistency.clone())
+                .collect::<Vec<_>>(),
         ),
     };
     let comps = st.fused + st.rejected;

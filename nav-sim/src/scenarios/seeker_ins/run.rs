@@ -17,8 +17,8 @@ use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_euler, dcm_to_quat, euler_to_dcm, log_so3, quat_to_dcm};
 use nav_core::seeker_ins::{
     default_recovery, gimbal_angles_of, landmark_vector_ned, ClipFlags, GimbalAngles,
-    ImuFaultPolicy, ImuIncrement, InstrumentErrors, InsState, Landmark, LosResidual, LosSample, Position, SeekerAid,
-    SeekerIns, SeekerInsConfig, SeekerInsInitial, STATES,
+    ImuFaultPolicy, ImuIncrement, InsState, InstrumentErrors, Landmark, LosResidual, LosSample,
+    Position, SeekerAid, SeekerIns, SeekerInsConfig, SeekerInsInitial, STATES,
 };
 use nav_core::Real;
 
@@ -524,7 +524,8 @@ fn record<T: Real>(
         .map(|&(_, start, n)| {
             let pb = p.view((start, start), (n, n)).into_owned();
             let eb = e.rows(start, n).into_owned();
-            let v = nalgebra::linalg::Cholesky::new(pb).map_or(f64::NAN, |ch| eb.dot(&ch.solve(&eb)));
+            let v =
+                nalgebra::linalg::Cholesky::new(pb).map_or(f64::NAN, |ch| eb.dot(&ch.solve(&eb)));
             ((v / n as f64).sqrt(), 1.0)
         })
         .collect();
