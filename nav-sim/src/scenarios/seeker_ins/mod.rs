@@ -137,7 +137,7 @@ fn write_consistency_plot(
     }
     let (_, hi) = crate::consistency::nees_band_95(STATES, paper.runs);
     for p in &mut panels {
-        p.y_range = Some((0.0, 4.0 * hi));
+        p.y_range = Some((0.0, 2.5 * hi));
     }
     crate::plot::render(
         &crate::plot::Figure {
