@@ -22,6 +22,12 @@
 //!   angle errors) and noise R.
 //! * the filter (`config`, `filter`, `propagation`, `update`, `health`): the closed-loop
 //!   error-state EKF (feedback into the INS, reset of δx).
+//! * the flight configuration ([`SeekerInsConfig::flight`], [`InstrumentErrors`]): the same
+//!   17 states, with the IMU's scale-factor and misalignment σ accounted for after each
+//!   covariance step (module `flight_noise`): the accelerometer-bias states are the
+//!   equivalent bias `b + (S + M) f`, whose variance is charged from the specific force; the
+//!   gyro errors' bounded attitude error `(S + M) ∫ω dt` is charged to the attitude states.
+//!   With every σ zero ([`SeekerInsConfig::paper`]) nothing is added.
 //!
 //! Error state (estimate minus truth), seed eq. 3:
 //!
