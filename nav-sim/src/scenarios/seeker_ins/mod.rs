@@ -74,7 +74,10 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
         );
         obj.insert("consistency".into(), aided.consistency.summary());
     }
-    let f = summary_block(free);
+    let mut f = summary_block(free);
+    if let Some(obj) = f.as_object_mut() {
+        obj.insert("consistency".into(), free.consistency.summary());
+    }
     let fl = flight.map(|st| {
         let mut v = summary_block(st);
         if let Some(obj) = v.as_object_mut() {
