@@ -38,6 +38,12 @@
 //! (10″ × 0.7 rad ≈ 3e-5 rad in an S-turn), it is of the size of the attitude-and-gimbal
 //! combination the LOS determines best, so the filter is overconfident without it.
 //!
+//! Limits of the model: the charge is a bound built for manoeuvres of a few radians and minutes
+//! (the seeker's engagement). `θ` is the body-axis sum of the increments, so a vehicle that
+//! circles for hours is charged the misalignment part of many turns in full, although in NED
+//! it partly cancels: the attitude σ then grows more than the truth. Schmidt consider states
+//! for S and M would follow it exactly, at about 4 × the covariance work.
+//!
 //! Cost: one 3-vector rotation, two `v(·)` and a few compares per covariance step (10 Hz);
 //! nothing when all σ are zero (the paper's filter, bit for bit).
 
