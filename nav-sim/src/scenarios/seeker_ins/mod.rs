@@ -25,7 +25,7 @@ pub use config::{
     landmark_position, load_config, output_epochs, Config, FilterConfig, InitialErrorConfig,
     LandmarkConfig, RatesConfig, SensorConfig,
 };
-pub use report::{nees_summary, statistics, Stats, CHANNELS};
+pub use report::{statistics, Stats, CHANNELS};
 pub use run::{
     monte_carlo_batches, monte_carlo_filters, simulate_run, simulate_run_faulted,
     simulate_run_with, Batches, FilterKind, ImuFaultTally, RunOutput, GROUPS,
@@ -57,10 +57,7 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
     let flight = b.flight.as_ref();
     write_consistency_plot(ctx, &cfg, aided, flight)?;
     let mut a = summary_block(aided);
-    if let (Some(obj), serde_json::Value::Object(n)) = (a.as_object_mut(), nees_summary(aided)) {
-        for (k, v) in n {
-            obj.insert(k, v);
-        }
+    if let Some(obj) = a.as_object_mut() {
         obj.insert(
             "nis_mean_per_component".into(),
             json!(sig(aided.nis_mean, 4)),
@@ -110,7 +107,7 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
         free.rms[0].last().unwrap_or(&f64::NAN),
         free.rms[1].last().unwrap_or(&f64::NAN),
         free.rms[2].last().unwrap_or(&f64::NAN),
-        aided.nees[0].iter().skip(1).sum::<f64>() / (aided.nees[0].len().max(2) - 1) as f64,
+        aided.consistency.mean_nees(),
     );
     Ok(json!({
         "trajectory": format!("{:?}", cfg.trajectory.shape),

@@ -129,44 +129,6 @@ pub(super) fn summary_block(st: &Stats) -> serde_json::Value {
     })
 }
 
-/// NEES consistency numbers: mean over epochs after the first and the fraction of epochs whose
-/// run-averaged NEES lies in the two-sided 95 % χ² bounds for the run count.
-pub fn nees_summary(st: &Stats) -> serde_json::Value {
-    let runs = st.runs.max(1) as f64;
-    let mut m = serde_json::Map::new();
-    for (b, (name, dof)) in [("", 17.0), ("_pos", 3.0), ("_vel", 3.0), ("_att", 3.0)]
-        .iter()
-        .enumerate()
-    {
-        let v = &st.nees[b];
-        let body: Vec<f64> = v
-            .iter()
-            .skip(1)
-            .copied()
-            .filter(|x| x.is_finite())
-            .collect();
-        let mean = body.iter().sum::<f64>() / body.len().max(1) as f64;
-        let (lo, hi) = crate::consistency::nees_band_95(*dof as usize, runs as usize);
-        let inside = body.iter().filter(|x| **x >= lo && **x <= hi).count() as f64
-            / body.len().max(1) as f64;
-        m.insert(format!("nees{name}_mean"), json!(sig(mean, 4)));
-        m.insert(format!("nees{name}_dof"), json!(dof));
-        m.insert(
-            format!("nees{name}_95_bounds"),
-            json!([sig(lo, 4), sig(hi, 4)]),
-        );
-        m.insert(
-            format!("nees{name}_in_95_bounds_frac"),
-            json!(sig(inside, 3)),
-        );
-        m.insert(
-            format!("nees{name}_final"),
-            json!(sig(*v.last().unwrap_or(&f64::NAN), 4)),
-        );
-    }
-    serde_json::Value::Object(m)
-}
-
 pub(super) fn write_outputs(
     ctx: &Context,
     cfg: &Config,
