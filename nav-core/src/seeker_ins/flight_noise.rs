@@ -315,4 +315,55 @@ mod tests {
         assert_eq!(q, p_start);
         assert_eq!(c0, EquivalentBiasCharge::default());
     }
+
+    /// Each σ outside [0, its maximum] or non-finite is refused naming its field, by the
+    /// filter's construction too; the flight configuration itself is accepted.
+    #[test]
+    fn instrument_errors_are_validated_by_field() {
+        use crate::contract::Estimator;
+        use crate::error::ConfigIssue;
+        use crate::seeker_ins::{Landmark, Position, SeekerIns, SeekerInsConfig};
+        let lm = Landmark::new(Position {
+            lat_rad: 0.6461,
+            lon_rad: 2.2266,
+            alt_m: 0.0,
+        })
+        .unwrap();
+        let flight = SeekerInsConfig::<f32>::flight(lm);
+        assert!(SeekerIns::design(&flight).is_ok());
+        assert!(!flight.instrument_errors.is_zero());
+        assert!(SeekerInsConfig::<f32>::paper(lm)
+            .instrument_errors
+            .is_zero());
+        type Set = fn(&mut InstrumentErrors<f32>, f32);
+        let fields: [(&str, Set); 4] = [
+            ("instrument_errors.accel_scale_factor", |e, v| {
+                e.accel_scale_factor = v
+            }),
+            ("instrument_errors.accel_misalignment_rad", |e, v| {
+                e.accel_misalignment_rad = v
+            }),
+            ("instrument_errors.gyro_scale_factor", |e, v| {
+                e.gyro_scale_factor = v
+            }),
+            ("instrument_errors.gyro_misalignment_rad", |e, v| {
+                e.gyro_misalignment_rad = v
+            }),
+        ];
+        for (name, set) in fields {
+            for (v, issue) in [
+                (-1e-6, ConfigIssue::OutOfRange),
+                (0.011, ConfigIssue::OutOfRange),
+                (f32::NAN, ConfigIssue::NotFinite),
+            ] {
+                let mut cfg = flight;
+                set(&mut cfg.instrument_errors, v);
+                assert_eq!(
+                    SeekerIns::design(&cfg).err(),
+                    Some(NavError::InvalidConfig { field: name, issue }),
+                    "{name} = {v}"
+                );
+            }
+        }
+    }
 }
