@@ -2,6 +2,7 @@
 //! (what [`crate::contract::Estimator::design`] computes from the configuration).
 
 use super::error_model::STATES;
+use super::flight_noise::InstrumentErrors;
 use super::measurement::Landmark;
 use crate::contract::{DesignStamp, Fingerprint, Gate, RecoveryAction, RecoveryPolicy};
 use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
@@ -76,6 +77,11 @@ pub struct SeekerInsConfig<T> {
     /// Residual form (the spec's first open point; [`LosResidual::Projected2d`] is the design
     /// choice, the other is kept for comparison).
     pub residual: LosResidual,
+    /// 1σ of the scale-factor and misalignment errors of the IMU, which the 17 states do not
+    /// model (module `flight_noise`: the accelerometer-bias states become the equivalent bias
+    /// `b + (S + M) f`, the gyro errors add attitude noise). All zero (the paper's filter,
+    /// [`SeekerInsConfig::paper`]) adds nothing; [`SeekerInsConfig::flight`] sets them.
+    pub instrument_errors: InstrumentErrors<T>,
 }
 
 /// Form of the LOS residual fused by the LOS update.
@@ -177,13 +183,20 @@ pub struct SeekerInsDesign<T> {
 pub const DESIGN_VERSION: u16 = 1;
 
 /// The stamp of the design of `config`: fingerprint over `accel_noise_density_m_s2_rt_hz`,
-/// then `gyro_noise_density_rad_s_rt_hz` (the values the design depends on, in this order).
+/// `gyro_noise_density_rad_s_rt_hz`, then the four σ of `instrument_errors` (accelerometer
+/// scale factor, misalignment, gyro scale factor, misalignment): the values the process noise
+/// depends on, in this order.
 pub fn design_stamp<T: Real>(config: &SeekerInsConfig<T>) -> DesignStamp {
+    let e = &config.instrument_errors;
     DesignStamp {
         version: DESIGN_VERSION,
         fingerprint: Fingerprint::new()
             .real(config.accel_noise_density_m_s2_rt_hz)
             .real(config.gyro_noise_density_rad_s_rt_hz)
+            .real(e.accel_scale_factor)
+            .real(e.accel_misalignment_rad)
+            .real(e.gyro_scale_factor)
+            .real(e.gyro_misalignment_rad)
             .finish(),
     }
 }
@@ -386,6 +399,7 @@ pub(crate) fn validate_config<T: Real>(config: &SeekerInsConfig<T>) -> Result<()
     validate_gate(c.gate)?;
     validate_recovery(&c.recovery)?;
     validate_imu_faults(&c.imu_faults, c.imu_dt_s)?;
+    super::flight_noise::validate(&c.instrument_errors)?;
     if cfg!(not(feature = "los-residual-3d")) && c.residual == LosResidual::FullRank3d {
         return Err(out_of_range("residual"));
     }

@@ -6,6 +6,7 @@ use super::config::{
     validate_recovery, ImuFaultPolicy, SeekerInsConfig, SeekerInsDesign, VARIANCE_CEILING,
 };
 use super::error_model::STATES;
+use super::flight_noise::EquivalentBiasCharge;
 use super::health::{LastUpdate, SeekerCounters};
 use super::mechanization::{Ins, InsState};
 use crate::contract::{AidCounters, Estimator, Gate, Health, RecoveryPolicy};
@@ -57,6 +58,9 @@ pub struct SeekerIns<T> {
     pub(super) run_start: Option<Timestamp>,
     /// How the last LOS update went (for the health state).
     pub(super) last_update: LastUpdate,
+    /// The equivalent-bias variance added so far (flight configuration; module
+    /// `flight_noise`). Kept across re-initialisation, as the bias block is.
+    pub(super) bias_charge: EquivalentBiasCharge<T>,
 }
 
 impl<T: Real> PartialEq for SeekerInsInitial<T> {
@@ -88,6 +92,7 @@ impl<T: Real> PartialEq for SeekerIns<T> {
             && self.last_imu_fault == o.last_imu_fault
             && self.run_start == o.run_start
             && self.last_update == o.last_update
+            && self.bias_charge == o.bias_charge
     }
 }
 
@@ -161,6 +166,7 @@ impl<T: Real> Estimator for SeekerIns<T> {
             last_imu_fault: None,
             run_start: None,
             last_update: LastUpdate::None,
+            bias_charge: EquivalentBiasCharge::default(),
         })
     }
 

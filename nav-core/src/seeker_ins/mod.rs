@@ -22,6 +22,12 @@
 //!   angle errors) and noise R.
 //! * the filter (`config`, `filter`, `propagation`, `update`, `health`): the closed-loop
 //!   error-state EKF (feedback into the INS, reset of δx).
+//! * the flight configuration ([`SeekerInsConfig::flight`], [`InstrumentErrors`]): the same
+//!   17 states, with the IMU's scale-factor and misalignment σ accounted for after each
+//!   covariance step (module `flight_noise`): the accelerometer-bias states are the
+//!   equivalent bias `b + (S + M) f`, whose variance is charged from the specific force; the
+//!   gyro errors' bounded attitude error `(S + M) ∫ω dt` is charged to the attitude states.
+//!   With every σ zero ([`SeekerInsConfig::paper`]) nothing is added.
 //!
 //! Error state (estimate minus truth), seed eq. 3:
 //!
@@ -145,6 +151,7 @@
 mod config;
 mod error_model;
 mod filter;
+mod flight_noise;
 mod health;
 mod measurement;
 mod mechanization;
@@ -168,6 +175,7 @@ pub use error_model::{
     SparseF, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
 };
 pub use filter::{SeekerIns, SeekerInsInitial};
+pub use flight_noise::{InstrumentErrors, MAX_MISALIGNMENT_RAD, MAX_SCALE_FACTOR};
 pub use health::{SeekerAid, SeekerCounters};
 pub use measurement::{
     gimbal_angles_of, landmark_vector_ned, los_body, los_model, los_model_3d, los_model_at,

@@ -4,6 +4,7 @@
 
 use super::config::{default_recovery, ImuFaultPolicy, LosResidual, SeekerInsConfig};
 use super::error_model::STATES;
+use super::flight_noise::InstrumentErrors;
 use super::measurement::Landmark;
 use crate::contract::Gate;
 use crate::Real;
@@ -44,6 +45,25 @@ impl<T: Real> SeekerInsConfig<T> {
             imu_faults: ImuFaultPolicy::default(),
             landmark,
             residual: LosResidual::Projected2d,
+            instrument_errors: InstrumentErrors::default(),
+        }
+    }
+
+    /// The flight configuration: the paper's filter ([`SeekerInsConfig::paper`]) with the
+    /// scale-factor and misalignment σ of the IMU accounted for (module `flight_noise`):
+    /// the paper's Table 3 values, 200 ppm and 10″ for the accelerometers, 20 ppm and 10″ for
+    /// the gyros. A different IMU: set [`SeekerInsConfig::instrument_errors`] to its data
+    /// sheet.
+    pub fn flight(landmark: Landmark<T>) -> Self {
+        let arcsec = deg::<T>() / T::lit(3600.0);
+        Self {
+            instrument_errors: InstrumentErrors {
+                accel_scale_factor: T::lit(200e-6),
+                accel_misalignment_rad: T::lit(10.0) * arcsec,
+                gyro_scale_factor: T::lit(20e-6),
+                gyro_misalignment_rad: T::lit(10.0) * arcsec,
+            },
+            ..Self::paper(landmark)
         }
     }
 }

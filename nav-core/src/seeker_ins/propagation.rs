@@ -4,6 +4,7 @@
 use super::config::VARIANCE_CEILING;
 use super::error_model::{propagate_covariance_sparse, SparseF, ATT, STATES, VEL};
 use super::filter::SeekerIns;
+use super::flight_noise::flight_noise_step;
 use super::mechanization::{ImuIncrement, Ins};
 use crate::contract::Health;
 use crate::math::checks::rolled_index;
@@ -274,6 +275,15 @@ impl<T: Real> SeekerIns<T> {
                 self.design.accel_psd_m2_s3,
                 self.design.gyro_psd_rad2_s,
             )?;
+            // Flight configuration: the instrument errors the 17 states do not model.
+            flight_noise_step(
+                &mut self.p,
+                &mut self.bias_charge,
+                &self.config.instrument_errors,
+                &ins,
+                &dv_pending,
+                dt_total,
+            );
             self.after_covariance_step(repairs);
             self.steps_pending = 0;
             self.pending_us = 0;
@@ -321,6 +331,15 @@ impl<T: Real> SeekerIns<T> {
             self.design.accel_psd_m2_s3,
             self.design.gyro_psd_rad2_s,
         )?;
+        // Flight configuration: the instrument errors the 17 states do not model.
+        flight_noise_step(
+            &mut self.p,
+            &mut self.bias_charge,
+            &self.config.instrument_errors,
+            &self.ins,
+            &self.dv_ned_pending_m_s,
+            dt_total,
+        );
         self.after_covariance_step(repairs);
         self.steps_pending = 0;
         self.pending_us = 0;

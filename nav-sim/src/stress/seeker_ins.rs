@@ -377,6 +377,7 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
         imu_faults: policy_cast(&c.policy),
         landmark: lm,
         residual: LosResidual::Projected2d,
+        instrument_errors: Default::default(),
     };
     let init = perturbed::<T>(&truth0, &mut rng);
     let p0 = SMatrix::<T, 17, 17>::from_fn(|i, j| {
@@ -604,6 +605,7 @@ fn run_case<T: Real>(c: &Case) -> (Tally, String) {
                     imu_faults: c.policy,
                     landmark: lm64,
                     residual: LosResidual::Projected2d,
+                    instrument_errors: Default::default(),
                 };
                 let init64 = SeekerInsInitial {
                     state: s64,

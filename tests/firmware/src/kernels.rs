@@ -69,6 +69,12 @@ pub static KERNELS: &[Kernel] = &[
         check: seeker_check,
     },
     Kernel {
+        name: "eskf17_predict_flight",
+        setup: seeker_setup_flight,
+        run: eskf_predict,
+        check: seeker_check,
+    },
+    Kernel {
         name: "eskf17_los_update",
         setup: seeker_setup_predicted,
         run: eskf_los_update,
@@ -480,12 +486,22 @@ fn ins_check() -> bool {
 }
 
 fn seeker_setup() {
+    seeker_setup_with(SeekerInsConfig::paper);
+}
+
+/// As [`seeker_setup`] with the flight configuration (the IMU's scale-factor and
+/// misalignment σ charged after the covariance step).
+fn seeker_setup_flight() {
+    seeker_setup_with(SeekerInsConfig::flight);
+}
+
+fn seeker_setup_with(make: fn(Landmark<f32>) -> SeekerInsConfig<f32>) {
     let state = landmark().and_then(|lm| {
-        // The paper's filter with the covariance step deferred: the kernels measure the
-        // prediction and the update separately.
+        // The filter with the covariance step deferred: the kernels measure the prediction
+        // and the update separately.
         let cfg = SeekerInsConfig {
             covariance_interval_steps: 100,
-            ..SeekerInsConfig::paper(lm)
+            ..make(lm)
         };
         let initial = SeekerInsInitial {
             state: ins_initial(),

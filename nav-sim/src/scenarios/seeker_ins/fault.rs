@@ -320,6 +320,8 @@ pub struct FaultResult {
     pub baseline: [Vec<f64>; 3],
     /// Fault windows (name, start, end).
     pub faults: Vec<(String, f64, f64)>,
+    /// NEES of the 17 states with and without the faults (same runs).
+    pub consistency: [crate::consistency::Consistency; 2],
 }
 
 /// Runs the faulted and baseline Monte Carlo and the recovery analysis.
@@ -412,9 +414,20 @@ pub fn analyse(fc: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Resu
     let sum = |f: fn(&RunOutput) -> u64| fr.iter().map(f).sum::<u64>();
     let base_sum = |f: fn(&RunOutput) -> u64| br.iter().map(f).sum::<u64>();
     let last = |v: &[f64]| sig(v.last().copied().unwrap_or(f64::NAN), 4);
+    let of = |rs: &[RunOutput]| {
+        crate::consistency::Consistency::from_runs(
+            nav_core::seeker_ins::STATES,
+            &rs.iter().map(|r| r.consistency.clone()).collect::<Vec<_>>(),
+        )
+    };
+    let consistency = [of(&fr), of(&br)];
     let summary = json!({
         "base": fc.base,
         "filter_precision": fc.precision,
+        "consistency": {
+            "paper_with_faults": consistency[0].summary(),
+            "paper_without_faults": consistency[1].summary(),
+        },
         "bound_window_s": fc.bound_window_s,
         "filter_did": {
             "los_components_fused": sum(|r| r.fused as u64),
@@ -446,6 +459,7 @@ pub fn analyse(fc: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Resu
         rms,
         baseline,
         faults: list,
+        consistency,
     })
 }
 
@@ -542,6 +556,28 @@ fn run(ctx: &Context) -> Result<Value> {
         &ctx.out_dir.join("errors.png"),
         1300,
         1100,
+    )?;
+    let mut nees_panels = vec![
+        r.consistency[0].nees_panel("paper filter with the faults"),
+        r.consistency[1].nees_panel("paper filter, same runs without faults"),
+    ];
+    let (_, hi) = crate::consistency::nees_band_95(r.consistency[0].dof, r.consistency[0].runs);
+    for p in &mut nees_panels {
+        p.y_range = Some((0.0, 4.0 * hi));
+    }
+    render(
+        &Figure {
+            title: format!(
+                "{}: NEES of the 17 states ({}), fault windows as in errors.png",
+                ctx.name, fc.base
+            ),
+            x_label: "time, s".into(),
+            panels: nees_panels,
+            columns: 1,
+        },
+        &ctx.out_dir.join("consistency.png"),
+        1200,
+        800,
     )?;
     println!(
         "  all faults recovered: {}",

@@ -13,6 +13,7 @@
 //! (statistics, summaries, CSV and plots), `config` (the scenario file), [`fault`] (the
 //! fault-injection scenario).
 
+pub mod campaign;
 mod config;
 pub mod fault;
 mod report;
@@ -24,12 +25,16 @@ pub use config::{
     landmark_position, load_config, output_epochs, Config, FilterConfig, InitialErrorConfig,
     LandmarkConfig, RatesConfig, SensorConfig,
 };
-pub use report::{nees_summary, statistics, Stats, CHANNELS};
-pub use run::{monte_carlo_batches, simulate_run, simulate_run_faulted, ImuFaultTally, RunOutput};
+pub use report::{statistics, Stats, CHANNELS};
+pub use run::{
+    monte_carlo_batches, monte_carlo_filters, simulate_run, simulate_run_faulted,
+    simulate_run_with, Batches, FilterKind, ImuFaultTally, RunOutput, GROUPS,
+};
 
 use crate::output::sig;
 use crate::scenario::{Context, Kind};
 use anyhow::{bail, Result};
+use nav_core::seeker_ins::STATES;
 use report::{summary_block, write_outputs};
 use serde_json::json;
 
@@ -46,13 +51,13 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
         bail!("rates must be positive");
     }
     let truth = trajectory::generate(&cfg.trajectory, 1.0 / cfg.rates.imu_hz);
-    let (aided, free, first) = monte_carlo_batches(&cfg, &truth, ctx.runs, ctx.seed, ctx.progress)?;
-    write_outputs(ctx, &cfg, &truth, &aided, &free, &first)?;
-    let mut a = summary_block(&aided);
-    if let (Some(obj), serde_json::Value::Object(n)) = (a.as_object_mut(), nees_summary(&aided)) {
-        for (k, v) in n {
-            obj.insert(k, v);
-        }
+    let b = monte_carlo_filters(&cfg, &truth, ctx.runs, ctx.seed, ctx.progress, true)?;
+    let (aided, free, first) = (&b.paper, &b.free, &b.first);
+    write_outputs(ctx, &cfg, &truth, aided, free, first)?;
+    let flight = b.flight.as_ref();
+    write_consistency_plot(ctx, &cfg, aided, flight)?;
+    let mut a = summary_block(aided);
+    if let Some(obj) = a.as_object_mut() {
         obj.insert(
             "nis_mean_per_component".into(),
             json!(sig(aided.nis_mean, 4)),
@@ -64,8 +69,36 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
             "seeker_epochs_out_of_field_run0".into(),
             json!(aided.out_of_field),
         );
+        obj.insert("consistency".into(), aided.consistency.summary());
     }
-    let f = summary_block(&free);
+    let mut f = summary_block(free);
+    if let Some(obj) = f.as_object_mut() {
+        obj.insert("consistency".into(), free.consistency.summary());
+    }
+    let fl = flight.map(|st| {
+        let mut v = summary_block(st);
+        if let Some(obj) = v.as_object_mut() {
+            obj.insert("consistency".into(), st.consistency.summary());
+            obj.insert("components_fused".into(), json!(st.fused));
+            obj.insert("components_rejected".into(), json!(st.rejected));
+        }
+        v
+    });
+    for (name, st) in [("paper", Some(aided)), ("flight", flight)] {
+        if let Some(st) = st {
+            let c = &st.consistency;
+            println!(
+                "  {name:>6} filter: NEES mean {:.2} (band {:?}), in band {:.2}, e²/σ² per group {:?}",
+                c.mean_nees(),
+                crate::consistency::nees_band_95(c.dof, c.runs),
+                c.frac_in_band(),
+                c.normalized_error_sq
+                    .iter()
+                    .map(|(n, v)| format!("{n} {v:.2}"))
+                    .collect::<Vec<_>>()
+            );
+        }
+    }
     println!(
         "  aided final RMS  lat {:.1} m  lon {:.1} m  alt {:.1} m | free INS lat {:.0} m lon {:.0} m alt {:.0} m | NEES mean {:.2} (17 dof)",
         aided.rms[0].last().unwrap_or(&f64::NAN),
@@ -74,13 +107,50 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
         free.rms[0].last().unwrap_or(&f64::NAN),
         free.rms[1].last().unwrap_or(&f64::NAN),
         free.rms[2].last().unwrap_or(&f64::NAN),
-        aided.nees[0].iter().skip(1).sum::<f64>() / (aided.nees[0].len().max(2) - 1) as f64,
+        aided.consistency.mean_nees(),
     );
     Ok(json!({
         "trajectory": format!("{:?}", cfg.trajectory.shape),
         "filter_precision": cfg.filter.precision,
         "los_residual": cfg.filter.residual,
         "aided": a,
+        "flight": fl,
         "free_ins": f,
+        "consistency_groups": GROUPS.iter().map(|g| json!({"name": g.0, "states": [g.1, g.1 + g.2]})).collect::<Vec<_>>(),
+        "consistency_note": "per group: NEES of the group / its dimension (mean 1 when consistent); \
+            accelerometer and gyro bias truth = b + (S + M) u, the instrument's whole non-white \
+            error at the true specific force / body rate u",
     }))
+}
+
+/// `consistency.png`: the run-averaged NEES of the paper filter and of the flight
+/// configuration with the 95 % band.
+fn write_consistency_plot(
+    ctx: &Context,
+    cfg: &Config,
+    paper: &report::Stats,
+    flight: Option<&report::Stats>,
+) -> Result<()> {
+    let mut panels = vec![paper.consistency.nees_panel("paper filter")];
+    if let Some(f) = flight {
+        panels.push(f.consistency.nees_panel("flight configuration"));
+    }
+    let (_, hi) = crate::consistency::nees_band_95(STATES, paper.runs);
+    for p in &mut panels {
+        p.y_range = Some((0.0, 2.5 * hi));
+    }
+    crate::plot::render(
+        &crate::plot::Figure {
+            title: format!(
+                "{:?} trajectory: NEES of the 17 states, paper filter and flight configuration",
+                cfg.trajectory.shape
+            ),
+            x_label: "time, s".into(),
+            panels,
+            columns: 1,
+        },
+        &ctx.out_dir.join("consistency.png"),
+        1200,
+        800,
+    )
 }

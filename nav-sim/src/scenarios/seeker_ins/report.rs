@@ -3,6 +3,7 @@
 use super::config::Config;
 use super::run::RunOutput;
 use super::trajectory::Truth;
+use crate::consistency::Consistency;
 use crate::output::{sig, write_csv};
 use crate::plot::{render, Figure, Panel, Series};
 use crate::scenario::Context;
@@ -10,6 +11,7 @@ use crate::stats::ensemble;
 use anyhow::Result;
 use nalgebra::{SMatrix, SVector};
 use nav_core::earth::radii_m;
+use nav_core::seeker_ins::STATES;
 use serde_json::json;
 
 pub(super) fn nees<const N: usize>(p: &SMatrix<f64, N, N>, e: &SVector<f64, N>) -> f64 {
@@ -46,6 +48,8 @@ pub struct Stats {
     pub errors: usize,
     /// Runs.
     pub runs: usize,
+    /// NEES of the 17 states against its band and per state group ([`super::run::GROUPS`]).
+    pub consistency: Consistency,
 }
 
 /// Statistics over runs.
@@ -63,6 +67,13 @@ pub fn statistics(runs: &[RunOutput], t_s: Vec<f64>) -> Stats {
         out_of_field: runs.first().map_or(0, |r| r.out_of_field),
         errors: runs.iter().map(|r| r.errors).sum(),
         runs: runs.len(),
+        consistency: Consistency::from_runs(
+            STATES,
+            &runs
+                .iter()
+                .map(|r| r.consistency.clone())
+                .collect::<Vec<_>>(),
+        ),
     };
     let comps = st.fused + st.rejected;
     st.nis_mean = runs.iter().map(|r| r.nis_sum).sum::<f64>() / comps.max(1) as f64;
@@ -116,44 +127,6 @@ pub(super) fn summary_block(st: &Stats) -> serde_json::Value {
         "final_filter_sigma": channel_json(|i| *st.filter_sigma[i].last().unwrap_or(&f64::NAN), 9),
         "max_abs_mean_error_all": channel_json(|i| max_abs(&st.mean[i]), 9),
     })
-}
-
-/// NEES consistency numbers: mean over epochs after the first and the fraction of epochs whose
-/// run-averaged NEES lies in the two-sided 95 % χ² bounds for the run count.
-pub fn nees_summary(st: &Stats) -> serde_json::Value {
-    let runs = st.runs.max(1) as f64;
-    let mut m = serde_json::Map::new();
-    for (b, (name, dof)) in [("", 17.0), ("_pos", 3.0), ("_vel", 3.0), ("_att", 3.0)]
-        .iter()
-        .enumerate()
-    {
-        let v = &st.nees[b];
-        let body: Vec<f64> = v
-            .iter()
-            .skip(1)
-            .copied()
-            .filter(|x| x.is_finite())
-            .collect();
-        let mean = body.iter().sum::<f64>() / body.len().max(1) as f64;
-        let (lo, hi) = crate::consistency::nees_band_95(*dof as usize, runs as usize);
-        let inside = body.iter().filter(|x| **x >= lo && **x <= hi).count() as f64
-            / body.len().max(1) as f64;
-        m.insert(format!("nees{name}_mean"), json!(sig(mean, 4)));
-        m.insert(format!("nees{name}_dof"), json!(dof));
-        m.insert(
-            format!("nees{name}_95_bounds"),
-            json!([sig(lo, 4), sig(hi, 4)]),
-        );
-        m.insert(
-            format!("nees{name}_in_95_bounds_frac"),
-            json!(sig(inside, 3)),
-        );
-        m.insert(
-            format!("nees{name}_final"),
-            json!(sig(*v.last().unwrap_or(&f64::NAN), 4)),
-        );
-    }
-    serde_json::Value::Object(m)
 }
 
 pub(super) fn write_outputs(

@@ -2,11 +2,12 @@
 //! simulated sensors (aided or free INS, with or without injected faults), its errors and σ
 //! recorded at the output epochs; and the batches of runs.
 
-use super::config::{landmark_position, output_epochs, Config, R0};
+use super::config::{landmark_position, output_epochs, Config, ARCSEC, R0};
 use super::fault::{self, Faults};
 use super::report::{nees, statistics, Stats};
 use super::sensors::Sensors;
 use super::trajectory::Truth;
+use crate::consistency::RunConsistency;
 use crate::rng::{normal, SimRng};
 use anyhow::{bail, Result};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector2, Vector3};
@@ -16,8 +17,8 @@ use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_euler, dcm_to_quat, euler_to_dcm, log_so3, quat_to_dcm};
 use nav_core::seeker_ins::{
     default_recovery, gimbal_angles_of, landmark_vector_ned, ClipFlags, GimbalAngles,
-    ImuFaultPolicy, ImuIncrement, InsState, Landmark, LosResidual, LosSample, Position, SeekerAid,
-    SeekerIns, SeekerInsConfig, SeekerInsInitial, STATES,
+    ImuFaultPolicy, ImuIncrement, InsState, InstrumentErrors, Landmark, LosResidual, LosSample,
+    Position, SeekerAid, SeekerIns, SeekerInsConfig, SeekerInsInitial, STATES,
 };
 use nav_core::Real;
 
@@ -41,6 +42,9 @@ pub struct RunOutput {
     pub sigma: [Vec<f64>; 9],
     /// NEES of the 17 states, and of the position, velocity and attitude blocks.
     pub nees: [Vec<f64>; 4],
+    /// The consistency samples of the run: NEES of the 17 states and, per state group
+    /// ([`GROUPS`]), the group's NEES divided by its dimension (mean 1 when consistent).
+    pub consistency: RunConsistency,
     /// Sum of the per-component NIS of fused and rejected components.
     pub nis_sum: f64,
     /// Scalar components fused.
@@ -63,6 +67,27 @@ pub struct RunOutput {
     pub false_lock_fused: usize,
     /// As `false_lock_fused`, rejected.
     pub false_lock_rejected: usize,
+}
+
+/// Which filter a run flies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FilterKind {
+    /// The paper's filter, exactly as specified ([`SeekerInsConfig::paper`]'s model: the IMU
+    /// errors beyond bias and white noise are not accounted for).
+    Paper,
+    /// The flight configuration ([`SeekerInsConfig::flight`]'s model): the scale-factor and
+    /// misalignment σ of the scenario's IMU in `instrument_errors`.
+    Flight,
+}
+
+impl FilterKind {
+    /// Name in outputs.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Paper => "paper",
+            Self::Flight => "flight",
+        }
+    }
 }
 
 /// Simulates one run. `aided = false` flies the same run without seeker updates (the seeker
@@ -144,9 +169,21 @@ fn filter_config<T: Real>(
     dt: f64,
     sensors: &Sensors,
     faults: &Faults,
+    kind: FilterKind,
 ) -> Result<SeekerInsConfig<T>> {
     let fc = &cfg.filter;
+    let sc = &cfg.sensors;
+    let instrument_errors = match kind {
+        FilterKind::Paper => InstrumentErrors::default(),
+        FilterKind::Flight => InstrumentErrors {
+            accel_scale_factor: T::lit(sc.accel_scale_factor_ppm * 1e-6),
+            accel_misalignment_rad: T::lit(sc.accel_misalignment_arcsec * ARCSEC),
+            gyro_scale_factor: T::lit(sc.gyro_scale_factor_ppm * 1e-6),
+            gyro_misalignment_rad: T::lit(sc.gyro_misalignment_arcsec * ARCSEC),
+        },
+    };
     Ok(SeekerInsConfig::<T> {
+        instrument_errors,
         imu_dt_s: T::lit(dt),
         covariance_interval_steps: (cfg.rates.imu_hz / cfg.rates.covariance_hz).round() as u16,
         accel_noise_density_m_s2_rt_hz: T::lit(sensors.vrw),
@@ -280,6 +317,7 @@ impl<T: Real> Flight<'_, T> {
             accel_m_s2: &s.acc_b,
             gyro_rad_s: &s.gyr_b,
             gimbal_rad: &s.seeker_bias,
+            accel_matrix: &s.acc_m,
         };
         record(&mut self.out, &shown, self.truth, k, &biases);
         Ok(())
@@ -287,13 +325,28 @@ impl<T: Real> Flight<'_, T> {
 }
 
 /// [`simulate_run`] with injected faults ([`Faults`]); with none it is the same run, number
-/// for number (the fault models draw no random numbers).
+/// for number (the fault models draw no random numbers). The paper's filter.
 pub fn simulate_run_faulted<T: Real>(
     cfg: &Config,
     truth: &Truth,
     epochs: &[usize],
     rng: &mut SimRng,
     aided: bool,
+    faults: &Faults,
+) -> Result<RunOutput> {
+    simulate_run_with::<T>(cfg, truth, epochs, rng, aided, FilterKind::Paper, faults)
+}
+
+/// [`simulate_run_faulted`] with the filter to fly. The random numbers drawn do not depend on
+/// the filter, so the paper filter and the flight configuration fly the same truth, sensor
+/// errors and noise samples from the same stream.
+pub fn simulate_run_with<T: Real>(
+    cfg: &Config,
+    truth: &Truth,
+    epochs: &[usize],
+    rng: &mut SimRng,
+    aided: bool,
+    kind: FilterKind,
     faults: &Faults,
 ) -> Result<RunOutput> {
     let dt = truth.dt_s;
@@ -303,7 +356,7 @@ pub fn simulate_run_faulted<T: Real>(
         state,
         covariance: initial_covariance(cfg, &truth.c_b_n[0]).cast::<T>(),
     };
-    let config = filter_config::<T>(cfg, dt, &sensors, faults)?;
+    let config = filter_config::<T>(cfg, dt, &sensors, faults, kind)?;
     let filter =
         SeekerIns::new(&config, &initial).map_err(|e| anyhow::anyhow!("filter init: {e}"))?;
     let mut flight = Flight {
@@ -345,11 +398,44 @@ pub fn simulate_run_faulted<T: Real>(
     Ok(out)
 }
 
-/// The true biases of a run (accelerometer m/s², gyro rad/s, gimbal angles rad).
+/// The true instrument errors of a run: biases (accelerometer m/s², gyro rad/s, gimbal angles
+/// rad) and the accelerometers' `(I + S + M)` (scale factor and misalignment).
 struct TrueBiases<'a> {
     accel_m_s2: &'a Vector3<f64>,
     gyro_rad_s: &'a Vector3<f64>,
     gimbal_rad: &'a Vector2<f64>,
+    accel_matrix: &'a Matrix3<f64>,
+}
+
+/// State groups of the consistency figures: name, first state, dimension.
+pub const GROUPS: [(&str, usize, usize); 6] = [
+    ("position", 0, 3),
+    ("velocity", 3, 3),
+    ("attitude", 6, 3),
+    ("accel_bias", 9, 3),
+    ("gyro_bias", 12, 3),
+    ("gimbal_bias", 15, 2),
+];
+
+/// The true value of the accelerometer and gyro error states at IMU epoch `k`.
+///
+/// Accelerometer: the **equivalent bias** `b + (S + M) f_b`, `f_b` the true mean specific
+/// force of the interval ending there: the whole non-white error of the instrument, which
+/// enters the INS error equations through `C_b^n ∇` and does not average out (gravity).
+/// Gyro: the bias `b` alone: `(S + M) ω` averages out over a manoeuvre and shows as the
+/// bounded attitude error `(S + M) ∫ω dt`, which the attitude states carry.
+fn equivalent_biases(truth: &Truth, k: usize, b: &TrueBiases<'_>) -> (Vector3<f64>, Vector3<f64>) {
+    let k = k.max(1).min(truth.imu.len().saturating_sub(1));
+    let inc = &truth.imu[k];
+    let h = inc
+        .time
+        .micros_since(truth.imu[k - 1].time)
+        .map_or(truth.dt_s, |us| us as f64 * 1e-6);
+    let f_b = inc.delta_v_m_s / h;
+    (
+        b.accel_m_s2 + (b.accel_matrix - Matrix3::identity()) * f_b,
+        *b.gyro_rad_s,
+    )
 }
 
 /// Records the errors, σ and NEES of the filter at output epoch `k`.
@@ -360,7 +446,8 @@ fn record<T: Real>(
     k: usize,
     biases: &TrueBiases<'_>,
 ) {
-    let (acc_b, gyr_b, seeker_b) = (biases.accel_m_s2, biases.gyro_rad_s, biases.gimbal_rad);
+    let seeker_b = biases.gimbal_rad;
+    let (acc_b, gyr_b) = equivalent_biases(truth, k, biases);
     let st = filter.state();
     let p_true = truth.position[k];
     let (rm, rn) = radii_m(p_true.lat_rad);
@@ -424,12 +511,28 @@ fn record<T: Real>(
         .copy_from(&(gyr_b - filter.gyro_bias_rad_s().map(|v| v.to_f64())));
     e.fixed_rows_mut::<2>(15)
         .copy_from(&(seeker_b - filter.gimbal_bias_rad().map(|v| v.to_f64())));
-    out.nees[0].push(nees(&p, &e));
+    let total = nees(&p, &e);
+    out.nees[0].push(total);
     for (b, start) in [(1, 0), (2, 3), (3, 6)] {
         let pb = p.fixed_view::<3, 3>(start, start).into_owned();
         let eb = e.fixed_rows::<3>(start).into_owned();
         out.nees[b].push(nees(&pb, &eb));
     }
+    // Per group: NEES / dimension, passed as (√(NEES/n), 1) so that `e²/σ²` is NEES / n.
+    let groups: Vec<(f64, f64)> = GROUPS
+        .iter()
+        .map(|&(_, start, n)| {
+            let pb = p.view((start, start), (n, n)).into_owned();
+            let eb = e.rows(start, n).into_owned();
+            let v =
+                nalgebra::linalg::Cholesky::new(pb).map_or(f64::NAN, |ch| eb.dot(&ch.solve(&eb)));
+            ((v / n as f64).sqrt(), 1.0)
+        })
+        .collect();
+    if out.consistency.normalized.is_empty() {
+        out.consistency = RunConsistency::new(&GROUPS.map(|g| g.0));
+    }
+    out.consistency.push(truth.t_s[k], total, &groups);
 }
 
 /// ∂φ/∂(roll, pitch, yaw) at an attitude (φ of `Ĉ = (I − [φ×]) C`), by central differences.
@@ -455,7 +558,22 @@ fn wrap_pi(a: f64) -> f64 {
     a - t * ((a + std::f64::consts::PI) / t).floor()
 }
 
-/// Runs the aided and free Monte Carlo batches; returns `(aided, free, first aided run)`.
+/// The Monte Carlo batches of a scenario: the paper filter and the flight configuration aided
+/// (same runs), the free INS, and the first paper-filter run.
+#[derive(Debug, Clone)]
+pub struct Batches {
+    /// Paper filter, aided.
+    pub paper: Stats,
+    /// Flight configuration, aided (`None` when not flown).
+    pub flight: Option<Stats>,
+    /// Free INS (the paper filter's covariance, no seeker).
+    pub free: Stats,
+    /// First run of the paper filter.
+    pub first: RunOutput,
+}
+
+/// Runs the aided and free Monte Carlo batches; returns `(aided, free, first aided run)` of
+/// the paper filter.
 pub fn monte_carlo_batches(
     cfg: &Config,
     truth: &Truth,
@@ -463,33 +581,59 @@ pub fn monte_carlo_batches(
     seed: u64,
     progress: bool,
 ) -> Result<(Stats, Stats, RunOutput)> {
+    let b = monte_carlo_filters(cfg, truth, runs, seed, progress, false)?;
+    Ok((b.paper, b.free, b.first))
+}
+
+/// Runs the paper filter (aided and free) and, with `flight`, the flight configuration on the
+/// same runs (run `i` of each from stream `i` of `seed`).
+pub fn monte_carlo_filters(
+    cfg: &Config,
+    truth: &Truth,
+    runs: usize,
+    seed: u64,
+    progress: bool,
+    flight: bool,
+) -> Result<Batches> {
     let epochs = output_epochs(truth, cfg);
     let f32_mode = match cfg.filter.precision.as_str() {
         "f32" => true,
         "f64" => false,
         p => bail!("filter.precision `{p}`: must be \"f32\" or \"f64\""),
     };
+    let none = Faults::default();
     let results = crate::montecarlo::monte_carlo("seeker-ins", runs, seed, progress, |_, rng| {
-        let mut rng_free = rng.clone();
-        let sim = |rng: &mut SimRng, aided: bool| {
+        let sim = |mut rng: SimRng, aided: bool, kind: FilterKind| {
             if f32_mode {
-                simulate_run::<f32>(cfg, truth, &epochs, rng, aided)
+                simulate_run_with::<f32>(cfg, truth, &epochs, &mut rng, aided, kind, &none)
             } else {
-                simulate_run::<f64>(cfg, truth, &epochs, rng, aided)
+                simulate_run_with::<f64>(cfg, truth, &epochs, &mut rng, aided, kind, &none)
             }
         };
-        let a = sim(rng, true)?;
-        let f = sim(&mut rng_free, false)?;
-        Ok::<_, anyhow::Error>((a, f))
+        let a = sim(rng.clone(), true, FilterKind::Paper)?;
+        let f = sim(rng.clone(), false, FilterKind::Paper)?;
+        let fl = if flight {
+            Some(sim(rng.clone(), true, FilterKind::Flight)?)
+        } else {
+            None
+        };
+        Ok::<_, anyhow::Error>((a, f, fl))
     });
     let mut aided = Vec::with_capacity(runs);
     let mut free = Vec::with_capacity(runs);
+    let mut fl = Vec::with_capacity(runs);
     for r in results {
-        let (a, f) = r?;
+        let (a, f, x) = r?;
         aided.push(a);
         free.push(f);
+        fl.extend(x);
     }
     let t: Vec<f64> = epochs.iter().map(|&k| truth.t_s[k]).collect();
     let first = aided.first().cloned().unwrap_or_default();
-    Ok((statistics(&aided, t.clone()), statistics(&free, t), first))
+    Ok(Batches {
+        paper: statistics(&aided, t.clone()),
+        flight: flight.then(|| statistics(&fl, t.clone())),
+        free: statistics(&free, t),
+        first,
+    })
 }
