@@ -12,6 +12,7 @@ use super::samples::{
     check_imu_values, check_initial, Aid, AidChannel, AidTimeouts, BaroSample, ImuSample,
     InitialState, SampleRule, ValidSample, VelocitySample, NEVER,
 };
+use super::sigma::{SigmaDesign, SigmaTrack};
 use super::{
     ALTITUDE_RANGE_M, ESTIMATE_RANGE_M, MAX_BRIDGED_GAP_S, MAX_ESTIMATE_BIAS_M_S2,
     MAX_ESTIMATE_SPEED_M_S, MAX_VERTICAL_SPEED_M_S, RECENTRE_M,
@@ -45,6 +46,7 @@ pub(crate) struct CoreParts<'a, T: Real> {
     pub(crate) velocity_timeouts: AidTimeouts<T>,
     pub(crate) run_time: RunTime<T>,
     pub(crate) gate: GateParams<T>,
+    pub(crate) sigma: &'a SigmaDesign<T>,
 }
 
 /// The new aid samples of a step, validated.
@@ -107,6 +109,8 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) baro_tally: AidTally,
     pub(crate) velocity_tally: AidTally,
     pub(crate) health: Health,
+    /// The covariance the design implies (σ of the estimate).
+    pub(crate) sigma: SigmaTrack<T>,
 }
 
 /// The state a sub-step starts from and the interval it covers.
@@ -173,6 +177,7 @@ impl<T: Real> LoopCore<T> {
             baro_tally: AidTally::default(),
             velocity_tally: AidTally::default(),
             health: Health::default(),
+            sigma: SigmaTrack::new(*parts.sigma),
         })
     }
 
@@ -376,6 +381,13 @@ impl<T: Real> LoopCore<T> {
                 input: "state after step",
             });
         }
+        if moved(&gated.baro_verdict) {
+            self.sigma.reanchor_baro();
+        }
+        if moved(&gated.velocity_verdict) {
+            self.sigma.reanchor_velocity();
+        }
+        self.sigma.tick(sub.h_us, use_baro, use_vel);
         self.baro = gated.baro;
         self.velocity = gated.velocity;
         self.settle(x_new, sub.h_ref);
@@ -507,6 +519,7 @@ impl<T: Real> LoopCore<T> {
         self.baro = AidChannel::new();
         self.velocity = AidChannel::new();
         self.health.state = HealthState::Initialising;
+        self.sigma.restart();
         Health::bump(&mut self.health.reinitialisations);
         Ok(())
     }
@@ -587,6 +600,18 @@ struct Gated<T: Real> {
     velocity: AidChannel<T>,
     velocity_age: T,
     velocity_verdict: Option<Verdict<T>>,
+}
+
+/// A verdict that moved the measured state (reset or re-anchoring).
+#[inline(always)]
+fn moved<T: Real>(v: &Option<Verdict<T>>) -> bool {
+    matches!(
+        v,
+        Some(Verdict {
+            reacquisition: Reacquisition::Reset | Reacquisition::Reanchored,
+            ..
+        })
+    )
 }
 
 #[inline(always)]

@@ -146,6 +146,7 @@ mod gravity;
 mod modes;
 mod riccati;
 mod samples;
+mod sigma;
 
 pub use aided::{AidedLoop, AidedReport};
 pub use classical::{ClassicalLoop, ClassicalReport};
@@ -163,6 +164,10 @@ pub use gravity::GravityModel;
 pub use riccati::{solve_filter_care, CareSolution, MAX_SIGN_ITERATIONS};
 pub use samples::{
     Aid, AidStatus, AidTimeouts, BaroSample, ImuSample, InitialState, VelocitySample,
+};
+pub use sigma::{
+    ErrorModel, VerticalSigma, COVARIANCE_INTERVAL_S, MAX_COVARIANCE_INTERVALS_PER_STEP,
+    SETTLED_TOLERANCE,
 };
 
 /// Largest accepted |specific force|, m/s² (20 g).
