@@ -24,7 +24,10 @@ mod run;
 mod sensors;
 mod truth;
 
-pub use run::{loop_configs, monte_carlo_rmse, one_run, simulate, McResult, Noise, RunOut};
+pub use run::{
+    error_model, loop_configs, monte_carlo_rmse, nees_h_vz, one_run, push_consistency, simulate,
+    McResult, Noise, RunOut, AXES, FILTERS,
+};
 pub use truth::Profile;
 
 use crate::scenario::Kind;
