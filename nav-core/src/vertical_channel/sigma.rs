@@ -155,7 +155,7 @@ impl<T: Real> ErrorModel<T> {
         ];
         let field = match first_outside(&checks) {
             Some(field) => field,
-            None if !(m.baro_markov_tau_s <= T::lit(super::MAX_TIMEOUT_S)) => {
+            None if m.baro_markov_tau_s > T::lit(super::MAX_TIMEOUT_S) => {
                 "error_model.baro_markov_tau_s"
             }
             None => return Ok(()),
@@ -242,7 +242,7 @@ pub(crate) struct SigmaDesign<T: Real> {
 pub(crate) const SIGMA_DESIGN_COUNT: usize = 1 + 4 * 32 + 1 + 16 + 16 + 3;
 
 impl<T: Real> CovStep<T> {
-    fn select<'a>(d: &'a SigmaDesign<T>, baro: bool, velocity: bool) -> &'a Self {
+    fn select(d: &SigmaDesign<T>, baro: bool, velocity: bool) -> &Self {
         match (baro, velocity) {
             (false, false) => &d.none,
             (true, false) => &d.baro,
@@ -251,6 +251,9 @@ impl<T: Real> CovStep<T> {
         }
     }
 }
+
+/// One mode's covariance step in the float type and its (Φ, Q) in `f64`.
+type StepF64<T> = (CovStep<T>, Matrix4<f64>, Matrix4<f64>);
 
 /// The design inputs of the σ (in `f64`).
 pub(crate) struct SigmaInputs<'a> {
@@ -334,15 +337,13 @@ impl<T: Real> SigmaDesign<T> {
         let n = libm::round(COVARIANCE_INTERVAL_S / inp.imu_dt_s).max(1.0);
         let tc = n * inp.imu_dt_s;
         let interval_us = libm::round(tc * 1.0e6);
-        if !(interval_us >= 1.0 && interval_us < 1.0e12) {
+        if !(1.0..1.0e12).contains(&interval_us) {
             return Err(NavError::InvalidConfig {
                 field: "imu_dt_s",
                 issue: ConfigIssue::OutOfRange,
             });
         }
-        let step = |baro: bool,
-                    velocity: bool|
-         -> Result<(CovStep<T>, Matrix4<f64>, Matrix4<f64>), NavError> {
+        let step = |baro: bool, velocity: bool| -> Result<StepF64<T>, NavError> {
             let (f, qc) = error_dynamics(inp, model, baro, velocity);
             let (phi, q) = discretize(&f, &qc, tc)?;
             let q = (q + q.transpose()) * 0.5;
@@ -371,7 +372,7 @@ impl<T: Real> SigmaDesign<T> {
             model.accel_bias_sigma_m_s2 * model.accel_bias_sigma_m_s2,
             model.baro_markov_sigma_m * model.baro_markov_sigma_m,
         ));
-        let lag = inp.c.m12 * -1.0;
+        let lag = -inp.c.m12;
         let d = Self {
             interval_us: interval_us as u64,
             none,
@@ -470,8 +471,8 @@ impl<T: Real> SigmaDesign<T> {
         ])?;
         let flag = r.value()?;
         d.design_uses_velocity = match flag {
-            v if v == 1.0 => true,
-            v if v == 0.0 => false,
+            1.0 => true,
+            0.0 => false,
             _ => return Err(BAD_VALUES),
         };
         let mut tail = [T::zero(); 3];
@@ -628,7 +629,9 @@ fn near<T: Real>(a: &Matrix4<T>, b: &Matrix4<T>) -> bool {
             else {
                 return false;
             };
-            if !((*x - *y).abs() <= tol * (*di * *dj).sqrt()) {
+            // NaN compares false: not near.
+            let close = (*x - *y).abs() <= tol * (*di * *dj).sqrt();
+            if !close {
                 return false;
             }
         }
