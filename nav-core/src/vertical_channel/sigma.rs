@@ -557,11 +557,12 @@ impl<T: Real> SigmaTrack<T> {
         while self.elapsed_us >= d.interval_us && n < MAX_COVARIANCE_INTERVALS_PER_STEP {
             p = step.phi * p * step.phi.transpose() + step.q;
             p = (p + p.transpose()) * T::lit(0.5);
-            self.elapsed_us -= d.interval_us;
+            self.elapsed_us = self.elapsed_us.saturating_sub(d.interval_us);
             n += 1;
         }
         if self.elapsed_us >= d.interval_us {
-            self.elapsed_us %= d.interval_us;
+            // The rest of a gap longer than the propagated intervals is dropped.
+            self.elapsed_us = self.elapsed_us.checked_rem(d.interval_us).unwrap_or(0);
         }
         if !all_finite(p.as_slice()) {
             // Saturated: a σ beyond anything physical (never reached in the envelope).
