@@ -535,7 +535,7 @@ impl<T: Real> SigmaTrack<T> {
         self.accumulate(h_us, use_baro, use_velocity);
     }
 
-    #[inline(never)]
+    #[inline(always)]
     fn accumulate(&mut self, h_us: u64, use_baro: bool, use_velocity: bool) {
         self.baro_all &= use_baro;
         self.velocity_all &= use_velocity;
