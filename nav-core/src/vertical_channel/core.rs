@@ -381,11 +381,8 @@ impl<T: Real> LoopCore<T> {
                 input: "state after step",
             });
         }
-        if moved(&gated.baro_verdict) {
-            self.sigma.reanchor_baro();
-        }
-        if moved(&gated.velocity_verdict) {
-            self.sigma.reanchor_velocity();
+        if let Some(m) = gated.moved {
+            self.sigma.reanchored(m.baro, m.velocity);
         }
         self.sigma.tick(sub.h_us, use_baro, use_vel);
         self.baro = gated.baro;
@@ -480,7 +477,12 @@ impl<T: Real> LoopCore<T> {
             .map(|v| v.report.innovation)
         };
         let (dh, dv) = (moved(&baro_verdict), moved(&vel_verdict));
+        let mut moved_states = None;
         if dh.is_some() || dv.is_some() {
+            moved_states = Some(Moved {
+                baro: dh.is_some(),
+                velocity: dv.is_some(),
+            });
             if let Some(d) = dh {
                 x.x += d;
             }
@@ -492,6 +494,7 @@ impl<T: Real> LoopCore<T> {
             v_rate = az + bias_sign * x.z;
         }
         Gated {
+            moved: moved_states,
             x,
             h_pred,
             v_rate,
@@ -591,6 +594,8 @@ impl<T: Real> LoopCore<T> {
 
 /// The outcome of the gate in one sub-step.
 struct Gated<T: Real> {
+    /// The measured states a reset or re-anchoring moved (rare).
+    moved: Option<Moved>,
     x: Vector3<T>,
     h_pred: T,
     v_rate: T,
@@ -602,16 +607,11 @@ struct Gated<T: Real> {
     velocity_verdict: Option<Verdict<T>>,
 }
 
-/// A verdict that moved the measured state (reset or re-anchoring).
-#[inline(always)]
-fn moved<T: Real>(v: &Option<Verdict<T>>) -> bool {
-    matches!(
-        v,
-        Some(Verdict {
-            reacquisition: Reacquisition::Reset | Reacquisition::Reanchored,
-            ..
-        })
-    )
+/// Which measured states a reset or re-anchoring moved in a step.
+#[derive(Debug, Clone, Copy)]
+struct Moved {
+    baro: bool,
+    velocity: bool,
 }
 
 #[inline(always)]

@@ -579,6 +579,18 @@ impl<T: Real> SigmaTrack<T> {
         }
     }
 
+    /// The re-anchorings of a step (baro first, as the state was moved).
+    #[cold]
+    #[inline(never)]
+    pub(crate) fn reanchored(&mut self, baro: bool, velocity: bool) {
+        if baro {
+            self.reanchor_baro();
+        }
+        if velocity {
+            self.reanchor_velocity();
+        }
+    }
+
     /// A re-anchoring of the baro: ĥ moved so that `ĥ − lag V̂_z = z`, i.e.
     /// `δh ← lag δV_z + m + w_h`.
     #[cold]
