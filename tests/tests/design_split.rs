@@ -470,8 +470,8 @@ fn vc_new_and_from_design_are_bit_identical_f32_f64() {
 }
 
 fn vc_values_and_refusals<T: Real>() {
-    assert_eq!(ClassicalDesign::<T>::COUNT, 70);
-    assert_eq!(AidedDesign::<T>::COUNT, 110);
+    assert_eq!(ClassicalDesign::<T>::COUNT, 235);
+    assert_eq!(AidedDesign::<T>::COUNT, 275);
     let mismatch = invalid("design", ConfigIssue::DesignMismatch);
     let bad_len = invalid("design values", ConfigIssue::OutOfRange);
     let not_finite = invalid("design values", ConfigIssue::NotFinite);
@@ -479,7 +479,7 @@ fn vc_values_and_refusals<T: Real>() {
     // Classical: documented order (stamp, gains, gravity, dt, dt/2, lag, modes).
     let cc = classical_config::<T>();
     let cd = ClassicalDesign::<T>::compute(&cc).unwrap();
-    let mut v = vec![0.0; 70];
+    let mut v = vec![0.0; 235];
     cd.write_values(&mut v).unwrap();
     assert_eq!(v[0], f64::from(cd.stamp().version));
     assert_eq!(v[1], f64::from(cd.stamp().fingerprint));
@@ -489,7 +489,18 @@ fn vc_values_and_refusals<T: Real>() {
     assert_eq!(v[7], cd.gravity().g0_m_s2.to_f64());
     assert_eq!(v[10], cc.imu_dt_s.to_f64());
     assert_eq!(v[13], cd.phi_with_baro()[(0, 0)].to_f64());
-    let mut again = vec![0.0; 70];
+    // The σ design after the modes: the covariance interval (0.1 s in µs) first, P∞ after the
+    // four modes' Φ and Q and the design-mode flag.
+    assert_eq!(v[70], 100_000.0);
+    assert_eq!(v[70 + 1 + 128], 0.0);
+    assert_eq!(v[70 + 2 + 128], cd.steady_covariance()[(0, 0)].to_f64());
+    let mut w = v.clone();
+    w[220] = f64::NAN;
+    assert_eq!(
+        ClassicalDesign::<T>::read_values(&w).err(),
+        Some(not_finite)
+    );
+    let mut again = vec![0.0; 235];
     ClassicalDesign::<T>::read_values(&v)
         .unwrap()
         .write_values(&mut again)
@@ -499,7 +510,7 @@ fn vc_values_and_refusals<T: Real>() {
         again.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
     );
     assert_eq!(
-        ClassicalDesign::<T>::read_values(&v[..69]).err(),
+        ClassicalDesign::<T>::read_values(&v[..234]).err(),
         Some(bad_len)
     );
     let mut w = v.clone();
@@ -509,7 +520,7 @@ fn vc_values_and_refusals<T: Real>() {
         Some(not_finite)
     );
     assert_eq!(
-        cd.write_values(&mut [0.0; 71]).err(),
+        cd.write_values(&mut [0.0; 236]).err(),
         Some(NavError::CapacityExceeded)
     );
     // A design for another IMU interval or baro lag is refused (its stamp).
@@ -549,7 +560,7 @@ fn vc_values_and_refusals<T: Real>() {
     // Aided.
     let ac = aided_config::<T>();
     let ad = AidedDesign::<T>::compute(&ac).unwrap();
-    let mut v = vec![0.0; 110];
+    let mut v = vec![0.0; 275];
     ad.write_values(&mut v).unwrap();
     assert_eq!(
         v[1],
@@ -560,7 +571,10 @@ fn vc_values_and_refusals<T: Real>() {
     assert_eq!(v[45], ad.gravity().g0_m_s2.to_f64());
     assert_eq!(v[51], ad.innovation_variances().0.to_f64());
     assert_eq!(v[53], ad.phi_with_baro()[(0, 0)].to_f64());
-    let mut again = vec![0.0; 110];
+    assert_eq!(v[110], 100_000.0);
+    assert_eq!(v[110 + 1 + 128], 1.0);
+    assert_eq!(v[110 + 2 + 128], ad.steady_covariance()[(0, 0)].to_f64());
+    let mut again = vec![0.0; 275];
     AidedDesign::<T>::read_values(&v)
         .unwrap()
         .write_values(&mut again)

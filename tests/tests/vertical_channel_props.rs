@@ -7,7 +7,7 @@ use nav_core::earth::normal_gravity_m_s2;
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     Aid, AidModel, AidReport, AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig,
-    ClassicalLoop, ImuSample, InitialState, VelocitySample,
+    ClassicalLoop, ErrorModel, ImuSample, InitialState, VelocitySample,
 };
 use nav_core::{Estimator, Gate, NavError, Real, RecoveryAction, RecoveryPolicy};
 
@@ -248,6 +248,7 @@ impl Setup {
             aid_model: self.aid_model(),
             gate: self.gate(),
             recovery: self.recovery(),
+            error_model: ErrorModel::paper(),
         }
     }
     fn aided<T: Real>(&self) -> AidedConfig<T> {
@@ -266,6 +267,7 @@ impl Setup {
             aid_model: self.aid_model(),
             gate: self.gate(),
             recovery: self.recovery(),
+            error_model: ErrorModel::paper(),
         }
     }
     fn truth(&self, t: f64) -> (f64, f64, f64) {

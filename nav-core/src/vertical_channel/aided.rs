@@ -110,6 +110,7 @@ impl<T: Real> Estimator for AidedLoop<T> {
                 velocity_timeouts: config.velocity_timeouts,
                 run_time: config.run_time(),
                 gate,
+                sigma: &design.sigma,
             },
         )?;
         let (bv, vv) = design.innovation_variances();
@@ -192,6 +193,22 @@ impl<T: Real> AidedLoop<T> {
     /// Accelerometer bias estimate (measured − true), m/s².
     pub fn accel_bias_m_s2(&self) -> T {
         self.core.accel_bias_m_s2()
+    }
+    /// σ of the estimate (altitude m, vertical velocity m/s): the covariance the design
+    /// implies under the configuration's [`super::ErrorModel`], from the initial σ through the
+    /// transient to the steady state, grown open-loop while an aid is not in use and moved by
+    /// re-anchorings (updated every covariance interval; see [`super::COVARIANCE_INTERVAL_S`]).
+    pub fn sigma(&self) -> super::VerticalSigma<T> {
+        self.core.sigma.sigma()
+    }
+    /// Covariance of (altitude m, vertical velocity m/s), m², m²/s, (m/s)² (see
+    /// [`Self::sigma`]).
+    pub fn covariance_h_vz(&self) -> nalgebra::Matrix2<T> {
+        self.core.sigma.covariance_h_vz()
+    }
+    /// The steady-state σ the design implies (what [`Self::sigma`] settles to).
+    pub fn steady_sigma(&self) -> super::VerticalSigma<T> {
+        self.core.sigma.design.steady_sigma()
     }
     /// Design innovation σ of (baro m, velocity m/s): `√(C P Cᵀ + σ²)` of the steady state —
     /// a starting point for the [`AidModel`]'s σ₀ (the design ignores correlated baro errors).

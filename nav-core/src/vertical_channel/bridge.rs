@@ -32,6 +32,8 @@ impl<T: Real> LoopCore<T> {
             tmp.baro = AidChannel::after_long_gap();
             tmp.velocity = AidChannel::after_long_gap();
             Health::bump(&mut tmp.health.gaps_reset);
+            // The covariance grows open-loop over the gap (its last interval is the step).
+            tmp.sigma.tick(us.saturating_sub(dt_us), false, false);
             let (baro, velocity) = tmp.advance_outlined(imu.time, dt_us, f, samples)?;
             *self = tmp;
             return Ok(StepReports {
@@ -53,6 +55,7 @@ impl<T: Real> LoopCore<T> {
         let n = n.clamp(2, max_sub);
         if coast_us > 0 {
             tmp.coast(coast_us, f);
+            tmp.sigma.tick(coast_us, false, false);
         }
         let start = tmp.time;
         let span = us.saturating_sub(coast_us);

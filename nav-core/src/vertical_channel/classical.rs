@@ -96,6 +96,7 @@ impl<T: Real> Estimator for ClassicalLoop<T> {
                 velocity_timeouts: config.baro_timeouts,
                 run_time: config.run_time(),
                 gate,
+                sigma: &design.sigma,
             },
         )?;
         Ok(Self {
@@ -173,6 +174,22 @@ impl<T: Real> ClassicalLoop<T> {
     /// Accelerometer bias estimate (measured − true), m/s².
     pub fn accel_bias_m_s2(&self) -> T {
         self.core.accel_bias_m_s2()
+    }
+    /// σ of the estimate (altitude m, vertical velocity m/s): the covariance the design
+    /// implies under the configuration's [`super::ErrorModel`], from the initial σ through the
+    /// transient to the steady state, grown open-loop while an aid is not in use and moved by
+    /// re-anchorings (updated every covariance interval; see [`super::COVARIANCE_INTERVAL_S`]).
+    pub fn sigma(&self) -> super::VerticalSigma<T> {
+        self.core.sigma.sigma()
+    }
+    /// Covariance of (altitude m, vertical velocity m/s), m², m²/s, (m/s)² (see
+    /// [`Self::sigma`]).
+    pub fn covariance_h_vz(&self) -> nalgebra::Matrix2<T> {
+        self.core.sigma.covariance_h_vz()
+    }
+    /// The steady-state σ the design implies (what [`Self::sigma`] settles to).
+    pub fn steady_sigma(&self) -> super::VerticalSigma<T> {
+        self.core.sigma.design.steady_sigma()
     }
     /// Discrete transition matrix with the baro in use (for analysis).
     pub fn phi_with_baro(&self) -> Matrix3<T> {

@@ -2,6 +2,7 @@
 //! recovery, their validation, and the papers' configuration.
 
 use super::samples::AidTimeouts;
+use super::sigma::ErrorModel;
 use super::MAX_TIMEOUT_S;
 use crate::contract::{Gate, RecoveryAction, RecoveryPolicy};
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
@@ -31,6 +32,9 @@ pub struct ClassicalConfig<T> {
     pub gate: Gate<T>,
     /// Starvation recovery: only [`RecoveryAction::Reanchor`] (see [`AidModel`]).
     pub recovery: RecoveryPolicy<T>,
+    /// The sensors' and initial state's noise the loop's σ is computed for (part of the
+    /// design and its stamp).
+    pub error_model: ErrorModel<T>,
 }
 
 /// Configuration of the velocity-aided loop (SI units; the design is computed in `f64`).
@@ -65,6 +69,9 @@ pub struct AidedConfig<T> {
     pub gate: Gate<T>,
     /// Starvation recovery: only [`RecoveryAction::Reanchor`] (see [`AidModel`]).
     pub recovery: RecoveryPolicy<T>,
+    /// The sensors' and initial state's noise the loop's σ is computed for (part of the
+    /// design and its stamp).
+    pub error_model: ErrorModel<T>,
 }
 
 /// The aids' innovation model of the fixed-gain loops. They carry no running covariance, so
@@ -293,6 +300,7 @@ impl<T: Real> ClassicalConfig<T> {
             aid_model: AidModel::paper(),
             gate: Gate::Off,
             recovery: paper_recovery(),
+            error_model: ErrorModel::paper(),
         }
     }
 
@@ -330,6 +338,7 @@ impl<T: Real> AidedConfig<T> {
             aid_model: AidModel::paper(),
             gate: Gate::Off,
             recovery: paper_recovery(),
+            error_model: ErrorModel::paper(),
         }
     }
 
@@ -405,6 +414,7 @@ impl<T: Real> ClassicalConfig<T> {
             aid_model: self.aid_model.cast(),
             gate: cast_gate(&self.gate),
             recovery: cast_recovery(&self.recovery),
+            error_model: self.error_model.cast(),
         }
     }
 }
@@ -427,6 +437,7 @@ impl<T: Real> AidedConfig<T> {
             aid_model: self.aid_model.cast(),
             gate: cast_gate(&self.gate),
             recovery: cast_recovery(&self.recovery),
+            error_model: self.error_model.cast(),
         }
     }
 }

@@ -12,6 +12,7 @@ use super::samples::{
     check_imu_values, check_initial, Aid, AidChannel, AidTimeouts, BaroSample, ImuSample,
     InitialState, SampleRule, ValidSample, VelocitySample, NEVER,
 };
+use super::sigma::{SigmaDesign, SigmaTrack};
 use super::{
     ALTITUDE_RANGE_M, ESTIMATE_RANGE_M, MAX_BRIDGED_GAP_S, MAX_ESTIMATE_BIAS_M_S2,
     MAX_ESTIMATE_SPEED_M_S, MAX_VERTICAL_SPEED_M_S, RECENTRE_M,
@@ -45,6 +46,7 @@ pub(crate) struct CoreParts<'a, T: Real> {
     pub(crate) velocity_timeouts: AidTimeouts<T>,
     pub(crate) run_time: RunTime<T>,
     pub(crate) gate: GateParams<T>,
+    pub(crate) sigma: &'a SigmaDesign<T>,
 }
 
 /// The new aid samples of a step, validated.
@@ -107,6 +109,8 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) baro_tally: AidTally,
     pub(crate) velocity_tally: AidTally,
     pub(crate) health: Health,
+    /// The covariance the design implies (σ of the estimate).
+    pub(crate) sigma: SigmaTrack<T>,
 }
 
 /// The state a sub-step starts from and the interval it covers.
@@ -173,6 +177,7 @@ impl<T: Real> LoopCore<T> {
             baro_tally: AidTally::default(),
             velocity_tally: AidTally::default(),
             health: Health::default(),
+            sigma: SigmaTrack::new(*parts.sigma),
         })
     }
 
@@ -376,6 +381,10 @@ impl<T: Real> LoopCore<T> {
                 input: "state after step",
             });
         }
+        if let Some(m) = gated.moved {
+            self.sigma.reanchored(m.baro, m.velocity);
+        }
+        self.sigma.tick(sub.h_us, use_baro, use_vel);
         self.baro = gated.baro;
         self.velocity = gated.velocity;
         self.settle(x_new, sub.h_ref);
@@ -468,7 +477,12 @@ impl<T: Real> LoopCore<T> {
             .map(|v| v.report.innovation)
         };
         let (dh, dv) = (moved(&baro_verdict), moved(&vel_verdict));
+        let mut moved_states = None;
         if dh.is_some() || dv.is_some() {
+            moved_states = Some(Moved {
+                baro: dh.is_some(),
+                velocity: dv.is_some(),
+            });
             if let Some(d) = dh {
                 x.x += d;
             }
@@ -480,6 +494,7 @@ impl<T: Real> LoopCore<T> {
             v_rate = az + bias_sign * x.z;
         }
         Gated {
+            moved: moved_states,
             x,
             h_pred,
             v_rate,
@@ -507,6 +522,7 @@ impl<T: Real> LoopCore<T> {
         self.baro = AidChannel::new();
         self.velocity = AidChannel::new();
         self.health.state = HealthState::Initialising;
+        self.sigma.restart();
         Health::bump(&mut self.health.reinitialisations);
         Ok(())
     }
@@ -578,6 +594,8 @@ impl<T: Real> LoopCore<T> {
 
 /// The outcome of the gate in one sub-step.
 struct Gated<T: Real> {
+    /// The measured states a reset or re-anchoring moved (rare).
+    moved: Option<Moved>,
     x: Vector3<T>,
     h_pred: T,
     v_rate: T,
@@ -587,6 +605,13 @@ struct Gated<T: Real> {
     velocity: AidChannel<T>,
     velocity_age: T,
     velocity_verdict: Option<Verdict<T>>,
+}
+
+/// Which measured states a reset or re-anchoring moved in a step.
+#[derive(Debug, Clone, Copy)]
+struct Moved {
+    baro: bool,
+    velocity: bool,
 }
 
 #[inline(always)]

@@ -13,6 +13,7 @@ use super::envelope::{check_imu_dt, check_period, LoopModel};
 use super::gains::{AidedGains, ClassicalGains};
 use super::gravity::GravityModel;
 use super::modes::{discretise_modes, open_loop, Mode, Modes};
+use super::sigma::{ErrorModel, SigmaDesign, SigmaInputs, VerticalSigma, SIGMA_DESIGN_COUNT};
 use crate::contract::{DesignStamp, Fingerprint};
 use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
 use crate::error::ConfigIssue;
@@ -21,45 +22,53 @@ use crate::{NavError, Real};
 use nalgebra::{Matrix2x3, Matrix3, Matrix3x2, Vector2};
 
 /// Layout version of [`ClassicalDesign`]'s value list.
-pub const CLASSICAL_DESIGN_VERSION: u16 = 2;
+pub const CLASSICAL_DESIGN_VERSION: u16 = 3;
 /// Layout version of [`AidedDesign`]'s value list.
-pub const AIDED_DESIGN_VERSION: u16 = 2;
+pub const AIDED_DESIGN_VERSION: u16 = 3;
 
 /// The stamp a classical design for `config` carries: [`CLASSICAL_DESIGN_VERSION`] and the
-/// fingerprint of `imu_dt_s, latitude_rad, tau_s, baro_lag_s, baro_period_s` in that order.
+/// fingerprint of `imu_dt_s, latitude_rad, tau_s, baro_lag_s, baro_period_s` and the
+/// [`ErrorModel`]'s fields in that order.
 pub fn classical_stamp<T: Real>(config: &ClassicalConfig<T>) -> DesignStamp {
     let c = config;
+    let f = Fingerprint::new()
+        .real(c.imu_dt_s)
+        .real(c.latitude_rad)
+        .real(c.tau_s)
+        .real(c.baro_lag_s)
+        .real(c.baro_period_s);
     DesignStamp {
         version: CLASSICAL_DESIGN_VERSION,
-        fingerprint: Fingerprint::new()
-            .real(c.imu_dt_s)
-            .real(c.latitude_rad)
-            .real(c.tau_s)
-            .real(c.baro_lag_s)
-            .real(c.baro_period_s)
-            .finish(),
+        fingerprint: error_model_print(f, &c.error_model).finish(),
     }
+}
+
+fn error_model_print<T: Real>(mut f: Fingerprint, m: &ErrorModel<T>) -> Fingerprint {
+    for v in m.values() {
+        f = f.real(v);
+    }
+    f
 }
 
 /// The stamp an aided design for `config` carries: [`AIDED_DESIGN_VERSION`] and the
 /// fingerprint of `imu_dt_s, latitude_rad, accel_noise_m_s2_rt_hz, accel_bias_rw_m_s2_rt_s,
-/// baro_noise_m, baro_period_s, baro_lag_s, velocity_noise_m_s, velocity_period_s` in that
-/// order.
+/// baro_noise_m, baro_period_s, baro_lag_s, velocity_noise_m_s, velocity_period_s` and the
+/// [`ErrorModel`]'s fields in that order.
 pub fn aided_stamp<T: Real>(config: &AidedConfig<T>) -> DesignStamp {
     let c = config;
+    let f = Fingerprint::new()
+        .real(c.imu_dt_s)
+        .real(c.latitude_rad)
+        .real(c.accel_noise_m_s2_rt_hz)
+        .real(c.accel_bias_rw_m_s2_rt_s)
+        .real(c.baro_noise_m)
+        .real(c.baro_period_s)
+        .real(c.baro_lag_s)
+        .real(c.velocity_noise_m_s)
+        .real(c.velocity_period_s);
     DesignStamp {
         version: AIDED_DESIGN_VERSION,
-        fingerprint: Fingerprint::new()
-            .real(c.imu_dt_s)
-            .real(c.latitude_rad)
-            .real(c.accel_noise_m_s2_rt_hz)
-            .real(c.accel_bias_rw_m_s2_rt_s)
-            .real(c.baro_noise_m)
-            .real(c.baro_period_s)
-            .real(c.baro_lag_s)
-            .real(c.velocity_noise_m_s)
-            .real(c.velocity_period_s)
-            .finish(),
+        fingerprint: error_model_print(f, &c.error_model).finish(),
     }
 }
 
@@ -223,6 +232,7 @@ pub struct ClassicalDesign<T: Real> {
     pub(crate) modes: Modes<T>,
     pub(crate) gravity: GravityModel<T>,
     pub(crate) step: StepValues<T>,
+    pub(crate) sigma: SigmaDesign<T>,
 }
 
 impl<T: Real> ClassicalDesign<T> {
@@ -258,13 +268,39 @@ impl<T: Real> ClassicalDesign<T> {
         }
         loop_.check_intervals()?;
         let modes = discretise_modes::<T>(&open_loop(-1.0), &k, &c, dt)?;
+        config.error_model.validate()?;
+        let sigma = SigmaDesign::compute(
+            &SigmaInputs {
+                bias_sign: -1.0,
+                c_grav: gravity.c_per_s2(),
+                k: &k,
+                c: &c,
+                imu_dt_s: dt,
+                baro_period_s: config.baro_period_s.to_f64(),
+                velocity_period_s: config.baro_period_s.to_f64(),
+                design_uses_velocity: false,
+            },
+            &config.error_model.cast(),
+        )?;
         Ok(Self {
             stamp: classical_stamp(config),
             gains,
             modes,
             gravity: gravity.cast(),
             step: StepValues::new(dt, lag),
+            sigma,
         })
+    }
+
+    /// The steady-state σ of (altitude, vertical velocity) the design implies under the
+    /// configuration's [`ErrorModel`] (discrete Lyapunov equation of the closed loop).
+    pub fn steady_sigma(&self) -> VerticalSigma<T> {
+        self.sigma.steady_sigma()
+    }
+    /// The steady-state covariance of `[δh, δV_z, δb, m]` (m², (m/s)², (m/s²)², m²; m the
+    /// baro's correlated error).
+    pub fn steady_covariance(&self) -> nalgebra::Matrix4<T> {
+        self.sigma.p_steady
     }
 
     /// The configuration stamp.
@@ -293,19 +329,22 @@ impl<T: Real> ClassicalDesign<T> {
     pub(crate) fn check(&self, config: &ClassicalConfig<T>) -> Result<(), NavError> {
         self.stamp.check(&classical_stamp(config))?;
         self.step.check(config.imu_dt_s, config.baro_lag_s)?;
-        if !(modes_finite(&self.modes) && self.gravity.is_finite()) {
+        if !(modes_finite(&self.modes) && self.gravity.is_finite() && self.sigma.is_finite()) {
             return Err(not_finite());
         }
         Ok(())
     }
 }
 
-/// Value order (70 values): the stamp `version, fingerprint` (2); the gains `c1_per_s,
+/// Value order (235 values): the stamp `version, fingerprint` (2); the gains `c1_per_s,
 /// c2_per_s2, c3_per_s3, c4_s, c_per_s2` (5); gravity `g0_m_s2, g1_per_s2, g2_per_m_s2` (3);
 /// `imu_dt_s`, half of it, `baro_lag_s` (3); the modes (57): Φ_baro (3×3), then N and G (3×2
-/// each) of the modes none, baro, velocity, both; matrices column by column.
+/// each) of the modes none, baro, velocity, both; then the σ design (165): the covariance
+/// interval (µs), Φ and Q (4×4 each) of the modes none, baro, velocity, both, the design mode's
+/// use of the velocity aid (0 or 1), P∞ and P₀ (4×4), the baro and velocity-aid white-noise
+/// variances and the lag; matrices column by column.
 impl<T: Real> DesignValues for ClassicalDesign<T> {
-    const COUNT: usize = 2 + 5 + 3 + 3 + MODES_COUNT;
+    const COUNT: usize = 2 + 5 + 3 + 3 + MODES_COUNT + SIGMA_DESIGN_COUNT;
 
     fn write_values(&self, out: &mut [f64]) -> Result<(), NavError> {
         let mut w = ValueWriter::new(out, Self::COUNT)?;
@@ -317,6 +356,7 @@ impl<T: Real> DesignValues for ClassicalDesign<T> {
         write_gravity(&mut w, &self.gravity);
         self.step.write(&mut w);
         write_modes(&mut w, &self.modes);
+        self.sigma.write(&mut w);
         w.finish()
     }
 
@@ -335,6 +375,7 @@ impl<T: Real> DesignValues for ClassicalDesign<T> {
         };
         let (gravity, step, _) = read_gravity_step::<T, 6>(&mut r)?;
         let modes = read_modes(&mut r)?;
+        let sigma = SigmaDesign::read(&mut r)?;
         r.finish()?;
         Ok(Self {
             stamp,
@@ -342,6 +383,7 @@ impl<T: Real> DesignValues for ClassicalDesign<T> {
             modes,
             gravity,
             step,
+            sigma,
         })
     }
 }
@@ -360,6 +402,7 @@ pub struct AidedDesign<T: Real> {
     pub(crate) step: StepValues<T>,
     pub(crate) baro_innovation_variance: T,
     pub(crate) velocity_innovation_variance: T,
+    pub(crate) sigma: SigmaDesign<T>,
 }
 
 impl<T: Real> AidedDesign<T> {
@@ -415,6 +458,20 @@ impl<T: Real> AidedDesign<T> {
         );
         let bv = (cb.transpose() * gains.p * cb).x + sh * sh;
         let vv = gains.p.m22 + sv * sv;
+        config.error_model.validate()?;
+        let sigma = SigmaDesign::compute(
+            &SigmaInputs {
+                bias_sign: 1.0,
+                c_grav: gravity.c_per_s2(),
+                k: &gains.k,
+                c: &gains.c,
+                imu_dt_s: dt,
+                baro_period_s: config.baro_period_s.to_f64(),
+                velocity_period_s: config.velocity_period_s.to_f64(),
+                design_uses_velocity: true,
+            },
+            &config.error_model.cast(),
+        )?;
         Ok(Self {
             stamp: aided_stamp(config),
             gains,
@@ -423,7 +480,19 @@ impl<T: Real> AidedDesign<T> {
             step: StepValues::new(dt, lag),
             baro_innovation_variance: T::lit(bv),
             velocity_innovation_variance: T::lit(vv),
+            sigma,
         })
+    }
+
+    /// The steady-state σ of (altitude, vertical velocity) the design implies under the
+    /// configuration's [`ErrorModel`] (discrete Lyapunov equation of the closed loop; unlike
+    /// the Riccati P of the gains it includes the baro's correlated error).
+    pub fn steady_sigma(&self) -> VerticalSigma<T> {
+        self.sigma.steady_sigma()
+    }
+    /// The steady-state covariance of `[δh, δV_z, δb, m]` (m², (m/s)², (m/s²)², m²).
+    pub fn steady_covariance(&self) -> nalgebra::Matrix4<T> {
+        self.sigma.p_steady
     }
 
     /// The configuration stamp.
@@ -462,6 +531,7 @@ impl<T: Real> AidedDesign<T> {
         let (bv, vv) = self.innovation_variances();
         if !(modes_finite(&self.modes)
             && self.gravity.is_finite()
+            && self.sigma.is_finite()
             && bv.is_finite()
             && vv.is_finite())
         {
@@ -477,14 +547,14 @@ impl<T: Real> AidedDesign<T> {
     }
 }
 
-/// Value order (110 values): the stamp `version, fingerprint` (2); the gains (43): `k` (3×2),
+/// Value order (275 values): the stamp `version, fingerprint` (2); the gains (43): `k` (3×2),
 /// `p` (3×3), `a` (3×3), `q` (3×3), `c` (2×3), `r` (2), `riccati_iterations` (an integer),
 /// `relative_residual`; gravity `g0_m_s2, g1_per_s2, g2_per_m_s2` (3); `imu_dt_s`, half of it,
 /// `baro_lag_s` (3); the design innovation variances baro, velocity (2); the modes (57):
-/// Φ_baro (3×3), then N and G (3×2 each) of the modes none, baro, velocity, both; matrices
-/// column by column.
+/// Φ_baro (3×3), then N and G (3×2 each) of the modes none, baro, velocity, both; the σ design
+/// (165, as in [`ClassicalDesign`]'s list); matrices column by column.
 impl<T: Real> DesignValues for AidedDesign<T> {
-    const COUNT: usize = 2 + 43 + 3 + 3 + 2 + MODES_COUNT;
+    const COUNT: usize = 2 + 43 + 3 + 3 + 2 + MODES_COUNT + SIGMA_DESIGN_COUNT;
 
     fn write_values(&self, out: &mut [f64]) -> Result<(), NavError> {
         let mut w = ValueWriter::new(out, Self::COUNT)?;
@@ -503,6 +573,7 @@ impl<T: Real> DesignValues for AidedDesign<T> {
         w.real(self.baro_innovation_variance);
         w.real(self.velocity_innovation_variance);
         write_modes(&mut w, &self.modes);
+        self.sigma.write(&mut w);
         w.finish()
     }
 
@@ -538,6 +609,7 @@ impl<T: Real> DesignValues for AidedDesign<T> {
         let (gravity, step, v) = read_gravity_step::<T, 8>(&mut r)?;
         let [.., baro_innovation_variance, velocity_innovation_variance] = v;
         let modes = read_modes(&mut r)?;
+        let sigma = SigmaDesign::read(&mut r)?;
         r.finish()?;
         Ok(Self {
             stamp,
@@ -545,6 +617,7 @@ impl<T: Real> DesignValues for AidedDesign<T> {
             modes,
             gravity,
             step,
+            sigma,
             baro_innovation_variance,
             velocity_innovation_variance,
         })

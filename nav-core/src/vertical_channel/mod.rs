@@ -129,6 +129,13 @@
 //! step bridged an IMU gap, the baro is not in use, a velocity aid that has delivered is lost,
 //! an aid's last sample was rejected, or a recovery gate is held; `Nominal` otherwise.
 //!
+//! σ: the loops have no running covariance; `sigma()` / `covariance_h_vz()` give the error
+//! covariance of (ĥ, V̂_z) their design implies under the configuration's [`ErrorModel`]
+//! (computed at design time: per aid mode the closed loop's error dynamics with the baro's
+//! correlated error, the design mode's steady state from the discrete Lyapunov equation;
+//! on board propagated every [`COVARIANCE_INTERVAL_S`] from the initial σ until it has settled,
+//! without the aids that were out, and moved by re-anchorings; see `steady_sigma()`).
+//!
 //! Numerics: the step is evaluated in innovation form, exact and well conditioned in f32. A
 //! held (`Stale`) sample is extrapolated at constant acceleration: choose `lost_after_s` so
 //! that ½ · jerk · age² stays below the aid's noise.
@@ -146,6 +153,7 @@ mod gravity;
 mod modes;
 mod riccati;
 mod samples;
+mod sigma;
 
 pub use aided::{AidedLoop, AidedReport};
 pub use classical::{ClassicalLoop, ClassicalReport};
@@ -163,6 +171,10 @@ pub use gravity::GravityModel;
 pub use riccati::{solve_filter_care, CareSolution, MAX_SIGN_ITERATIONS};
 pub use samples::{
     Aid, AidStatus, AidTimeouts, BaroSample, ImuSample, InitialState, VelocitySample,
+};
+pub use sigma::{
+    ErrorModel, VerticalSigma, COVARIANCE_INTERVAL_S, MAX_COVARIANCE_INTERVALS_PER_STEP,
+    SETTLED_TOLERANCE,
 };
 
 /// Largest accepted |specific force|, m/s² (20 g).

@@ -77,7 +77,10 @@ pub struct Campaign {
 }
 
 /// The campaigns, one per estimator's flight configuration.
-pub static CAMPAIGNS: &[Campaign] = &[crate::scenarios::seeker_ins::campaign::CAMPAIGN];
+pub static CAMPAIGNS: &[Campaign] = &[
+    crate::scenarios::seeker_ins::campaign::CAMPAIGN,
+    crate::scenarios::vertical_channel::CAMPAIGN,
+];
 
 /// Scenario kind `consistency`.
 pub const KIND: Kind = Kind {

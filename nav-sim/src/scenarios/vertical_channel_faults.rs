@@ -13,13 +13,17 @@
 //! stays there for `hold_within_s` (0 if it never left). Gate counters (rejections,
 //! re-acquisitions, resets) and the steps spent with the baro `Lost` are reported.
 
+use crate::consistency::{Consistency, RunConsistency};
 use crate::montecarlo::monte_carlo;
 use crate::output::write_csv;
 use crate::plot::{render, Figure, Panel, Series};
 use crate::rng::{normal, SimRng};
 use crate::scenario::{Context, Kind};
-use crate::scenarios::vertical_channel::{load_config, loop_configs, Config, Profile};
+use crate::scenarios::vertical_channel::{
+    load_config, loop_configs, push_consistency, Config, Profile, AXES,
+};
 use anyhow::{anyhow, ensure, Result};
+use nalgebra::Matrix2;
 use nav_core::earth::normal_gravity_m_s2;
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
@@ -162,6 +166,9 @@ pub struct FaultRun {
     pub counters: [BaroCounts; 6],
     /// IMU steps with the baro `Lost` per variant.
     pub lost_steps: [usize; 6],
+    /// Consistency samples of (h, V_z) at the output epochs per variant and twin, with the σ
+    /// the loops report.
+    pub consistency: Vec<RunConsistency>,
 }
 
 /// The three faults in time order with their names.
@@ -186,7 +193,12 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
         "aid rates above the IMU rate"
     );
     let lat = cfg.latitude_deg.to_radians();
-    let (ccfg, acfg) = loop_configs::<T>(cfg, cfg.classical.tau_s);
+    // The loops start converged: their error model's initial σ says so (the baro's
+    // correlated error is in the model; the σ grows to its steady state with it).
+    let mut start_cfg = cfg.clone();
+    start_cfg.initial_error.altitude_m = fc.initial_error_m;
+    start_cfg.initial_error.vz_m_s = fc.initial_error_m_s;
+    let (ccfg, acfg) = loop_configs::<T>(&start_cfg, cfg.classical.tau_s);
     let (h0, v0, _) = profile.at(0.0);
     let init = InitialState {
         time: Timestamp::ZERO,
@@ -228,7 +240,12 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
     let mut frozen_value = f64::NAN;
     let mut last_good = h0;
 
-    let mut out = FaultRun::default();
+    let mut out = FaultRun {
+        consistency: (0..6).map(|_| RunConsistency::new(&AXES)).collect(),
+        ..FaultRun::default()
+    };
+    let mut est_v = [0.0; 6];
+    let mut cov = [Matrix2::<f64>::zeros(); 6];
     let (mut h_prev, mut v_prev, _) = profile.at(0.0);
     for k in 1..=steps {
         let t = k as f64 * dt;
@@ -290,6 +307,8 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
                 .map_err(|e| anyhow!("classical {i} at t = {t}: {e}"))?;
             let slot = [0, 1, 4][i];
             est[slot] = lp.altitude_m().to_f64();
+            est_v[slot] = lp.vz_up_m_s().to_f64();
+            cov[slot] = lp.covariance_h_vz().map(|x| x.to_f64());
             lost[slot] = matches!(r.baro.status, AidStatus::Lost { .. });
             out.counters[slot] = BaroCounts {
                 counters: lp.aid_counters(Aid::Baro),
@@ -303,6 +322,8 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
                 .map_err(|e| anyhow!("aided {i} at t = {t}: {e}"))?;
             let slot = [2, 3, 5][i];
             est[slot] = lp.altitude_m().to_f64();
+            est_v[slot] = lp.vz_up_m_s().to_f64();
+            cov[slot] = lp.covariance_h_vz().map(|x| x.to_f64());
             lost[slot] = matches!(r.baro.status, AidStatus::Lost { .. });
             out.counters[slot] = BaroCounts {
                 counters: lp.aid_counters(Aid::Baro),
@@ -324,6 +345,9 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
             out.h_baro.push(faulty.unwrap_or(f64::NAN));
             for (series, e) in out.err_h.iter_mut().zip(&est) {
                 series.push(e - h);
+            }
+            for (j, rc) in out.consistency.iter_mut().enumerate() {
+                push_consistency(rc, t, est[j] - h, est_v[j] - v, &cov[j]);
             }
         }
         h_prev = h;
@@ -582,6 +606,46 @@ fn run_fault_baro(ctx: &Context) -> Result<Value> {
     };
     render(&fig, &ctx.out_dir.join("fault_baro.png"), 1200, 1100)?;
 
+    // Consistency of every loop with the σ it reports (spike and frozen baro: the ungated
+    // loops follow the fault, their NEES leaves the band; the dropout: the σ grows open-loop).
+    let twin_names = [
+        "classical_gated",
+        "classical_ungated",
+        "aided_gated",
+        "aided_ungated",
+        "classical_twin",
+        "aided_twin",
+    ];
+    let mut consistency = serde_json::Map::new();
+    let mut panels = Vec::new();
+    for (j, name) in twin_names.iter().enumerate() {
+        let rcs: Vec<RunConsistency> = runs
+            .iter()
+            .filter_map(|r| r.consistency.get(j).cloned())
+            .collect();
+        let c = Consistency::from_runs(2, &rcs);
+        consistency.insert((*name).to_string(), c.summary());
+        let mut p = c.nees_panel(name);
+        for s in &mut p.series {
+            for y in &mut s.y {
+                *y = y.max(1e-3).log10();
+            }
+        }
+        p.y_label = "log10 NEES".into();
+        p.title = format!("{} (log10)", p.title);
+        panels.push(p);
+    }
+    let fig = Figure {
+        title: format!(
+            "fault-baro: NEES of (h, V_z) with the loops' σ, {} runs (twins: no faults)",
+            runs.len()
+        ),
+        x_label: "t (s)".into(),
+        columns: 2,
+        panels,
+    };
+    render(&fig, &ctx.out_dir.join("nees.png"), 1400, 1100)?;
+
     Ok(json!({
         "faults": {
             "spike": { "start_s": fc.spike.start_s, "end_s": fc.spike.end_s, "offset_m": fc.spike_offset_m },
@@ -590,6 +654,7 @@ fn run_fault_baro(ctx: &Context) -> Result<Value> {
         },
         "pre_fault_window_s": fc.pre_fault_window_s,
         "hold_within_s": fc.hold_within_s,
+        "consistency": Value::Object(consistency),
         "loops": summarise(&runs, dt, &fc),
     }))
 }

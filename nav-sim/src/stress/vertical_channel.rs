@@ -26,7 +26,7 @@ use nav_core::earth::normal_gravity_m_s2;
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidModel, AidReport, AidStatus, AidTimeouts, AidedConfig, AidedLoop, BaroSample,
-    ClassicalConfig, ClassicalLoop, ImuSample, InitialState, VelocitySample,
+    ClassicalConfig, ClassicalLoop, ErrorModel, ImuSample, InitialState, VelocitySample,
 };
 use nav_core::{Estimator, Gate, HealthState, NavError, RecoveryAction, RecoveryPolicy};
 use rand::Rng;
@@ -162,6 +162,7 @@ fn build(c: &Case, t0: Timestamp, h0: f64, v0: f64) -> Result<Loop, NavError> {
             aid_model: aid_model(),
             gate: gate(c),
             recovery: recovery(),
+            error_model: ErrorModel::paper(),
         };
         Ok(Loop::Aided(Box::new(AidedLoop::new(&cfg, &init)?)))
     } else {
@@ -175,6 +176,7 @@ fn build(c: &Case, t0: Timestamp, h0: f64, v0: f64) -> Result<Loop, NavError> {
             aid_model: aid_model(),
             gate: gate(c),
             recovery: recovery(),
+            error_model: ErrorModel::paper(),
         };
         Ok(Loop::Classical(Box::new(ClassicalLoop::new(&cfg, &init)?)))
     }

@@ -372,8 +372,8 @@ impl DesignSource for Stored<'_> {
     }
 }
 
-/// Largest [`DesignValues::COUNT`] of the stored designs (the 12-state TA design).
-pub const MAX_DESIGN_VALUES: usize = 242;
+/// Largest [`DesignValues::COUNT`] of the stored designs (the aided vertical loop).
+pub const MAX_DESIGN_VALUES: usize = 275;
 
 /// Computes the design of `case` (on the host, in f32 like the filters) and writes its
 /// [`DesignValues`] to `out`; returns how many were written (0 for the seeker case, which has

@@ -604,6 +604,9 @@ fn multirate_stability_analysis_agrees_with_simulation() {
                         velocity_timeouts: cfg.baro_timeouts,
                         run_time: rt,
                         gate: super::gate::GateParams::compile(&rt).unwrap(),
+                        sigma: &ClassicalDesign::<f64>::compute(&ClassicalConfig::paper())
+                            .unwrap()
+                            .sigma,
                     },
                 )
                 .unwrap();
@@ -670,3 +673,4 @@ fn multirate_stability_analysis_agrees_with_simulation() {
 }
 
 mod contract;
+mod sigma;

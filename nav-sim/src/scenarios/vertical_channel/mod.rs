@@ -19,12 +19,17 @@
 //! Files: `truth` (the flight profile), `sensors` (accelerometer, baro, velocity aid), `run`
 //! (the loops over one run, Monte Carlo), `report` (the kinds' figures and summaries).
 
+mod campaign;
 mod report;
 mod run;
 mod sensors;
 mod truth;
 
-pub use run::{loop_configs, monte_carlo_rmse, one_run, simulate, McResult, Noise, RunOut};
+pub use campaign::{draw_variant, fly_variant, CAMPAIGN, VARIANT_DURATION_S};
+pub use run::{
+    error_model, loop_configs, monte_carlo_rmse, nees_h_vz, one_run, push_consistency, simulate,
+    McResult, Noise, RunOut, AXES, FILTERS,
+};
 pub use truth::Profile;
 
 use crate::scenario::Kind;

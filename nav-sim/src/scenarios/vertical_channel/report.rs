@@ -1,9 +1,10 @@
 //! The kinds' runners: figures, CSV and summaries of `vc-response`, `vc-montecarlo` and
 //! `vc-tau-sweep`.
 
-use super::run::{loop_configs, monte_carlo_rmse, one_run};
+use super::run::{loop_configs, monte_carlo_rmse, one_run, McResult, FILTERS};
 use super::truth::Profile;
 use super::{validate, Config};
+use crate::consistency::Consistency;
 use crate::output::{sig, write_csv};
 use crate::plot::{render, Figure, Panel, Series};
 use crate::scenario::Context;
@@ -41,6 +42,10 @@ fn design_json(cfg: &Config, tau_s: f64) -> Result<Value> {
         "classical": {
             "tau_s": tau_s, "c1_per_s": sig(g.c1_per_s, 6), "c2_per_s2": sig(g.c2_per_s2, 6),
             "c3_per_s3": sig(g.c3_per_s3, 6), "c4_s": g.c4_s,
+            "design_sigma_h_m": sig(c.steady_sigma().altitude_m, 4),
+            "design_sigma_vz_mps": sig(c.steady_sigma().vz_m_s, 4),
+            "design_sigma": "steady state of the closed loop under the scenario's error model \
+                (discrete Lyapunov equation, correlated baro error included)",
         },
         "aided": {
             "riccati": "continuous ARE, Hamiltonian matrix sign function",
@@ -49,8 +54,10 @@ fn design_json(cfg: &Config, tau_s: f64) -> Result<Value> {
             "g2_per_s": sig(ag.k[(1, 1)], 6), "g3_per_s2": sig(ag.k[(2, 1)], 6),
             "closed_loop_poles_re_im": poles,
             "riccati_relative_residual": ag.relative_residual,
-            "steady_state_sigma_h_m": sig(ag.p[(0, 0)].sqrt(), 4),
-            "steady_state_sigma_vz_mps": sig(ag.p[(1, 1)].sqrt(), 4),
+            "riccati_sigma_h_m": sig(ag.p[(0, 0)].sqrt(), 4),
+            "riccati_sigma_vz_mps": sig(ag.p[(1, 1)].sqrt(), 4),
+            "design_sigma_h_m": sig(a.steady_sigma().altitude_m, 4),
+            "design_sigma_vz_mps": sig(a.steady_sigma().vz_m_s, 4),
         }
     }))
 }
@@ -193,7 +200,18 @@ pub(super) fn run_response(ctx: &Context) -> Result<Value> {
         ],
     };
     render(&fig, &ctx.out_dir.join("fig3_response.png"), 1400, 1200)?;
+    let cons: Vec<Consistency> = run
+        .consistency
+        .iter()
+        .map(|rc| Consistency::from_runs(2, std::slice::from_ref(rc)))
+        .collect();
+    nees_figure(
+        "vc-response: NEES of (h, V_z), one run (band of one run: χ²(2))",
+        &cons,
+        &ctx.out_dir.join("nees.png"),
+    )?;
     Ok(json!({
+        "consistency": consistency_json(&cons),
         "loops": loops,
         "design": design_json(&cfg, tau)?,
         "precision": cfg.precision,
@@ -306,7 +324,14 @@ pub(super) fn run_montecarlo(ctx: &Context) -> Result<Value> {
         ],
     };
     render(&fig, &ctx.out_dir.join("fig4_rmse.png"), 1400, 900)?;
+    print_consistency(&mc);
+    nees_figure(
+        &format!("vc-montecarlo: NEES of (h, V_z), {} runs", ctx.runs),
+        &mc.consistency,
+        &ctx.out_dir.join("nees.png"),
+    )?;
     Ok(json!({
+        "consistency": consistency_json(&mc.consistency),
         "loops": loops,
         "design": design_json(&cfg, tau)?,
         "precision": cfg.precision,
@@ -320,6 +345,7 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
     let mut rows = Vec::new();
     let (mut taus, mut rh, mut rv, mut st) = (vec![], vec![], vec![], vec![]);
     let mut aided_ref = None;
+    let mut nees: Vec<(Consistency, String)> = Vec::new();
     for (i, &tau) in cfg.tau_sweep_s.iter().enumerate() {
         let mc = monte_carlo_rmse(&cfg, tau, ctx.runs, ctx.seed, ctx.progress)?;
         println!(
@@ -328,7 +354,12 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
             mc.rmse[0][1],
             mc.settle_s[0].map_or("never".into(), |s| format!("{s:.1} s"))
         );
+        nees.push((
+            mc.consistency[0].clone(),
+            format!("classical loop τ = {tau} s, design σ"),
+        ));
         rows.push(json!({
+            "consistency": mc.consistency[0].summary(),
             "tau_s": tau,
             "rmse_h_m": sig(mc.rmse[0][0], 4),
             "rmse_vz_mps": sig(mc.rmse[0][1], 4),
@@ -339,7 +370,17 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
         rv.push(mc.rmse[0][1]);
         st.push(mc.settle_s[0].unwrap_or(f64::NAN));
         if i == 0 {
+            nees.push((
+                mc.consistency[1].clone(),
+                "velocity-aided loop, design σ".into(),
+            ));
+            nees.push((
+                mc.consistency[2].clone(),
+                "velocity-aided loop, Riccati σ (paper)".into(),
+            ));
             aided_ref = Some(json!({
+                "consistency": mc.consistency[1].summary(),
+                "consistency_riccati": mc.consistency[2].summary(),
                 "rmse_h_m": sig(mc.rmse[1][0], 4),
                 "rmse_vz_mps": sig(mc.rmse[1][1], 4),
                 "settle_time_s": settle_json(mc.settle_s[1]),
@@ -364,6 +405,7 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
             mc.settle_s[1].map_or("never".into(), |s| format!("{s:.1} s"))
         );
         aided_rows.push(json!({
+            "consistency": mc.consistency[1].summary(),
             "accel_noise_design_m_s2_rt_hz": q,
             "rmse_h_m": sig(mc.rmse[1][0], 4),
             "rmse_vz_mps": sig(mc.rmse[1][1], 4),
@@ -419,10 +461,83 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
         ],
     };
     render(&fig, &ctx.out_dir.join("tau_sweep.png"), 1500, 500)?;
+    nees_panels(
+        &format!("vc-tau-sweep: NEES of (h, V_z), {} runs per τ", ctx.runs),
+        nees.iter().map(|(c, a)| (c, a.clone())).collect(),
+        &ctx.out_dir.join("nees.png"),
+    )?;
     Ok(json!({
         "classical": rows,
         "aided_reference": aided,
         "aided_design_sweep": aided_rows,
         "precision": cfg.precision,
     }))
+}
+
+/// The `consistency` object of every filter ([`FILTERS`]).
+fn consistency_json(cons: &[Consistency]) -> Value {
+    let mut m = serde_json::Map::new();
+    for (name, c) in FILTERS.iter().zip(cons) {
+        m.insert((*name).to_string(), c.summary());
+    }
+    Value::Object(m)
+}
+
+/// NEES plots of every filter with their 95 % bands.
+fn nees_figure(title: &str, cons: &[Consistency], path: &std::path::Path) -> Result<()> {
+    let about = [
+        "classical loop, design σ".to_string(),
+        "velocity-aided loop, design σ".to_string(),
+        "velocity-aided loop, Riccati σ (paper)".to_string(),
+    ];
+    nees_panels(title, cons.iter().zip(about).collect(), path)
+}
+
+/// A figure of NEES panels (one per filter, labelled).
+fn nees_panels(
+    title: &str,
+    filters: Vec<(&Consistency, String)>,
+    path: &std::path::Path,
+) -> Result<()> {
+    let rows = filters.len() as u32;
+    let panels = filters
+        .into_iter()
+        .map(|(c, a)| {
+            let mut p = c.nees_panel(&a);
+            // The Riccati σ ignores the correlated baro error: its NEES is orders of magnitude
+            // above the band; plotted in log10 so the band stays visible.
+            if c.nees_mean.iter().any(|v| *v > 1e3) {
+                for s in &mut p.series {
+                    for y in &mut s.y {
+                        *y = y.max(1e-3).log10();
+                    }
+                }
+                p.y_label = "log10 NEES".into();
+                p.title = format!("{} (log10)", p.title);
+            }
+            p
+        })
+        .collect();
+    let fig = Figure {
+        title: title.into(),
+        x_label: "time, s".into(),
+        columns: 1,
+        panels,
+    };
+    render(&fig, path, 1200, 120 + 330 * rows)
+}
+
+/// The consistency of a Monte Carlo, printed.
+fn print_consistency(mc: &McResult) {
+    for (name, c) in FILTERS.iter().zip(&mc.consistency) {
+        let s = c.summary();
+        println!(
+            "  {name:<14} NEES {} (band {}), in band {}, e²/σ² h {} V_z {}",
+            s["nees_mean"],
+            s["nees_band_95"],
+            s["frac_in_band"],
+            s["normalized_error_sq"]["h"],
+            s["normalized_error_sq"]["vz"]
+        );
+    }
 }

@@ -2,17 +2,43 @@
 
 use super::sensors::Sensors;
 use super::truth::Profile;
-use super::{validate, Config};
+use super::{validate, Config, MG};
+use crate::consistency::{Consistency, RunConsistency};
 use crate::montecarlo::monte_carlo;
 use crate::rng::{normal, SimRng};
 use crate::stats::ensemble;
 use anyhow::{anyhow, ensure, Result};
+use nalgebra::Matrix2;
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
-    AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ImuSample,
-    InitialState, VelocitySample,
+    AidTimeouts, AidedConfig, AidedLoop, BaroSample, ClassicalConfig, ClassicalLoop, ErrorModel,
+    ImuSample, InitialState, VelocitySample,
 };
 use nav_core::{Estimator, Real};
+
+/// The filters whose consistency the scenarios report: the classical loop and the aided loop
+/// with the σ their designs imply under the scenario's error model (nav-core's `sigma()`), and
+/// the aided loop with the σ of its Riccati design (`gains().p`, the only σ the paper's design
+/// gives: it ignores the correlated baro error).
+pub const FILTERS: [&str; 3] = ["classical", "aided", "aided_riccati"];
+
+/// NEES of `(δh, δV_z)` against a 2×2 covariance (m², m²/s, (m/s)²).
+pub fn nees_h_vz(eh: f64, ev: f64, p: &Matrix2<f64>) -> f64 {
+    let det = p.m11 * p.m22 - p.m12 * p.m21;
+    (p.m22 * eh * eh - (p.m12 + p.m21) * eh * ev + p.m11 * ev * ev) / det
+}
+
+/// One consistency sample: time, errors and covariance of (h, V_z).
+pub fn push_consistency(rc: &mut RunConsistency, t: f64, eh: f64, ev: f64, p: &Matrix2<f64>) {
+    rc.push(
+        t,
+        nees_h_vz(eh, ev, p),
+        &[(eh, p.m11.sqrt()), (ev, p.m22.sqrt())],
+    );
+}
+
+/// Component names of the consistency objects.
+pub const AXES: [&str; 2] = ["h", "vz"];
 
 /// Series and statistics of one run.
 #[derive(Debug, Clone, Default)]
@@ -39,6 +65,8 @@ pub struct RunOut {
     pub n: usize,
     /// Settle time (|err_h| ≤ 1 m from then to the end), per loop.
     pub settle_s: [Option<f64>; 2],
+    /// Consistency samples at the output epochs, per [`FILTERS`].
+    pub consistency: Vec<RunConsistency>,
 }
 
 /// Sensor switches of a run.
@@ -54,8 +82,25 @@ fn in_dropout(cfg: &Config, aid: &str, t: f64) -> bool {
         .any(|d| d.aid == aid && t >= d.start_s && t < d.end_s)
 }
 
+/// The scenario's sensors and initial errors as the loops' [`ErrorModel`] (the σ the loops
+/// report is computed for what the simulated sensors do; the accelerometer bias is a random
+/// constant, no random walk).
+pub fn error_model<T: Real>(cfg: &Config) -> ErrorModel<T> {
+    ErrorModel {
+        accel_noise_m_s2_rt_hz: T::lit(cfg.imu.noise_m_s2_rt_hz),
+        accel_bias_sigma_m_s2: T::lit(cfg.imu.bias_sigma_mg * MG),
+        accel_bias_rw_m_s2_rt_s: T::zero(),
+        baro_noise_m: T::lit(cfg.baro.noise_m),
+        baro_markov_sigma_m: T::lit(cfg.baro.markov_sigma_m),
+        baro_markov_tau_s: T::lit(cfg.baro.markov_tau_s),
+        velocity_noise_m_s: T::lit(cfg.velocity_aid.noise_m_s),
+        initial_altitude_sigma_m: T::lit(cfg.initial_error.altitude_m.abs().max(1e-3)),
+        initial_vz_sigma_m_s: T::lit(cfg.initial_error.vz_m_s.abs().max(1e-3)),
+    }
+}
+
 /// Builds the nav-core loop configurations in the loops' float type (no gate; the aid
-/// model and recovery of the papers' configuration).
+/// model and recovery of the papers' configuration; the error model of [`error_model`]).
 pub fn loop_configs<T: Real>(cfg: &Config, tau_s: f64) -> (ClassicalConfig<T>, AidedConfig<T>) {
     let dt = 1.0 / cfg.imu_rate_hz;
     let baro_period = 1.0 / cfg.baro.rate_hz;
@@ -77,6 +122,7 @@ pub fn loop_configs<T: Real>(cfg: &Config, tau_s: f64) -> (ClassicalConfig<T>, A
             baro_lag_s: T::lit(cfg.classical.lag_compensation_s),
             baro_period_s: T::lit(baro_period),
             baro_timeouts,
+            error_model: error_model(cfg),
             ..ClassicalConfig::paper()
         },
         AidedConfig {
@@ -95,6 +141,7 @@ pub fn loop_configs<T: Real>(cfg: &Config, tau_s: f64) -> (ClassicalConfig<T>, A
             velocity_period_s: T::lit(vel_period),
             baro_timeouts,
             velocity_timeouts: vel_timeouts,
+            error_model: error_model(cfg),
             ..AidedConfig::paper()
         },
     )
@@ -143,7 +190,15 @@ pub fn simulate<T: Real>(
     let mut sensors = Sensors::new(cfg, noise, dt, baro_every, (h0, v0), rng);
     let mut last_baro = f64::NAN;
 
-    let mut out = RunOut::default();
+    let mut out = RunOut {
+        consistency: FILTERS.iter().map(|_| RunConsistency::new(&AXES)).collect(),
+        ..RunOut::default()
+    };
+    let p_riccati = {
+        let p = aided.gains().p;
+        Matrix2::new(p.m11, p.m12, p.m21, p.m22)
+    };
+    let cov = |m: Matrix2<T>| m.map(|v| v.to_f64());
     let mut last_big = [Some(0.0f64); 2]; // time after the last |err| > 1 m
     let (mut h_prev, mut v_prev, _) = profile.at(0.0);
     for k in 1..=steps {
@@ -216,6 +271,15 @@ pub fn simulate<T: Real>(
                 out.err_h[l].push(eh - h);
                 out.err_vz[l].push(ev - v);
             }
+            let (ec, ea) = ((est[0].0 - h, est[0].1 - v), (est[1].0 - h, est[1].1 - v));
+            let covs = [
+                (ec, cov(classical.covariance_h_vz())),
+                (ea, cov(aided.covariance_h_vz())),
+                (ea, p_riccati),
+            ];
+            for (rc, ((eh, ev), p)) in out.consistency.iter_mut().zip(covs.iter()) {
+                push_consistency(rc, t, *eh, *ev, p);
+            }
         }
         h_prev = h;
         v_prev = v;
@@ -267,6 +331,8 @@ pub struct McResult {
     pub rmse: [[f64; 2]; 2],
     /// Noise-free settle times (per loop) with the configured initial errors taken as fixed.
     pub settle_s: [Option<f64>; 2],
+    /// Consistency over the runs, per [`FILTERS`].
+    pub consistency: Vec<Consistency>,
 }
 
 /// Runs the Monte Carlo for one classical τ.
@@ -318,7 +384,17 @@ pub fn monte_carlo_rmse(
             *item = (results.iter().map(|r| r.0.sumsq[l][q]).sum::<f64>() / n_total).sqrt();
         }
     }
+    let consistency = (0..FILTERS.len())
+        .map(|f| {
+            let runs: Vec<RunConsistency> = results
+                .iter()
+                .filter_map(|r| r.0.consistency.get(f).cloned())
+                .collect();
+            Consistency::from_runs(2, &runs)
+        })
+        .collect();
     Ok(McResult {
+        consistency,
         t: results.first().map(|r| r.0.t.clone()).unwrap_or_default(),
         rmse_t,
         rmse,
