@@ -76,6 +76,10 @@ pub struct Campaign {
     pub run: fn(&CampaignPlan) -> Result<Vec<VariantResult>>,
 }
 
+/// The NEES-to-band ratio plotted is clipped here (a paper filter can be 10⁴ too large, which
+/// would flatten the flight configuration's points onto zero).
+const RATIO_CLIP: f64 = 3.0;
+
 /// The campaigns, one per estimator's flight configuration.
 pub static CAMPAIGNS: &[Campaign] = &[
     crate::scenarios::seeker_ins::campaign::CAMPAIGN,
@@ -284,10 +288,12 @@ fn estimator_summary(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Va
 fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec<Panel> {
     let mut ratio = Panel {
         title: format!(
-            "{}: mean NEES / upper 95 % band edge (≤ 1 when not overconfident)",
+            "{}: mean NEES / upper 95 % band edge (≤ 1 when not overconfident; above \
+             {RATIO_CLIP} drawn at {RATIO_CLIP}, values in variants.csv)",
             c.estimator
         ),
         y_label: "NEES / band edge".into(),
+        y_range: Some((0.0, RATIO_CLIP * 1.05)),
         ..Panel::default()
     };
     let mut frac = Panel {
@@ -309,7 +315,7 @@ fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec
             .iter()
             .map(|(r, _)| {
                 let (_, hi) = nees_band_95(r.consistency.dof, r.consistency.runs);
-                r.consistency.mean_nees() / hi
+                (r.consistency.mean_nees() / hi).min(RATIO_CLIP)
             })
             .collect();
         let y_frac: Vec<f64> = rows.iter().map(|(_, v)| v.frac_in_band).collect();
