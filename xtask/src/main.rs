@@ -12,10 +12,13 @@
 //! * `replay [LOG [--config F] [--out DIR]]`: replay a flight log (ULog or CSV directory)
 //!   through the vertical loops; without arguments the shipped logs → `target/replay/<name>/`.
 //! * `stress [--short]`: the stress campaign of every estimator → `target/stress/report.json`.
+//! * `gen [--check]`: write the generated covariance kernels of the seeker INS
+//!   (`nav-core/src/seeker_ins/generated/`); `--check` fails when the committed ones are stale.
 //! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
 //!   at the end.
 
 mod firmware;
+mod gen;
 
 use std::env;
 use std::path::{Path, PathBuf};
@@ -35,6 +38,7 @@ fn main() -> ExitCode {
         "thumb" => thumb().map(|_| ()),
         "ci" => ci(),
         "bench" => firmware::bench(),
+        "gen" => gen::gen(rest.iter().any(|a| a == "--check")),
         "qemu" => firmware::qemu(),
         "soak" => soak(),
         "replay" => replay(rest),
@@ -64,7 +68,8 @@ fn usage() {
          \n  replay [LOG [--config F] [--out DIR]]               replay flight logs (default: the shipped ones)\
          \n  stress [--short]                                    stress campaign -> target/stress/report.json\
          \n  qemu                                                firmware on QEMU: golden-vector replay\
-         \n  bench                                               firmware on QEMU: instructions, stack, sizes"
+         \n  bench                                               firmware on QEMU: instructions, stack, sizes\
+         \n  gen [--check]                                       write (or check) the generated seeker kernels"
     );
 }
 
@@ -332,6 +337,7 @@ fn ci() -> Result<(), String> {
             failures.push(name.to_string());
         }
     };
+    step("gen --check", gen::gen(true));
     step(
         "fmt",
         run("fmt --check", cargo().args(["fmt", "--all", "--check"])),

@@ -145,6 +145,7 @@
 mod config;
 mod error_model;
 mod filter;
+mod generated;
 mod health;
 mod measurement;
 mod mechanization;
