@@ -344,13 +344,114 @@ fn predict_source() -> String {
     s
 }
 
+/// The columns where the LOS rows of H can be non-zero (module doc of
+/// `nav-core/src/seeker_ins/measurement.rs`): position (H1), attitude (H3) and the gimbal
+/// angle error of the component (H6).
+const LOS_PITCH: [usize; 7] = [0, 1, 2, 6, 7, 8, 15];
+const LOS_YAW: [usize; 7] = [0, 1, 2, 6, 7, 8, 16];
+
+/// The LOS update kernels source.
+fn los_source() -> String {
+    let mut s = String::from(HEADER);
+    s.push_str(
+        "//! The LOS update of the 17-state seeker INS written out from the sparsity of its two\n\
+         //! measurement rows (non-zero only in position, attitude and the component's gimbal angle\n\
+         //! error: 7 of 17 columns): `P h` and `a · h` over those columns, and the rank-two update\n\
+         //! `P ← P − k₁K₁ᵀ − k₂K₂ᵀ` of the upper triangle, mirrored. Each sum runs in column\n\
+         //! order, as the dense forms they replace (same bits: the skipped terms are zeros).\n\
+         //! Generator: `xtask/src/gen.rs`.\n\n\
+         use crate::Real;\n\n",
+    );
+    for (name, cols) in [("pitch", LOS_PITCH), ("yaw", LOS_YAW)] {
+        let list = cols.map(|c| c.to_string()).join(", ");
+        let _ = writeln!(
+            s,
+            "/// `P h` for a {name} row `h` (non-zero only in columns {list}), reading the upper\n\
+             /// triangle of `p` (column-major, `p[col][row]`).\n\
+             #[inline(always)]\n\
+             pub(in crate::seeker_ins) fn p_h_{name}<T: Real>(p: &[[T; 17]; 17], h: &[T; 17]) -> [T; 17] {{"
+        );
+        s.push_str("    [\n");
+        for i in 0..N {
+            let terms: Vec<(String, bool)> = cols
+                .iter()
+                .map(|&j| (format!("h[{j}] * {}", p_upper(i, j)), false))
+                .collect();
+            let _ = writeln!(s, "        {},", sum(&terms));
+        }
+        s.push_str("    ]\n}\n\n");
+        let _ = writeln!(
+            s,
+            "/// `a · h` for a {name} row `h` (columns {list}).\n\
+             #[inline(always)]\n\
+             pub(in crate::seeker_ins) fn dot_{name}<T: Real>(a: &[T; 17], h: &[T; 17]) -> T {{"
+        );
+        let terms: Vec<(String, bool)> = cols
+            .iter()
+            .map(|&j| (format!("a[{j}] * h[{j}]"), false))
+            .collect();
+        let _ = writeln!(s, "    {}\n}}\n", sum(&terms));
+    }
+    s.push_str(
+        "/// The rank-two update `P[i,j] − k1[i] kk1[j] − k2[i] kk2[j]` (one expression for both\n\
+         /// triangles).\n\
+         #[inline(always)]\n\
+         fn updated<T: Real>(pij: T, k1i: T, kk1j: T, k2i: T, kk2j: T) -> T {\n\
+         \x20   pij - k1i * kk1j - k2i * kk2j\n\
+         }\n\n\
+         /// `true` when every variance of the rank-two update is finite and ≥ 0 (`p` unchanged).\n\
+         #[inline(always)]\n\
+         pub(in crate::seeker_ins) fn rank_two_variances_ok<T: Real>(\n\
+         \x20   p: &[[T; 17]; 17],\n\
+         \x20   k1: &[T; 17],\n\
+         \x20   kk1: &[T; 17],\n\
+         \x20   k2: &[T; 17],\n\
+         \x20   kk2: &[T; 17],\n\
+         ) -> bool {\n\
+         \x20   let z = T::zero();\n\
+         \x20   let ok = |d: T| d.is_finite() && d >= z;\n",
+    );
+    let checks: Vec<String> = (0..N)
+        .map(|i| format!("ok(updated(p[{i}][{i}], k1[{i}], kk1[{i}], k2[{i}], kk2[{i}]))"))
+        .collect();
+    let _ = writeln!(s, "    {}\n}}\n", checks.join(" && "));
+    s.push_str(
+        "/// `P ← P − k₁K₁ᵀ − k₂K₂ᵀ` on the upper triangle, mirrored (exactly symmetric).\n\
+         #[allow(clippy::too_many_lines)]\n\
+         #[inline(never)]\n\
+         pub(in crate::seeker_ins) fn rank_two_update<T: Real>(\n\
+         \x20   p: &mut [[T; 17]; 17],\n\
+         \x20   k1: &[T; 17],\n\
+         \x20   kk1: &[T; 17],\n\
+         \x20   k2: &[T; 17],\n\
+         \x20   kk2: &[T; 17],\n\
+         ) {\n",
+    );
+    for j in 0..N {
+        for i in 0..=j {
+            let _ = writeln!(
+                s,
+                "    let v = updated(p[{j}][{i}], k1[{i}], kk1[{j}], k2[{i}], kk2[{j}]);\n    p[{j}][{i}] = v;"
+            );
+            if i != j {
+                let _ = writeln!(s, "    p[{i}][{j}] = v;");
+            }
+        }
+    }
+    s.push_str("}\n");
+    s
+}
+
 fn generated_dir() -> PathBuf {
     root().join("nav-core/src/seeker_ins/generated")
 }
 
 /// The generated files: (file name, contents).
 fn outputs() -> Vec<(&'static str, String)> {
-    vec![("predict17.rs", predict_source())]
+    vec![
+        ("predict17.rs", predict_source()),
+        ("los17.rs", los_source()),
+    ]
 }
 
 /// `text` as `rustfmt` formats it (so `cargo fmt --check` passes on the generated files).

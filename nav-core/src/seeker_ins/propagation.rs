@@ -6,7 +6,6 @@ use super::error_model::{propagate_covariance_sparse, SparseF, ATT, STATES, VEL}
 use super::filter::SeekerIns;
 use super::mechanization::{ImuIncrement, Ins};
 use crate::contract::Health;
-use crate::math::checks::rolled_index;
 use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
 use crate::{NavError, Real};
 use nalgebra::{SMatrix, Vector3};
@@ -232,7 +231,6 @@ impl<T: Real> SeekerIns<T> {
     #[inline(never)]
     pub(super) fn limit_variances(&mut self) {
         for (i, m) in VARIANCE_CEILING.iter().take(9).enumerate() {
-            let i = rolled_index(i);
             let cap = T::lit(*m);
             let Some(d) = self.p.get((i, i)).copied() else {
                 continue;

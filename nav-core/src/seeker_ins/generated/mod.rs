@@ -3,4 +3,5 @@
 //! generator, run `cargo xtask gen` and commit both; `cargo xtask gen --check` (part of
 //! `cargo xtask ci`) fails when a committed file is stale.
 
+pub(super) mod los17;
 pub(super) mod predict17;
