@@ -61,9 +61,9 @@ fn g_entries() -> Vec<Entry> {
         e(2, 5, "f25", false),
     ];
     // Velocity rows: [vel_lat vel_h vel_vel [f×] C_b^n 0].
-    for r in 0..3 {
-        v.push(e(3 + r, 0, &format!("vel_lat.{}", xyz[r]), false));
-        v.push(e(3 + r, 2, &format!("vel_h.{}", xyz[r]), false));
+    for (r, axis) in xyz.iter().enumerate() {
+        v.push(e(3 + r, 0, &format!("vel_lat.{axis}"), false));
+        v.push(e(3 + r, 2, &format!("vel_h.{axis}"), false));
         for c in 0..3 {
             v.push(e(
                 3 + r,
@@ -86,10 +86,9 @@ fn g_entries() -> Vec<Entry> {
     }
     // Attitude rows: [att_lat att_h W_v −[w_in×] 0 −C_b^n].
     let att_v = [(6, 4, "x"), (7, 3, "y"), (8, 4, "z")];
-    for r in 0..3 {
-        v.push(e(6 + r, 0, &format!("att_lat.{}", xyz[r]), false));
-        v.push(e(6 + r, 2, &format!("att_h.{}", xyz[r]), false));
-        let (row, col, f) = att_v[r];
+    for (r, (axis, (row, col, f))) in xyz.iter().zip(att_v).enumerate() {
+        v.push(e(6 + r, 0, &format!("att_lat.{axis}"), false));
+        v.push(e(6 + r, 2, &format!("att_h.{axis}"), false));
         v.push(e(row, col, &format!("att_v.{f}"), false));
         for (c, field, neg) in skew_entries(r) {
             v.push(e(6 + r, 6 + c, &format!("w_in.{field}"), !neg));
@@ -150,7 +149,7 @@ fn sum(terms: &[(String, bool)]) -> String {
         }
     }
     if s.is_empty() {
-        s.push_str("z");
+        s.push('z');
     }
     s
 }
