@@ -548,6 +548,30 @@ mod tests {
         SparseF::new(&pos, &v, &c, &f_n)
     }
 
+    /// The generated step writes both triangles of rows and columns 0..9 with the same bits
+    /// (P stays exactly symmetric) and leaves the bias and gimbal block untouched; a non-finite
+    /// result leaves P unchanged.
+    #[test]
+    fn generated_step_is_exactly_symmetric_and_touches_the_navigation_rows_only() {
+        let p0 = physical_p();
+        let sf = test_f::<f64>();
+        let (qa, qg) = (2.4e-9, 8.5e-13);
+        let mut p = p0;
+        propagate_covariance_sparse(&mut p, &sf, 0.1, qa, qg).unwrap();
+        assert_eq!(asymmetry(&p), 0.0);
+        for j in 9..17 {
+            for i in 9..17 {
+                assert_eq!(p[(i, j)].to_bits(), p0[(i, j)].to_bits(), "P[{i},{j}]");
+            }
+        }
+        assert!(p != p0);
+        let mut huge = p0;
+        huge[(12, 12)] = f64::INFINITY;
+        let before = huge;
+        assert!(propagate_covariance_sparse(&mut huge, &sf, 0.1, qa, qg).is_err());
+        assert_eq!(huge, before);
+    }
+
     /// The generated step reads only the upper triangle of P: a lower triangle of NaN gives
     /// the same bits as the symmetric P, and the rows it writes are exactly symmetric.
     #[test]
