@@ -197,17 +197,19 @@ fn predict_source() -> String {
     );
     s.push_str(
         "use super::super::error_model::SparseF;\nuse crate::Real;\n\n\
-         /// `P ← Φ P Φᵀ + Q_d` in place for `g` = F Δt (`SparseF::scaled`), reading the upper\n\
+         /// `P ← Φ P Φᵀ + Q_d` in place for F = `f` and Δt = `dt` (s; G = F Δt entry by entry,\n\
+         /// as `SparseF::scaled`), reading the upper\n\
          /// triangle of `p` (column-major storage, `p[col][row]`) and writing both triangles of\n\
          /// rows and columns 0..9. `qa`, `qg`: ½Δt times the accelerometer and gyro white-noise\n\
          /// PSDs ((m/s²)²/Hz, (rad/s)²/Hz); `qa2`, `qg2`: Δt times them (the variances added on\n\
          /// the velocity and attitude diagonals). `false` (and `p` unchanged) when a result is\n\
-         /// not finite.\n\
-         #[allow(clippy::too_many_lines, clippy::similar_names)]\n\
+         /// not finite (a non-finite entry of G reaches every column of P'[0..9, 9..17]).\n\
+         #[allow(clippy::too_many_arguments, clippy::too_many_lines, clippy::similar_names)]\n\
          #[inline(never)]\n\
          pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(\n\
          \x20   p: &mut [[T; 17]; 17],\n\
-         \x20   g: &SparseF<T>,\n\
+         \x20   f: &SparseF<T>,\n\
+         \x20   dt: T,\n\
          \x20   qa: T,\n\
          \x20   qg: T,\n\
          \x20   qa2: T,\n\
@@ -217,11 +219,12 @@ fn predict_source() -> String {
          \x20   let half = T::lit(0.5);\n",
     );
     for x in &g {
-        let _ = writeln!(s, "    let {} = g.{};", gname(x.row, x.col), x.field);
+        let _ = writeln!(s, "    let {} = f.{} * dt;", gname(x.row, x.col), x.field);
     }
     s.push_str(
-        "    let h0_3 = half * g.f03;\n    let h1_4 = half * g.f14;\n    let h2_5 = half * g.f25;\n\
-         \x20   let hf_x = half * g.f_ned.x;\n    let hf_y = half * g.f_ned.y;\n    let hf_z = half * g.f_ned.z;\n",
+        "    let h0_3 = half * g0_3;\n    let h1_4 = half * g1_4;\n    let h2_5 = half * g2_5;\n\
+         \x20   let hf_x = half * (f.f_ned.x * dt);\n    let hf_y = half * (f.f_ned.y * dt);\n\
+         \x20   let hf_z = half * (f.f_ned.z * dt);\n",
     );
     // Liveness: U[i][1] is only read as P'[i][1] (column 1 of G is zero).
     let needed_u = |i: usize, j: usize| -> bool { j != 1 || i <= 1 };

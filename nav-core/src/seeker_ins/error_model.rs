@@ -231,7 +231,7 @@ impl<T: Real> SparseF<T> {
 /// and column (PSD kept); the count of such repairs is returned.
 ///
 /// Errors (P unchanged): `InvalidTimeStep`, `NonFiniteInput` (a non-finite entry would
-/// result).
+/// result; a non-finite entry of F or of P's rows 0..15 always does).
 pub fn propagate_covariance_sparse<T: Real>(
     p: &mut SMatrix<T, STATES, STATES>,
     f: &SparseF<T>,
@@ -242,16 +242,11 @@ pub fn propagate_covariance_sparse<T: Real>(
     if !dt_s.is_finite() || dt_s <= T::zero() {
         return Err(NavError::InvalidTimeStep);
     }
-    let g = f.scaled(dt_s);
-    if !g.is_finite() {
-        return Err(NavError::NonFiniteInput {
-            input: "transition matrix",
-        });
-    }
     let half_dt = T::lit(0.5) * dt_s;
     let committed = propagate_in_place(
         &mut p.data.0,
-        &g,
+        f,
+        dt_s,
         q_accel * half_dt,
         q_gyro * half_dt,
         q_accel * dt_s,

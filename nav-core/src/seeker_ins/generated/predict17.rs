@@ -8,17 +8,23 @@
 use super::super::error_model::SparseF;
 use crate::Real;
 
-/// `P ← Φ P Φᵀ + Q_d` in place for `g` = F Δt (`SparseF::scaled`), reading the upper
+/// `P ← Φ P Φᵀ + Q_d` in place for F = `f` and Δt = `dt` (s; G = F Δt entry by entry,
+/// as `SparseF::scaled`), reading the upper
 /// triangle of `p` (column-major storage, `p[col][row]`) and writing both triangles of
 /// rows and columns 0..9. `qa`, `qg`: ½Δt times the accelerometer and gyro white-noise
 /// PSDs ((m/s²)²/Hz, (rad/s)²/Hz); `qa2`, `qg2`: Δt times them (the variances added on
 /// the velocity and attitude diagonals). `false` (and `p` unchanged) when a result is
-/// not finite.
-#[allow(clippy::too_many_lines, clippy::similar_names)]
+/// not finite (a non-finite entry of G reaches every column of P'[0..9, 9..17]).
+#[allow(
+    clippy::too_many_arguments,
+    clippy::too_many_lines,
+    clippy::similar_names
+)]
 #[inline(never)]
 pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
     p: &mut [[T; 17]; 17],
-    g: &SparseF<T>,
+    f: &SparseF<T>,
+    dt: T,
     qa: T,
     qg: T,
     qa2: T,
@@ -26,73 +32,73 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
 ) -> bool {
     let z = T::zero();
     let half = T::lit(0.5);
-    let g0_0 = g.f00;
-    let g0_2 = g.f02;
-    let g0_3 = g.f03;
-    let g1_0 = g.f10;
-    let g1_2 = g.f12;
-    let g1_4 = g.f14;
-    let g2_5 = g.f25;
-    let g3_0 = g.vel_lat.x;
-    let g3_2 = g.vel_h.x;
-    let g3_3 = g.vel_vel.m11;
-    let g3_4 = g.vel_vel.m12;
-    let g3_5 = g.vel_vel.m13;
-    let g3_7 = g.f_ned.z;
-    let g3_8 = g.f_ned.y;
-    let g3_9 = g.c_b_n.m11;
-    let g3_10 = g.c_b_n.m12;
-    let g3_11 = g.c_b_n.m13;
-    let g4_0 = g.vel_lat.y;
-    let g4_2 = g.vel_h.y;
-    let g4_3 = g.vel_vel.m21;
-    let g4_4 = g.vel_vel.m22;
-    let g4_5 = g.vel_vel.m23;
-    let g4_6 = g.f_ned.z;
-    let g4_8 = g.f_ned.x;
-    let g4_9 = g.c_b_n.m21;
-    let g4_10 = g.c_b_n.m22;
-    let g4_11 = g.c_b_n.m23;
-    let g5_0 = g.vel_lat.z;
-    let g5_2 = g.vel_h.z;
-    let g5_3 = g.vel_vel.m31;
-    let g5_4 = g.vel_vel.m32;
-    let g5_5 = g.vel_vel.m33;
-    let g5_6 = g.f_ned.y;
-    let g5_7 = g.f_ned.x;
-    let g5_9 = g.c_b_n.m31;
-    let g5_10 = g.c_b_n.m32;
-    let g5_11 = g.c_b_n.m33;
-    let g6_0 = g.att_lat.x;
-    let g6_2 = g.att_h.x;
-    let g6_4 = g.att_v.x;
-    let g6_7 = g.w_in.z;
-    let g6_8 = g.w_in.y;
-    let g6_12 = g.c_b_n.m11;
-    let g6_13 = g.c_b_n.m12;
-    let g6_14 = g.c_b_n.m13;
-    let g7_0 = g.att_lat.y;
-    let g7_2 = g.att_h.y;
-    let g7_3 = g.att_v.y;
-    let g7_6 = g.w_in.z;
-    let g7_8 = g.w_in.x;
-    let g7_12 = g.c_b_n.m21;
-    let g7_13 = g.c_b_n.m22;
-    let g7_14 = g.c_b_n.m23;
-    let g8_0 = g.att_lat.z;
-    let g8_2 = g.att_h.z;
-    let g8_4 = g.att_v.z;
-    let g8_6 = g.w_in.y;
-    let g8_7 = g.w_in.x;
-    let g8_12 = g.c_b_n.m31;
-    let g8_13 = g.c_b_n.m32;
-    let g8_14 = g.c_b_n.m33;
-    let h0_3 = half * g.f03;
-    let h1_4 = half * g.f14;
-    let h2_5 = half * g.f25;
-    let hf_x = half * g.f_ned.x;
-    let hf_y = half * g.f_ned.y;
-    let hf_z = half * g.f_ned.z;
+    let g0_0 = f.f00 * dt;
+    let g0_2 = f.f02 * dt;
+    let g0_3 = f.f03 * dt;
+    let g1_0 = f.f10 * dt;
+    let g1_2 = f.f12 * dt;
+    let g1_4 = f.f14 * dt;
+    let g2_5 = f.f25 * dt;
+    let g3_0 = f.vel_lat.x * dt;
+    let g3_2 = f.vel_h.x * dt;
+    let g3_3 = f.vel_vel.m11 * dt;
+    let g3_4 = f.vel_vel.m12 * dt;
+    let g3_5 = f.vel_vel.m13 * dt;
+    let g3_7 = f.f_ned.z * dt;
+    let g3_8 = f.f_ned.y * dt;
+    let g3_9 = f.c_b_n.m11 * dt;
+    let g3_10 = f.c_b_n.m12 * dt;
+    let g3_11 = f.c_b_n.m13 * dt;
+    let g4_0 = f.vel_lat.y * dt;
+    let g4_2 = f.vel_h.y * dt;
+    let g4_3 = f.vel_vel.m21 * dt;
+    let g4_4 = f.vel_vel.m22 * dt;
+    let g4_5 = f.vel_vel.m23 * dt;
+    let g4_6 = f.f_ned.z * dt;
+    let g4_8 = f.f_ned.x * dt;
+    let g4_9 = f.c_b_n.m21 * dt;
+    let g4_10 = f.c_b_n.m22 * dt;
+    let g4_11 = f.c_b_n.m23 * dt;
+    let g5_0 = f.vel_lat.z * dt;
+    let g5_2 = f.vel_h.z * dt;
+    let g5_3 = f.vel_vel.m31 * dt;
+    let g5_4 = f.vel_vel.m32 * dt;
+    let g5_5 = f.vel_vel.m33 * dt;
+    let g5_6 = f.f_ned.y * dt;
+    let g5_7 = f.f_ned.x * dt;
+    let g5_9 = f.c_b_n.m31 * dt;
+    let g5_10 = f.c_b_n.m32 * dt;
+    let g5_11 = f.c_b_n.m33 * dt;
+    let g6_0 = f.att_lat.x * dt;
+    let g6_2 = f.att_h.x * dt;
+    let g6_4 = f.att_v.x * dt;
+    let g6_7 = f.w_in.z * dt;
+    let g6_8 = f.w_in.y * dt;
+    let g6_12 = f.c_b_n.m11 * dt;
+    let g6_13 = f.c_b_n.m12 * dt;
+    let g6_14 = f.c_b_n.m13 * dt;
+    let g7_0 = f.att_lat.y * dt;
+    let g7_2 = f.att_h.y * dt;
+    let g7_3 = f.att_v.y * dt;
+    let g7_6 = f.w_in.z * dt;
+    let g7_8 = f.w_in.x * dt;
+    let g7_12 = f.c_b_n.m21 * dt;
+    let g7_13 = f.c_b_n.m22 * dt;
+    let g7_14 = f.c_b_n.m23 * dt;
+    let g8_0 = f.att_lat.z * dt;
+    let g8_2 = f.att_h.z * dt;
+    let g8_4 = f.att_v.z * dt;
+    let g8_6 = f.w_in.y * dt;
+    let g8_7 = f.w_in.x * dt;
+    let g8_12 = f.c_b_n.m31 * dt;
+    let g8_13 = f.c_b_n.m32 * dt;
+    let g8_14 = f.c_b_n.m33 * dt;
+    let h0_3 = half * g0_3;
+    let h1_4 = half * g1_4;
+    let h2_5 = half * g2_5;
+    let hf_x = half * (f.f_ned.x * dt);
+    let hf_y = half * (f.f_ned.y * dt);
+    let hf_z = half * (f.f_ned.z * dt);
     let mut u = [[z; 9]; 17];
     // Column 0.
     let x0 = p[0][0];
