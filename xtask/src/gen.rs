@@ -351,6 +351,8 @@ fn predict_source() -> String {
 /// angle error of the component (H6).
 const LOS_PITCH: [usize; 7] = [0, 1, 2, 6, 7, 8, 15];
 const LOS_YAW: [usize; 7] = [0, 1, 2, 6, 7, 8, 16];
+/// Columns of P per block of the generated rank-two update.
+const UPDATE_BLOCK: usize = 4;
 
 /// The LOS update kernels source.
 fn los_source() -> String {
@@ -429,14 +431,19 @@ fn los_source() -> String {
          \x20   kk2: &[T; 17],\n\
          ) {\n",
     );
-    for j in 0..N {
-        for i in 0..=j {
-            let _ = writeln!(
-                s,
-                "    let v = updated(p[{j}][{i}], k1[{i}], kk1[{j}], k2[{i}], kk2[{j}]);\n    p[{j}][{i}] = v;"
-            );
-            if i != j {
-                let _ = writeln!(s, "    p[{i}][{j}] = v;");
+    // Blocks of four columns, rows outermost within a block: each k1[i], k2[i] read serves
+    // up to four entries while the block's kk1[j], kk2[j] stay in registers.
+    for j0 in (0..N).step_by(UPDATE_BLOCK) {
+        let block = j0..(j0 + UPDATE_BLOCK).min(N);
+        for i in 0..block.end {
+            for j in block.clone().filter(|&j| i <= j) {
+                let _ = writeln!(
+                    s,
+                    "    let v = updated(p[{j}][{i}], k1[{i}], kk1[{j}], k2[{i}], kk2[{j}]);\n    p[{j}][{i}] = v;"
+                );
+                if i != j {
+                    let _ = writeln!(s, "    p[{i}][{j}] = v;");
+                }
             }
         }
     }
