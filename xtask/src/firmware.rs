@@ -258,8 +258,8 @@ const PEER_PREDICT: [(&str, u64, u64); 3] = [
 const PEER_SOURCE: &str = "PX4 figures: PX4-Autopilot 68980b59, \
     `src/modules/ekf2/EKF/python/ekf_derivation/generated/predict_covariance.h`, compiled for \
     the Cortex-M4F and counted as `cargo xtask bench` counts (quoted, not re-measured by this \
-    bench; 9 of PX4's 24 states have non-identity dynamics, as 9 of our 17 do). Ours: measured \
-    by this run.";
+    bench; 9 of PX4's 24 states have non-identity dynamics, as 9 of our 17 do); the dense C \
+    loops: quoted from the same measurement. Ours: measured by this run.";
 
 /// The targets missed in `report` (empty when all are met).
 fn missed_targets(report: &Map<String, Value>) -> Vec<String> {

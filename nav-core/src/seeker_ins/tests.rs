@@ -170,7 +170,7 @@ fn p_stays_psd_over_a_long_unaided_run_in_f32() {
         };
         f.propagate(&sample).unwrap();
         if k % 1000 == 0 {
-            worst = worst.min(min_correlation_eigenvalue(&f.covariance()));
+            worst = worst.min(min_correlation_eigenvalue(f.covariance()));
         }
     }
     assert!(worst >= -tol, "smallest correlation eigenvalue {worst:e}");
