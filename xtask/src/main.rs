@@ -8,14 +8,19 @@
 //!   (`tests/firmware/examples/`, panic-never).
 //! * `qemu`: record golden vectors on the host, replay them in the firmware on QEMU Cortex-M4F
 //!   and Cortex-M7, fail on any mismatch.
-//! * `bench`: instruction counts, stack and image sizes on QEMU → `target/bench/report.json`.
+//! * `bench [--report-only]`: instruction counts, stack and image sizes on QEMU →
+//!   `target/bench/report.json`, `report.md` (with the peer table of the covariance prediction);
+//!   fails when a cost target is missed unless `--report-only` (what `ci` runs).
 //! * `replay [LOG [--config F] [--out DIR]]`: replay a flight log (ULog or CSV directory)
 //!   through the vertical loops; without arguments the shipped logs → `target/replay/<name>/`.
 //! * `stress [--short]`: the stress campaign of every estimator → `target/stress/report.json`.
+//! * `gen [--check]`: write the generated covariance kernels of the seeker INS
+//!   (`nav-core/src/seeker_ins/generated/`); `--check` fails when the committed ones are stale.
 //! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
 //!   at the end.
 
 mod firmware;
+mod gen;
 
 use std::env;
 use std::path::{Path, PathBuf};
@@ -34,7 +39,8 @@ fn main() -> ExitCode {
         "sim" => sim(rest),
         "thumb" => thumb().map(|_| ()),
         "ci" => ci(),
-        "bench" => firmware::bench(),
+        "bench" => firmware::bench(rest.iter().any(|a| a == "--report-only")),
+        "gen" => gen::gen(rest.iter().any(|a| a == "--check")),
         "qemu" => firmware::qemu(),
         "soak" => soak(),
         "replay" => replay(rest),
@@ -64,7 +70,8 @@ fn usage() {
          \n  replay [LOG [--config F] [--out DIR]]               replay flight logs (default: the shipped ones)\
          \n  stress [--short]                                    stress campaign -> target/stress/report.json\
          \n  qemu                                                firmware on QEMU: golden-vector replay\
-         \n  bench                                               firmware on QEMU: instructions, stack, sizes"
+         \n  bench [--report-only]                               firmware on QEMU: instructions, stack, sizes; fails on a missed target\
+         \n  gen [--check]                                       write (or check) the generated seeker kernels"
     );
 }
 
@@ -332,6 +339,7 @@ fn ci() -> Result<(), String> {
             failures.push(name.to_string());
         }
     };
+    step("gen --check", gen::gen(true));
     step(
         "fmt",
         run("fmt --check", cargo().args(["fmt", "--all", "--check"])),
@@ -416,7 +424,9 @@ fn ci() -> Result<(), String> {
     step("stress (short)", stress(true));
     // The firmware on QEMU: golden-vector replay (fails on any mismatch), then the cost report.
     step("qemu", firmware::qemu());
-    step("bench", firmware::bench());
+    // Report only while cost targets are open (README, cost table): the figures are written,
+    // a missed target is printed but does not fail CI. `cargo xtask bench` enforces them.
+    step("bench (report only)", firmware::bench(true));
     step(
         "doc",
         run(

@@ -16,31 +16,6 @@ pub(crate) fn opaque<V>(v: V) -> V {
     core::hint::black_box(v)
 }
 
-/// A loop index hidden from the optimiser ([`opaque`]): a loop over a constant-length array
-/// indexed with it stays rolled (one copy of its body in the image instead of one per index).
-/// For the few step-path loops whose unrolled form costs more flash than the cycles it saves
-/// (the seeker INS's 17-state LOS update and variance limits).
-#[inline(always)]
-pub(crate) fn rolled_index(i: usize) -> usize {
-    opaque(i)
-}
-
-/// A mutable slice hidden from the optimiser ([`opaque`]): a loop over it stays rolled, as
-/// for [`rolled_index`].
-#[inline(always)]
-pub(crate) fn rolled_slice_mut<T>(s: &mut [T]) -> &mut [T] {
-    opaque(s)
-}
-
-/// `Σ aᵢ bᵢ` folded from zero in index order (over the shorter length), one rolled copy for
-/// every dot product of a step path that should not be unrolled per length (as
-/// [`rolled_index`]).
-#[inline(never)]
-pub(crate) fn dot_rolled<T: Real>(a: &[T], b: &[T]) -> T {
-    let (a, b) = opaque((a, b));
-    a.iter().zip(b).fold(T::zero(), |acc, (x, y)| acc + *x * *y)
-}
-
 /// `true` when every value is finite (not NaN or ±∞).
 #[inline(never)]
 pub fn all_finite<T: Real>(values: &[T]) -> bool {

@@ -152,6 +152,7 @@ mod config;
 mod error_model;
 mod filter;
 mod flight_noise;
+mod generated;
 mod health;
 mod measurement;
 mod mechanization;
@@ -189,5 +190,5 @@ pub use mechanization::{
 pub use paper::{
     paper_initial_covariance, PAPER_COVARIANCE_INTERVAL_STEPS, PAPER_IMU_DT_S, PAPER_IMU_DT_US,
 };
-pub use propagation::ClipFlags;
+pub use propagation::{ClipFlags, PROPAGATION_STABILISING_EPS};
 pub use update::{max_information_ratio, LosReport, LosSample, LosSkipReason, STABILISING_EPS};

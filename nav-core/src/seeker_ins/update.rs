@@ -7,13 +7,15 @@ use super::config::starved_after_us;
 use super::config::LosResidual;
 use super::error_model::{ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL};
 use super::filter::SeekerIns;
+use super::generated::los17::{
+    dot_pitch, dot_yaw, p_h_pitch, p_h_yaw, rank_two_update, rank_two_variances_ok,
+};
 use super::health::LastUpdate;
 use super::measurement::{
     landmark_vector_ned, los_model_at, validate_gimbal, GimbalAngles, LosModel,
     MIN_LANDMARK_RANGE_M,
 };
 use crate::contract::{FusionOutcome, FusionReport, Gate, RecoveryAction};
-use crate::math::checks::{dot_rolled, rolled_index, rolled_slice_mut};
 use crate::math::kalman::gate_scalar;
 use crate::time::Timestamp;
 use crate::{NavError, Real};
@@ -188,7 +190,6 @@ impl<T: Real> SeekerIns<T> {
         model: &LosModel<T>,
         c: &TwoComponents<T>,
     ) -> LosReport<T> {
-        let zero = T::zero();
         let (fused1, fused2) = (
             c.rep1.outcome == FusionOutcome::Fused,
             c.rep2.outcome == FusionOutcome::Fused,
@@ -206,17 +207,9 @@ impl<T: Real> SeekerIns<T> {
             self.note_no_fusion(sample, &[c.rep1.outcome, c.rep2.outcome]);
             return report;
         }
-        let g = |a: &[T; STATES], i: usize| a.get(i).copied().unwrap_or(zero);
-        let updated = |i: usize, j: usize, pij: T| -> T {
-            pij - g(&c.k1, i) * g(&c.kk1, j) - g(&c.k2, i) * g(&c.kk2, j)
-        };
         // Check before anything changes: variances stay ≥ 0 and everything is finite.
-        for (i, col) in self.p.as_slice().chunks_exact(STATES).enumerate() {
-            let i = rolled_index(i);
-            let d = updated(i, i, col.get(i).copied().unwrap_or(zero));
-            if !d.is_finite() || d < zero {
-                return self.skip_attempt(sample, report, LosSkipReason::NumericalLimit);
-            }
+        if !rank_two_variances_ok(&self.p.data.0, &c.k1, &c.kk1, &c.k2, &c.kk2) {
+            return self.skip_attempt(sample, report, LosSkipReason::NumericalLimit);
         }
         let xv = SVector::<T, STATES>::from(c.x);
         // Feedback first: it is atomic (the INS validates before it changes) and only P, which
@@ -225,19 +218,7 @@ impl<T: Real> SeekerIns<T> {
             return self.skip_attempt(sample, report, LosSkipReason::CorrectionNotFinite);
         }
         // P: upper triangle, mirrored (exactly symmetric).
-        for j in 0..STATES {
-            for i in 0..=j {
-                if let Some(v) = self.p.get((i, j)).copied() {
-                    let u = updated(i, j, v);
-                    if let Some(d) = self.p.get_mut((i, j)) {
-                        *d = u;
-                    }
-                    if let Some(d) = self.p.get_mut((j, i)) {
-                        *d = u;
-                    }
-                }
-            }
-        }
+        rank_two_update(&mut self.p.data.0, &c.k1, &c.kk1, &c.k2, &c.kk2);
         stabilise(&mut self.p);
         let conditioned = u32::from(fused1 && c.cond1) + u32::from(fused2 && c.cond2);
         self.note_fusion(sample, &[c.rep1.outcome, c.rep2.outcome], conditioned);
@@ -342,9 +323,8 @@ impl<T: Real> SeekerIns<T> {
     /// variance ceilings.
     fn inflate_navigation(&mut self, f: T) {
         let sf = f.sqrt();
-        let cols = rolled_slice_mut(self.p.as_mut_slice()).chunks_exact_mut(STATES);
-        for (j, col) in cols.enumerate() {
-            for (i, v) in rolled_slice_mut(col).iter_mut().enumerate() {
+        for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
+            for (i, v) in col.iter_mut().enumerate() {
                 match (i < 9, j < 9) {
                     (true, true) => *v *= f,
                     (false, false) => {}
@@ -376,7 +356,9 @@ impl<T: Real> SeekerIns<T> {
 }
 
 /// The two scalar components against P (unchanged): component 1 (pitch direction) against P,
-/// component 2 (yaw direction) against P after component 1, `k₂ = P h₂ − k₁ (K₁·h₂)`.
+/// component 2 (yaw direction) against P after component 1, `k₂ = P h₂ − k₁ (K₁·h₂)`. The
+/// products with the rows of H run over their non-zero columns only (generated,
+/// `generated::los17`).
 #[inline(always)]
 fn two_components<T: Real>(
     p: &SMatrix<T, STATES, STATES>,
@@ -385,19 +367,19 @@ fn two_components<T: Real>(
 ) -> TwoComponents<T> {
     let zero = T::zero();
     let kappa = max_information_ratio::<T>();
-    let dot = |a: &[T; STATES], h: &SVector<T, STATES>| -> T { dot_rolled(a, h.as_slice()) };
-    let h1 = &model.h_pitch;
-    let k1 = covariance_times_dense_row(p, h1);
-    let hph1 = dot(&k1, h1);
+    let p = &p.data.0;
+    let [h1] = &model.h_pitch.data.0;
+    let [h2] = &model.h_yaw.data.0;
+    let k1 = p_h_pitch(p, h1);
+    let hph1 = dot_pitch(&k1, h1);
     let (r1, cond1) = conditioned_noise(hph1, model.variance_rad2.x, kappa);
     let (rep1, inv_s1) = scalar_report(hph1, r1, model.residual_rad.x, gate);
-    let h2 = &model.h_yaw;
-    let mut k2 = covariance_times_dense_row(p, h2);
+    let mut k2 = p_h_yaw(p, h2);
     let mut x = [zero; STATES];
     let mut kk1 = [zero; STATES];
     if rep1.outcome == FusionOutcome::Fused {
-        let c = dot(&k1, h2) * inv_s1;
-        let it = rolled_slice_mut(&mut k2[..])
+        let c = dot_yaw(&k1, h2) * inv_s1;
+        let it = k2
             .iter_mut()
             .zip(k1.iter())
             .zip(x.iter_mut())
@@ -408,17 +390,13 @@ fn two_components<T: Real>(
             *xi = *kk * rep1.innovation;
         }
     }
-    let nu2 = model.residual_rad.y - dot_rolled(h2.as_slice(), &x);
-    let hph2 = dot(&k2, h2);
+    let nu2 = model.residual_rad.y - dot_yaw(&x, h2);
+    let hph2 = dot_yaw(&k2, h2);
     let (r2, cond2) = conditioned_noise(hph2, model.variance_rad2.y, kappa);
     let (rep2, inv_s2) = scalar_report(hph2, r2, nu2, gate);
     let mut kk2 = [zero; STATES];
     if rep2.outcome == FusionOutcome::Fused {
-        for ((kk, k2i), xi) in rolled_slice_mut(&mut kk2[..])
-            .iter_mut()
-            .zip(k2.iter())
-            .zip(x.iter_mut())
-        {
+        for ((kk, k2i), xi) in kk2.iter_mut().zip(k2.iter()).zip(x.iter_mut()) {
             *kk = *k2i * inv_s2;
             *xi += *kk * rep2.innovation;
         }
@@ -451,25 +429,6 @@ pub(super) fn stabilise<T: Real, const N: usize>(p: &mut SMatrix<T, N, N>) {
             *v += *v * delta;
         }
     }
-}
-
-/// `k = P h`, skipping the zero entries of h (8 of 17 for a LOS row). Not inlined: one copy
-/// serves both LOS components.
-#[inline(never)]
-fn covariance_times_dense_row<T: Real>(
-    p: &SMatrix<T, STATES, STATES>,
-    h: &SVector<T, STATES>,
-) -> [T; STATES] {
-    let zero = T::zero();
-    let mut k = [zero; STATES];
-    for (col, hj) in p.as_slice().chunks_exact(STATES).zip(h.iter()) {
-        if *hj != zero {
-            for (ki, pij) in k.iter_mut().zip(col) {
-                *ki += *hj * *pij;
-            }
-        }
-    }
-    k
 }
 
 /// The noise variance a scalar component is fused with: `r`, or `hph / kappa` when the
@@ -510,4 +469,102 @@ fn scalar_report<T: Real>(hph: T, r: T, innovation: T, gate: Gate<T>) -> (Fusion
     }
     gate_scalar(innovation, hph, hph + r, gate)
         .unwrap_or_else(|| (skipped_report(innovation), T::zero()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::rotation::euler_to_dcm;
+    use crate::seeker_ins::measurement::los_model;
+    use crate::seeker_ins::{Landmark, Position};
+
+    /// The generated LOS kernels read the rows of H in their structurally non-zero columns
+    /// only (position, attitude, the component's gimbal angle error): every other entry is an
+    /// exact zero, over attitudes and gimbal angles across the accepted range.
+    #[test]
+    fn los_rows_are_zero_outside_the_generated_support() {
+        let pos = Position {
+            lat_rad: 0.65,
+            lon_rad: 2.2,
+            alt_m: 1000.0,
+        };
+        let lm = Landmark::new(Position {
+            lat_rad: 0.6503,
+            lon_rad: 2.21,
+            alt_m: 0.0,
+        })
+        .unwrap();
+        let pitch_support = [0, 1, 2, 6, 7, 8, 15];
+        let yaw_support = [0, 1, 2, 6, 7, 8, 16];
+        let mut checked = 0;
+        for k in 0..40 {
+            let kf = f64::from(k);
+            let c = euler_to_dcm(0.1 * kf - 2.0, 0.03 * kf - 0.6, 0.17 * kf - 3.0);
+            let gimbal = GimbalAngles {
+                pitch_rad: 0.035 * kf - 0.7,
+                yaw_rad: 0.15 * kf - 3.0,
+            };
+            let m = los_model(&pos, &c, &gimbal, &lm, 1e-3).unwrap();
+            for j in 0..STATES {
+                if !pitch_support.contains(&j) {
+                    assert_eq!(m.h_pitch[j], 0.0, "pitch row, column {j}");
+                }
+                if !yaw_support.contains(&j) {
+                    assert_eq!(m.h_yaw[j], 0.0, "yaw row, column {j}");
+                }
+            }
+            assert!(m.h_pitch[15] != 0.0 && m.h_pitch.fixed_rows::<3>(ATT).norm() > 0.0);
+            checked += 1;
+        }
+        assert_eq!(checked, 40);
+    }
+
+    /// The generated `P h` and rank-two update equal their dense forms bit for bit (the
+    /// skipped terms are zeros) and keep P exactly symmetric.
+    #[test]
+    fn generated_los_kernels_equal_the_dense_forms() {
+        let mut p = SMatrix::<f64, STATES, STATES>::zeros();
+        for i in 0..STATES {
+            for j in 0..STATES {
+                let (a, b) = (i.min(j) as f64, i.max(j) as f64);
+                p[(i, j)] = if i == j {
+                    2.0 + a
+                } else {
+                    0.1 / (1.0 + a + 0.5 * b)
+                };
+            }
+        }
+        let mut h = SVector::<f64, STATES>::zeros();
+        for (j, v) in [
+            (0, 1.5),
+            (1, -0.5),
+            (2, 0.25),
+            (6, 0.75),
+            (7, -1.0),
+            (8, 0.1),
+            (15, -1.0),
+        ] {
+            h[j] = v;
+        }
+        let k = p_h_pitch(&p.data.0, &h.data.0[0]);
+        let dense = p * h;
+        for i in 0..STATES {
+            assert_eq!(k[i].to_bits(), dense[i].to_bits(), "k[{i}]");
+        }
+        let kk: [f64; STATES] = core::array::from_fn(|i| k[i] * 0.01);
+        let k2: [f64; STATES] = core::array::from_fn(|i| 0.5 * k[i] + 0.001 * i as f64);
+        let kk2: [f64; STATES] = core::array::from_fn(|i| 0.002 * k2[i]);
+        let mut updated = p;
+        assert!(rank_two_variances_ok(&p.data.0, &k, &kk, &k2, &kk2));
+        rank_two_update(&mut updated.data.0, &k, &kk, &k2, &kk2);
+        for i in 0..STATES {
+            for j in 0..STATES {
+                let (r, c) = (i.min(j), i.max(j));
+                let expect = p[(r, c)] - k[r] * kk[c] - k2[r] * kk2[c];
+                assert_eq!(updated[(i, j)].to_bits(), expect.to_bits(), "P[{i},{j}]");
+            }
+        }
+        let huge: [f64; STATES] = [1e3; STATES];
+        assert!(!rank_two_variances_ok(&p.data.0, &huge, &huge, &k2, &kk2));
+    }
 }
