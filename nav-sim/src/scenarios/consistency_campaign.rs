@@ -14,8 +14,8 @@
 //!
 //! Outputs in the scenario directory: `summary.json` (per estimator: variants, passes, the
 //! worst cases by each criterion, the targets), `variants.csv` (one row per variant and
-//! filter) and `consistency.png` (per estimator, each variant's mean NEES divided by its
-//! band's upper edge, and its fraction of epochs in band).
+//! filter) and `consistency.png` (per estimator, each variant's mean NEES per state with the
+//! 95 % band, and its fraction of epochs in band).
 
 use crate::consistency::{nees_band_95, Consistency};
 use crate::plot::{self, Figure, Panel, Series, Style};
@@ -76,8 +76,8 @@ pub struct Campaign {
     pub run: fn(&CampaignPlan) -> Result<Vec<VariantResult>>,
 }
 
-/// The NEES-to-band ratio plotted is clipped here (a paper filter can be 10⁴ too large, which
-/// would flatten the flight configuration's points onto zero).
+/// The NEES per state plotted is clipped here (a paper filter can be 10⁴ too large, which
+/// would flatten the flight configuration's points onto one).
 const RATIO_CLIP: f64 = 3.0;
 
 /// The campaigns, one per estimator's flight configuration.
@@ -288,11 +288,10 @@ fn estimator_summary(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Va
 fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec<Panel> {
     let mut ratio = Panel {
         title: format!(
-            "{}: mean NEES / upper 95 % band edge (≤ 1 when not overconfident; above \
-             {RATIO_CLIP} drawn at {RATIO_CLIP}, values in variants.csv)",
+            "{}: mean NEES / states (1 if consistent; > {RATIO_CLIP} drawn at {RATIO_CLIP})",
             c.estimator
         ),
-        y_label: "NEES / band edge".into(),
+        y_label: "NEES / states".into(),
         y_range: Some((0.0, RATIO_CLIP * 1.05)),
         ..Panel::default()
     };
@@ -313,10 +312,7 @@ fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec
         let x: Vec<f64> = rows.iter().map(|(r, _)| r.variant as f64).collect();
         let y_ratio: Vec<f64> = rows
             .iter()
-            .map(|(r, _)| {
-                let (_, hi) = nees_band_95(r.consistency.dof, r.consistency.runs);
-                (r.consistency.mean_nees() / hi).min(RATIO_CLIP)
-            })
+            .map(|(r, _)| (r.consistency.mean_nees() / r.consistency.dof as f64).min(RATIO_CLIP))
             .collect();
         let y_frac: Vec<f64> = rows.iter().map(|(_, v)| v.frac_in_band).collect();
         let mut s = Series::line(format!("{filter} filter"), &x, &y_ratio, color);
@@ -328,9 +324,18 @@ fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec
     }
     if let Some(n) = verdicts.iter().map(|(r, _)| r.variant).max() {
         let x = [0.0, n as f64];
-        ratio
-            .series
-            .push(Series::dashed("band edge", &x, &[1.0, 1.0], 3));
+        // The 95 % band of the run-averaged NEES per state (same states and runs for every
+        // variant of an estimator).
+        if let Some((r, _)) = verdicts.first() {
+            let dof = r.consistency.dof as f64;
+            let (lo, hi) = nees_band_95(r.consistency.dof, r.consistency.runs);
+            ratio
+                .series
+                .push(Series::dashed("95 % band", &x, &[lo / dof, lo / dof], 3));
+            ratio
+                .series
+                .push(Series::dashed("", &x, &[hi / dof, hi / dof], 3));
+        }
         frac.series.push(Series::dashed(
             "target",
             &x,
