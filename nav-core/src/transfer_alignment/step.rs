@@ -304,7 +304,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         // The six rows are written out with constant row indices (and the model follows from K
         // at compile time), so each row's sparsity pattern is known to the compiler: the
         // index-driven loops of the sparse update become straight-line code.
-        let model_k = if K == 4 {
+        let model_k = if K >= 4 {
             FlexureModel::Proposed
         } else {
             FlexureModel::Conventional
