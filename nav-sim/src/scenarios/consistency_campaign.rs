@@ -77,7 +77,7 @@ pub struct Campaign {
 }
 
 /// The campaigns, one per estimator's flight configuration.
-pub static CAMPAIGNS: &[Campaign] = &[];
+pub static CAMPAIGNS: &[Campaign] = &[super::transfer_alignment::campaign::CAMPAIGN];
 
 /// Scenario kind `consistency`.
 pub const KIND: Kind = Kind {

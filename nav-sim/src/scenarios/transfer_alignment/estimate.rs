@@ -136,7 +136,7 @@ pub fn run_filter<T: Real, const K: usize, const N: usize>(
     Ok(out)
 }
 
-fn run_precision<const K: usize, const N: usize>(
+pub fn run_precision<const K: usize, const N: usize>(
     p: Precision,
     cfg: &TaConfig<f64>,
     truth: &TruthRun,

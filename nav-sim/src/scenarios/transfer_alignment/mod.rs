@@ -6,6 +6,7 @@
 //!   (case 2); Fig. 7.
 //! - `ta-observability` (file `ta-observability`): ranks of the observability matrices of the
 //!   constant segments and the stripped observability matrices (Tables 1 and 2).
+pub mod campaign;
 pub mod config;
 pub mod estimate;
 pub mod fault;
