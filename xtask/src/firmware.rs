@@ -221,12 +221,11 @@ const fn nav_golden_case_count() -> usize {
 }
 
 /// Instruction budgets (Cortex-M4F, f32, default thumbv7em codegen): instructions per step.
-const BUDGET_INSNS: [(&str, u64); 8] = [
+const BUDGET_INSNS: [(&str, u64); 7] = [
     ("eskf17_predict", 8_000),
     ("eskf17_los_update", 12_000),
     ("ins_mech_step", 3_000),
     ("ta12_step", 10_000),
-    ("ta15_step", 14_000),
     ("ta9_step", 6_000),
     ("vc_classical_step", 400),
     ("vc_aided_step", 400),
