@@ -87,7 +87,7 @@ pub const BIAS_STATE: usize = FLIGHT_CHAIN - 1;
 /// Flexure states (θ_f and its derivatives) plus the θ_m state of a chain of length `K`: the
 /// chain without its bias.
 #[inline(always)]
-const fn flexure_chain_len<const K: usize>() -> usize {
+pub(super) const fn flexure_chain_len<const K: usize>() -> usize {
     if has_accel_bias::<K>() {
         K - 1
     } else {
