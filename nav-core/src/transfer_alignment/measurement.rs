@@ -179,15 +179,18 @@ pub fn h_row<T: Real, const N: usize>(
 /// ```
 ///
 /// Inlined: with a constant `row` the pattern folds to constants in the caller.
+///
+/// `M` is the row's capacity: 4 for the paper's filters, 5 for the flight configuration (an
+/// entry beyond the capacity would be dropped: the callers pick `M` from `K`, tested).
 #[inline(always)]
-pub fn h_row_total<T: Real, const K: usize>(
+pub fn h_row_total<T: Real, const K: usize, const M: usize>(
     model: FlexureModel,
     row: usize,
     omega_m: &Vector3<T>,
     f_h: &Vector3<T>,
     lever_arm_m: &Vector3<T>,
-) -> SparseRow<T, 5> {
-    let mut h = SparseRow::<T, 5>::new();
+) -> SparseRow<T, M> {
+    let mut h = SparseRow::<T, M>::new();
     let (i, gyro) = if row < 3 {
         (row, true)
     } else {
@@ -291,13 +294,13 @@ mod tests {
             let d: SVector<f64, 12> = h_row(FlexureModel::Proposed, row, &w, &f, &l1, |d, a| {
                 super::super::model::axis_index::<4>(d, a)
             });
-            let sp = h_row_total::<f64, 4>(FlexureModel::Proposed, row, &w, &f, &l1);
+            let sp = h_row_total::<f64, 4, 4>(FlexureModel::Proposed, row, &w, &f, &l1);
             assert_eq!(sp.to_dense::<12>(), expected::<4, 12>(d));
             let d9: SVector<f64, 9> =
                 h_row(FlexureModel::Conventional, row, &w, &f, &l1, |d, a| {
                     super::super::model::axis_index::<3>(d, a)
                 });
-            let sp9 = h_row_total::<f64, 3>(FlexureModel::Conventional, row, &w, &f, &l1);
+            let sp9 = h_row_total::<f64, 3, 4>(FlexureModel::Conventional, row, &w, &f, &l1);
             assert_eq!(sp9.to_dense::<9>(), expected::<3, 9>(d9));
         }
     }

@@ -353,10 +353,18 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             FlexureModel::Conventional
         };
         let omega_m = master.angular_rate_rad_s;
+        // Row capacity: 5 entries with the flight configuration's bias, 4 otherwise.
         macro_rules! fuse_row {
             ($row:literal) => {
+                if has_accel_bias::<K>() {
+                    fuse_row!($row, 5);
+                } else {
+                    fuse_row!($row, 4);
+                }
+            };
+            ($row:literal, $m:literal) => {
                 if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
-                    let h = h_row_total::<T, K>(model_k, $row, &omega_m, &f_h, &lever);
+                    let h = h_row_total::<T, K, $m>(model_k, $row, &omega_m, &f_h, &lever);
                     let r = if $row < 3 { r_rate } else { r_accel };
                     let innovation = zi - h.dot(&x);
                     // Built from validated, range-checked inputs with in-range ascending

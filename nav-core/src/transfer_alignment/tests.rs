@@ -538,7 +538,7 @@ fn flight_h_rows_match_finite_differences() {
     let x0 = SVector::<f64, N>::zeros();
     let step = 1e-6;
     for i in 0..3 {
-        let h = h_row_total::<f64, K>(FlexureModel::Proposed, 3 + i, &omega, &f_m, &lever)
+        let h = h_row_total::<f64, K, 5>(FlexureModel::Proposed, 3 + i, &omega, &f_m, &lever)
             .to_dense::<N>();
         for j in 0..N {
             let mut xp = x0;
@@ -559,7 +559,7 @@ fn flight_h_rows_match_finite_differences() {
     }
     // The gyro rows have no bias entry.
     for row in 0..3 {
-        let h = h_row_total::<f64, K>(FlexureModel::Proposed, row, &omega, &f_m, &lever)
+        let h = h_row_total::<f64, K, 5>(FlexureModel::Proposed, row, &omega, &f_m, &lever)
             .to_dense::<N>();
         assert!((0..3).all(|a| h[K * a + BIAS_STATE] == 0.0));
     }
