@@ -292,3 +292,30 @@ pub fn run_case(
         run0,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::consistency::nees_band_95;
+    use crate::scenarios::transfer_alignment::config::load_scenario;
+
+    /// The README's claim on the default scenarios: the flight configuration's covariance is
+    /// honest against the full truth (NEES of θ in its band on average, every axis' e²/σ² in
+    /// [0.5, 2]) and at least as accurate as the proposed filter; the paper filters' is not.
+    #[test]
+    fn flight_configuration_is_consistent_on_case3() {
+        let (cfg, runs, seed): (CaseConfig, usize, u64) = load_scenario("ta-case3").unwrap();
+        let r = run_case(&cfg, runs, seed, 0.0, false, "t").unwrap();
+        let c = &r.flight.consistency;
+        let (lo, hi) = nees_band_95(c.dof, c.runs);
+        assert!((lo..=hi).contains(&c.mean_nees()), "{:?}", c.summary());
+        for (axis, v) in &c.normalized_error_sq {
+            assert!((0.5..=2.0).contains(v), "{axis}: {v}");
+        }
+        for (f, p) in r.flight.axes.iter().zip(&r.proposed.axes) {
+            assert!(f.rms_after_accel_mrad <= 1.1 * p.rms_after_accel_mrad);
+        }
+        assert!(r.proposed.consistency.mean_nees() > 10.0 * hi);
+        assert!(r.conventional.consistency.mean_nees() > 10.0 * hi);
+    }
+}
