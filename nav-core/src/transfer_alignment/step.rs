@@ -128,25 +128,26 @@ fn check_ranges<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> Re
 /// (`J_r = I − ½[θ×] + …`):
 ///
 /// ```text
-/// dω = [θ×] ω_m − θ̇_f + ½ θ × θ̇_f + O(θ² ω_m, θ² θ̇_f)
+/// dω = [θ×] ω_m − θ̇_f + ½ θ × θ̇_f − ½ θ × (θ × ω_m) + O(θ³ ω_m, θ² θ̇_f)
 /// df = L_0 × θ̈_f − [f_s×] θ + ½ θ × (θ × f_s) + O(θ³ f)   (H uses f_s = C (f̃ − L_0 × θ̈_f))
 /// ```
 ///
 /// The linear rows carry everything but the ½ terms; they are evaluated at the predicted θ̂,
-/// θ̇̂ and subtracted from z (one cross product each). Beside an accelerometer bias, these
+/// θ̇̂ and subtracted from z (five cross products). Beside an accelerometer bias, these
 /// terms (θ_X θ_Z g / 2 ≈ 0.5 mm/s² with the paper's 0.5° mounting σ) are the largest
 /// constant errors of the linear model.
 #[inline(always)]
-fn second_order_measurement<T: Real, const K: usize, const N: usize>(
+pub(super) fn second_order_measurement<T: Real, const K: usize, const N: usize>(
     z: &SVector<T, 6>,
     x: &SVector<T, N>,
     f_s: &Vector3<T>,
+    omega_m: &Vector3<T>,
 ) -> SVector<T, 6> {
     let g = |i: usize| x.get(i).copied().unwrap_or_else(T::zero);
     let theta = Vector3::new(g(0), g(K), g(2 * K));
     let rate = Vector3::new(g(2), g(K + 2), g(2 * K + 2));
     let half = T::lit(0.5);
-    let cw = theta.cross(&rate) * half;
+    let cw = (theta.cross(&rate) - theta.cross(&theta.cross(omega_m))) * half;
     let cf = theta.cross(&theta.cross(f_s)) * half;
     SVector::<T, 6>::new(
         z.x - cw.x,
@@ -331,7 +332,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         // The flight configuration predicts the measurement to second order in θ (the paper's
         // filters are linear in θ: exactly as specified).
         let z = if has_accel_bias::<K>() {
-            second_order_measurement::<T, K, N>(&z, &x, &f_h)
+            second_order_measurement::<T, K, N>(&z, &x, &f_h, &master.angular_rate_rad_s)
         } else {
             z
         };
