@@ -1,7 +1,9 @@
 //! The per-epoch work of the filters: the time plan, [`TransferAlignment::step`] (predict and
 //! fuse the six scalar measurements), [`TransferAlignment::propagate`] (prediction only) and
 //! [`TransferAlignment::step_delayed`] (match with the slave history).
-use super::config::{MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_SPECIFIC_FORCE_M_S2};
+use super::config::{
+    MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_MISALIGNMENT_RAD, MAX_SPECIFIC_FORCE_M_S2,
+};
 use super::covariance::{
     condition, fuse_bounded, initial_covariance, predict_cov, predict_state, reinit_flexure,
     set_mount_only,
@@ -143,9 +145,16 @@ pub(super) fn second_order_measurement<T: Real, const K: usize, const N: usize>(
     f_s: &Vector3<T>,
     omega_m: &Vector3<T>,
 ) -> SVector<T, 6> {
-    let g = |i: usize| x.get(i).copied().unwrap_or_else(T::zero);
-    let theta = Vector3::new(g(0), g(K), g(2 * K));
-    let rate = Vector3::new(g(2), g(K + 2), g(2 * K + 2));
+    // θ̂ within the small-angle range and θ̇̂ within the gyro range: the correction stays
+    // bounded (and finite) when the estimate has left the model (the filter then reports
+    // `NeedsReinitialisation`); without the bound the quadratic term feeds back on itself.
+    let g = |i: usize, lim: f64| {
+        let l = T::lit(lim);
+        x.get(i).copied().unwrap_or_else(T::zero).max(-l).min(l)
+    };
+    let (a, w) = (MAX_MISALIGNMENT_RAD, MAX_ANGULAR_RATE_RAD_S);
+    let theta = Vector3::new(g(0, a), g(K, a), g(2 * K, a));
+    let rate = Vector3::new(g(2, w), g(K + 2, w), g(2 * K + 2, w));
     let half = T::lit(0.5);
     let cw = (theta.cross(&rate) - theta.cross(&theta.cross(omega_m))) * half;
     let cf = theta.cross(&theta.cross(f_s)) * half;
