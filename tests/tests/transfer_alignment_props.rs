@@ -520,7 +520,7 @@ fn fault_transfer_recovers() {
     use nav_sim::scenarios::transfer_alignment::fault::{analyse, FaultConfig};
     let (cfg, _, seed): (FaultConfig, usize, u64) =
         nav_sim::scenarios::transfer_alignment::config::load_scenario("fault-transfer").unwrap();
-    let (summary, _, rms, _) = analyse(&cfg, 4, seed, false).unwrap();
+    let (summary, _, rms, _, _) = analyse(&cfg, 4, seed, false).unwrap();
     assert_eq!(summary["step_errors"], 0);
     assert_eq!(summary["unmatched_master_samples"], 0);
     assert!(summary["propagation_only_epochs"].as_u64().unwrap() >= 4 * 2 * 100);

@@ -302,7 +302,7 @@ pub fn fuse_scalar_prepared<T: Real, const N: usize>(
 /// column-major storage), each value also written to (j, i): exactly symmetric, N(N+1)/2
 /// elements, no separate mirror pass.
 ///
-/// For N ≤ 12 (every filter of this crate but the 17-state ESKF) the triangle is written out
+/// For N ≤ 15 (every filter of this crate but the 17-state ESKF) the triangle is written out
 /// element by element at compile time ([`joseph_unrolled`]): constant offsets, no loop
 /// counters, no bounds checks, no per-column set-up (the loop form costs ≈ 17 instructions per
 /// element on a Cortex-M4F for N = 12, the straight-line form ≈ 5). Larger N use the loop.
@@ -323,7 +323,7 @@ fn joseph_pass<T: Real, const N: usize>(
 }
 
 /// Largest N for which [`joseph_pass`] is straight-line code.
-const UNROLLED_MAX_N: usize = 12;
+const UNROLLED_MAX_N: usize = 15;
 
 /// One element of the Joseph pass: `P⁺_ij = P_ij + k_i c_j − b_i k_j` (i ≤ j), written to
 /// (i, j) and (j, i). `p` is column-major (`p[col][row]`). With constant indices and a constant
@@ -348,7 +348,7 @@ fn joseph_elem<T: Real, const N: usize>(
     }
 }
 
-/// The upper triangle of an N ≤ 12 covariance, element by element (columns j ascending, rows
+/// The upper triangle of an N ≤ 15 covariance, element by element (columns j ascending, rows
 /// i ≤ j ascending); the `j < N` guards are constants after monomorphisation.
 #[inline(always)]
 fn joseph_unrolled<T: Real, const N: usize>(
@@ -444,7 +444,49 @@ fn joseph_unrolled<T: Real, const N: usize>(
         (8, 11),
         (9, 11),
         (10, 11),
-        (11, 11)
+        (11, 11),
+        (0, 12),
+        (1, 12),
+        (2, 12),
+        (3, 12),
+        (4, 12),
+        (5, 12),
+        (6, 12),
+        (7, 12),
+        (8, 12),
+        (9, 12),
+        (10, 12),
+        (11, 12),
+        (12, 12),
+        (0, 13),
+        (1, 13),
+        (2, 13),
+        (3, 13),
+        (4, 13),
+        (5, 13),
+        (6, 13),
+        (7, 13),
+        (8, 13),
+        (9, 13),
+        (10, 13),
+        (11, 13),
+        (12, 13),
+        (13, 13),
+        (0, 14),
+        (1, 14),
+        (2, 14),
+        (3, 14),
+        (4, 14),
+        (5, 14),
+        (6, 14),
+        (7, 14),
+        (8, 14),
+        (9, 14),
+        (10, 14),
+        (11, 14),
+        (12, 14),
+        (13, 14),
+        (14, 14)
     );
 }
 
@@ -896,6 +938,8 @@ mod tests {
         unrolled_equals_loop::<f32, 12>();
         unrolled_equals_loop::<f64, 5>();
         unrolled_equals_loop::<f64, 12>();
+        unrolled_equals_loop::<f32, 15>();
+        unrolled_equals_loop::<f64, 15>();
     }
 
     #[test]

@@ -29,6 +29,9 @@ pub const MAX_MOUNT_SIGMA_RAD: f64 = 0.1;
 pub const RATE_NOISE_SIGMA_RANGE_RAD_S: (f64, f64) = (1.0e-4, 0.1);
 /// Range of the specific-force-difference 1σ `accel_noise_sigma_m_s2`, m/s².
 pub const ACCEL_NOISE_SIGMA_RANGE_M_S2: (f64, f64) = (1.0e-3, 1.0);
+/// Largest 1σ of the specific-force-difference bias `accel_bias_sigma_m_s2`, m/s² (≈ 50 mg,
+/// far above any accelerometer that can align a missile).
+pub const MAX_ACCEL_BIAS_SIGMA_M_S2: f64 = 0.5;
 /// Largest |lever-arm component|, m.
 pub const MAX_LEVER_ARM_M: f64 = 100.0;
 /// Range of the χ²(1) NIS gate threshold ([`Gate::Nis`]), dimensionless.
@@ -73,6 +76,12 @@ pub struct TaConfig<T> {
     /// 1σ of one specific-force difference sample df (master + slave accelerometer noise), m/s²
     /// ([`ACCEL_NOISE_SIGMA_RANGE_M_S2`]).
     pub accel_noise_sigma_m_s2: T,
+    /// 1σ of the random-constant bias of each axis' specific-force difference df (master minus
+    /// slave accelerometer bias, in practice the slave's), m/s² (0 to
+    /// [`MAX_ACCEL_BIAS_SIGMA_M_S2`]). Only the flight configuration
+    /// ([`super::FlightFilter`]) estimates it (and its design's stamp includes it); the
+    /// paper's filters have no bias state and ignore it (0 in [`Self::paper`]).
+    pub accel_bias_sigma_m_s2: T,
     /// Filter step (= nominal slave IMU sample interval), s: [`MIN_DT_S`] to [`MAX_DT_S`], a
     /// whole number of µs.
     pub dt_s: T,
@@ -153,11 +162,25 @@ impl<T: Real> TaConfig<T> {
             mount_sigma_rad: Vector3::repeat(deg(0.5)),
             rate_noise_sigma_rad_s: T::lit(2.9e-4),
             accel_noise_sigma_m_s2: T::lit(5.0e-3),
+            accel_bias_sigma_m_s2: T::zero(),
             dt_s: T::lit(0.01),
             time_tolerance_s: T::lit(0.001),
             max_gap_steps: 5,
             gate: Gate::Nis(T::lit(25.0)),
             recovery: default_recovery(),
+        }
+    }
+}
+
+impl<T: Real> TaConfig<T> {
+    /// The flight configuration of a paper case: [`Self::paper`] with the specific-force
+    /// difference bias 1σ of a tactical-grade slave accelerometer, 300 µg (2.94e-3 m/s²,
+    /// combined with a 25 µg navigation-grade master: 3.0e-3 m/s²), for
+    /// [`super::FlightFilter`].
+    pub fn flight(case: PaperCase) -> Self {
+        Self {
+            accel_bias_sigma_m_s2: T::lit(3.0e-3),
+            ..Self::paper(case)
         }
     }
 }
@@ -238,6 +261,13 @@ impl<T: Real> TaConfig<T> {
         positive_within("rate_noise_sigma_rad_s", rate, rlo, rhi)?;
         let (alo, ahi) = ACCEL_NOISE_SIGMA_RANGE_M_S2;
         positive_within("accel_noise_sigma_m_s2", accel, alo, ahi)?;
+        require_non_negative("accel_bias_sigma_m_s2", self.accel_bias_sigma_m_s2)?;
+        within(
+            "accel_bias_sigma_m_s2",
+            self.accel_bias_sigma_m_s2,
+            0.0,
+            MAX_ACCEL_BIAS_SIGMA_M_S2,
+        )?;
         require_non_negative("time_tolerance_s", self.time_tolerance_s)?;
         let tol_us = match seconds_to_micros(self.time_tolerance_s) {
             Some(tol) if 2 * tol < dt_us => tol,

@@ -2,7 +2,7 @@
 //! `K` states per chain, `N = 3 K`): the transformation of the design, the structured
 //! prediction, the conditioning of every committed covariance, and the flexure
 //! re-initialisation after a long gap.
-use super::model::AxisChain;
+use super::model::{flexure_chain_len, AxisChain};
 use crate::math::checks::set_block_diagonal;
 use crate::math::kalman::{fuse_scalar_prepared, FusionOutcome, FusionReport, Gate};
 use crate::Real;
@@ -95,7 +95,8 @@ pub(super) fn ceilings<T: Real, const K: usize, const N: usize>(
 }
 
 /// `Φ_a S Φ_bᵀ` for one K×K block, using Φ's first column e₁ (θ_m is a random constant, so
-/// in either parametrisation nothing feeds the first state but itself). `upper` computes
+/// in either parametrisation nothing feeds the first state but itself) and, in a flight
+/// chain, the bias's unit row and column. `upper` computes
 /// only the upper triangle and mirrors it (for a diagonal block, which is symmetric).
 #[inline(always)]
 fn propagate_block<T: Real, const K: usize>(
@@ -104,14 +105,22 @@ fn propagate_block<T: Real, const K: usize>(
     s: &SMatrix<T, K, K>,
     upper: bool,
 ) -> SMatrix<T, K, K> {
+    // A bias state (the last of a flight chain, index ≥ kf) is a random constant: its row and
+    // column of Φ are unit vectors, so its products are copies and it drops out of the sums.
+    let kf = flexure_chain_len::<K>();
     // t_mj = Σ_n S_mn Φb_jn = S_m0 δ_j0 + Σ_{n≥1} S_mn Φb_jn.
     let mut t = SMatrix::<T, K, K>::zeros();
     for j in 0..K {
         for m in 0..K {
-            let mut acc = if j == 0 { at(s, m, 0) } else { T::zero() };
-            for n in 1..K {
-                acc += at(s, m, n) * at(pb, j, n);
-            }
+            let acc = if j >= kf {
+                at(s, m, j)
+            } else {
+                let mut acc = if j == 0 { at(s, m, 0) } else { T::zero() };
+                for n in 1..kf {
+                    acc += at(s, m, n) * at(pb, j, n);
+                }
+                acc
+            };
             put(&mut t, m, j, acc);
         }
     }
@@ -120,10 +129,15 @@ fn propagate_block<T: Real, const K: usize>(
     for i in 0..K {
         let j0 = if upper { i } else { 0 };
         for j in j0..K {
-            let mut acc = if i == 0 { at(&t, 0, j) } else { T::zero() };
-            for m in 1..K {
-                acc += at(pa, i, m) * at(&t, m, j);
-            }
+            let acc = if i >= kf {
+                at(&t, i, j)
+            } else {
+                let mut acc = if i == 0 { at(&t, 0, j) } else { T::zero() };
+                for m in 1..kf {
+                    acc += at(pa, i, m) * at(&t, m, j);
+                }
+                acc
+            };
             put(&mut d, i, j, acc);
             if upper {
                 put(&mut d, j, i, acc);

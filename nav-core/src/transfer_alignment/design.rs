@@ -5,7 +5,7 @@
 //! [`Estimator::from_design`](crate::Estimator::from_design), which does not run the
 //! discretisation (see [`crate::design`]).
 use super::config::TaConfig;
-use super::model::{axis_chains, AxisChain, FlexureModel};
+use super::model::{axis_chains, has_accel_bias, AxisChain, FlexureModel};
 use crate::contract::{DesignStamp, Fingerprint};
 use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
 use crate::math::checks::{first_row_and_column_unit, symmetric_non_negative_diagonal};
@@ -38,7 +38,12 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
     pub(super) fn compute(cfg: &TaConfig<T>) -> Result<Self, NavError> {
         FlexureModel::for_chain::<K>()?;
         cfg.validate()?;
-        let chains = axis_chains::<T, K>(&cfg.flexure, &cfg.mount_sigma_rad, cfg.dt_s)?;
+        let chains = axis_chains::<T, K>(
+            &cfg.flexure,
+            &cfg.mount_sigma_rad,
+            cfg.accel_bias_sigma_m_s2,
+            cfg.dt_s,
+        )?;
         Ok(Self {
             stamp: Self::stamp_for(cfg),
             chains,
@@ -48,8 +53,10 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
     /// The stamp of a design of this chain length computed for `cfg`: version
     /// [`TA_DESIGN_VERSION`] and the [`Fingerprint`] of, in this order, the chain length `K`,
     /// then per axis X, Y, Z the flexure `sigma_rad` and `tau_s`, then `mount_sigma_rad` X, Y,
-    /// Z, then `dt_s`. The gate, recovery, noise, lever arm, tolerance and gap settings are
-    /// not in it: the design does not depend on them.
+    /// Z, then `dt_s`, and — for the flight configuration's chains with a bias state only
+    /// ([`super::FlightFilter`]) — `accel_bias_sigma_m_s2` after it. The gate, recovery,
+    /// noise, lever arm, tolerance and gap settings are not in it: the design does not depend
+    /// on them.
     pub fn stamp_for(cfg: &TaConfig<T>) -> DesignStamp {
         let mut fp = Fingerprint::new().count(u32::try_from(K).unwrap_or(u32::MAX));
         for fl in &cfg.flexure {
@@ -58,16 +65,20 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
         for v in cfg.mount_sigma_rad.iter() {
             fp = fp.real(*v);
         }
+        fp = fp.real(cfg.dt_s);
+        if has_accel_bias::<K>() {
+            fp = fp.real(cfg.accel_bias_sigma_m_s2);
+        }
         DesignStamp {
             version: TA_DESIGN_VERSION,
-            fingerprint: fp.real(cfg.dt_s).finish(),
+            fingerprint: fp.finish(),
         }
     }
 }
 
 /// Value order: the stamp's `version` and `fingerprint` (two integers), then for each axis X,
 /// Y, Z in turn the chain's five K×K matrices `f`, `q_c`, `phi`, `q_d`, `p0`, each column by
-/// column: `COUNT = 2 + 3 · 5 · K²` (137 for K = 3, 242 for K = 4). `read_values` checks the
+/// column: `COUNT = 2 + 3 · 5 · K²` (137 for K = 3, 242 for K = 4, 377 for K = 5). `read_values` checks the
 /// length, finiteness and the stamp's integers only; the structure (symmetry, non-negative
 /// variances) and the stamp's match with the configuration are checked by `from_design`.
 impl<T: Real, const K: usize> DesignValues for TaDesign<T, K> {

@@ -5,7 +5,9 @@ use super::config::{validate_gate, validate_recovery, TaConfig, MAX_MISALIGNMENT
 use super::covariance::{ceilings, initial_covariance, set_mount_only, to_total_cov, to_total_phi};
 use super::design::TaDesign;
 use super::health::{Channel, Monitor};
-use super::model::{axis_index, spec_index, to_spec_order, AxisChain, FlexureModel};
+use super::model::{
+    axis_index, has_accel_bias, spec_index, to_spec_order, AxisChain, FlexureModel, BIAS_STATE,
+};
 use crate::contract::{AidCounters, Estimator, Gate, Health, RecoveryPolicy};
 use crate::math::rotation::exp_so3;
 use crate::time::Timestamp;
@@ -124,6 +126,12 @@ impl<T: Real, const K: usize, const N: usize> core::fmt::Debug for TransferAlign
 pub type ConventionalFilter<T> = TransferAlignment<T, 3, 9>;
 /// The proposed 12-state filter (3rd-order Markov flexure with θ̈_f, seed eqs. 12-14).
 pub type ProposedFilter<T> = TransferAlignment<T, 4, 12>;
+/// The flight configuration: the proposed filter with the random-constant bias of each axis'
+/// specific-force difference as 13th-15th states (chains `[θ, θ_f, θ̇_f, θ̈_f, b]`; the bias
+/// enters df with H entry 1, its prior 1σ is the configuration's `accel_bias_sigma_m_s2`).
+/// Its covariance accounts for the accelerometer-bias floor (≈ b/g on θ_X, θ_Y) that the
+/// paper's filters cannot see; see the README, "Flight configuration".
+pub type FlightFilter<T> = TransferAlignment<T, 5, 15>;
 
 impl<T: Real, const K: usize, const N: usize> Estimator for TransferAlignment<T, K, N> {
     type Config = TaConfig<T>;
@@ -318,7 +326,20 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// Estimated flexure angular acceleration θ̈_f, rad/s² (`None` for the conventional filter,
     /// which has no such state).
     pub fn theta_f_accel(&self) -> Option<Vector3<T>> {
-        (K == 4).then(|| self.block(3))
+        (K >= 4).then(|| self.block(3))
+    }
+
+    /// Estimated bias of the specific-force difference per axis (master minus slave
+    /// accelerometer bias), m/s², and its 1σ (`None` unless the filter is the flight
+    /// configuration, [`FlightFilter`]).
+    pub fn accel_bias(&self) -> Option<(Vector3<T>, Vector3<T>)> {
+        has_accel_bias::<K>().then(|| {
+            let sigma = Vector3::from_fn(|a, _| {
+                let i = K * a + BIAS_STATE;
+                self.p_at(i, i).max(T::zero()).sqrt()
+            });
+            (self.block(BIAS_STATE), sigma)
+        })
     }
 
     /// Estimated total misalignment θ = θ_m + θ_f, rad (a state of the filter).

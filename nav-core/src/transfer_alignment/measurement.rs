@@ -11,7 +11,7 @@
 //! with θ = θ_m + θ_f and `C_m^s ≈ I − [θ×]`. The rigid lever-arm terms are removed from the
 //! master specific force before matching; the flexure terms cannot be (the proposed filter models
 //! the largest one, `L_0 × θ̈_f`).
-use super::model::FlexureModel;
+use super::model::{has_accel_bias, FlexureModel, BIAS_STATE};
 use crate::math::kalman::SparseRow;
 use crate::time::Timestamp;
 use crate::{NavError, Real};
@@ -174,19 +174,23 @@ pub fn h_row<T: Real, const N: usize>(
 ///
 /// ```text
 /// dω row i:  −[ω_m×]_i on θ,  −1 on θ̇_f,i                  (3 entries)
-/// df row i:  −[f_h×]_i on θ,  [L_0×]_i on θ̈_f (proposed)    (2 or 4 entries)
+/// df row i:  −[f_h×]_i on θ,  [L_0×]_i on θ̈_f (proposed),
+///            1 on the axis' bias b_i (flight configuration)    (2, 4 or 5 entries)
 /// ```
 ///
 /// Inlined: with a constant `row` the pattern folds to constants in the caller.
+///
+/// `M` is the row's capacity: 4 for the paper's filters, 5 for the flight configuration (an
+/// entry beyond the capacity would be dropped: the callers pick `M` from `K`, tested).
 #[inline(always)]
-pub fn h_row_total<T: Real, const K: usize>(
+pub fn h_row_total<T: Real, const K: usize, const M: usize>(
     model: FlexureModel,
     row: usize,
     omega_m: &Vector3<T>,
     f_h: &Vector3<T>,
     lever_arm_m: &Vector3<T>,
-) -> SparseRow<T, 4> {
-    let mut h = SparseRow::<T, 4>::new();
+) -> SparseRow<T, M> {
+    let mut h = SparseRow::<T, M>::new();
     let (i, gyro) = if row < 3 {
         (row, true)
     } else {
@@ -198,7 +202,7 @@ pub fn h_row_total<T: Real, const K: usize>(
         skew_row(f_h, i)
     };
     let lever = skew_row(lever_arm_m, i);
-    // At most 2 (axes a ≠ i) × 2 entries: `push` cannot fail.
+    // At most 2 (axes a ≠ i) × 2 entries and the bias: `push` cannot fail.
     for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
         if a != i {
             let _ = h.push(K * a, -v);
@@ -209,11 +213,15 @@ pub fn h_row_total<T: Real, const K: usize>(
         if !gyro && model == FlexureModel::Proposed && a != i {
             let _ = h.push(K * a + 3, l);
         }
+        if !gyro && has_accel_bias::<K>() && a == i {
+            let _ = h.push(K * a + BIAS_STATE, T::one());
+        }
     }
     h
 }
 
-/// H (6×N) in the spec's state ordering.
+/// H (6×N) in the spec's state ordering (the flight configuration's chains: with 1 on the
+/// bias `b_i` of each df row, spec index `12 + i`).
 pub fn h_matrix<T: Real, const K: usize, const N: usize>(
     omega_m: &Vector3<T>,
     f_h: &Vector3<T>,
@@ -231,6 +239,13 @@ pub fn h_matrix<T: Real, const K: usize, const N: usize>(
             super::model::spec_index,
         );
         out.copy_from(&r.transpose());
+    }
+    if has_accel_bias::<K>() {
+        for i in 0..3 {
+            if let Some(e) = h.get_mut((3 + i, super::model::spec_index(BIAS_STATE, i))) {
+                *e = T::one();
+            }
+        }
     }
     Ok(h)
 }
@@ -279,13 +294,13 @@ mod tests {
             let d: SVector<f64, 12> = h_row(FlexureModel::Proposed, row, &w, &f, &l1, |d, a| {
                 super::super::model::axis_index::<4>(d, a)
             });
-            let sp = h_row_total::<f64, 4>(FlexureModel::Proposed, row, &w, &f, &l1);
+            let sp = h_row_total::<f64, 4, 4>(FlexureModel::Proposed, row, &w, &f, &l1);
             assert_eq!(sp.to_dense::<12>(), expected::<4, 12>(d));
             let d9: SVector<f64, 9> =
                 h_row(FlexureModel::Conventional, row, &w, &f, &l1, |d, a| {
                     super::super::model::axis_index::<3>(d, a)
                 });
-            let sp9 = h_row_total::<f64, 3>(FlexureModel::Conventional, row, &w, &f, &l1);
+            let sp9 = h_row_total::<f64, 3, 4>(FlexureModel::Conventional, row, &w, &f, &l1);
             assert_eq!(sp9.to_dense::<9>(), expected::<3, 9>(d9));
         }
     }

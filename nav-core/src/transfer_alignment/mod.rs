@@ -141,20 +141,23 @@ mod step;
 mod tests;
 
 pub use config::{
-    default_recovery, PaperCase, TaConfig, ACCEL_NOISE_SIGMA_RANGE_M_S2, MAX_ANGULAR_ACCEL_RAD_S2,
-    MAX_ANGULAR_RATE_RAD_S, MAX_DT_S, MAX_FLEXURE_SIGMA_RAD, MAX_FLEXURE_TAU_S, MAX_GAP_STEPS,
-    MAX_LEVER_ARM_M, MAX_MISALIGNMENT_RAD, MAX_MOUNT_SIGMA_RAD, MAX_SPECIFIC_FORCE_M_S2,
-    MAX_STARVED_AFTER_S, MIN_DT_S, MIN_FLEXURE_SIGMA_RAD, MIN_FLEXURE_TAU_S, MIN_TAU_STEPS,
-    NIS_GATE_RANGE, RATE_NOISE_SIGMA_RANGE_RAD_S,
+    default_recovery, PaperCase, TaConfig, ACCEL_NOISE_SIGMA_RANGE_M_S2, MAX_ACCEL_BIAS_SIGMA_M_S2,
+    MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_DT_S, MAX_FLEXURE_SIGMA_RAD,
+    MAX_FLEXURE_TAU_S, MAX_GAP_STEPS, MAX_LEVER_ARM_M, MAX_MISALIGNMENT_RAD, MAX_MOUNT_SIGMA_RAD,
+    MAX_SPECIFIC_FORCE_M_S2, MAX_STARVED_AFTER_S, MIN_DT_S, MIN_FLEXURE_SIGMA_RAD,
+    MIN_FLEXURE_TAU_S, MIN_TAU_STEPS, NIS_GATE_RANGE, RATE_NOISE_SIGMA_RANGE_RAD_S,
 };
 pub use covariance::{MAX_VARIANCE_REDUCTION, PSD_LOADING_EPS};
 pub use design::{TaDesign, TA_DESIGN_VERSION};
-pub use filter::{ConventionalFilter, ProposedFilter, TaInitial, TransferAlignment};
+pub use filter::{ConventionalFilter, FlightFilter, ProposedFilter, TaInitial, TransferAlignment};
 pub use health::{Channel, DEGRADED_HOLD_EPOCHS, SKIPPED_EPOCHS_FOR_REINIT};
 pub use history::SlaveHistory;
 pub use measurement::{
     compensate_lever_arm, h_matrix, measurement, MasterSample, Matching, SlaveSample,
 };
-pub use model::{continuous_model, AxisChain, AxisFlexure, FlexureModel};
+pub use model::{
+    continuous_model, has_accel_bias, AxisChain, AxisFlexure, FlexureModel, BIAS_STATE,
+    FLIGHT_CHAIN,
+};
 pub use observability::{segment, som_rank, RankReport, Segment};
 pub use step::{GapOutcome, Propagation, StepReport};

@@ -48,11 +48,12 @@ impl FlexureModel {
         Ok(model)
     }
 
-    /// The model of chain length `K` (3 or 4), else `InvalidConfig`.
+    /// The model of chain length `K` (3, 4, or 5: the proposed model with the
+    /// specific-force-difference bias, [`has_accel_bias`]), else `InvalidConfig`.
     pub fn for_chain<const K: usize>() -> Result<Self, NavError> {
         match K {
             3 => Ok(FlexureModel::Conventional),
-            4 => Ok(FlexureModel::Proposed),
+            4 | 5 => Ok(FlexureModel::Proposed),
             _ => Err(NavError::InvalidConfig {
                 field: "state dimension",
                 issue: ConfigIssue::OutOfRange,
@@ -66,6 +67,31 @@ impl FlexureModel {
             FlexureModel::Conventional => MarkovOrder::Second,
             FlexureModel::Proposed => MarkovOrder::Third,
         }
+    }
+}
+
+/// Chain length of the flight configuration ([`super::FlightFilter`]): the proposed chain
+/// `[θ_m, θ_f, θ̇_f, θ̈_f]` followed by the bias `b` of the axis' specific-force difference.
+pub const FLIGHT_CHAIN: usize = 5;
+
+/// `true` when a chain of length `K` ends with the bias of its axis' specific-force difference
+/// (master minus slave accelerometer bias, a random constant; [`FLIGHT_CHAIN`]).
+#[inline(always)]
+pub const fn has_accel_bias<const K: usize>() -> bool {
+    K == FLIGHT_CHAIN
+}
+
+/// Position of the bias in a chain of length `K` with [`has_accel_bias`] (its last state).
+pub const BIAS_STATE: usize = FLIGHT_CHAIN - 1;
+
+/// Flexure states (θ_f and its derivatives) plus the θ_m state of a chain of length `K`: the
+/// chain without its bias.
+#[inline(always)]
+pub(super) const fn flexure_chain_len<const K: usize>() -> usize {
+    if has_accel_bias::<K>() {
+        K - 1
+    } else {
+        K
     }
 }
 
@@ -120,8 +146,12 @@ pub fn axis_continuous<T: Real, const K: usize>(
     let beta = gm.beta();
     let q = gm.psd();
     let mut f = SMatrix::<T, K, K>::zeros();
+    // The flexure part of the chain ends at `last`; a bias state after it is a random constant
+    // (zero row and column of F, no noise).
+    let kf = flexure_chain_len::<K>();
+    let last = kf - 1;
     // Chain: d/dt θ_f = θ̇_f (, d/dt θ̇_f = θ̈_f), last row the companion coefficients.
-    for d in 1..K.saturating_sub(1) {
+    for d in 1..last {
         if let Some(v) = f.get_mut((d, d + 1)) {
             *v = T::one();
         }
@@ -131,13 +161,13 @@ pub fn axis_continuous<T: Real, const K: usize>(
         FlexureModel::Conventional => [b2, T::lit(2.0) * beta, T::zero()],
         FlexureModel::Proposed => [b2 * beta, T::lit(3.0) * b2, T::lit(3.0) * beta],
     };
-    for (k, c) in coeffs.iter().take(K - 1).enumerate() {
-        if let Some(v) = f.get_mut((K - 1, k + 1)) {
+    for (k, c) in coeffs.iter().take(last).enumerate() {
+        if let Some(v) = f.get_mut((last, k + 1)) {
             *v = -*c;
         }
     }
     let mut q_c = SMatrix::<T, K, K>::zeros();
-    if let Some(v) = q_c.get_mut((K - 1, K - 1)) {
+    if let Some(v) = q_c.get_mut((last, last)) {
         *v = q;
     }
     Ok((f, q_c, gm))
@@ -146,7 +176,8 @@ pub fn axis_continuous<T: Real, const K: usize>(
 impl<T: Real, const K: usize> AxisChain<T, K> {
     /// Builds the chain of one axis: exact Φ and Q_d at `dt_s` and the initial covariance
     /// (θ_m variance `mount_sigma_rad²`, flexure block its closed-form stationary covariance,
-    /// which solves `F P + P Fᵀ + Q = 0`).
+    /// which solves `F P + P Fᵀ + Q = 0`). A chain with a bias state ([`has_accel_bias`])
+    /// starts it at variance 0: use [`Self::with_bias`].
     pub fn new(flex: &AxisFlexure<T>, mount_sigma_rad: T, dt_s: T) -> Result<Self, NavError> {
         crate::error::require_non_negative("mount_sigma_rad", mount_sigma_rad)?;
         require_positive("dt_s", dt_s)?;
@@ -157,8 +188,9 @@ impl<T: Real, const K: usize> AxisChain<T, K> {
         if let Some(v) = p0.get_mut((0, 0)) {
             *v = mount_sigma_rad * mount_sigma_rad;
         }
-        for r in 0..K - 1 {
-            for c in 0..K - 1 {
+        let kf = flexure_chain_len::<K>();
+        for r in 0..kf - 1 {
+            for c in 0..kf - 1 {
                 if let (Some(dst), Some(src)) = (p0.get_mut((r + 1, c + 1)), ps.get((r, c))) {
                     *dst = *src;
                 }
@@ -174,16 +206,41 @@ impl<T: Real, const K: usize> AxisChain<T, K> {
     }
 }
 
-/// Per-axis chains of the three axes.
+impl<T: Real, const K: usize> AxisChain<T, K> {
+    /// [`Self::new`] with the initial variance of the bias state (a chain with
+    /// [`has_accel_bias`]) set to `bias_sigma_m_s2²` ((m/s²)²); a chain without one is
+    /// returned as [`Self::new`] builds it. `InvalidConfig { field: "accel_bias_sigma_m_s2" }`
+    /// unless the σ is finite and non-negative.
+    pub fn with_bias(
+        flex: &AxisFlexure<T>,
+        mount_sigma_rad: T,
+        bias_sigma_m_s2: T,
+        dt_s: T,
+    ) -> Result<Self, NavError> {
+        crate::error::require_non_negative("accel_bias_sigma_m_s2", bias_sigma_m_s2)?;
+        let mut ch = Self::new(flex, mount_sigma_rad, dt_s)?;
+        if has_accel_bias::<K>() {
+            if let Some(v) = ch.p0.get_mut((BIAS_STATE, BIAS_STATE)) {
+                *v = bias_sigma_m_s2 * bias_sigma_m_s2;
+            }
+        }
+        Ok(ch)
+    }
+}
+
+/// Per-axis chains of the three axes (`accel_bias_sigma_m_s2`: 1σ of each axis' bias state,
+/// m/s², used by chains with [`has_accel_bias`] only).
 pub fn axis_chains<T: Real, const K: usize>(
     flex: &[AxisFlexure<T>; 3],
     mount_sigma_rad: &Vector3<T>,
+    accel_bias_sigma_m_s2: T,
     dt_s: T,
 ) -> Result<[AxisChain<T, K>; 3], NavError> {
+    let b = accel_bias_sigma_m_s2;
     Ok([
-        AxisChain::new(&flex[0], mount_sigma_rad.x, dt_s)?,
-        AxisChain::new(&flex[1], mount_sigma_rad.y, dt_s)?,
-        AxisChain::new(&flex[2], mount_sigma_rad.z, dt_s)?,
+        AxisChain::with_bias(&flex[0], mount_sigma_rad.x, b, dt_s)?,
+        AxisChain::with_bias(&flex[1], mount_sigma_rad.y, b, dt_s)?,
+        AxisChain::with_bias(&flex[2], mount_sigma_rad.z, b, dt_s)?,
     ])
 }
 
@@ -285,7 +342,14 @@ mod tests {
         assert!((f9[(6, 3)] + b2 * b2).abs() < 1e-9 && (f9[(6, 6)] + 2.0 * b2).abs() < 1e-12);
         assert!((q9[(6, 6)] - 4.0 * b2.powi(3) * s2).abs() < 1e-12 * q9[(6, 6)]);
         assert!(continuous_model::<f64, 4, 9>(&flex()).is_err());
-        assert!(continuous_model::<f64, 5, 15>(&flex()).is_err());
+        assert!(continuous_model::<f64, 6, 18>(&flex()).is_err());
+        // The flight chain: the proposed chain, then the bias (a random constant).
+        let (f15, q15) = continuous_model::<f64, 5, 15>(&flex()).unwrap();
+        assert_eq!(f15.fixed_view::<12, 12>(0, 0), f);
+        assert_eq!(q15.fixed_view::<12, 12>(0, 0), q);
+        assert!(f15.fixed_rows::<3>(12).iter().all(|v| *v == 0.0));
+        assert!(f15.fixed_columns::<3>(12).iter().all(|v| *v == 0.0));
+        assert!(q15.fixed_rows::<3>(12).iter().all(|v| *v == 0.0));
     }
 
     fn check_chain<T: Real, const K: usize>(tol: f64) {

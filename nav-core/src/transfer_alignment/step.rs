@@ -1,7 +1,9 @@
 //! The per-epoch work of the filters: the time plan, [`TransferAlignment::step`] (predict and
 //! fuse the six scalar measurements), [`TransferAlignment::propagate`] (prediction only) and
 //! [`TransferAlignment::step_delayed`] (match with the slave history).
-use super::config::{MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_SPECIFIC_FORCE_M_S2};
+use super::config::{
+    MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_MISALIGNMENT_RAD, MAX_SPECIFIC_FORCE_M_S2,
+};
 use super::covariance::{
     condition, fuse_bounded, initial_covariance, predict_cov, predict_state, reinit_flexure,
     set_mount_only,
@@ -10,7 +12,7 @@ use super::filter::TransferAlignment;
 use super::health::Channel;
 use super::history::SlaveHistory;
 use super::measurement::{h_row_total, measurement, MasterSample, SlaveSample};
-use super::model::FlexureModel;
+use super::model::{has_accel_bias, FlexureModel};
 use crate::contract::Health;
 #[allow(unused_imports)] // doc links
 use crate::math::kalman::fuse_scalar;
@@ -119,6 +121,50 @@ fn check_ranges<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> Re
         "slave.specific_force_m_s2",
         &slave.specific_force_m_s2,
         force,
+    )
+}
+
+/// The measurement with the second-order terms of the exact kinematics removed, so that the
+/// linear model `H x` predicts it to second order in θ (flight configuration). With
+/// `C_m^s = exp(−[θ×]) = I − [θ×] + ½[θ×]² − …` and the slave gyro seeing `J_r(θ) θ̇_f`
+/// (`J_r = I − ½[θ×] + …`):
+///
+/// ```text
+/// dω = [θ×] ω_m − θ̇_f + ½ θ × θ̇_f − ½ θ × (θ × ω_m) + O(θ³ ω_m, θ² θ̇_f)
+/// df = L_0 × θ̈_f − [f_s×] θ + ½ θ × (θ × f_s) + O(θ³ f)   (H uses f_s = C (f̃ − L_0 × θ̈_f))
+/// ```
+///
+/// The linear rows carry everything but the ½ terms; they are evaluated at the predicted θ̂,
+/// θ̇̂ and subtracted from z (five cross products). Beside an accelerometer bias, these
+/// terms (θ_X θ_Z g / 2 ≈ 0.5 mm/s² with the paper's 0.5° mounting σ) are the largest
+/// constant errors of the linear model.
+#[inline(always)]
+pub(super) fn second_order_measurement<T: Real, const K: usize, const N: usize>(
+    z: &SVector<T, 6>,
+    x: &SVector<T, N>,
+    f_s: &Vector3<T>,
+    omega_m: &Vector3<T>,
+) -> SVector<T, 6> {
+    // θ̂ within the small-angle range and θ̇̂ within the gyro range: the correction stays
+    // bounded (and finite) when the estimate has left the model (the filter then reports
+    // `NeedsReinitialisation`); without the bound the quadratic term feeds back on itself.
+    let g = |i: usize, lim: f64| {
+        let l = T::lit(lim);
+        x.get(i).copied().unwrap_or_else(T::zero).max(-l).min(l)
+    };
+    let (a, w) = (MAX_MISALIGNMENT_RAD, MAX_ANGULAR_RATE_RAD_S);
+    let theta = Vector3::new(g(0, a), g(K, a), g(2 * K, a));
+    let rate = Vector3::new(g(2, w), g(K + 2, w), g(2 * K + 2, w));
+    let half = T::lit(0.5);
+    let cw = (theta.cross(&rate) - theta.cross(&theta.cross(omega_m))) * half;
+    let cf = theta.cross(&theta.cross(f_s)) * half;
+    SVector::<T, 6>::new(
+        z.x - cw.x,
+        z.y - cw.y,
+        z.z - cw.z,
+        z.w - cf.x,
+        z.a - cf.y,
+        z.b - cf.z,
     )
 }
 
@@ -292,6 +338,13 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         let (r_rate, r_accel) = (self.r_rate, self.r_accel);
         let mut x = self.x;
         self.advance_to_scratch(&mut x, &plan);
+        // The flight configuration predicts the measurement to second order in θ (the paper's
+        // filters are linear in θ: exactly as specified).
+        let z = if has_accel_bias::<K>() {
+            second_order_measurement::<T, K, N>(&z, &x, &f_h, &master.angular_rate_rad_s)
+        } else {
+            z
+        };
         let (_, p) = self.buffers();
         let empty = FusionReport {
             innovation: T::zero(),
@@ -304,16 +357,24 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         // The six rows are written out with constant row indices (and the model follows from K
         // at compile time), so each row's sparsity pattern is known to the compiler: the
         // index-driven loops of the sparse update become straight-line code.
-        let model_k = if K == 4 {
+        let model_k = if K >= 4 {
             FlexureModel::Proposed
         } else {
             FlexureModel::Conventional
         };
         let omega_m = master.angular_rate_rad_s;
+        // Row capacity: 5 entries with the flight configuration's bias, 4 otherwise.
         macro_rules! fuse_row {
             ($row:literal) => {
+                if has_accel_bias::<K>() {
+                    fuse_row!($row, 5);
+                } else {
+                    fuse_row!($row, 4);
+                }
+            };
+            ($row:literal, $m:literal) => {
                 if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
-                    let h = h_row_total::<T, K>(model_k, $row, &omega_m, &f_h, &lever);
+                    let h = h_row_total::<T, K, $m>(model_k, $row, &omega_m, &f_h, &lever);
                     let r = if $row < 3 { r_rate } else { r_accel };
                     let innovation = zi - h.dot(&x);
                     // Built from validated, range-checked inputs with in-range ascending

@@ -82,6 +82,7 @@ const RATIO_CLIP: f64 = 3.0;
 
 /// The campaigns, one per estimator's flight configuration.
 pub static CAMPAIGNS: &[Campaign] = &[
+    crate::scenarios::transfer_alignment::campaign::CAMPAIGN,
     crate::scenarios::seeker_ins::campaign::CAMPAIGN,
     crate::scenarios::vertical_channel::CAMPAIGN,
 ];

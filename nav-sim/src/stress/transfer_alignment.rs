@@ -64,6 +64,8 @@ struct Case {
     sigma_deg: f64,
     tau_s: f64,
     proposed: bool,
+    /// The flight configuration (15 states; `proposed` is then true too).
+    flight: bool,
     inputs: Inputs,
     steps: u64,
     start_us: u64,
@@ -74,7 +76,9 @@ impl Case {
     fn name(&self, cfg: &TaConfig<f32>) -> String {
         format!(
             "{} f32 {} Hz σ {}° τ {} s {:?} (rate σ {} rad/s, accel σ {} m/s², gate {:?}) start {} s",
-            if self.proposed {
+            if self.flight {
+                "flight"
+            } else if self.proposed {
                 "proposed"
             } else {
                 "conventional"
@@ -117,6 +121,8 @@ fn config(c: &Case, rng: &mut SimRng) -> TaConfig<f32> {
         dt_s: dt as f32,
         time_tolerance_s: (0.1 * dt) as f32,
         max_gap_steps: 3,
+        // The flight configuration's bias σ (ignored by the paper's filters).
+        accel_bias_sigma_m_s2: if c.flight { 3.0e-3 } else { 0.0 },
         gate: if rng.random_bool(0.5) {
             Gate::Nis(25.0)
         } else {
@@ -294,7 +300,9 @@ fn run_case<const K: usize, const N: usize>(c: &Case) -> Tally {
 }
 
 fn run_one(c: &Case) -> Tally {
-    if c.proposed {
+    if c.flight {
+        run_case::<5, 15>(c)
+    } else if c.proposed {
         run_case::<4, 12>(c)
     } else {
         run_case::<3, 9>(c)
@@ -324,12 +332,40 @@ pub fn run(level: StressLevel) -> EstimatorStress {
                             sigma_deg,
                             tau_s,
                             proposed,
+                            flight: false,
                             inputs,
                             steps: (grid_seconds * f64::from(rate_hz)) as u64,
                             start_us: 0,
                             seed,
                         });
                     }
+                }
+            }
+        }
+    }
+    // The flight configuration over the same grid (appended: the paper filters' cases keep
+    // their seeds).
+    let mut flight_seed = 1_000_000u64;
+    for rate_hz in [100u32, 200, 500, 1000] {
+        for sigma_deg in [0.01, 0.1, 0.5, 2.0] {
+            for tau_s in [0.05, 0.5, 5.0, 100.0, 1.0e4] {
+                for inputs in [
+                    Inputs::ConstantClean,
+                    Inputs::Hostile,
+                    Inputs::HostileNoiseCorners,
+                ] {
+                    flight_seed += 1;
+                    cases.push(Case {
+                        rate_hz,
+                        sigma_deg,
+                        tau_s,
+                        proposed: true,
+                        flight: true,
+                        inputs,
+                        steps: (grid_seconds * f64::from(rate_hz)) as u64,
+                        start_us: 0,
+                        seed: flight_seed,
+                    });
                 }
             }
         }
@@ -341,6 +377,7 @@ pub fn run(level: StressLevel) -> EstimatorStress {
             sigma_deg: 0.5,
             tau_s: 2.146,
             proposed,
+            flight: false,
             inputs: Inputs::Hostile,
             steps: long_steps,
             start_us: 1_000_000 * 1_000_000,
@@ -357,7 +394,7 @@ pub fn run(level: StressLevel) -> EstimatorStress {
     }
     out.coverage = vec![
         format!(
-            "both filters, f32, 100/200/500/1000 Hz × σ 0.01/0.1/0.5/2° × τ 0.05/0.5/5/100/1e4 s × \
+            "both paper filters and the flight configuration (15 states), f32, 100/200/500/1000 Hz × σ 0.01/0.1/0.5/2° × τ 0.05/0.5/5/100/1e4 s × \
              (constant noise-free | noisy manoeuvres with jitter 0.5-1.5 dt, missing samples, \
              dropouts, long gaps | the same at the noise-envelope corners): {grid_seconds} s each"
         ),

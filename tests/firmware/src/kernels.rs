@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 use nalgebra::{SMatrix, SVector};
 use nav_core::math::kalman::{fuse_scalar, propagate_dense, FusionOutcome, Gate};
 use nav_core::transfer_alignment::{
-    ConventionalFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig,
+    ConventionalFilter, FlightFilter, MasterSample, ProposedFilter, SlaveSample, TaConfig,
 };
 use nav_core::Estimator;
 
@@ -33,6 +33,12 @@ pub static KERNELS: &[Kernel] = &[
         check: ta12_check,
     },
     Kernel {
+        name: "ta15_step",
+        setup: ta15_setup,
+        run: ta15_step,
+        check: ta15_check,
+    },
+    Kernel {
         name: "ta9_propagate",
         setup: ta9_setup,
         run: ta9_propagate,
@@ -43,6 +49,12 @@ pub static KERNELS: &[Kernel] = &[
         setup: ta12_setup,
         run: ta12_propagate,
         check: ta12_check,
+    },
+    Kernel {
+        name: "ta15_propagate",
+        setup: ta15_setup,
+        run: ta15_propagate,
+        check: ta15_check,
     },
     Kernel {
         name: "vc_classical_step",
@@ -245,9 +257,10 @@ struct Ta<F> {
 
 static TA9: Slot<Ta<ConventionalFilter<f32>>> = Mutex::new(RefCell::new(None));
 static TA12: Slot<Ta<ProposedFilter<f32>>> = Mutex::new(RefCell::new(None));
+static TA15: Slot<Ta<FlightFilter<f32>>> = Mutex::new(RefCell::new(None));
 
 macro_rules! ta_kernel {
-    ($setup:ident, $step:ident, $prop:ident, $check:ident, $cell:ident, $ty:ty) => {
+    ($setup:ident, $step:ident, $prop:ident, $check:ident, $cell:ident, $ty:ty, $config:expr) => {
         /// Prediction only (a master-data dropout epoch).
         fn $prop() {
             with_state(&$cell, |s| {
@@ -257,7 +270,7 @@ macro_rules! ta_kernel {
             });
         }
         fn $setup() {
-            let mut state = <$ty>::new(&ta_config(), &nav_golden::ta_initial())
+            let mut state = <$ty>::new(&$config, &nav_golden::ta_initial())
                 .ok()
                 .map(|filter| Ta { filter, k: 0, ok: true });
             // Warm up so the measured call is a steady-state predict + 6 updates.
@@ -289,7 +302,8 @@ ta_kernel!(
     ta9_propagate,
     ta9_check,
     TA9,
-    ConventionalFilter<f32>
+    ConventionalFilter<f32>,
+    ta_config()
 );
 ta_kernel!(
     ta12_setup,
@@ -297,7 +311,24 @@ ta_kernel!(
     ta12_propagate,
     ta12_check,
     TA12,
-    ProposedFilter<f32>
+    ProposedFilter<f32>,
+    ta_config()
+);
+// The flight configuration: the golden configuration with the bias σ of `TaConfig::flight`.
+ta_kernel!(
+    ta15_setup,
+    ta15_step,
+    ta15_propagate,
+    ta15_check,
+    TA15,
+    FlightFilter<f32>,
+    TaConfig {
+        accel_bias_sigma_m_s2: TaConfig::<f32>::flight(
+            nav_core::transfer_alignment::PaperCase::Case2
+        )
+        .accel_bias_sigma_m_s2,
+        ..ta_config()
+    }
 );
 
 // ---------------------------------------------------------------- vertical channel

@@ -190,8 +190,10 @@ impl CaseConfig {
     }
 
     /// Filter configuration (f64) with the filter's τ scaled by `1 + tau_error_pct/100`: the
-    /// scenario's lever arm, flexure, mount σ, noise (master and slave per sample, combined) and
-    /// step, pairing tolerance 0.1 `dt_s`, the gate of `[filter] nis_gate` (absent: off), and
+    /// scenario's lever arm, flexure, mount σ, noise (master and slave per sample, combined),
+    /// the specific-force-difference bias 1σ of the flight configuration (master and slave
+    /// accelerometer bias σ, combined: the IMUs' specification, used by the flight filter only)
+    /// and step, pairing tolerance 0.1 `dt_s`, the gate of `[filter] nis_gate` (absent: off), and
     /// the paper configuration's gap bridging and recovery policy ([`TaConfig::paper`]).
     pub fn filter_config(&self, tau_error_pct: f64) -> TaConfig<f64> {
         let sigma = self
@@ -222,12 +224,17 @@ impl CaseConfig {
                 .accel_sigma_per_sample_m_s2(self.dt_s)
                 .powi(2))
         .sqrt();
+        let accel_bias =
+            (self.master_imu.accel_bias_ug.powi(2) + self.slave_imu.accel_bias_ug.powi(2)).sqrt()
+                * 1e-6
+                * super::truth::G0_M_S2;
         TaConfig {
             lever_arm_m: Vector3::from(self.lever_arm_m),
             flexure: [ax(0), ax(1), ax(2)],
             mount_sigma_rad: Vector3::from(self.mount_sigma_deg).map(f64::to_radians),
             rate_noise_sigma_rad_s: rate,
             accel_noise_sigma_m_s2: accel,
+            accel_bias_sigma_m_s2: accel_bias,
             dt_s: self.dt_s,
             time_tolerance_s: 0.1 * self.dt_s,
             gate: self.filter.nis_gate.map_or(Gate::Off, Gate::Nis),

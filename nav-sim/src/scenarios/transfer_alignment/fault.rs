@@ -11,7 +11,9 @@
 //! the next dropout or the end.
 use super::config::CaseConfig;
 use super::estimate::cast_config;
+use super::estimate::{NEES_COMPONENTS, NEES_DOF};
 use super::truth::simulate;
+use crate::consistency::{Consistency, RunConsistency};
 use crate::montecarlo::monte_carlo;
 use crate::output::{sig, write_csv};
 use crate::plot::{render, Figure, Panel, Series};
@@ -21,7 +23,7 @@ use anyhow::{anyhow, Result};
 use nalgebra::Vector3;
 use nav_core::math::kalman::FusionOutcome;
 use nav_core::transfer_alignment::{
-    Channel, MasterSample, ProposedFilter, SlaveHistory, SlaveSample, TaInitial,
+    Channel, MasterSample, SlaveHistory, SlaveSample, TaInitial, TransferAlignment,
 };
 use nav_core::{Estimator, Gate};
 use serde::Deserialize;
@@ -70,6 +72,8 @@ pub struct FaultRun {
     pub unmatched: u64,
     /// Propagation-only epochs.
     pub propagations: u64,
+    /// NEES of θ (3 states) and `e²/σ²` per axis from the filter's first epoch on.
+    pub consistency: RunConsistency,
 }
 
 fn in_dropout(cfg: &FaultConfig, t: f64) -> bool {
@@ -78,21 +82,42 @@ fn in_dropout(cfg: &FaultConfig, t: f64) -> bool {
         .any(|[s, d]| t >= s - 1e-9 && t < s + d - 1e-9)
 }
 
-/// Runs one seeded realisation.
+/// Runs one seeded realisation with the proposed filter (`FaultRun` of the flight
+/// configuration on the same truth: [`run_once_both`]).
 pub fn run_once(cfg: &FaultConfig, rng: &mut crate::rng::SimRng) -> Result<FaultRun> {
     let truth = simulate(&cfg.case, rng)?;
+    run_filter_once::<4, 12>(cfg, &truth)
+}
+
+/// One seeded realisation flown by the proposed filter and the flight configuration.
+pub fn run_once_both(
+    cfg: &FaultConfig,
+    rng: &mut crate::rng::SimRng,
+) -> Result<(FaultRun, FaultRun)> {
+    let truth = simulate(&cfg.case, rng)?;
+    Ok((
+        run_filter_once::<4, 12>(cfg, &truth)?,
+        run_filter_once::<5, 15>(cfg, &truth)?,
+    ))
+}
+
+fn run_filter_once<const K: usize, const N: usize>(
+    cfg: &FaultConfig,
+    truth: &super::truth::TruthRun,
+) -> Result<FaultRun> {
     let mut fc = cast_config::<f32>(&cfg.case.filter_config(0.0));
     if fc.gate == Gate::Off {
         fc.gate = Gate::Nis(25.0);
     }
-    let mut f =
-        ProposedFilter::<f32>::new(&fc, &TaInitial::default()).map_err(|e| anyhow!("{e}"))?;
+    let mut f = TransferAlignment::<f32, K, N>::new(&fc, &TaInitial::default())
+        .map_err(|e| anyhow!("{e}"))?;
     let mut hist = SlaveHistory::<f32, HISTORY>::new();
     let lag = (cfg.master_latency_s / cfg.case.dt_s).round() as usize;
     let n = truth.t_s.len();
     let mut out = FaultRun {
         err_rad: vec![f64::NAN; n],
         sigma_rad: vec![f64::NAN; n],
+        consistency: RunConsistency::new(&NEES_COMPONENTS),
         ..Default::default()
     };
     let v = |x: &Vector3<f64>| x.map(|e| e as f32);
@@ -137,7 +162,13 @@ pub fn run_once(cfg: &FaultConfig, rng: &mut crate::rng::SimRng) -> Result<Fault
         if f.time().is_some() {
             let e = f.theta().map(f64::from) - truth.theta_rad[k];
             out.err_rad[j] = e.norm();
-            out.sigma_rad[j] = f.theta_sigma_rad().map(f64::from).norm();
+            let sg = f.theta_sigma_rad().map(f64::from);
+            out.sigma_rad[j] = sg.norm();
+            let p = f.theta_covariance().map(f64::from);
+            let nees = p.try_inverse().map_or(f64::NAN, |pi| e.dot(&(pi * e)));
+            let es: [(f64, f64); 3] = std::array::from_fn(|a| (e[a], sg[a]));
+            out.consistency
+                .push(truth.t_s[j] - truth.t_s[lag.min(n - 1)], nees, &es);
         }
     }
     out.recoveries = Channel::ALL
@@ -217,15 +248,23 @@ pub fn recoveries(cfg: &FaultConfig, t_tag: &[f64], rms: &[f64]) -> Vec<Recovery
 }
 
 /// Summary, master time tags (s), ensemble RMS of |θ error| and mean filter σ (mrad).
-pub type FaultAnalysis = (Value, Vec<f64>, Vec<f64>, Vec<f64>);
+pub type FaultAnalysis = (Value, Vec<f64>, Vec<f64>, Vec<f64>, [Consistency; 2]);
 
-/// Runs the Monte Carlo and the analysis; returns the summary, `t_tag` and the RMS / σ series.
+/// Runs the Monte Carlo and the analysis; returns the summary, `t_tag`, the RMS / σ series of
+/// the proposed filter, and the consistency of the proposed filter and of the flight
+/// configuration flown on the same runs.
 pub fn analyse(cfg: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Result<FaultAnalysis> {
-    let res: Vec<Result<FaultRun>> =
+    let both: Vec<Result<(FaultRun, FaultRun)>> =
         monte_carlo("fault-transfer", runs, seed, progress, |_, rng| {
-            run_once(cfg, rng)
+            run_once_both(cfg, rng)
         });
-    let res: Vec<FaultRun> = res.into_iter().collect::<Result<_>>()?;
+    let both: Vec<(FaultRun, FaultRun)> = both.into_iter().collect::<Result<_>>()?;
+    let consistency = |pick: fn(&(FaultRun, FaultRun)) -> &FaultRun| {
+        let rc: Vec<RunConsistency> = both.iter().map(|r| pick(r).consistency.clone()).collect();
+        Consistency::from_runs(NEES_DOF, &rc)
+    };
+    let (c_prop, c_flight) = (consistency(|r| &r.0), consistency(|r| &r.1));
+    let res: Vec<FaultRun> = both.into_iter().map(|r| r.0).collect();
     let lag = (cfg.master_latency_s / cfg.case.dt_s).round();
     let n = res.first().map_or(0, |r| r.err_rad.len());
     let t_tag: Vec<f64> = (0..n).map(|j| (j as f64 - lag) * cfg.case.dt_s).collect();
@@ -261,13 +300,36 @@ pub fn analyse(cfg: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Res
         })).collect::<Vec<_>>(),
         "all_recovered": rec.iter().all(|r| r.recovered),
         "final_rms_mrad": sig(rms.last().copied().unwrap_or(f64::NAN), 4),
+        "nees_states": "theta_x, theta_y, theta_z (total misalignment), from the filter's first epoch; time in the summaries' consistency objects is from that epoch",
+        "consistency": {
+            "proposed": c_prop.summary(),
+            "flight": c_flight.summary(),
+        },
     });
-    Ok((summary, t_tag, rms, sigma))
+    Ok((summary, t_tag, rms, sigma, [c_prop, c_flight]))
 }
 
 fn run_fault(ctx: &Context) -> Result<Value> {
     let cfg: FaultConfig = ctx.config()?;
-    let (summary, t, rms, sigma) = analyse(&cfg, ctx.runs, ctx.seed, ctx.progress)?;
+    let (summary, t, rms, sigma, [c_prop, c_flight]) =
+        analyse(&cfg, ctx.runs, ctx.seed, ctx.progress)?;
+    render(
+        &Figure {
+            title: format!(
+                "{}: NEES of θ (3 states), time from the first epoch",
+                ctx.name
+            ),
+            x_label: "time, s".into(),
+            columns: 1,
+            panels: vec![
+                c_prop.nees_panel("proposed 12-state (paper)"),
+                c_flight.nees_panel("flight configuration (15 states)"),
+            ],
+        },
+        &ctx.out_dir.join("nees.png"),
+        1000,
+        700,
+    )?;
     write_csv(
         &ctx.out_dir.join("error.csv"),
         &["t_master_s", "rms_theta_err_mrad", "mean_filter_sigma_mrad"],

@@ -6,6 +6,7 @@
 //!   (case 2); Fig. 7.
 //! - `ta-observability` (file `ta-observability`): ranks of the observability matrices of the
 //!   constant segments and the stripped observability matrices (Tables 1 and 2).
+pub mod campaign;
 pub mod config;
 pub mod estimate;
 pub mod fault;
@@ -64,11 +65,35 @@ fn method_json(m: &MethodStats) -> Value {
         "axes": axes_json(&m.axes),
         "mean_nis": m.mean_nis.iter().map(|v| sig(*v, 3)).collect::<Vec<_>>(),
         "rejected_fraction": sig(m.rejected_fraction, 3),
+        "consistency": m.consistency.summary(),
     })
 }
 
 fn mrad(v: &[f64]) -> Vec<f64> {
     v.iter().map(|x| x * 1e3).collect()
+}
+
+fn print_consistency(r: &CaseResult) {
+    for (label, m) in [
+        ("conventional", &r.conventional),
+        ("proposed", &r.proposed),
+        ("flight", &r.flight),
+    ] {
+        let c = &m.consistency;
+        let nes: Vec<String> = c
+            .normalized_error_sq
+            .iter()
+            .map(|(n, v)| format!("{n} {v:.2}"))
+            .collect();
+        println!(
+            "  {label:<13}NEES {:.2} (band {:.2}-{:.2}), in band {:.2}; e²/σ²: {}",
+            c.mean_nees(),
+            crate::consistency::nees_band_95(c.dof, c.runs).0,
+            crate::consistency::nees_band_95(c.dof, c.runs).1,
+            c.frac_in_band(),
+            nes.join(", ")
+        );
+    }
 }
 
 fn print_method(label: &str, m: &MethodStats) {
@@ -266,6 +291,8 @@ fn write_case_outputs(ctx: &Context, cfg: &CaseConfig, r: &CaseResult) -> Result
         1000,
         900,
     )?;
+    // NEES of θ of the three filters with their 95 % bands.
+    render_nees(ctx, r)?;
     // Flexure angular-acceleration level of this case (theory β²σ for the 3rd-order truth).
     let acc_rms: Vec<f64> = acc
         .iter()
@@ -283,23 +310,52 @@ fn write_case_outputs(ctx: &Context, cfg: &CaseConfig, r: &CaseResult) -> Result
     }))
 }
 
+/// `nees.png`: the run-averaged NEES of θ of each filter (paper filters and the flight
+/// configuration) with its 95 % χ² band, one panel each (each on its own scale).
+fn render_nees(ctx: &Context, r: &CaseResult) -> Result<()> {
+    let panels = [
+        ("conventional 9-state (paper)", &r.conventional),
+        ("proposed 12-state (paper)", &r.proposed),
+        ("flight configuration (15 states)", &r.flight),
+    ]
+    .iter()
+    .map(|(name, m)| m.consistency.nees_panel(name))
+    .collect();
+    render(
+        &Figure {
+            title: format!("{}: NEES of θ (3 states)", ctx.name),
+            x_label: "time, s".into(),
+            columns: 1,
+            panels,
+        },
+        &ctx.out_dir.join("nees.png"),
+        1000,
+        900,
+    )
+}
+
 fn run_case_scenario(ctx: &Context) -> Result<Value> {
     let cfg: CaseConfig = ctx.config()?;
     let r = run_case(&cfg, ctx.runs, ctx.seed, 0.0, ctx.progress, &ctx.name)?;
     print_method("conventional", &r.conventional);
     print_method("proposed", &r.proposed);
+    print_method("flight", &r.flight);
+    print_consistency(&r);
     let extra = write_case_outputs(ctx, &cfg, &r)?;
     let fc = cfg.filter_config(0.0);
     Ok(json!({
         "methods": {
             "conventional": method_json(&r.conventional),
             "proposed": method_json(&r.proposed),
+            "flight": method_json(&r.flight),
         },
+        "nees_states": "theta_x, theta_y, theta_z (total misalignment θ = θ_m + θ_f)",
         "truth_flexure_model": format!("{:?}", cfg.truth_flexure.model),
         "flexure_sigma_deg": cfg.truth_flexure.sigma_deg,
         "flexure_tau_s": cfg.truth_flexure.tau_s,
         "filter_rate_noise_sigma_rad_s": sig(fc.rate_noise_sigma_rad_s, 4),
         "filter_accel_noise_sigma_m_s2": sig(fc.accel_noise_sigma_m_s2, 4),
+        "flight_accel_bias_sigma_m_s2": sig(fc.accel_bias_sigma_m_s2, 4),
         "precision": format!("{:?}", cfg.precision),
         "windows_s": {"cruise": estimate::CRUISE_WINDOW_S, "after_accel_from": estimate::AFTER_ACCEL_FROM_S},
         "flexure": extra,
@@ -338,6 +394,7 @@ fn run_model_error(ctx: &Context) -> Result<Value> {
             "filter_tau_s": cfg.case.truth_flexure.tau_s.map(|t| sig(t * (1.0 + pct / 100.0), 4)),
             "proposed": method_json(&r.proposed),
             "conventional": method_json(&r.conventional),
+            "flight": method_json(&r.flight),
         }));
         results.push((*pct, r));
     }
