@@ -412,11 +412,14 @@ impl<T: Real> LoopCore<T> {
             HealthState::NeedsReinitialisation
         } else if bridged
             || !use_baro
-            || (self.velocity.received && !use_vel)
             || self.baro.rejected_since != NEVER
-            || self.velocity.rejected_since != NEVER
             || self.baro.recovery_var > T::zero()
-            || self.velocity.recovery_var > T::zero()
+            // A channel that never received a sample (the classical loop's velocity) has no
+            // rejection run and no recovery gate: one test for it.
+            || (self.velocity.received
+                && (!use_vel
+                    || self.velocity.rejected_since != NEVER
+                    || self.velocity.recovery_var > T::zero()))
         {
             HealthState::Degraded
         } else {
