@@ -216,13 +216,10 @@ impl<T: Real> AidChannel<T> {
                 input: rule.value_name,
             });
         }
-        let age_s = match now.micros_since(time) {
-            Some(age) => micros_to_seconds::<T>(age),
-            None => return Err(NavError::MeasurementTimeOutOfWindow),
+        let age_s = match now.micros_since(time).map(micros_to_seconds::<T>) {
+            Some(age_s) if age_s <= rule.lost_after_s => age_s,
+            _ => return Err(NavError::MeasurementTimeOutOfWindow),
         };
-        if !(age_s <= rule.lost_after_s) {
-            return Err(NavError::MeasurementTimeOutOfWindow);
-        }
         if self.received && !emptied && time <= self.last_time {
             return Err(NavError::TimeNotIncreasing);
         }
