@@ -90,6 +90,8 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) time: Timestamp,
     pub(crate) dt_s: T,
     pub(crate) dt_us: u64,
+    /// Longest interval integrated in one step, `1.5 dt_us` (longer ones are bridged), µs.
+    pub(crate) single_step_max_us: u64,
     /// `dt_us` when it is exactly `dt_s` in the float type (the stored step then applies
     /// as is), else 0 (an interval of a whole number of µs is never exactly `dt_s`: every
     /// step takes the corrected path).
@@ -155,6 +157,7 @@ impl<T: Real> LoopCore<T> {
             time: init.time,
             dt_s,
             dt_us,
+            single_step_max_us: dt_us.saturating_add(dt_us / 2),
             nominal_us: if micros_to_seconds::<T>(dt_us) == dt_s {
                 dt_us
             } else {
@@ -196,7 +199,7 @@ impl<T: Real> LoopCore<T> {
             Err(e) => return Err(self.refused_imu(e)),
         };
         let samples = self.check_samples(imu.time, us, baro, velocity)?;
-        if us <= self.dt_us.saturating_add(self.dt_us / 2) {
+        if us <= self.single_step_max_us {
             let sub = SubStep {
                 x: self.x,
                 h_ref: self.h_ref_m,
@@ -346,21 +349,20 @@ impl<T: Real> LoopCore<T> {
         let gated = self.gate_samples(sub, half_h, samples);
         let x = gated.x;
         let v = x.y;
-        let baro_status = gated.baro.status(gated.baro_age, &self.baro_timeouts);
-        let vel_status = gated
-            .velocity
-            .status(gated.velocity_age, &self.velocity_timeouts);
+        let baro_ch = gated.baro.as_ref().unwrap_or(&self.baro);
+        let vel_ch = gated.velocity.as_ref().unwrap_or(&self.velocity);
+        let baro_status = baro_ch.status(gated.baro_age, &self.baro_timeouts);
+        let vel_status = vel_ch.status(gated.velocity_age, &self.velocity_timeouts);
         let use_baro = baro_status.in_use();
         let use_vel = vel_status.in_use();
         // Held samples extrapolated to the middle of the interval (ZOH of the continuous loop).
         let half = T::lit(0.5);
         let nu_h = use_baro.then(|| {
             let age = gated.baro_age - half_h;
-            (gated.baro.last_value - sub.h_ref) + age * (v - half * gated.v_rate * age)
-                - gated.h_pred
+            (baro_ch.last_value - sub.h_ref) + age * (v - half * gated.v_rate * age) - gated.h_pred
         });
-        let nu_v = use_vel
-            .then(|| gated.velocity.last_value + (gated.velocity_age - half_h) * gated.v_rate - v);
+        let nu_v =
+            use_vel.then(|| vel_ch.last_value + (gated.velocity_age - half_h) * gated.v_rate - v);
         let mode = self.modes.select(use_baro, use_vel);
         let nu = Vector2::new(nu_h.unwrap_or(T::zero()), nu_v.unwrap_or(T::zero()));
         let drive = Vector2::new(v, gated.v_rate);
@@ -385,8 +387,13 @@ impl<T: Real> LoopCore<T> {
             self.sigma.reanchored(m.baro, m.velocity);
         }
         self.sigma.tick(sub.h_us, use_baro, use_vel);
-        self.baro = gated.baro;
-        self.velocity = gated.velocity;
+        // A channel changes only when a sample arrived.
+        if let Some(c) = gated.baro {
+            self.baro = c;
+        }
+        if let Some(c) = gated.velocity {
+            self.velocity = c;
+        }
         self.settle(x_new, sub.h_ref);
         self.time = sub.now;
         self.baro_tally.count(&gated.baro_verdict);
@@ -405,11 +412,14 @@ impl<T: Real> LoopCore<T> {
             HealthState::NeedsReinitialisation
         } else if bridged
             || !use_baro
-            || (self.velocity.received && !use_vel)
             || self.baro.rejected_since != NEVER
-            || self.velocity.rejected_since != NEVER
             || self.baro.recovery_var > T::zero()
-            || self.velocity.recovery_var > T::zero()
+            // A channel that never received a sample (the classical loop's velocity) has no
+            // rejection run and no recovery gate: one test for it.
+            || (self.velocity.received
+                && (!use_vel
+                    || self.velocity.rejected_since != NEVER
+                    || self.velocity.recovery_var > T::zero()))
         {
             HealthState::Degraded
         } else {
@@ -438,7 +448,6 @@ impl<T: Real> LoopCore<T> {
             self.baro.age(now),
             samples.baro,
             &Extrapolation {
-                now,
                 lost_after_s: self.baro_timeouts.lost_after_s,
                 offset: sub.h_ref,
                 half_h,
@@ -454,7 +463,6 @@ impl<T: Real> LoopCore<T> {
             self.velocity.age(now),
             samples.velocity,
             &Extrapolation {
-                now,
                 lost_after_s: self.velocity_timeouts.lost_after_s,
                 offset: T::zero(),
                 half_h,
@@ -599,10 +607,12 @@ struct Gated<T: Real> {
     x: Vector3<T>,
     h_pred: T,
     v_rate: T,
-    baro: AidChannel<T>,
+    /// The baro channel after its new sample (`None`: no sample, unchanged).
+    baro: Option<AidChannel<T>>,
     baro_age: T,
     baro_verdict: Option<Verdict<T>>,
-    velocity: AidChannel<T>,
+    /// The velocity channel after its new sample (`None`: no sample, unchanged).
+    velocity: Option<AidChannel<T>>,
     velocity_age: T,
     velocity_verdict: Option<Verdict<T>>,
 }

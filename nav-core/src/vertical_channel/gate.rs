@@ -5,7 +5,6 @@ use super::config::RunTime;
 use super::samples::{secs_between, AidChannel, AidStatus, ValidSample, NEVER};
 use super::MAX_GATE_VARIANCE;
 use crate::contract::{AidCounters, FusionOutcome, FusionReport, Gate};
-use crate::time::Timestamp;
 use crate::{NavError, Real};
 
 /// What a newly arrived sample did beyond its fusion (see [`super::AidModel`]).
@@ -106,12 +105,11 @@ impl<T: Real> GateParams<T> {
     }
 }
 
-/// When a sample is checked (`now`, the aid's `lost_after_s`) and how it is extrapolated to
+/// When a sample is lost (the aid's `lost_after_s`) and how it is extrapolated to
 /// mid-interval and predicted: `z − offset + age (r₁ − r₂ age)` against `pred` (first order:
 /// `r₂` unused, no offset).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Extrapolation<T> {
-    pub(crate) now: Timestamp,
     pub(crate) lost_after_s: T,
     pub(crate) offset: T,
     pub(crate) half_h: T,
@@ -127,8 +125,9 @@ pub(crate) struct Verdict<T> {
     pub(crate) reacquisition: Reacquisition,
 }
 
-/// The channel to use after a new sample, its sample's age now, and the verdict.
-pub(crate) type Admitted<T> = (AidChannel<T>, T, Option<Verdict<T>>);
+/// The channel after a new sample (`None`: no new sample, the channel is unchanged), the
+/// age now of the sample it holds, and the verdict.
+pub(crate) type Admitted<T> = (Option<AidChannel<T>>, T, Option<Verdict<T>>);
 
 #[inline(always)]
 fn saturate<T: Real>(s: T) -> T {
@@ -186,7 +185,9 @@ fn reanchor<T: Real>(
 }
 
 /// Gate of one new sample (`SECOND_ORDER`: the baro's extrapolation). `old_age`: the held
-/// sample's age now. Returns the channel to use, its sample's age now and the verdict.
+/// sample's age now (the new sample's is its `age_s`, at the same time).
+/// Returns the channel to use (`None`: `old`, unchanged), its sample's age now and the
+/// verdict.
 #[inline(always)]
 pub(crate) fn admit<T: Real, const SECOND_ORDER: bool>(
     old: &AidChannel<T>,
@@ -197,10 +198,10 @@ pub(crate) fn admit<T: Real, const SECOND_ORDER: bool>(
     aid: &AidGate<T>,
 ) -> Admitted<T> {
     let Some(sample) = sample else {
-        return (*old, old_age, None);
+        return (None, old_age, None);
     };
     let mut cand = old.with(sample);
-    let cand_age = secs_between::<T>(ex.now, cand.last_time);
+    let cand_age = sample.age_s;
     let age = cand_age - ex.half_h;
     let (value, r) = if SECOND_ORDER {
         (cand.last_value - ex.offset, ex.rate - ex.rate_slope * age)
@@ -225,7 +226,7 @@ pub(crate) fn admit<T: Real, const SECOND_ORDER: bool>(
     };
     if old.reanchor || starved {
         let (cand, verdict) = reanchor(cand, innovation, model_var, params, aid);
-        return (cand, cand_age, Some(verdict));
+        return (Some(cand), cand_age, Some(verdict));
     }
     let lost = old.received && old_age > ex.lost_after_s;
     let (s, tested, pass) = match params.threshold {
@@ -261,13 +262,13 @@ pub(crate) fn admit<T: Real, const SECOND_ORDER: bool>(
     };
     if pass {
         cand.rejected_since = NEVER;
-        (cand, cand_age, Some(verdict))
+        (Some(cand), cand_age, Some(verdict))
     } else {
         let mut kept = *old;
         if old.rejected_since == NEVER {
             kept.rejected_since = cand.last_time;
         }
-        (kept, old_age, Some(verdict))
+        (Some(kept), old_age, Some(verdict))
     }
 }
 

@@ -141,6 +141,8 @@ pub(crate) const NEVER: Timestamp = Timestamp::from_micros(u64::MAX);
 pub(crate) struct ValidSample<T> {
     pub(crate) time: Timestamp,
     pub(crate) value: T,
+    /// Age at the step's IMU time (the time it was checked against and enters at), s.
+    pub(crate) age_s: T,
 }
 
 /// A held aid sample, its recovery-gate state and its re-anchoring flag.
@@ -214,14 +216,14 @@ impl<T: Real> AidChannel<T> {
                 input: rule.value_name,
             });
         }
-        match now.micros_since(time) {
-            Some(age) if micros_to_seconds::<T>(age) <= rule.lost_after_s => {}
+        let age_s = match now.micros_since(time).map(micros_to_seconds::<T>) {
+            Some(age_s) if age_s <= rule.lost_after_s => age_s,
             _ => return Err(NavError::MeasurementTimeOutOfWindow),
-        }
+        };
         if self.received && !emptied && time <= self.last_time {
             return Err(NavError::TimeNotIncreasing);
         }
-        Ok(ValidSample { time, value })
+        Ok(ValidSample { time, value, age_s })
     }
 
     /// The channel holding `sample` (gate state kept).

@@ -58,13 +58,49 @@ pub static KERNELS: &[Kernel] = &[
     },
     Kernel {
         name: "vc_classical_step",
-        setup: vcc_setup,
+        setup: vcc_setup_settled,
+        run: vcc_step,
+        check: vcc_check,
+    },
+    Kernel {
+        name: "vc_classical_step_held",
+        setup: vcc_setup_settled_held,
+        run: vcc_step,
+        check: vcc_check,
+    },
+    Kernel {
+        name: "vc_classical_step_transient",
+        setup: vcc_setup_transient,
+        run: vcc_step,
+        check: vcc_check,
+    },
+    Kernel {
+        name: "vc_classical_step_sigma",
+        setup: vcc_setup_sigma,
         run: vcc_step,
         check: vcc_check,
     },
     Kernel {
         name: "vc_aided_step",
-        setup: vca_setup,
+        setup: vca_setup_settled,
+        run: vca_step,
+        check: vca_check,
+    },
+    Kernel {
+        name: "vc_aided_step_held",
+        setup: vca_setup_settled_held,
+        run: vca_step,
+        check: vca_check,
+    },
+    Kernel {
+        name: "vc_aided_step_transient",
+        setup: vca_setup_transient,
+        run: vca_step,
+        check: vca_check,
+    },
+    Kernel {
+        name: "vc_aided_step_sigma",
+        setup: vca_setup_sigma,
         run: vca_step,
         check: vca_check,
     },
@@ -332,10 +368,21 @@ ta_kernel!(
 );
 
 // ---------------------------------------------------------------- vertical channel
+//
+// Four cases per loop, all at the nominal 10 ms IMU interval with the χ² gate on:
+// * `…_step`: σ settled (P at the design's steady state, not propagated), a new aid sample
+//   landing and gated (baro; aided: baro and velocity): the dearest step of normal flight,
+//   the one the budget applies to;
+// * `…_step_held`: σ settled, no new sample (the held samples extrapolated): the steps between
+//   aid samples (3 of 4 at the papers' 25 Hz baro);
+// * `…_step_transient`: σ not settled yet, the step only accumulates the covariance interval
+//   (the 4th step after start), a sample landing;
+// * `…_step_sigma`: σ not settled and this step completes a covariance interval (the 10th
+//   step after start): P propagated once, a sample landing — the worst case of a nominal step.
 
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
-    AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState, VelocitySample,
+    AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState, VelocitySample, VerticalSigma,
 };
 
 // The χ² gate is on in the bench (its cost is part of the step): every sample is gated.
@@ -349,6 +396,13 @@ fn vc_init() -> InitialState<f32> {
 
 /// Nominal IMU interval of the bench, µs.
 const VC_DT_US: u64 = (VC_DT_S * 1.0e6) as u64;
+/// Steps of the σ-propagation case before the measured one (covariance interval 0.1 s = 10
+/// IMU intervals: the 10th step propagates).
+const VC_STEPS_BEFORE_SIGMA: u32 = 9;
+/// Steps of the transient case before the measured one.
+const VC_STEPS_BEFORE_TRANSIENT: u32 = 3;
+/// Most steps run to let σ settle (the check fails if it has not).
+const VC_MAX_SETTLE_STEPS: u32 = 1_000_000;
 
 fn vc_imu(k: u32) -> (ImuSample<f32>, BaroSample<f32>, VelocitySample<f32>) {
     let t = Timestamp::from_micros((u64::from(k) + 1) * VC_DT_US);
@@ -371,73 +425,188 @@ fn vc_imu(k: u32) -> (ImuSample<f32>, BaroSample<f32>, VelocitySample<f32>) {
     )
 }
 
+/// What the measured step must have done with σ (checked after it).
+#[derive(Clone, Copy, PartialEq)]
+enum VcCase {
+    /// σ settled before and after the step.
+    Settled,
+    /// σ unchanged by the step and not settled.
+    Accumulated,
+    /// σ changed by the step (propagated) and not settled.
+    Propagated,
+}
+
+/// A vertical loop as the bench drives it.
+trait VcLoop {
+    /// One step `k` with (`samples`) or without new aid samples; `true` when accepted.
+    fn bench_step(&mut self, k: u32, samples: bool) -> bool;
+    fn sigma(&self) -> VerticalSigma<f32>;
+    fn steady_sigma(&self) -> VerticalSigma<f32>;
+    fn altitude_m(&self) -> f32;
+}
+
+impl VcLoop for ClassicalLoop<f32> {
+    #[inline(always)]
+    fn bench_step(&mut self, k: u32, samples: bool) -> bool {
+        let (imu, baro, _) = vc_imu(k);
+        self.step(&imu, samples.then_some(&baro)).is_ok()
+    }
+    fn sigma(&self) -> VerticalSigma<f32> {
+        ClassicalLoop::sigma(self)
+    }
+    fn steady_sigma(&self) -> VerticalSigma<f32> {
+        ClassicalLoop::steady_sigma(self)
+    }
+    fn altitude_m(&self) -> f32 {
+        ClassicalLoop::altitude_m(self)
+    }
+}
+
+impl VcLoop for AidedLoop<f32> {
+    #[inline(always)]
+    fn bench_step(&mut self, k: u32, samples: bool) -> bool {
+        let (imu, baro, vel) = vc_imu(k);
+        self.step(
+            &imu,
+            samples.then_some(&baro),
+            samples.then_some(&vel),
+        )
+        .is_ok()
+    }
+    fn sigma(&self) -> VerticalSigma<f32> {
+        AidedLoop::sigma(self)
+    }
+    fn steady_sigma(&self) -> VerticalSigma<f32> {
+        AidedLoop::steady_sigma(self)
+    }
+    fn altitude_m(&self) -> f32 {
+        AidedLoop::altitude_m(self)
+    }
+}
+
 struct Vc<L> {
     filter: L,
     k: u32,
     ok: bool,
+    /// New aid samples in the measured step.
+    samples: bool,
+    case: VcCase,
+    /// σ before the measured step.
+    sigma_before: VerticalSigma<f32>,
+}
+
+impl<L: VcLoop> Vc<L> {
+    /// The loop after the steps of `case` (with samples), ready for the measured step.
+    fn prepared(filter: L, case: VcCase, samples: bool) -> Self {
+        let sigma_before = filter.sigma();
+        let mut s = Self {
+            filter,
+            k: 0,
+            ok: true,
+            samples,
+            case,
+            sigma_before,
+        };
+        let settled = |f: &L| f.sigma() == f.steady_sigma();
+        let before = match case {
+            VcCase::Settled => VC_MAX_SETTLE_STEPS,
+            VcCase::Accumulated => VC_STEPS_BEFORE_TRANSIENT,
+            VcCase::Propagated => VC_STEPS_BEFORE_SIGMA,
+        };
+        for _ in 0..before {
+            if case == VcCase::Settled && settled(&s.filter) {
+                break;
+            }
+            s.ok &= s.filter.bench_step(s.k, true);
+            s.k += 1;
+        }
+        s.sigma_before = s.filter.sigma();
+        s
+    }
+
+    #[inline(always)]
+    fn step(&mut self) {
+        self.ok &= self.filter.bench_step(self.k, self.samples);
+        self.k += 1;
+    }
+
+    fn check(&self) -> bool {
+        let sigma = self.filter.sigma();
+        let settled = sigma == self.filter.steady_sigma();
+        let case_ok = match self.case {
+            VcCase::Settled => settled && sigma == self.sigma_before,
+            VcCase::Accumulated => !settled && sigma == self.sigma_before,
+            VcCase::Propagated => !settled && sigma != self.sigma_before,
+        };
+        self.ok && case_ok && self.filter.altitude_m().is_finite()
+    }
 }
 
 static VCC: Slot<Vc<ClassicalLoop<f32>>> = Mutex::new(RefCell::new(None));
 static VCA: Slot<Vc<AidedLoop<f32>>> = Mutex::new(RefCell::new(None));
 
-fn vcc_setup() {
+fn vcc_setup(case: VcCase, samples: bool) {
     let cfg = nav_golden::vc_classical_config();
     let state = ClassicalLoop::new(&cfg, &vc_init())
         .ok()
         .and_then(|mut filter| {
             filter.set_gate(vc_gate()).ok()?;
-            Some(Vc {
-                filter,
-                k: 0,
-                ok: true,
-            })
+            Some(Vc::prepared(filter, case, samples))
         });
     store(&VCC, state);
-    for _ in 0..3 {
-        vcc_step();
-    }
+}
+
+fn vcc_setup_settled() {
+    vcc_setup(VcCase::Settled, true);
+}
+fn vcc_setup_settled_held() {
+    vcc_setup(VcCase::Settled, false);
+}
+fn vcc_setup_transient() {
+    vcc_setup(VcCase::Accumulated, true);
+}
+fn vcc_setup_sigma() {
+    vcc_setup(VcCase::Propagated, true);
 }
 
 fn vcc_step() {
-    with_state(&VCC, |s| {
-        let (imu, baro, _) = vc_imu(s.k);
-        s.ok &= s.filter.step(&imu, Some(&baro)).is_ok();
-        s.k += 1;
-    });
+    with_state(&VCC, Vc::step);
 }
 
 fn vcc_check() -> bool {
-    check_state(&VCC, |s| s.ok && s.filter.altitude_m().is_finite())
+    check_state(&VCC, Vc::check)
 }
 
-fn vca_setup() {
+fn vca_setup(case: VcCase, samples: bool) {
     let cfg = nav_golden::vc_aided_config();
     let state = AidedLoop::new(&cfg, &vc_init())
         .ok()
         .and_then(|mut filter| {
             filter.set_gate(vc_gate()).ok()?;
-            Some(Vc {
-                filter,
-                k: 0,
-                ok: true,
-            })
+            Some(Vc::prepared(filter, case, samples))
         });
     store(&VCA, state);
-    for _ in 0..3 {
-        vca_step();
-    }
+}
+
+fn vca_setup_settled() {
+    vca_setup(VcCase::Settled, true);
+}
+fn vca_setup_settled_held() {
+    vca_setup(VcCase::Settled, false);
+}
+fn vca_setup_transient() {
+    vca_setup(VcCase::Accumulated, true);
+}
+fn vca_setup_sigma() {
+    vca_setup(VcCase::Propagated, true);
 }
 
 fn vca_step() {
-    with_state(&VCA, |s| {
-        let (imu, baro, vel) = vc_imu(s.k);
-        s.ok &= s.filter.step(&imu, Some(&baro), Some(&vel)).is_ok();
-        s.k += 1;
-    });
+    with_state(&VCA, Vc::step);
 }
 
 fn vca_check() -> bool {
-    check_state(&VCA, |s| s.ok && s.filter.altitude_m().is_finite())
+    check_state(&VCA, Vc::check)
 }
 
 // ---------------------------------------------------------------- seeker-aided INS
