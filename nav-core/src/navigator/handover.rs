@@ -209,8 +209,10 @@ pub fn hand_over<T: Real>(
     let ab = priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2;
     let gb = priors.gyro_bias_sigma_rad_s * priors.gyro_bias_sigma_rad_s;
     let sb = priors.gimbal_bias_sigma_rad * priors.gimbal_bias_sigma_rad;
-    p0.fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS).fill_diagonal(ab);
-    p0.fixed_view_mut::<3, 3>(GYRO_BIAS, GYRO_BIAS).fill_diagonal(gb);
+    p0.fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS)
+        .fill_diagonal(ab);
+    p0.fixed_view_mut::<3, 3>(GYRO_BIAS, GYRO_BIAS)
+        .fill_diagonal(gb);
     p0.fixed_view_mut::<2, 2>(GIMBAL, GIMBAL).fill_diagonal(sb);
     let p0 = (p0 + p0.transpose()) * T::lit(0.5);
     Ok(SeekerInsInitial {
