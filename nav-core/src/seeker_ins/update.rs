@@ -445,13 +445,13 @@ pub(super) fn stabilise<T: Real, const N: usize>(p: &mut SMatrix<T, N, N>, info_
 }
 
 /// Information ratio `hᵀPh / r` of a fused component (dimensionless), 0 when it was not
-/// fused or the ratio is not finite and ≥ 0 (then the cap of [`stabilise`] applies through
-/// the other component or not at all).
+/// fused. A fused component has `hᵀPh ≥ 0` and `hᵀPh + r` finite ([`gate_scalar`]) and r at
+/// least `hᵀPh / max_information_ratio` ([`conditioned_noise`]), so the ratio is finite and at
+/// most [`max_information_ratio`].
 #[inline(always)]
 pub(super) fn information_ratio<T: Real>(rep: &FusionReport<T>, hph: T, r: T) -> T {
-    let rho = hph / r;
-    if rep.outcome == FusionOutcome::Fused && rho.is_finite() && rho >= T::zero() {
-        rho
+    if rep.outcome == FusionOutcome::Fused {
+        hph / r
     } else {
         T::zero()
     }
