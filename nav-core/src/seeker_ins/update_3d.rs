@@ -5,8 +5,8 @@ use super::error_model::STATES;
 use super::filter::SeekerIns;
 use super::measurement::{los_model_3d, GimbalAngles};
 use super::update::{
-    conditioned_noise, max_information_ratio, skipped_report, stabilise, LosReport, LosSample,
-    LosSkipReason,
+    conditioned_noise, information_ratio, max_information_ratio, skipped_report, stabilise,
+    LosReport, LosSample, LosSkipReason,
 };
 use crate::contract::{FusionOutcome, FusionReport, Gate};
 use crate::math::kalman::fuse_scalar;
@@ -38,6 +38,7 @@ impl<T: Real> SeekerIns<T> {
         let r = model.variance_rad2;
         let kappa = max_information_ratio::<T>();
         let mut conditioned = 0u32;
+        let mut info_ratio = T::zero();
         let mut fuse = |x: &mut SVector<T, STATES>,
                         p: &mut SMatrix<T, STATES, STATES>,
                         h: &SVector<T, STATES>,
@@ -51,6 +52,7 @@ impl<T: Real> SeekerIns<T> {
                     if cond && rep.outcome == FusionOutcome::Fused {
                         conditioned += 1;
                     }
+                    info_ratio = info_ratio.max(information_ratio(&rep, hph, r_eff));
                     rep
                 }
                 Err(_) => skipped_report(nu),
@@ -71,7 +73,7 @@ impl<T: Real> SeekerIns<T> {
             if next.feed_back_parts(&x).is_err() {
                 return Ok(self.skip_attempt(sample, report, LosSkipReason::CorrectionNotFinite));
             }
-            stabilise(&mut next.p);
+            stabilise(&mut next.p, info_ratio);
             next.note_fusion(sample, &outcomes, conditioned);
         } else {
             next.note_no_fusion(sample, &outcomes);

@@ -17,9 +17,9 @@
 //! Every variant flies [`DURATION_S`] s (shortened so that the vehicle stays at least
 //! [`MIN_END_RANGE_M`] from the landmark: a short-range, fast variant ends earlier), at the
 //! scenario's rates and with the Table 3 / Table 4 errors of `seeker-straight.toml`, in f64:
-//! the campaign judges the covariance model. (The f32 build's LOS update conditions its
-//! components and adds stabilising noise, which makes both filters conservative in f32:
-//! README, "Consistency of the seeker-aided INS".) Its runs draw from the streams of a seed drawn from the
+//! the campaign judges the covariance model. (The f32 build is compared with f64 on the
+//! default scenarios by `nav-sim/tests/seeker_f32_consistency.rs` and in the README,
+//! "Consistency of the seeker-aided INS".) Its runs draw from the streams of a seed drawn from the
 //! variant's stream; both filters fly each run from the same stream.
 
 use super::config::{load_config, output_epochs, Config};
