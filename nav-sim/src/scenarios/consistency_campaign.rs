@@ -347,6 +347,18 @@ fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec
     vec![ratio, frac]
 }
 
+/// Two flights of a campaign gave the same variants and the same numbers (the campaigns'
+/// reproducibility tests).
+#[cfg(test)]
+pub(crate) fn assert_same_results(a: &[VariantResult], b: &[VariantResult]) {
+    assert_eq!(a.len(), b.len());
+    for (x, y) in a.iter().zip(b) {
+        assert_eq!(x.params, y.params);
+        assert_eq!(x.consistency.nees_mean, y.consistency.nees_mean);
+        assert_eq!(x.rms, y.rms);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

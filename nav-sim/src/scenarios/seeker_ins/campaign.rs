@@ -236,11 +236,7 @@ mod tests {
         let a = run(&plan).unwrap();
         let b = run(&plan).unwrap();
         assert_eq!(a.len(), 4);
-        for (x, y) in a.iter().zip(&b) {
-            assert_eq!(x.params, y.params);
-            assert_eq!(x.consistency.nees_mean, y.consistency.nees_mean);
-            assert_eq!(x.rms, y.rms);
-        }
+        crate::scenarios::consistency_campaign::assert_same_results(&a, &b);
         let other = run(&CampaignPlan { seed: 18, ..plan }).unwrap();
         assert_ne!(a[0].params, other[0].params);
         for r in &a {

@@ -196,11 +196,7 @@ mod tests {
         let a = run(&plan).unwrap();
         let b = run(&plan).unwrap();
         assert_eq!(a.len(), 4);
-        for (x, y) in a.iter().zip(&b) {
-            assert_eq!(x.params, y.params);
-            assert_eq!(x.rms, y.rms);
-            assert_eq!(x.consistency.nees_mean, y.consistency.nees_mean);
-        }
+        crate::scenarios::consistency_campaign::assert_same_results(&a, &b);
         // Another seed draws other variants.
         let (_, p0) = draw_variant(&load_config("vc-montecarlo").unwrap(), 78, 0);
         assert_ne!(p0, a[0].params);
