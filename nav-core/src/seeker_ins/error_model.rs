@@ -461,24 +461,7 @@ mod tests {
         let f_n = Vector3::new(0.5, 2.0, -9.8);
         let sf = SparseF::new(&pos, &v, &c, &f_n);
         let fb = sf.to_block();
-        let sig = [
-            6e-6, 6e-6, 40.0, 10.0, 10.0, 10.0, 0.017, 0.017, 0.087, 1e-3, 1e-3, 1e-3, 5e-8, 5e-8,
-            5e-8, 7e-4, 7e-4,
-        ];
-        let mut l = SMatrix::<f64, 17, 17>::zeros();
-        for i in 0..17 {
-            for j in 0..=i {
-                l[(i, j)] = ((i * 7 + j * 3) % 11) as f64 * 0.05 + if i == j { 1.0 } else { 0.0 };
-            }
-        }
-        let corr = l * l.transpose();
-        let mut p0 = SMatrix::<f64, 17, 17>::zeros();
-        for i in 0..17 {
-            for j in 0..17 {
-                p0[(i, j)] = corr[(i, j)] / (corr[(i, i)] * corr[(j, j)]).sqrt() * sig[i] * sig[j];
-            }
-        }
-        let p0 = (p0 + p0.transpose()) * 0.5;
+        let p0 = physical_p();
         let (qa, qg) = (2.4e-9, 8.5e-13);
         for dt in [0.01, 0.1, 1.0] {
             let a = transition_block(&fb, dt);
