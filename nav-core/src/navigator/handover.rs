@@ -28,6 +28,7 @@ use crate::math::rotation::{dcm_to_quat, exp_so3, skew};
 use crate::seeker_ins::{
     InsState, Position, SeekerInsInitial, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
 };
+use crate::transfer_alignment::TransferAlignment;
 use crate::Real;
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -67,6 +68,29 @@ pub struct AlignmentAtRelease<T> {
     /// Covariance of θ̂̇_f, (rad/s)².
     pub flexure_rate_covariance: Matrix3<T>,
 }
+
+impl<T: Real> AlignmentAtRelease<T> {
+    /// The estimate of a transfer-alignment filter (any of its configurations): θ̂ and its
+    /// covariance, θ̂_f, θ̂̇_f and the covariance of θ̂̇_f (the filter's θ̇_f block, states 6..9
+    /// of its derivative-major state).
+    pub fn from_filter<const K: usize, const N: usize>(f: &TransferAlignment<T, K, N>) -> Self {
+        let p = f.covariance();
+        Self {
+            theta_rad: f.theta(),
+            theta_covariance_rad2: f.theta_covariance(),
+            flexure_rad: f.theta_f(),
+            flexure_rate_rad_s: f.theta_f_rate(),
+            flexure_rate_covariance: Matrix3::from_fn(|i, j| {
+                p.get((FLEXURE_RATE + i, FLEXURE_RATE + j))
+                    .copied()
+                    .unwrap_or_else(T::zero)
+            }),
+        }
+    }
+}
+
+/// Index of θ̇_f in a transfer-alignment filter's state `[θ, θ_f, θ̇_f, …]`.
+const FLEXURE_RATE: usize = 6;
 
 /// The pylon's lever arm from the master IMU to the slave IMU, master body axes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -453,6 +477,30 @@ mod tests {
         assert!((north - (m.c_m_n * l).x).abs() < 1e-6);
         let p_h = init.covariance[(POS + 2, POS + 2)];
         assert!(p_h > m.position_sigma_m.z.powi(2));
+    }
+
+    /// A transfer-alignment filter's estimate maps into the hand-over: its θ, θ_f, θ̇_f and
+    /// their covariance blocks, and the hand-over from it is a valid P0.
+    #[test]
+    fn alignment_from_a_flight_filter() {
+        use crate::contract::Estimator;
+        use crate::transfer_alignment::{FlightFilter, PaperCase, TaConfig, TaInitial};
+        let c = TaConfig::<f64>::flight(PaperCase::Case1);
+        let init = TaInitial {
+            mount_misalignment_rad: Vector3::new(0.01, -0.02, 0.005),
+        };
+        let f = FlightFilter::<f64>::new(&c, &init).unwrap();
+        let a = AlignmentAtRelease::from_filter(&f);
+        assert_eq!(a.theta_rad, f.theta());
+        assert_eq!(a.theta_covariance_rad2, f.theta_covariance());
+        assert_eq!(a.flexure_rate_rad_s, f.theta_f_rate());
+        let p = f.covariance();
+        for i in 0..3 {
+            assert_eq!(a.flexure_rate_covariance[(i, i)], p[(6 + i, 6 + i)]);
+            assert!(a.flexure_rate_covariance[(i, i)] > 0.0);
+        }
+        let out = hand_over(&master(), &a, &LEVER, &PRIORS).unwrap();
+        assert!(out.covariance.cholesky().is_some());
     }
 
     /// P0 is symmetric and positive definite; refused inputs say which.
