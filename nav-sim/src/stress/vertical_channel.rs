@@ -15,7 +15,8 @@
 //!
 //! Counted per call ([`super::Tally`]): refusals (every input is valid, so any `Err` is one),
 //! every reported number for finiteness (estimate, innovations, variances, ages, gate
-//! variance, NIS), and the aided design's covariance P once per case. Findings beyond the
+//! variance, NIS), the aided design's covariance P once per case, and the loops' σ covariance
+//! of (h, V_z) every [`SIGMA_CHECK_EVERY`] steps. Findings beyond the
 //! three failure counts (in the coverage text): the altitude error at the end of each aided
 //! window (150 s of the cycle, 75 s after the frozen baro) beyond [`CHECKPOINT_BOUND_M`] with
 //! the gate on, and steps spent in `NeedsReinitialisation`.
@@ -31,6 +32,15 @@ use nav_core::vertical_channel::{
 use nav_core::{Estimator, Gate, HealthState, NavError, RecoveryAction, RecoveryPolicy};
 use rand::Rng;
 use rayon::prelude::*;
+
+/// The loops' σ covariance of (h, V_z) is checked (finite, symmetric, PSD) every this many
+/// steps (the check allocates; every step would dominate the campaign's time).
+const SIGMA_CHECK_EVERY: u64 = 64;
+
+fn sigma_check(tally: &mut Tally, at: &str, p: &nalgebra::Matrix2<f32>) {
+    let v = [p[(0, 0)], p[(0, 1)], p[(1, 0)], p[(1, 1)]].map(f64::from);
+    tally.covariance(at, &v, 2, f64::from(f32::EPSILON));
+}
 
 /// Largest accepted altitude error at the end of each aided window with the gate on, m.
 pub const CHECKPOINT_BOUND_M: f64 = 50.0;
@@ -223,7 +233,7 @@ fn run_case(c: &Case) -> (Tally, Extra) {
     let mut gap_done_cycle = u64::MAX;
     let mut values = Vec::with_capacity(16);
     let mut checkpoint_cycle = u64::MAX;
-    for _ in 0..c.steps {
+    for step_index in 0..c.steps {
         // The interval: jitter ±50 %, 2 % missing samples, a logging gap once per cycle.
         let jitter = rng.random_range(0.5..1.5);
         let mut step = ((dt_us as f64) * jitter).round().max(1.0) as u64;
@@ -294,6 +304,9 @@ fn run_case(c: &Case) -> (Tally, Extra) {
                 if let Ok(rep) = &r {
                     aid_values(&rep.baro, &mut values);
                 }
+                if step_index % SIGMA_CHECK_EVERY == 0 {
+                    sigma_check(&mut tally, "classical σ covariance", &l.covariance_h_vz());
+                }
                 (
                     l.altitude_m(),
                     l.vz_up_m_s(),
@@ -307,6 +320,9 @@ fn run_case(c: &Case) -> (Tally, Extra) {
                 if let Ok(rep) = &r {
                     aid_values(&rep.baro, &mut values);
                     aid_values(&rep.velocity, &mut values);
+                }
+                if step_index % SIGMA_CHECK_EVERY == 0 {
+                    sigma_check(&mut tally, "aided σ covariance", &l.covariance_h_vz());
                 }
                 (
                     l.altitude_m(),
