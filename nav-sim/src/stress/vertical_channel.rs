@@ -35,7 +35,7 @@ use rayon::prelude::*;
 
 /// The loops' σ covariance of (h, V_z) is checked (finite, symmetric, PSD) every this many
 /// steps (the check allocates; every step would dominate the campaign's time).
-const SIGMA_CHECK_EVERY: u64 = 64;
+pub const SIGMA_CHECK_EVERY: u64 = 64;
 
 fn sigma_check(tally: &mut Tally, at: &str, p: &nalgebra::Matrix2<f32>) {
     let v = [p[(0, 0)], p[(0, 1)], p[(1, 0)], p[(1, 1)]].map(f64::from);
