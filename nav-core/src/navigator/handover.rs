@@ -23,7 +23,8 @@
 //! 10⁻³ m/s for any pylon).
 
 use crate::earth::radii_m;
-use crate::error::NavError;
+use crate::error::{input_finite, NavError};
+use crate::math::checks::all_finite;
 use crate::math::rotation::{dcm_to_quat, exp_so3, skew};
 use crate::seeker_ins::{
     InsState, Position, SeekerInsInitial, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
@@ -126,7 +127,7 @@ pub fn right_jacobian<T: Real>(theta: &Vector3<T>) -> Matrix3<T> {
 }
 
 fn finite3<T: Real>(v: &Vector3<T>, input: &'static str) -> Result<(), NavError> {
-    if v.iter().all(|x| x.is_finite()) {
+    if all_finite(v.as_slice()) {
         Ok(())
     } else {
         Err(NavError::NonFiniteInput { input })
@@ -144,7 +145,7 @@ fn sigma3<T: Real>(v: &Vector3<T>, input: &'static str) -> Result<(), NavError> 
 
 /// A symmetric covariance with a non-negative diagonal and finite entries.
 fn covariance3<T: Real>(p: &Matrix3<T>, input: &'static str) -> Result<(), NavError> {
-    if !p.iter().all(|x| x.is_finite()) {
+    if !all_finite(p.as_slice()) {
         return Err(NavError::NonFiniteInput { input });
     }
     let tol = T::lit(1e-6) * (p[(0, 0)].abs() + p[(1, 1)].abs() + p[(2, 2)].abs());
@@ -255,7 +256,7 @@ fn validate<T: Real>(
     lever: &LeverArm<T>,
     priors: &HandoverPriors<T>,
 ) -> Result<(), NavError> {
-    if !master.c_m_n.iter().all(|x| x.is_finite()) {
+    if !all_finite(master.c_m_n.as_slice()) {
         return Err(NavError::NonFiniteInput {
             input: "master.c_m_n",
         });
@@ -289,9 +290,7 @@ fn validate<T: Real>(
         (priors.gimbal_bias_sigma_rad, "priors.gimbal_bias_sigma_rad"),
     ];
     for (v, input) in scalars {
-        if !v.is_finite() {
-            return Err(NavError::NonFiniteInput { input });
-        }
+        input_finite(input, v)?;
         if v < T::zero() {
             return Err(NavError::InputOutOfRange { input });
         }
