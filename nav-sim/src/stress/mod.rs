@@ -242,26 +242,31 @@ pub fn psd_defect(p: &[f64], n: usize, eps: f64) -> Option<String> {
             }
         }
     }
+    let min_eig = min_correlation_eigenvalue(p, n);
+    if min_eig < -(n as f64) * tol {
+        return Some(format!("correlation eigenvalue {min_eig:e}"));
+    }
+    None
+}
+
+/// Smallest eigenvalue of the correlation matrix `D^-½ P D^-½` of the row-major `n × n` matrix
+/// `p` (symmetrised; states with a zero variance dropped; 1 when none is left, the identity's).
+pub fn min_correlation_eigenvalue(p: &[f64], n: usize) -> f64 {
     let keep: Vec<usize> = (0..n).filter(|&i| p[i * n + i] > 0.0).collect();
     let m = keep.len();
     if m == 0 {
-        return None;
+        return 1.0;
     }
     let corr = nalgebra::DMatrix::from_fn(m, m, |a, b| {
         let (i, j) = (keep[a], keep[b]);
         let s = 0.5 * (p[i * n + j] + p[j * n + i]);
         s / (p[i * n + i].sqrt() * p[j * n + j].sqrt())
     });
-    let min_eig = corr
-        .symmetric_eigen()
+    corr.symmetric_eigen()
         .eigenvalues
         .iter()
         .copied()
-        .fold(f64::INFINITY, f64::min);
-    if min_eig < -(n as f64) * tol {
-        return Some(format!("correlation eigenvalue {min_eig:e}"));
-    }
-    None
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// The whole report (`target/stress/report.json`).

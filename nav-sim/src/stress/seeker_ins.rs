@@ -728,22 +728,12 @@ fn perturbed<T: Real>(s: &InsState<f64>, rng: &mut SimRng) -> InsState<T> {
 
 /// Smallest eigenvalue of the correlation matrix of P (states with zero variance dropped).
 fn min_correlation_eigenvalue<T: Real>(f: &SeekerIns<T>) -> f64 {
-    let p = f.covariance().map(|v| v.to_f64());
-    let d = p
-        .diagonal()
-        .map(|v| if v > 0.0 { 1.0 / v.sqrt() } else { 0.0 });
-    let c = SMatrix::<f64, 17, 17>::from_fn(|i, j| {
-        if d[i] == 0.0 || d[j] == 0.0 {
-            if i == j {
-                1.0
-            } else {
-                0.0
-            }
-        } else {
-            0.5 * (p[(i, j)] + p[(j, i)]) * d[i] * d[j]
-        }
-    });
-    c.symmetric_eigen().eigenvalues.min()
+    let p = f.covariance();
+    let rows: Vec<f64> = (0..17)
+        .flat_map(|i| (0..17).map(move |j| (i, j)))
+        .map(|(i, j)| p[(i, j)].to_f64())
+        .collect();
+    super::min_correlation_eigenvalue(&rows, 17)
 }
 
 /// P (PSD to the type's precision) and the outputs (finite); returns the smallest eigenvalue
