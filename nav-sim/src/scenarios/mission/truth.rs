@@ -156,8 +156,8 @@ pub fn simulate(
         imu: Vec::with_capacity(end_index + 1),
     };
     let mut theta = Vec::with_capacity(n);
-    // Rigid lever-arm acceleration in master axes at epoch k (for the trapezoid).
-    let mut a_rel = Vec::with_capacity(n);
+    // Rigid lever-arm acceleration in master axes at the previous epoch (for the trapezoid).
+    let mut a_rigid_prev = Vector3::zeros();
     for k in 0..n {
         let th_f = flex.theta[k];
         let th = theta_m + th_f;
@@ -202,7 +202,7 @@ pub fn simulate(
             let d_flex = flex.theta[k] - flex.theta[k - 1];
             let w_mid = (w + aircraft.rate_b_rad_s[k - 1]) * 0.5;
             let d_rate = flex.rate[k] - flex.rate[k - 1];
-            let dv_rel = (a_rigid + a_rel[k - 1]) * (0.5 * dt_s)
+            let dv_rel = (a_rigid + a_rigid_prev) * (0.5 * dt_s)
                 + 2.0 * w_mid.cross(&d_flex.cross(&l0))
                 + d_rate.cross(&l0);
             missile.imu.push(ImuIncrement {
@@ -212,7 +212,7 @@ pub fn simulate(
             });
         }
         theta.push(th);
-        a_rel.push(a_rigid);
+        a_rigid_prev = a_rigid;
     }
     // Free flight from release.
     let c_s_m = aircraft.c_b_n[release_index].transpose() * missile.c_b_n[release_index];
