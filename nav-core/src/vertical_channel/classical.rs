@@ -20,6 +20,7 @@
 //! misprint). C4 is the baro lag compensation: a first-order lag of time constant τ_b reads
 //! `h_baro ≈ h − τ_b V_z`, so C4 = τ_b.
 
+use super::common::{loop_common_methods, loop_estimator_items};
 use super::config::{AidModel, ClassicalConfig};
 use super::core::{CoreParts, LoopCore};
 use super::design::ClassicalDesign;
@@ -105,23 +106,7 @@ impl<T: Real> Estimator for ClassicalLoop<T> {
         })
     }
 
-    /// Restarts the state and clock from `initial` (e.g. when the health is
-    /// `NeedsReinitialisation` and an external altitude is known), keeping the design, the
-    /// gate and the counters; held aid samples are dropped and the health is `Initialising`
-    /// until the next step. On error nothing changes.
-    fn reinitialise(&mut self, initial: &InitialState<T>) -> Result<(), NavError> {
-        self.core.reinitialise(initial)
-    }
-
-    /// Health after the last step and the counters (see the module documentation).
-    fn health(&self) -> Health {
-        self.core.health
-    }
-
-    /// Time of the estimate: of the last accepted IMU sample, or of the initial state.
-    fn time(&self) -> Option<Timestamp> {
-        Some(self.core.time)
-    }
+    loop_estimator_items!();
 }
 
 impl<T: Real> ClassicalLoop<T> {
@@ -139,57 +124,10 @@ impl<T: Real> ClassicalLoop<T> {
         })
     }
 
-    /// Sets the χ² gate (validated as the configuration's `gate`; refused: nothing changes).
-    pub fn set_gate(&mut self, gate: Gate<T>) -> Result<(), NavError> {
-        self.core.set_gate(gate)
-    }
-    /// Sets the starvation recovery (validated as the configuration's `recovery`).
-    pub fn set_recovery(&mut self, recovery: RecoveryPolicy<T>) -> Result<(), NavError> {
-        self.core.set_recovery(recovery)
-    }
-    /// Sets the aid model (validated as the configuration's `aid_model`).
-    pub fn set_aid_model(&mut self, aid_model: AidModel<T>) -> Result<(), NavError> {
-        self.core.set_aid_model(aid_model)
-    }
-    /// Counters of one aid (the velocity aid's are zero: the classical loop has none).
-    pub fn aid_counters(&self, aid: Aid) -> AidCounters {
-        self.core.aid_counters(aid)
-    }
-    /// Re-acquisition counters of one aid.
-    pub fn reacquisition_counters(&self, aid: Aid) -> ReacquisitionCounters {
-        self.core.reacquisition_counters(aid)
-    }
+    loop_common_methods!();
     /// The gains in use.
     pub fn gains(&self) -> &ClassicalGains {
         &self.gains
-    }
-    /// Altitude estimate, m (up).
-    pub fn altitude_m(&self) -> T {
-        self.core.altitude_m()
-    }
-    /// Vertical velocity estimate, m/s (up).
-    pub fn vz_up_m_s(&self) -> T {
-        self.core.x.y
-    }
-    /// Accelerometer bias estimate (measured − true), m/s².
-    pub fn accel_bias_m_s2(&self) -> T {
-        self.core.accel_bias_m_s2()
-    }
-    /// σ of the estimate (altitude m, vertical velocity m/s): the covariance the design
-    /// implies under the configuration's [`super::ErrorModel`], from the initial σ through the
-    /// transient to the steady state, grown open-loop while an aid is not in use and moved by
-    /// re-anchorings (updated every covariance interval; see [`super::COVARIANCE_INTERVAL_S`]).
-    pub fn sigma(&self) -> super::VerticalSigma<T> {
-        self.core.sigma.sigma()
-    }
-    /// Covariance of (altitude m, vertical velocity m/s), m², m²/s, (m/s)² (see
-    /// [`Self::sigma`]).
-    pub fn covariance_h_vz(&self) -> nalgebra::Matrix2<T> {
-        self.core.sigma.covariance_h_vz()
-    }
-    /// The steady-state σ the design implies (what [`Self::sigma`] settles to).
-    pub fn steady_sigma(&self) -> super::VerticalSigma<T> {
-        self.core.sigma.design.steady_sigma()
     }
     /// Discrete transition matrix with the baro in use (for analysis).
     pub fn phi_with_baro(&self) -> Matrix3<T> {

@@ -143,6 +143,7 @@
 mod aided;
 mod bridge;
 mod classical;
+mod common;
 mod config;
 mod core;
 mod design;
