@@ -619,3 +619,177 @@ fn bad_configuration_is_named() {
         })
     ));
 }
+
+// ------------------------------------------------------------------ baro EKF (18th state)
+
+use super::baro::{baro_update, BaroState};
+use crate::contract::FusionOutcome;
+use crate::math::kalman::fuse_scalar;
+use crate::seeker_ins::{
+    propagate_covariance_sparse, SeekerIns, SeekerInsInitial, SparseF, POS, STATES, VEL,
+};
+use nalgebra::SVector;
+
+fn flight_ekf() -> SeekerIns<f64> {
+    let cfg = config::<f64>(BaroDamping::Ekf(baro_model()));
+    let mut p0 = crate::seeker_ins::paper_initial_covariance::<f64>();
+    // Correlations, so that every block of the update is exercised.
+    p0[(POS + 2, VEL + 2)] = 0.3 * (p0[(POS + 2, POS + 2)] * p0[(VEL + 2, VEL + 2)]).sqrt();
+    p0[(VEL + 2, POS + 2)] = p0[(POS + 2, VEL + 2)];
+    let init = SeekerInsInitial {
+        state: InsState {
+            position: START,
+            vel_ned_m_s: Vector3::new(SPEED_M_S, 10.0, -5.0),
+            q_b_n: crate::math::rotation::dcm_to_quat(&crate::math::rotation::euler_to_dcm(
+                0.05, 0.1, 0.3,
+            )),
+        },
+        covariance: p0,
+    };
+    <SeekerIns<f64> as crate::contract::Estimator>::new(&cfg.ins, &init).unwrap()
+}
+
+/// A cross-covariance column and variance that keep the joint matrix positive definite.
+fn joint_column(p: &SMatrix<f64, STATES, STATES>) -> (SVector<f64, STATES>, f64) {
+    // c = 0.5 P a with a along δh and δV_D: corr(δx, δb) from a regression b = 0.5 aᵀδx + w.
+    let mut a = SVector::<f64, STATES>::zeros();
+    a[POS + 2] = 0.02;
+    a[VEL + 2] = 0.5;
+    let c = p * a * 0.5;
+    let s = 0.25 * a.dot(&(p * a)) + 4.0;
+    (c, s)
+}
+
+/// `transition_times` is the generated kernel's Φ: with the noise off, the kernel maps
+/// `v vᵀ` to `(Φ v)(Φ v)ᵀ`.
+#[test]
+fn cross_column_uses_the_kernels_transition() {
+    let ekf = flight_ekf();
+    let s = ekf.state();
+    let f_ned = Vector3::new(1.5, -0.7, -9.6);
+    let f = SparseF::new(&s.position, &s.vel_ned_m_s, &quat_to_dcm(&s.q_b_n), &f_ned);
+    let dt = 0.1;
+    let v = SVector::<f64, STATES>::from_fn(|i, _| 1e-3 * (1.0 + i as f64).sin());
+    let mut p = v * v.transpose();
+    propagate_covariance_sparse(&mut p, &f, dt, 0.0, 0.0).unwrap();
+    let phi_v = crate::seeker_ins::transition_times_for_tests(&f, dt, &v);
+    let reference = phi_v * phi_v.transpose();
+    let err = (p - reference).abs().max() / reference.abs().max();
+    assert!(err < 1e-12, "relative error {err}");
+    assert!(
+        (phi_v - v).norm() > 1e-6 * v.norm(),
+        "Φ must not be the identity here"
+    );
+}
+
+/// The block update equals the dense 18-state Joseph-form update to rounding, and H
+/// matches finite differences of the predicted reading.
+#[test]
+fn baro_update_matches_dense_18_state_reference_and_finite_differences() {
+    let ekf = flight_ekf();
+    let p = *ekf.covariance();
+    let (cross, s) = joint_column(&p);
+    let st = BaroState {
+        cross,
+        variance_m2: s,
+        bias_m: 1.5,
+    };
+    let tau = 0.3;
+    let h = BaroState::h_row(tau);
+    let z = 3004.0;
+    let y = st.predicted_m(&ekf, tau) - z;
+    let r = 1.0;
+    let u = baro_update(&p, &st, &h, y, r, Gate::Off).unwrap();
+    assert_eq!(u.report.outcome, FusionOutcome::Fused);
+    // Dense reference.
+    let mut pa = SMatrix::<f64, 18, 18>::zeros();
+    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
+    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&cross);
+    pa.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&cross.transpose());
+    pa[(17, 17)] = s;
+    assert!(pa.cholesky().is_some());
+    let mut ha = SVector::<f64, 18>::zeros();
+    ha.fixed_rows_mut::<17>(0).copy_from(&h);
+    ha[17] = 1.0;
+    let mut xa = SVector::<f64, 18>::zeros();
+    let rep = fuse_scalar(&mut xa, &mut pa, &ha, y, r, Gate::Off).unwrap();
+    assert!((rep.innovation_variance - u.report.innovation_variance).abs() < 1e-9);
+    let scale = pa.abs().max();
+    let mut got = SMatrix::<f64, 18, 18>::zeros();
+    got.fixed_view_mut::<17, 17>(0, 0).copy_from(&u.p);
+    got.fixed_view_mut::<17, 1>(0, 17).copy_from(&u.cross);
+    got.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&u.cross.transpose());
+    got[(17, 17)] = u.variance_m2;
+    let e_p = (got - pa).abs().max() / scale;
+    assert!(e_p < 1e-12, "P relative error {e_p}");
+    let e_x = (u.dx - xa.fixed_rows::<17>(0)).norm() + (u.db_m - xa[17]).abs();
+    assert!(e_x < 1e-9 * xa.norm().max(1e-12), "x error {e_x}");
+    assert!(got.cholesky().is_some(), "joint P after the update is PD");
+    // H against finite differences of ẑ = ĥ + τ V̂_D + b̂ (error state: estimate − truth).
+    let eps = 1e-3;
+    let shifted = |dh: f64, dvd: f64| {
+        let mut init = SeekerInsInitial {
+            state: *ekf.state(),
+            covariance: p,
+        };
+        init.state.position.alt_m += dh;
+        init.state.vel_ned_m_s.z += dvd;
+        let e = <SeekerIns<f64> as crate::contract::Estimator>::new(ekf.config(), &init).unwrap();
+        st.predicted_m(&e, tau)
+    };
+    let z0 = st.predicted_m(&ekf, tau);
+    assert!(((shifted(eps, 0.0) - z0) / eps - h[POS + 2]).abs() < 1e-6);
+    assert!(((shifted(0.0, eps) - z0) / eps - h[VEL + 2]).abs() < 1e-6);
+    let mut st_b = st;
+    st_b.bias_m += eps;
+    assert!(((st_b.predicted_m(&ekf, tau) - z0) / eps - 1.0).abs() < 1e-9);
+}
+
+/// Prediction of the joint matrix: the column follows `e Φ c` and s the Markov law; the
+/// joint matrix stays positive definite through the navigator's deferred covariance steps.
+#[test]
+fn baro_column_prediction_keeps_the_joint_covariance_pd() {
+    let mut ekf = flight_ekf();
+    let model = baro_model::<f64>();
+    let p = *ekf.covariance();
+    let (mut cross, s) = joint_column(&p);
+    let mut st = BaroState {
+        cross,
+        variance_m2: s,
+        bias_m: 2.0,
+    };
+    let mut t = Timestamp::from_micros(DT_US);
+    for k in 0..25u64 {
+        let inc = ImuIncrement {
+            time: t,
+            delta_theta_rad: Vector3::new(1e-4, -2e-4, 3e-4),
+            delta_v_m_s: Vector3::new(0.02, 0.01, -0.098),
+        };
+        ekf.propagate_deferred(&inc, None).unwrap();
+        if k % 10 == 9 {
+            let c_before = st.cross;
+            let dt = ekf
+                .predict_covariance_cross(&mut st.cross)
+                .unwrap()
+                .unwrap();
+            assert!((dt - 0.1).abs() < 1e-12);
+            assert!((st.cross - c_before).norm() > 0.0);
+            st.decay(&model, dt);
+        }
+        t = t.add_micros(DT_US);
+    }
+    cross = st.cross;
+    let p = *ekf.covariance();
+    let mut pa = SMatrix::<f64, 18, 18>::zeros();
+    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
+    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&cross);
+    pa.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&cross.transpose());
+    pa[(17, 17)] = st.variance_m2;
+    assert!(pa.cholesky().is_some());
+    let e = (-0.2_f64 / 100.0).exp();
+    assert!((st.bias_m - 2.0 * e).abs() < 1e-12);
+    assert!(ekf.steps_pending() == 5);
+}
