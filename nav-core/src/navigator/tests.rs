@@ -274,6 +274,11 @@ struct Run {
     terminal_pos_err_m: f64,
     baro_fused: u32,
     seeker_fused: u32,
+    /// Largest |cross-covariance| of δD or δV_D with the other navigation states, and the
+    /// vertical variances, at the last midcourse tick.
+    midcourse_vertical_cross: f64,
+    midcourse_vertical_var: [f64; 2],
+    midcourse_alt_err_m: f64,
 }
 
 fn gimbal_truth(truth: &InsState<f64>) -> crate::seeker_ins::GimbalAngles<f64> {
@@ -297,6 +302,9 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
         terminal_pos_err_m: f64::NAN,
         baro_fused: 0,
         seeker_fused: 0,
+        midcourse_vertical_cross: f64::NAN,
+        midcourse_vertical_var: [f64::NAN; 2],
+        midcourse_alt_err_m: f64::NAN,
     };
     let mut last_phase = Phase::Carry;
     let steps = (end_s / DT).round() as u64;
@@ -309,7 +317,7 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
             None
         };
         let truth = world.missile_truth(&lever);
-        let baro = (t > SEPARATION_S + COAST_S && world.k % 10 == 0).then(|| BaroSample {
+        let baro = (t > SEPARATION_S + COAST_S && world.k % 4 == 0).then(|| BaroSample {
             time: inc.time,
             altitude_m: T::lit(truth.position.alt_m),
         });
@@ -346,6 +354,20 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
                 });
             }
             last_phase = report.phase;
+        }
+        if report.phase == Phase::Midcourse {
+            let p = &report.solution.nav_covariance;
+            let mut m = 0.0_f64;
+            for j in 0..9 {
+                if j != 2 && j != 5 {
+                    m = m
+                        .max(p[(2, j)].to_f64().abs())
+                        .max(p[(5, j)].to_f64().abs());
+                }
+            }
+            run.midcourse_vertical_cross = m;
+            run.midcourse_vertical_var = [p[(2, 2)].to_f64(), p[(5, 5)].to_f64()];
+            run.midcourse_alt_err_m = report.solution.state.position.alt_m - truth.position.alt_m;
         }
         run.final_health = report.health;
         run.baro_fused = report.baro.counters.fused;
@@ -792,4 +814,41 @@ fn baro_column_prediction_keeps_the_joint_covariance_pd() {
     let e = (-0.2_f64 / 100.0).exp();
     assert!((st.bias_m - 2.0 * e).abs() < 1e-12);
     assert!(ekf.steps_pending() == 5);
+}
+
+fn chain_with_inertial_loop<T: Real>() {
+    let mut vc = crate::vertical_channel::ClassicalConfig::<T>::paper();
+    vc.baro_lag_s = T::zero();
+    vc.latitude_rad = T::lit(START.lat_rad);
+    let run = run_chain::<T>(BaroDamping::InertialLoop(vc), 27.0);
+    let seq: Vec<Phase> = run.phases.iter().map(|p| p.1).collect();
+    assert_eq!(seq, [Phase::Released, Phase::Midcourse, Phase::Terminal]);
+    assert!(run.baro_fused > 0);
+    // The EKF's vertical block is the loop's σ covariance, decoupled from the rest.
+    assert_eq!(run.midcourse_vertical_cross, 0.0);
+    assert!(run.midcourse_vertical_var[0] > 0.0 && run.midcourse_vertical_var[1] > 0.0);
+    // The loop's σ covers the altitude error (truth and baro agree here).
+    assert!(
+        run.midcourse_alt_err_m.abs() <= 3.0 * run.midcourse_vertical_var[0].sqrt(),
+        "{} vs σ {}",
+        run.midcourse_alt_err_m,
+        run.midcourse_vertical_var[0].sqrt()
+    );
+    std::println!(
+        "{}: inertial loop: midcourse altitude error {:.3} m, σ_h {:.3} m, σ_VD {:.4} m/s",
+        core::any::type_name::<T>(),
+        run.midcourse_alt_err_m,
+        run.midcourse_vertical_var[0].sqrt(),
+        run.midcourse_vertical_var[1].sqrt()
+    );
+}
+
+#[test]
+fn chain_with_inertial_loop_f64() {
+    chain_with_inertial_loop::<f64>();
+}
+
+#[test]
+fn chain_with_inertial_loop_f32() {
+    chain_with_inertial_loop::<f32>();
 }
