@@ -34,6 +34,8 @@ const SEPARATION_S: f64 = 20.0;
 const DROP_S: f64 = 0.5;
 const COAST_S: f64 = 2.0;
 const SEEKER_FROM_S: f64 = 25.0;
+/// The seeker loses lock here (terminal continues on the baro).
+const SEEKER_UNTIL_S: f64 = 26.5;
 
 fn landmark_position() -> Position {
     // 30 km north of the start, on the ground.
@@ -265,6 +267,19 @@ fn attitude_error<T: Real>(est: &InsState<T>, truth: &InsState<f64>) -> Vector3<
     -log_so3(&(c_hat * c.transpose()))
 }
 
+/// Error (estimate − truth) in the solution's convention: δr NED m, δv m/s, φ rad.
+fn nav_error<T: Real>(est: &InsState<T>, truth: &InsState<f64>) -> [f64; 9] {
+    let (rm, rn) = crate::earth::radii_m(truth.position.lat_rad);
+    let h = truth.position.alt_m;
+    let dn = (est.position.lat_rad - truth.position.lat_rad) * (rm + h);
+    let de =
+        (est.position.lon_rad - truth.position.lon_rad) * (rn + h) * truth.position.lat_rad.cos();
+    let dd = -(est.position.alt_m - h);
+    let dv = est.vel_ned_m_s.map(|x| x.to_f64()) - truth.vel_ned_m_s;
+    let phi = attitude_error(est, truth);
+    [dn, de, dd, dv.x, dv.y, dv.z, phi.x, phi.y, phi.z]
+}
+
 struct Run {
     phases: Vec<(f64, Phase)>,
     transitions: Vec<Transition>,
@@ -279,6 +294,12 @@ struct Run {
     midcourse_vertical_cross: f64,
     midcourse_vertical_var: [f64; 2],
     midcourse_alt_err_m: f64,
+    final_seeker: AidState,
+    final_degradation: Degradation,
+    baro_fused_at_seeker_loss: u32,
+    /// Largest per-axis |error| / σ in carry (position, velocity, attitude; sampled each
+    /// second after the first 2 s).
+    carry_worst_normalized: f64,
 }
 
 fn gimbal_truth(truth: &InsState<f64>) -> crate::seeker_ins::GimbalAngles<f64> {
@@ -305,6 +326,10 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
         midcourse_vertical_cross: f64::NAN,
         midcourse_vertical_var: [f64::NAN; 2],
         midcourse_alt_err_m: f64::NAN,
+        final_seeker: AidState::NotUsedInPhase,
+        final_degradation: Degradation::default(),
+        baro_fused_at_seeker_loss: 0,
+        carry_worst_normalized: 0.0,
     };
     let mut last_phase = Phase::Carry;
     let steps = (end_s / DT).round() as u64;
@@ -321,16 +346,19 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
             time: inc.time,
             altitude_m: T::lit(truth.position.alt_m),
         });
-        let seeker = (t >= SEEKER_FROM_S && world.k % 10 == 0).then(|| LosSample {
-            time: inc.time,
-            gimbal: {
-                let g = gimbal_truth(&truth);
-                crate::seeker_ins::GimbalAngles {
-                    pitch_rad: T::lit(g.pitch_rad),
-                    yaw_rad: T::lit(g.yaw_rad),
+        let seeker =
+            ((SEEKER_FROM_S..SEEKER_UNTIL_S).contains(&t) && world.k % 10 == 0).then(|| {
+                LosSample {
+                    time: inc.time,
+                    gimbal: {
+                        let g = gimbal_truth(&truth);
+                        crate::seeker_ins::GimbalAngles {
+                            pitch_rad: T::lit(g.pitch_rad),
+                            yaw_rad: T::lit(g.yaw_rad),
+                        }
+                    },
                 }
-            },
-        });
+            });
         let separation = ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(inc.time);
         let aids = Aids {
             master: master.as_ref(),
@@ -369,6 +397,18 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
             run.midcourse_vertical_var = [p[(2, 2)].to_f64(), p[(5, 5)].to_f64()];
             run.midcourse_alt_err_m = report.solution.state.position.alt_m - truth.position.alt_m;
         }
+        if report.phase == Phase::Carry && t > 2.0 && world.k % 100 == 0 {
+            let e = nav_error(&report.solution.state, &truth);
+            for i in 0..9 {
+                let sigma = report.solution.nav_covariance[(i, i)].to_f64().sqrt();
+                run.carry_worst_normalized = run.carry_worst_normalized.max(e[i].abs() / sigma);
+            }
+        }
+        if (t - SEEKER_UNTIL_S).abs() < 0.5 * DT {
+            run.baro_fused_at_seeker_loss = report.baro.counters.fused;
+        }
+        run.final_seeker = report.seeker.state;
+        run.final_degradation = report.degradation;
         run.final_health = report.health;
         run.baro_fused = report.baro.counters.fused;
         run.seeker_fused = report.seeker.counters.fused;
@@ -381,7 +421,7 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
 }
 
 fn chain_phases_and_handover<T: Real>() {
-    let run = run_chain::<T>(BaroDamping::Ekf(baro_model()), 27.0);
+    let run = run_chain::<T>(BaroDamping::Ekf(baro_model()), 29.0);
     let seq: Vec<Phase> = run.phases.iter().map(|p| p.1).collect();
     assert_eq!(
         seq,
@@ -418,6 +458,23 @@ fn chain_phases_and_handover<T: Real>() {
     assert!(run.baro_fused > 0);
     assert!(run.seeker_fused > 0);
     assert!(run.terminal_pos_err_m.is_finite());
+    // The seeker lost in terminal: TimedOut after seeker_s, the phase stays, the baro damps on.
+    assert_eq!(run.final_seeker, AidState::TimedOut);
+    assert_eq!(run.final_degradation.seeker, AidAvailability::TimedOut);
+    assert_eq!(run.phases.last().map(|p| p.1), Some(Phase::Terminal));
+    assert!(run.baro_fused > run.baro_fused_at_seeker_loss);
+    assert_eq!(run.final_health, HealthState::Degraded);
+    // Carry: the solution's error within 3σ of the hand-over covariance on every axis.
+    assert!(
+        run.carry_worst_normalized < 3.0,
+        "{}",
+        run.carry_worst_normalized
+    );
+    std::println!(
+        "{}: carry worst |error|/σ {:.2}",
+        core::any::type_name::<T>(),
+        run.carry_worst_normalized
+    );
     std::println!(
         "{}: hand-over φ {:?} rad, σ {:?} rad; terminal position error {:.2} m; health {:?}",
         core::any::type_name::<T>(),
@@ -851,4 +908,146 @@ fn chain_with_inertial_loop_f64() {
 #[test]
 fn chain_with_inertial_loop_f32() {
     chain_with_inertial_loop::<f32>();
+}
+
+fn flight_aids_refused<T: Real>() {
+    let cfg = config::<T>(BaroDamping::Ekf(baro_model()));
+    let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
+    let mut world = World::new();
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    let truth = world.missile_truth(&lever);
+    let mut p0 = crate::seeker_ins::paper_initial_covariance::<T>();
+    p0 *= T::lit(0.01);
+    nav.release_with(&crate::seeker_ins::SeekerInsInitial {
+        state: InsState {
+            position: truth.position,
+            vel_ned_m_s: truth.vel_ned_m_s.map(|x| T::lit(x)),
+            q_b_n: Quaternion::from(truth.q_b_n.coords.map(|x| T::lit(x))),
+        },
+        covariance: p0,
+    })
+    .unwrap();
+    // A second release is refused.
+    assert!(nav
+        .release_with(&crate::seeker_ins::SeekerInsInitial {
+            state: InsState {
+                position: truth.position,
+                vel_ned_m_s: Vector3::zeros(),
+                q_b_n: Quaternion::identity(),
+            },
+            covariance: p0,
+        })
+        .is_err());
+    // Coast to midcourse.
+    for _ in 0..((COAST_S / DT) as u64 + 2) {
+        let inc = world.step(&lever);
+        nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+    }
+    assert_eq!(nav.phase(), Phase::Midcourse);
+    // Good baro samples for a while.
+    for _ in 0..20 {
+        let inc = world.step(&lever);
+        let truth = world.missile_truth(&lever);
+        let b = BaroSample {
+            time: inc.time,
+            altitude_m: T::lit(truth.position.alt_m + 0.5),
+        };
+        let r = nav
+            .tick(
+                &tick_of(&inc),
+                &Aids {
+                    baro: Some(&b),
+                    ..Aids::NONE
+                },
+            )
+            .unwrap();
+        assert_eq!(r.baro.state, AidState::Fused);
+    }
+    // Bad baro and bad LOS: refused; the solution is the one without them.
+    let inc = world.step(&lever);
+    let bad_baro = BaroSample {
+        time: inc.time,
+        altitude_m: T::lit(f64::NAN),
+    };
+    let future_baro = BaroSample {
+        time: inc.time.add_micros(1),
+        altitude_m: T::lit(3000.0),
+    };
+    let bad_los = LosSample {
+        time: inc.time,
+        gimbal: crate::seeker_ins::GimbalAngles {
+            pitch_rad: T::lit(f64::NAN),
+            yaw_rad: T::zero(),
+        },
+    };
+    for (baro, seeker) in [
+        (Some(&bad_baro), None),
+        (Some(&future_baro), None),
+        (None, Some(&bad_los)),
+    ] {
+        let mut a = nav.clone();
+        let mut b = nav.clone();
+        let ra = a
+            .tick(
+                &tick_of(&inc),
+                &Aids {
+                    baro,
+                    seeker,
+                    ..Aids::NONE
+                },
+            )
+            .unwrap();
+        let rb = b.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        let refused = |s: AidState| matches!(s, AidState::Refused(_));
+        assert!(refused(ra.baro.state) || refused(ra.seeker.state));
+        assert_eq!(ra.solution, rb.solution);
+        assert_eq!(a.baro_state(), b.baro_state());
+        assert_eq!(a.phase(), Phase::Midcourse);
+    }
+    // The next valid tick works.
+    assert!(nav.tick(&tick_of(&inc), &Aids::NONE).is_ok());
+}
+
+#[test]
+fn flight_aids_refused_change_nothing_f64() {
+    flight_aids_refused::<f64>();
+}
+
+#[test]
+fn flight_aids_refused_change_nothing_f32() {
+    flight_aids_refused::<f32>();
+}
+
+fn unsignalled<T: Real>() {
+    // Master for 3 s, then lost; the missile drops without a signal at 4 s.
+    let (mut nav, mut world) = carry_for::<T>(3.0, 3.0);
+    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
+    let mut seen = None;
+    for _ in 0..100 {
+        let mut inc = world.step(&lever);
+        if inc.time.as_secs_f64() > 3.9 {
+            inc.delta_v_m_s = Vector3::zeros();
+        }
+        let r = nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        if let Some(t) = r.transition {
+            seen = Some((t, r.degradation, r.health));
+            break;
+        }
+    }
+    let (t, d, h) = seen.unwrap();
+    assert_eq!(t.cause, TransitionCause::UnsignalledSeparation);
+    assert_eq!(t.to, Phase::Released);
+    assert_eq!(d.separation, SeparationStatus::UnsignalledRelease);
+    assert!((t.time.as_secs_f64() - 3.91).abs() < 1e-6);
+    assert_ne!(h, HealthState::Nominal);
+}
+
+#[test]
+fn unsignalled_release_f64() {
+    unsignalled::<f64>();
+}
+
+#[test]
+fn unsignalled_release_f32() {
+    unsignalled::<f32>();
 }
