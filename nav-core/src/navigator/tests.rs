@@ -399,9 +399,9 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
         }
         if report.phase == Phase::Carry && t > 2.0 && world.k % 100 == 0 {
             let e = nav_error(&report.solution.state, &truth);
-            for i in 0..9 {
+            for (i, ei) in e.iter().enumerate() {
                 let sigma = report.solution.nav_covariance[(i, i)].to_f64().sqrt();
-                run.carry_worst_normalized = run.carry_worst_normalized.max(e[i].abs() / sigma);
+                run.carry_worst_normalized = run.carry_worst_normalized.max(ei.abs() / sigma);
             }
         }
         if (t - SEEKER_UNTIL_S).abs() < 0.5 * DT {
