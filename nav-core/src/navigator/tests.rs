@@ -1051,3 +1051,38 @@ fn unsignalled_release_f64() {
 fn unsignalled_release_f32() {
     unsignalled::<f32>();
 }
+
+/// f32: a baro sample far more precise than the prior (σ_h 10 km, R 0.01 m²) keeps the joint
+/// covariance PSD (conditioned R, stabilising noise). Without them the smallest correlation
+/// eigenvalue of the result is −0.28 (measured).
+#[test]
+fn baro_update_keeps_the_joint_covariance_psd_in_f32() {
+    let ekf = flight_ekf();
+    let mut p: SMatrix<f32, STATES, STATES> = ekf.covariance().map(|x| x as f32);
+    p[(POS + 2, POS + 2)] = 1.0e8;
+    let (c, s) = joint_column(&p.map(f64::from));
+    let st = BaroState::<f32> {
+        cross: c.map(|x| x as f32),
+        variance_m2: s as f32,
+        bias_m: 0.0,
+    };
+    let h = BaroState::h_row(0.2_f32);
+    let u = baro_update(&p, &st, &h, 700.0, 0.01, Gate::Off).unwrap();
+    assert_eq!(u.report.outcome, FusionOutcome::Fused);
+    let mut pa = SMatrix::<f32, 18, 18>::zeros();
+    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&u.p);
+    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&u.cross);
+    pa.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&u.cross.transpose());
+    pa[(17, 17)] = u.variance_m2;
+    assert!(crate::math::kalman::asymmetry(&pa) == 0.0);
+    // Smallest eigenvalue of the correlation matrix (in f64, of the f32 result).
+    let pd = pa.map(f64::from);
+    let d = pd.diagonal().map(|v| 1.0 / v.max(1e-300).sqrt());
+    let corr = SMatrix::<f64, 18, 18>::from_fn(|i, j| pd[(i, j)] * d[i] * d[j]);
+    let min_eig = corr.symmetric_eigenvalues().min();
+    std::println!("f32 baro update: smallest correlation eigenvalue {min_eig:e}");
+    assert!(min_eig > 0.0, "{min_eig}");
+    // The raised R: the innovation variance is at least hPhᵀ (1 + 1/κ).
+    assert!(u.report.innovation_variance > 1.0e8);
+}
