@@ -21,11 +21,13 @@
 //!   [`max_information_ratio`], 8 389 in f32), and every variance gets the stabilising noise
 //!   `min(ρ, STABILISING_EPS) ε` (ρ = hPhᵀ/R). A result with a negative variance or a
 //!   non-finite entry is not applied (`Skipped`).
-//! * What the 17-state EKF does to P without telling the column (a variance held at its
-//!   ceiling, a long IMU gap, a LOS update) is followed by `c ← 0`: the joint covariance
-//!   stays PSD (block diagonal of two PSD blocks) and the correlation between the baro error
-//!   and the INS errors is forgotten. After LOS updates in terminal this is an approximation
-//!   (the exact `c ← (I − K H) c` needs the LOS gain, which the EKF does not expose).
+//! * LOS updates (terminal): the column follows the 18-state sequential update with
+//!   `h_aug = [h, 0]` (`SeekerIns::update_los_cross`): per fused component `g = h c`,
+//!   `c ← c − K g`, `s ← s − g²/S`, `b̂ ← b̂ − g ν/S`.
+//! * What the 17-state EKF does to P other than `Φ P Φᵀ + Q` and the updates above (a variance
+//!   held at its ceiling, a long IMU gap, a recovery inflation) is followed by `c ← 0`: the
+//!   joint covariance stays PSD (block diagonal of two PSD blocks) and the correlation between
+//!   the baro error and the INS errors is forgotten.
 
 use crate::contract::{FusionOutcome, FusionReport, Gate};
 use crate::math::kalman::gate_scalar;

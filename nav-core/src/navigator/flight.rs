@@ -13,7 +13,7 @@ use crate::math::rotation::{
     exp_so3, log_so3, quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm,
 };
 use crate::seeker_ins::{
-    Ins, InsState, LosSample, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES,
+    CrossColumn, Ins, InsState, LosSample, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES,
 };
 use crate::time::Timestamp;
 use crate::transfer_alignment::{
@@ -913,16 +913,25 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 bs.decay(&model, dt);
             }
         }
-        let report = ekf.update_los(s)?;
+        let report = if self.baro_model().is_some() {
+            // The baro column follows the LOS update (module `baro`).
+            let mut col = CrossColumn {
+                cross: bs.cross,
+                variance: bs.variance_m2,
+                correction: T::zero(),
+            };
+            let r = ekf.update_los_cross(s, &mut col)?;
+            bs.cross = col.cross;
+            bs.variance_m2 = col.variance;
+            bs.bias_m -= col.correction;
+            r
+        } else {
+            ekf.update_los(s)?
+        };
         let fused = [report.pitch.outcome, report.yaw.outcome]
             .iter()
             .filter(|o| **o == FusionOutcome::Fused)
             .count();
-        if fused > 0 {
-            // The LOS gain is not exposed: forget the baro column's correlation (module
-            // `baro`).
-            bs.cross = nalgebra::SVector::zeros();
-        }
         self.ekf = Some(ekf);
         self.baro_state = bs;
         for r in [report.pitch, report.yaw] {

@@ -1086,3 +1086,88 @@ fn baro_update_keeps_the_joint_covariance_psd_in_f32() {
     // The raised R: the innovation variance is at least hPhᵀ (1 + 1/κ).
     assert!(u.report.innovation_variance > 1.0e8);
 }
+
+/// The baro column through a LOS update equals the dense 18-state sequential update (b not in
+/// the LOS rows) to rounding.
+#[test]
+fn baro_column_through_los_update_matches_dense_18_state_reference() {
+    use crate::seeker_ins::{los_model_at, CrossColumn, GimbalAngles};
+    let mut ekf = flight_ekf();
+    let mut t = Timestamp::ZERO;
+    for _ in 0..10 {
+        t = t.add_micros(DT_US);
+        ekf.propagate(&ImuIncrement {
+            time: t,
+            delta_theta_rad: Vector3::new(1e-5, 2e-5, -1e-5),
+            delta_v_m_s: Vector3::new(0.0, 0.0, -0.098),
+        })
+        .unwrap();
+    }
+    let p = *ekf.covariance();
+    let (cross, s) = joint_column(&p);
+    // A LOS sample slightly off the INS's own.
+    let st = *ekf.state();
+    let d = landmark_vector_ned(&st.position, &ekf.config().landmark);
+    let c_b_n = quat_to_dcm(&st.q_b_n);
+    let g0 = gimbal_angles_of(&(c_b_n.transpose() * d));
+    let gimbal = GimbalAngles {
+        pitch_rad: g0.pitch_rad + 2e-3,
+        yaw_rad: g0.yaw_rad - 1.5e-3,
+    };
+    let model = los_model_at(
+        &st.position,
+        &d,
+        &c_b_n,
+        &gimbal,
+        ekf.config().seeker_noise_rad,
+    )
+    .unwrap();
+    let mut col = CrossColumn {
+        cross,
+        variance: s,
+        correction: 0.0,
+    };
+    let rep = ekf
+        .update_los_cross(&LosSample { time: t, gimbal }, &mut col)
+        .unwrap();
+    assert_eq!(rep.pitch.outcome, FusionOutcome::Fused);
+    assert_eq!(rep.yaw.outcome, FusionOutcome::Fused);
+    // Dense reference.
+    let mut pa = SMatrix::<f64, 18, 18>::zeros();
+    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
+    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&cross);
+    pa.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&cross.transpose());
+    pa[(17, 17)] = s;
+    let mut xa = SVector::<f64, 18>::zeros();
+    let mut h1 = SVector::<f64, 18>::zeros();
+    h1.fixed_rows_mut::<17>(0).copy_from(&model.h_pitch);
+    let mut h2 = SVector::<f64, 18>::zeros();
+    h2.fixed_rows_mut::<17>(0).copy_from(&model.h_yaw);
+    fuse_scalar(
+        &mut xa,
+        &mut pa,
+        &h1,
+        model.residual_rad.x,
+        model.variance_rad2.x,
+        Gate::Off,
+    )
+    .unwrap();
+    let nu2 = model.residual_rad.y - h2.dot(&xa);
+    fuse_scalar(&mut xa, &mut pa, &h2, nu2, model.variance_rad2.y, Gate::Off).unwrap();
+    let ref_cross = pa.fixed_view::<17, 1>(0, 17).into_owned();
+    let e_c = (col.cross - ref_cross).abs().max() / ref_cross.abs().max();
+    let e_s = (col.variance - pa[(17, 17)]).abs() / pa[(17, 17)];
+    let e_b = (col.correction - xa[17]).abs() / xa[17].abs();
+    assert!(e_c < 1e-9 && e_s < 1e-12 && e_b < 1e-9, "{e_c} {e_s} {e_b}");
+    assert!(
+        (col.cross - cross).norm() > 1e-6 * cross.norm(),
+        "the update moved c"
+    );
+    // The 17-state P is the EKF's (simple form plus its stabilising noise).
+    let e_p = (ekf.covariance() - pa.fixed_view::<17, 17>(0, 0))
+        .abs()
+        .max()
+        / p.abs().max();
+    assert!(e_p < 1e-9, "{e_p}");
+}

@@ -193,4 +193,5 @@ pub use paper::{
     paper_initial_covariance, PAPER_COVARIANCE_INTERVAL_STEPS, PAPER_IMU_DT_S, PAPER_IMU_DT_US,
 };
 pub use propagation::{ClipFlags, PROPAGATION_STABILISING_EPS};
+pub(crate) use update::CrossColumn;
 pub use update::{max_information_ratio, LosReport, LosSample, LosSkipReason, STABILISING_EPS};
