@@ -300,6 +300,9 @@ struct Run {
     /// Largest per-axis |error| / σ in carry (position, velocity, attitude; sampled each
     /// second after the first 2 s).
     carry_worst_normalized: f64,
+    /// Smallest eigenvalue of the joint (17 + baro) correlation matrix, sampled each second in
+    /// midcourse and terminal (baro EKF only).
+    joint_min_correlation_eigenvalue: f64,
 }
 
 fn gimbal_truth(truth: &InsState<f64>) -> crate::seeker_ins::GimbalAngles<f64> {
@@ -330,6 +333,7 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
         final_degradation: Degradation::default(),
         baro_fused_at_seeker_loss: 0,
         carry_worst_normalized: 0.0,
+        joint_min_correlation_eigenvalue: f64::INFINITY,
     };
     let mut last_phase = Phase::Carry;
     let steps = (end_s / DT).round() as u64;
@@ -404,6 +408,24 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
                 run.carry_worst_normalized = run.carry_worst_normalized.max(ei.abs() / sigma);
             }
         }
+        if matches!(report.phase, Phase::Midcourse | Phase::Terminal)
+            && matches!(cfg.baro, BaroDamping::Ekf(_))
+            && world.k % 100 == 0
+        {
+            let p = nav.ekf().unwrap().covariance().map(|x| x.to_f64());
+            let b = nav.baro_state();
+            let mut pa = SMatrix::<f64, 18, 18>::zeros();
+            pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
+            let c = b.cross.map(|x| x.to_f64());
+            pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&c);
+            pa.fixed_view_mut::<1, 17>(17, 0).copy_from(&c.transpose());
+            pa[(17, 17)] = b.variance_m2.to_f64();
+            let d = pa.diagonal().map(|v| 1.0 / v.max(1e-300).sqrt());
+            let corr = SMatrix::<f64, 18, 18>::from_fn(|i, j| pa[(i, j)] * d[i] * d[j]);
+            run.joint_min_correlation_eigenvalue = run
+                .joint_min_correlation_eigenvalue
+                .min(corr.symmetric_eigenvalues().min());
+        }
         if (t - SEEKER_UNTIL_S).abs() < 0.5 * DT {
             run.baro_fused_at_seeker_loss = report.baro.counters.fused;
         }
@@ -421,7 +443,7 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
 }
 
 fn chain_phases_and_handover<T: Real>() {
-    let run = run_chain::<T>(BaroDamping::Ekf(baro_model()), 29.0);
+    let run = run_chain::<T>(BaroDamping::Ekf(baro_model()), 90.0);
     let seq: Vec<Phase> = run.phases.iter().map(|p| p.1).collect();
     assert_eq!(
         seq,
@@ -464,6 +486,12 @@ fn chain_phases_and_handover<T: Real>() {
     assert_eq!(run.phases.last().map(|p| p.1), Some(Phase::Terminal));
     assert!(run.baro_fused > run.baro_fused_at_seeker_loss);
     assert_eq!(run.final_health, HealthState::Degraded);
+    // The joint covariance of the 17 states and the baro error stays positive definite.
+    assert!(
+        run.joint_min_correlation_eigenvalue > 0.0,
+        "{}",
+        run.joint_min_correlation_eigenvalue
+    );
     // Carry: the solution's error within 3σ of the hand-over covariance on every axis.
     assert!(
         run.carry_worst_normalized < 3.0,
@@ -471,9 +499,10 @@ fn chain_phases_and_handover<T: Real>() {
         run.carry_worst_normalized
     );
     std::println!(
-        "{}: carry worst |error|/σ {:.2}",
+        "{}: carry worst |error|/σ {:.2}; smallest joint correlation eigenvalue {:e}",
         core::any::type_name::<T>(),
-        run.carry_worst_normalized
+        run.carry_worst_normalized,
+        run.joint_min_correlation_eigenvalue
     );
     std::println!(
         "{}: hand-over φ {:?} rad, σ {:?} rad; terminal position error {:.2} m; health {:?}",
