@@ -29,6 +29,9 @@ use std::path::PathBuf;
 const N: usize = 17;
 /// Rows (and columns) of P the prediction changes.
 const NAV: usize = 9;
+/// First column of P whose column of U = Φ P the prediction computes in a loop (the columns
+/// before it are written out: column 1 needs two rows of U only).
+const LOOP_FROM: usize = 2;
 
 /// One structurally non-zero entry of G = F Δt: row, column, the field of `SparseF` (scaled)
 /// that holds it, and whether it enters with a minus sign.
@@ -192,15 +195,18 @@ fn predict_source() -> String {
         "//! `P ← Φ P Φᵀ + Q_d` of the 17-state seeker INS written out term by term from the\n\
          //! sparsity of `G = F Δt` (61 entries) and of the second-order couplings `H = ½ G_f` (9\n\
          //! entries): `W = G P`, `U = P + (W + H W)` (rows 0..9 of Φ P), `Y = U Gᵀ` (upper\n\
-         //! triangle), `P'[i,j] = U[i,j] + (Y[i,j] + Σ H[j,m] Y[i,m]) + Q_d[i,j]`. Generator:\n\
+         //! triangle), `P'[i,j] = U[i,j] + (Y[i,j] + Σ H[j,m] Y[i,m]) + Q_d[i,j]`. The columns\n\
+         //! of U share one body, so all but the first two are computed in a loop (half the\n\
+         //! flash of writing each out, about 18 instructions more per column). Generator:\n\
          //! `xtask/src/gen.rs`.\n\n",
     );
     s.push_str(
         "use super::super::error_model::SparseF;\nuse crate::Real;\n\n\
          /// `P ← Φ P Φᵀ + Q_d` in place for F = `f` and Δt = `dt` (s; G = F Δt entry by entry,\n\
-         /// as `SparseF::scaled`), reading the upper\n\
-         /// triangle of `p` (column-major storage, `p[col][row]`) and writing both triangles of\n\
-         /// rows and columns 0..9. `qa`, `qg`: ½Δt times the accelerometer and gyro white-noise\n\
+         /// as `SparseF::scaled`), `p` exactly symmetric (column-major storage, `p[col][row]`;\n\
+         /// the upper triangle of columns 0 and 1 is read, then whole columns: U = Φ P is one\n\
+         /// loop body over the columns from 2 on), writing both triangles of rows and columns\n\
+         /// 0..9. `qa`, `qg`: ½Δt times the accelerometer and gyro white-noise\n\
          /// PSDs ((m/s²)²/Hz, (rad/s)²/Hz); `qa2`, `qg2`: Δt times them (the variances added on\n\
          /// the velocity and attitude diagonals). `false` (and `p` unchanged) when a result is\n\
          /// not finite (a non-finite entry of G reaches every column of P'[0..9, 9..17]).\n\
@@ -229,8 +235,39 @@ fn predict_source() -> String {
     // Liveness: U[i][1] is only read as P'[i][1] (column 1 of G is zero).
     let needed_u = |i: usize, j: usize| -> bool { j != 1 || i <= 1 };
     s.push_str("    let mut u = [[z; 9]; 17];\n");
+    // Columns 0 and 1 written out (column 1 needs two rows only); columns LOOP_FROM.. in one
+    // loop over the columns of P, whose body is the same for each (reads whole columns of the
+    // exactly symmetric P).
     for j in 0..N {
-        let _ = writeln!(s, "    // Column {j}.");
+        if j == LOOP_FROM {
+            let _ = writeln!(
+                s,
+                "    // Columns {LOOP_FROM}..{N}: one body, looped (P exactly symmetric: whole columns).\n\
+                 \x20   for (col, uj) in p[{LOOP_FROM}..].iter().zip(u[{LOOP_FROM}..].iter_mut()) {{"
+            );
+        }
+        if j > LOOP_FROM {
+            break;
+        }
+        let looped = j == LOOP_FROM;
+        let ind = if looped { "        " } else { "    " };
+        let read = |i: usize| {
+            if looped {
+                format!("col[{i}]")
+            } else {
+                p_upper(i, j)
+            }
+        };
+        let write = |i: usize| {
+            if looped {
+                format!("uj[{i}]")
+            } else {
+                format!("u[{j}][{i}]")
+            }
+        };
+        if !looped {
+            let _ = writeln!(s, "    // Column {j}.");
+        }
         let rows_needed: Vec<usize> = (0..NAV).filter(|&i| needed_u(i, j)).collect();
         // W rows needed: the rows themselves and the rows H reads.
         let mut w_rows: Vec<usize> = rows_needed.clone();
@@ -244,14 +281,14 @@ fn predict_source() -> String {
         for &k in g_cols.iter() {
             let used = w_rows.iter().any(|&r| g_row(r).any(|x| x.col == k));
             if used {
-                let _ = writeln!(s, "    let x{k} = {};", p_upper(k, j));
+                let _ = writeln!(s, "{ind}let x{k} = {};", read(k));
             }
         }
         for &r in &w_rows {
             let terms: Vec<(String, bool)> = g_row(r)
                 .map(|x| (format!("{} * x{}", gname(x.row, x.col), x.col), x.negated))
                 .collect();
-            let _ = writeln!(s, "    let w{r} = {};", sum(&terms));
+            let _ = writeln!(s, "{ind}let w{r} = {};", sum(&terms));
         }
         for &i in &rows_needed {
             let mut terms = vec![(format!("w{i}"), false)];
@@ -260,12 +297,10 @@ fn predict_source() -> String {
                     terms.push((format!("{name} * w{m}"), neg));
                 }
             }
-            let _ = writeln!(
-                s,
-                "    u[{j}][{i}] = {} + {};",
-                p_upper(i, j),
-                paren(&terms)
-            );
+            let _ = writeln!(s, "{ind}{} = {} + {};", write(i), read(i), paren(&terms));
+        }
+        if looped {
+            s.push_str("    }\n");
         }
     }
     // Y = U Gᵀ, upper triangle (Y[i][m], i ≤ m).
