@@ -171,6 +171,16 @@ fn gname(r: usize, c: usize) -> String {
     format!("g{r}_{c}")
 }
 
+/// U[i][j] (rows 0..9 of Φ P) in the prediction kernel: a local of a written-out column, or an
+/// element of the looped columns' array.
+fn uref(j: usize, i: usize) -> String {
+    if j < LOOP_FROM {
+        format!("u{j}_{i}")
+    } else {
+        format!("ul[{}][{i}]", j - LOOP_FROM)
+    }
+}
+
 /// P[i, j] read from the upper triangle of the column-major storage `p[col][row]`.
 fn p_upper(i: usize, j: usize) -> String {
     let (r, c) = if i <= j { (i, j) } else { (j, i) };
@@ -234,16 +244,19 @@ fn predict_source() -> String {
     );
     // Liveness: U[i][1] is only read as P'[i][1] (column 1 of G is zero).
     let needed_u = |i: usize, j: usize| -> bool { j != 1 || i <= 1 };
-    s.push_str("    let mut u = [[z; 9]; 17];\n");
-    // Columns 0 and 1 written out (column 1 needs two rows only); columns LOOP_FROM.. in one
-    // loop over the columns of P, whose body is the same for each (reads whole columns of the
-    // exactly symmetric P).
+    // Columns 0 and 1 written out (column 1 needs two rows only; `u{j}_{i}` = U[i][j]);
+    // columns LOOP_FROM.. built by one body over the columns of P (`ul[j − LOOP_FROM][i]`;
+    // whole columns of the exactly symmetric P), each element written once (no zeroed copy).
     for j in 0..N {
         if j == LOOP_FROM {
             let _ = writeln!(
                 s,
                 "    // Columns {LOOP_FROM}..{N}: one body, looped (P exactly symmetric: whole columns).\n\
-                 \x20   for (col, uj) in p[{LOOP_FROM}..].iter().zip(u[{LOOP_FROM}..].iter_mut()) {{"
+                 \x20   let ul: [[T; 9]; {}] = core::array::from_fn(|k| {{\n\
+                 \x20       let Some(col) = p.get(k + {LOOP_FROM}) else {{\n\
+                 \x20           return [z; 9];\n\
+                 \x20       }};",
+                N - LOOP_FROM
             );
         }
         if j > LOOP_FROM {
@@ -260,9 +273,9 @@ fn predict_source() -> String {
         };
         let write = |i: usize| {
             if looped {
-                format!("uj[{i}]")
+                format!("u{i}")
             } else {
-                format!("u[{j}][{i}]")
+                uref(j, i)
             }
         };
         if !looped {
@@ -297,10 +310,11 @@ fn predict_source() -> String {
                     terms.push((format!("{name} * w{m}"), neg));
                 }
             }
-            let _ = writeln!(s, "{ind}{} = {} + {};", write(i), read(i), paren(&terms));
+            let _ = writeln!(s, "{ind}let {} = {} + {};", write(i), read(i), paren(&terms));
         }
         if looped {
-            s.push_str("    }\n");
+            let all: Vec<String> = (0..NAV).map(|i| format!("u{i}")).collect();
+            let _ = writeln!(s, "        [{}]\n    }});", all.join(", "));
         }
     }
     // Y = U Gᵀ, upper triangle (Y[i][m], i ≤ m).
@@ -310,7 +324,7 @@ fn predict_source() -> String {
             let terms: Vec<(String, bool)> = g_row(m)
                 .map(|x| {
                     (
-                        format!("u[{}][{i}] * {}", x.col, gname(x.row, x.col)),
+                        format!("{} * {}", uref(x.col, i), gname(x.row, x.col)),
                         x.negated,
                     )
                 })
@@ -327,7 +341,7 @@ fn predict_source() -> String {
                     ay.push((format!("{name} * y{i}_{m}"), neg));
                 }
             }
-            let mut expr = format!("u[{j}][{i}] + {}", paren(&ay));
+            let mut expr = format!("{} + {}", uref(j, i), paren(&ay));
             // Q_d = Q_c Δt + ½Δt (G Q_c + Q_c Gᵀ), Q_c = diag(0₃, q_a I₃, q_g I₃).
             let q_of = |k: usize| if k < 6 { "qa" } else { "qg" };
             let mut q_terms: Vec<(String, bool)> = Vec::new();
@@ -359,7 +373,7 @@ fn predict_source() -> String {
     }
     for j in NAV..N {
         for i in 0..NAV {
-            let _ = write!(s, " + u[{j}][{i}] * z");
+            let _ = write!(s, " + {} * z", uref(j, i));
         }
     }
     s.push_str(";\n    if probe != z {\n        return false;\n    }\n");
@@ -373,8 +387,8 @@ fn predict_source() -> String {
     }
     for j in NAV..N {
         for i in 0..NAV {
-            let _ = writeln!(s, "    p[{j}][{i}] = u[{j}][{i}];");
-            let _ = writeln!(s, "    p[{i}][{j}] = u[{j}][{i}];");
+            let _ = writeln!(s, "    p[{j}][{i}] = {};", uref(j, i));
+            let _ = writeln!(s, "    p[{i}][{j}] = {};", uref(j, i));
         }
     }
     s.push_str("    true\n}\n");
