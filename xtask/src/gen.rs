@@ -310,7 +310,13 @@ fn predict_source() -> String {
                     terms.push((format!("{name} * w{m}"), neg));
                 }
             }
-            let _ = writeln!(s, "{ind}let {} = {} + {};", write(i), read(i), paren(&terms));
+            let _ = writeln!(
+                s,
+                "{ind}let {} = {} + {};",
+                write(i),
+                read(i),
+                paren(&terms)
+            );
         }
         if looped {
             let all: Vec<String> = (0..NAV).map(|i| format!("u{i}")).collect();
