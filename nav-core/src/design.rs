@@ -165,7 +165,6 @@ impl<'a> ValueReader<'a> {
     /// matrix sizes read through it.
     #[inline(never)]
     pub(crate) fn fill<T: Real>(&mut self, out: &mut [T]) -> Result<(), NavError> {
-        let out = crate::math::checks::opaque(out);
         for v in out.iter_mut() {
             *v = self.real()?;
         }
@@ -175,7 +174,6 @@ impl<'a> ValueReader<'a> {
     /// [`Self::fill`] for every slice of `parts`, in order.
     #[inline(never)]
     pub(crate) fn fill_parts<T: Real>(&mut self, parts: &mut [&mut [T]]) -> Result<(), NavError> {
-        let parts = crate::math::checks::opaque(parts);
         for p in parts.iter_mut() {
             self.fill(p)?;
         }
@@ -185,7 +183,6 @@ impl<'a> ValueReader<'a> {
     /// Fills `out` with the next `out.len()` `f64` values, in order.
     #[inline(never)]
     pub(crate) fn fill_f64(&mut self, out: &mut [f64]) -> Result<(), NavError> {
-        let out = crate::math::checks::opaque(out);
         for v in out.iter_mut() {
             *v = self.value()?;
         }
@@ -195,7 +192,6 @@ impl<'a> ValueReader<'a> {
     /// [`Self::fill_f64`] for every slice of `parts`, in order.
     #[inline(never)]
     pub(crate) fn fill_parts_f64(&mut self, parts: &mut [&mut [f64]]) -> Result<(), NavError> {
-        let parts = crate::math::checks::opaque(parts);
         for p in parts.iter_mut() {
             self.fill_f64(p)?;
         }

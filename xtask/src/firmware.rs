@@ -231,6 +231,8 @@ const TARGET_INSNS: [(&str, u64); 7] = [
     ("vc_classical_step", 400),
     ("vc_aided_step", 400),
 ];
+/// Functions listed in the report's "where the flash goes" table of the flight image.
+const FLASH_TOP: usize = 30;
 /// Peak stack target of any step with a target, bytes.
 const TARGET_STACK_BYTES: u64 = 2048;
 /// `.text` target of the flight image with all filters (`nav-size`), bytes.
@@ -455,6 +457,7 @@ pub fn bench(report_only: bool) -> Result<(), String> {
     let size_elf = elf.with_file_name("nav-size");
     let (f_text, f_rodata, f_data, f_bss) = section_sizes(&size_elf)?;
     let (o_text, _, _, _) = section_sizes(&elf.with_file_name("nav-size-onboard"))?;
+    let size_syms = crate::flash::functions(&size_elf)?;
     let mut report = Map::new();
     for (label, machine) in MACHINES {
         let lines = run_on_qemu(&elf, machine, &decoder)?;
@@ -482,6 +485,26 @@ pub fn bench(report_only: bool) -> Result<(), String> {
         m.insert("panic_never".into(), json!(true));
         report.insert(label.into(), Value::Object(m));
     }
+    // Where the flight image's flash goes: bytes per module and the largest functions.
+    let mut groups: Map<String, Value> = Map::new();
+    for sym in &size_syms {
+        let g = groups
+            .entry(crate::flash::group(&sym.name))
+            .or_insert(json!(0));
+        *g = json!(g.as_u64().unwrap_or(0) + sym.bytes);
+    }
+    report.insert(
+        "filters_image_flash".into(),
+        json!({
+            "text_bytes": f_text,
+            "bytes_per_module": groups,
+            "largest_functions": size_syms
+                .iter()
+                .take(FLASH_TOP)
+                .map(|s| json!({ "name": s.name, "bytes": s.bytes }))
+                .collect::<Vec<_>>(),
+        }),
+    );
     let load = cpu_load(&report);
     report.insert("cpu_load".into(), load.clone());
     let dir = root().join("target/bench");
@@ -511,7 +534,12 @@ pub fn bench(report_only: bool) -> Result<(), String> {
             }
         }
     }
-    let md = format!("{}\n{}", budget_table(&report), peer_table(&report));
+    let md = format!(
+        "{}\n{}{}",
+        budget_table(&report),
+        peer_table(&report),
+        crate::flash::table("nav-size", &size_syms, f_text, FLASH_TOP)
+    );
     std::fs::write(dir.join("report.md"), &md).map_err(|e| e.to_string())?;
     println!("\n{md}");
     eprintln!("xtask: bench: wrote {} and report.md", path.display());

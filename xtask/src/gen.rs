@@ -29,6 +29,9 @@ use std::path::PathBuf;
 const N: usize = 17;
 /// Rows (and columns) of P the prediction changes.
 const NAV: usize = 9;
+/// First column of P whose column of U = Φ P the prediction computes in a loop (the columns
+/// before it are written out: column 1 needs two rows of U only).
+const LOOP_FROM: usize = 2;
 
 /// One structurally non-zero entry of G = F Δt: row, column, the field of `SparseF` (scaled)
 /// that holds it, and whether it enters with a minus sign.
@@ -168,6 +171,16 @@ fn gname(r: usize, c: usize) -> String {
     format!("g{r}_{c}")
 }
 
+/// U[i][j] (rows 0..9 of Φ P) in the prediction kernel: a local of a written-out column, or an
+/// element of the looped columns' array.
+fn uref(j: usize, i: usize) -> String {
+    if j < LOOP_FROM {
+        format!("u{j}_{i}")
+    } else {
+        format!("ul[{}][{i}]", j - LOOP_FROM)
+    }
+}
+
 /// P[i, j] read from the upper triangle of the column-major storage `p[col][row]`.
 fn p_upper(i: usize, j: usize) -> String {
     let (r, c) = if i <= j { (i, j) } else { (j, i) };
@@ -192,15 +205,18 @@ fn predict_source() -> String {
         "//! `P ← Φ P Φᵀ + Q_d` of the 17-state seeker INS written out term by term from the\n\
          //! sparsity of `G = F Δt` (61 entries) and of the second-order couplings `H = ½ G_f` (9\n\
          //! entries): `W = G P`, `U = P + (W + H W)` (rows 0..9 of Φ P), `Y = U Gᵀ` (upper\n\
-         //! triangle), `P'[i,j] = U[i,j] + (Y[i,j] + Σ H[j,m] Y[i,m]) + Q_d[i,j]`. Generator:\n\
+         //! triangle), `P'[i,j] = U[i,j] + (Y[i,j] + Σ H[j,m] Y[i,m]) + Q_d[i,j]`. The columns\n\
+         //! of U share one body, so all but the first two are computed in a loop (half the\n\
+         //! flash of writing each out, about 18 instructions more per column). Generator:\n\
          //! `xtask/src/gen.rs`.\n\n",
     );
     s.push_str(
         "use super::super::error_model::SparseF;\nuse crate::Real;\n\n\
          /// `P ← Φ P Φᵀ + Q_d` in place for F = `f` and Δt = `dt` (s; G = F Δt entry by entry,\n\
-         /// as `SparseF::scaled`), reading the upper\n\
-         /// triangle of `p` (column-major storage, `p[col][row]`) and writing both triangles of\n\
-         /// rows and columns 0..9. `qa`, `qg`: ½Δt times the accelerometer and gyro white-noise\n\
+         /// as `SparseF::scaled`), `p` exactly symmetric (column-major storage, `p[col][row]`;\n\
+         /// the upper triangle of columns 0 and 1 is read, then whole columns: U = Φ P is one\n\
+         /// loop body over the columns from 2 on), writing both triangles of rows and columns\n\
+         /// 0..9. `qa`, `qg`: ½Δt times the accelerometer and gyro white-noise\n\
          /// PSDs ((m/s²)²/Hz, (rad/s)²/Hz); `qa2`, `qg2`: Δt times them (the variances added on\n\
          /// the velocity and attitude diagonals). `false` (and `p` unchanged) when a result is\n\
          /// not finite (a non-finite entry of G reaches every column of P'[0..9, 9..17]).\n\
@@ -228,9 +244,43 @@ fn predict_source() -> String {
     );
     // Liveness: U[i][1] is only read as P'[i][1] (column 1 of G is zero).
     let needed_u = |i: usize, j: usize| -> bool { j != 1 || i <= 1 };
-    s.push_str("    let mut u = [[z; 9]; 17];\n");
+    // Columns 0 and 1 written out (column 1 needs two rows only; `u{j}_{i}` = U[i][j]);
+    // columns LOOP_FROM.. built by one body over the columns of P (`ul[j − LOOP_FROM][i]`;
+    // whole columns of the exactly symmetric P), each element written once (no zeroed copy).
     for j in 0..N {
-        let _ = writeln!(s, "    // Column {j}.");
+        if j == LOOP_FROM {
+            let _ = writeln!(
+                s,
+                "    // Columns {LOOP_FROM}..{N}: one body, looped (P exactly symmetric: whole columns).\n\
+                 \x20   let ul: [[T; 9]; {}] = core::array::from_fn(|k| {{\n\
+                 \x20       let Some(col) = p.get(k + {LOOP_FROM}) else {{\n\
+                 \x20           return [z; 9];\n\
+                 \x20       }};",
+                N - LOOP_FROM
+            );
+        }
+        if j > LOOP_FROM {
+            break;
+        }
+        let looped = j == LOOP_FROM;
+        let ind = if looped { "        " } else { "    " };
+        let read = |i: usize| {
+            if looped {
+                format!("col[{i}]")
+            } else {
+                p_upper(i, j)
+            }
+        };
+        let write = |i: usize| {
+            if looped {
+                format!("u{i}")
+            } else {
+                uref(j, i)
+            }
+        };
+        if !looped {
+            let _ = writeln!(s, "    // Column {j}.");
+        }
         let rows_needed: Vec<usize> = (0..NAV).filter(|&i| needed_u(i, j)).collect();
         // W rows needed: the rows themselves and the rows H reads.
         let mut w_rows: Vec<usize> = rows_needed.clone();
@@ -244,14 +294,14 @@ fn predict_source() -> String {
         for &k in g_cols.iter() {
             let used = w_rows.iter().any(|&r| g_row(r).any(|x| x.col == k));
             if used {
-                let _ = writeln!(s, "    let x{k} = {};", p_upper(k, j));
+                let _ = writeln!(s, "{ind}let x{k} = {};", read(k));
             }
         }
         for &r in &w_rows {
             let terms: Vec<(String, bool)> = g_row(r)
                 .map(|x| (format!("{} * x{}", gname(x.row, x.col), x.col), x.negated))
                 .collect();
-            let _ = writeln!(s, "    let w{r} = {};", sum(&terms));
+            let _ = writeln!(s, "{ind}let w{r} = {};", sum(&terms));
         }
         for &i in &rows_needed {
             let mut terms = vec![(format!("w{i}"), false)];
@@ -262,10 +312,15 @@ fn predict_source() -> String {
             }
             let _ = writeln!(
                 s,
-                "    u[{j}][{i}] = {} + {};",
-                p_upper(i, j),
+                "{ind}let {} = {} + {};",
+                write(i),
+                read(i),
                 paren(&terms)
             );
+        }
+        if looped {
+            let all: Vec<String> = (0..NAV).map(|i| format!("u{i}")).collect();
+            let _ = writeln!(s, "        [{}]\n    }});", all.join(", "));
         }
     }
     // Y = U Gᵀ, upper triangle (Y[i][m], i ≤ m).
@@ -275,7 +330,7 @@ fn predict_source() -> String {
             let terms: Vec<(String, bool)> = g_row(m)
                 .map(|x| {
                     (
-                        format!("u[{}][{i}] * {}", x.col, gname(x.row, x.col)),
+                        format!("{} * {}", uref(x.col, i), gname(x.row, x.col)),
                         x.negated,
                     )
                 })
@@ -292,7 +347,7 @@ fn predict_source() -> String {
                     ay.push((format!("{name} * y{i}_{m}"), neg));
                 }
             }
-            let mut expr = format!("u[{j}][{i}] + {}", paren(&ay));
+            let mut expr = format!("{} + {}", uref(j, i), paren(&ay));
             // Q_d = Q_c Δt + ½Δt (G Q_c + Q_c Gᵀ), Q_c = diag(0₃, q_a I₃, q_g I₃).
             let q_of = |k: usize| if k < 6 { "qa" } else { "qg" };
             let mut q_terms: Vec<(String, bool)> = Vec::new();
@@ -324,7 +379,7 @@ fn predict_source() -> String {
     }
     for j in NAV..N {
         for i in 0..NAV {
-            let _ = write!(s, " + u[{j}][{i}] * z");
+            let _ = write!(s, " + {} * z", uref(j, i));
         }
     }
     s.push_str(";\n    if probe != z {\n        return false;\n    }\n");
@@ -338,8 +393,8 @@ fn predict_source() -> String {
     }
     for j in NAV..N {
         for i in 0..NAV {
-            let _ = writeln!(s, "    p[{j}][{i}] = u[{j}][{i}];");
-            let _ = writeln!(s, "    p[{i}][{j}] = u[{j}][{i}];");
+            let _ = writeln!(s, "    p[{j}][{i}] = {};", uref(j, i));
+            let _ = writeln!(s, "    p[{i}][{j}] = {};", uref(j, i));
         }
     }
     s.push_str("    true\n}\n");

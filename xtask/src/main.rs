@@ -16,10 +16,14 @@
 //! * `stress [--short]`: the stress campaign of every estimator → `target/stress/report.json`.
 //! * `gen [--check]`: write the generated covariance kernels of the seeker INS
 //!   (`nav-core/src/seeker_ins/generated/`); `--check` fails when the committed ones are stale.
+//! * `flash [ELF]`: where the flash of a firmware image goes (bytes per module, largest
+//!   functions); default the flight image `nav-size` of the last `qemu`/`bench` build. `bench`
+//!   writes the same table for `nav-size` into `report.md`.
 //! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
 //!   at the end.
 
 mod firmware;
+mod flash;
 mod gen;
 
 use std::env;
@@ -42,6 +46,7 @@ fn main() -> ExitCode {
         "bench" => firmware::bench(rest.iter().any(|a| a == "--report-only")),
         "gen" => gen::gen(rest.iter().any(|a| a == "--check")),
         "qemu" => firmware::qemu(),
+        "flash" => flash::print(rest.first().map(PathBuf::from)),
         "soak" => soak(),
         "replay" => replay(rest),
         "stress" => stress(rest.iter().any(|a| a == "--short")),
@@ -71,6 +76,7 @@ fn usage() {
          \n  stress [--short]                                    stress campaign -> target/stress/report.json\
          \n  qemu                                                firmware on QEMU: golden-vector replay\
          \n  bench [--report-only]                               firmware on QEMU: instructions, stack, sizes; fails on a missed target\
+         \n  flash [ELF]                                         bytes per module and largest functions of an image (default nav-size)\
          \n  gen [--check]                                       write (or check) the generated seeker kernels"
     );
 }

@@ -4,29 +4,22 @@
 //! The constructors (`new`, `from_design`) validate many fixed-size matrices. Written with
 //! nalgebra's static types each check is instantiated per dimension and fully unrolled at
 //! opt-level 3; these helpers take a runtime length and are `#[inline(never)]`, so the image
-//! holds one looping copy per float type. None of them is on a step path. Each is documented
-//! with the exact expression it is equal to (same result, bit for bit, for any input).
+//! holds one copy per float type (with LTO, a helper that an image calls from one place with
+//! one dimension is specialised to it and may be unrolled there: the price is measured in the
+//! flight image, about 1 KB, and nothing hides the dimension from the optimiser). Each is
+//! documented with the exact expression it is equal to (same result, bit for bit, for any
+//! input).
 use crate::Real;
-
-/// The value, hidden from the optimiser: with LTO a helper called with one dimension only
-/// would be specialised to it (constant propagation into the out-of-line copy) and unrolled
-/// again. Costs a store and a load per call.
-#[inline(always)]
-pub(crate) fn opaque<V>(v: V) -> V {
-    core::hint::black_box(v)
-}
 
 /// `true` when every value is finite (not NaN or ±∞).
 #[inline(never)]
 pub fn all_finite<T: Real>(values: &[T]) -> bool {
-    let values = opaque(values);
     values.iter().all(|v| v.is_finite())
 }
 
 /// `true` when every slice of `parts` is [`all_finite`].
 #[inline(never)]
 pub fn all_finite_parts<T: Real>(parts: &[&[T]]) -> bool {
-    let parts = opaque(parts);
     parts.iter().all(|p| all_finite(p))
 }
 
@@ -56,7 +49,6 @@ pub struct RangeCheck<T> {
 /// `None` when all are inside. One looping copy per float type, as the other checks.
 #[inline(never)]
 pub fn first_outside<T: Real>(checks: &[RangeCheck<T>]) -> Option<&'static str> {
-    let checks = opaque(checks);
     checks.iter().find_map(|c| {
         let low_ok = match c.low {
             LowerBound::AtLeast(b) => c.value >= b,
@@ -79,7 +71,6 @@ fn at<T: Real>(m: &[T], n: usize, i: usize, j: usize) -> Option<T> {
 /// `false` if `m.len() != n²`.
 #[inline(never)]
 pub fn symmetric_non_negative_diagonal<T: Real>(m: &[T], n: usize) -> bool {
-    let (m, n) = opaque((m, n));
     if n.checked_mul(n) != Some(m.len()) {
         return false;
     }
@@ -90,7 +81,6 @@ pub fn symmetric_non_negative_diagonal<T: Real>(m: &[T], n: usize) -> bool {
             _ => return false,
         }
         for i in (j + 1)..n {
-            let i = opaque(i); // keeps the loop rolled
             if at(m, n, i, j) != at(m, n, j, i) {
                 return false;
             }
@@ -104,7 +94,6 @@ pub fn symmetric_non_negative_diagonal<T: Real>(m: &[T], n: usize) -> bool {
 /// zero). `false` if `m.len() != n²` or `n == 0`.
 #[inline(never)]
 pub fn first_row_and_column_unit<T: Real>(m: &[T], n: usize) -> bool {
-    let (m, n) = opaque((m, n));
     if n == 0 || n.checked_mul(n) != Some(m.len()) {
         return false;
     }
@@ -118,14 +107,10 @@ pub fn first_row_and_column_unit<T: Real>(m: &[T], n: usize) -> bool {
 /// column-major `n × n` matrix `p` (block `a` at rows and columns `k·a ..`), leaving the rest
 /// of `p` as it is; a block that does not fit is not written. Equal to
 /// `p.fixed_view_mut::<K, K>(K a, K a).copy_from(&block_a)` for each block (nalgebra).
-/// Configuration time only: not generic over the dimensions, out of line and with opaque
-/// dimensions, so the image holds one looping copy per float type.
+/// Configuration time only: not generic over the dimensions and out of line, so the image
+/// holds one copy per float type.
 #[inline(never)]
 pub fn set_block_diagonal<T: Real>(p: &mut [T], n: usize, blocks: &[&[T]], k: usize) {
-    let p = opaque(p);
-    let n = opaque(n);
-    let blocks = opaque(blocks);
-    let k = opaque(k);
     if k == 0 {
         return;
     }
@@ -145,11 +130,9 @@ pub fn set_block_diagonal<T: Real>(p: &mut [T], n: usize, blocks: &[&[T]], k: us
 /// empty matrix. Only the first `n²` values are used.
 #[inline(never)]
 pub fn max_asymmetry<T: Real>(m: &[T], n: usize) -> T {
-    let (m, n) = opaque((m, n));
     let mut acc: Option<T> = None;
     for j in 0..n {
         for i in 0..n {
-            let i = opaque(i); // keeps the loop rolled
             let d = match (at(m, n, i, j), at(m, n, j, i)) {
                 (Some(a), Some(b)) => (a - b).abs(),
                 _ => T::zero(),
@@ -169,14 +152,12 @@ pub fn max_asymmetry<T: Real>(m: &[T], n: usize) -> T {
 /// same answer for every input). `work` is overwritten. `false` if `work.len() != n²`.
 #[inline(never)]
 pub fn psd_in_place<T: Real>(work: &mut [T], n: usize, rel_eps: T) -> bool {
-    let (work, n) = opaque((work, n));
     if n.checked_mul(n) != Some(work.len()) || !all_finite(work) {
         return false;
     }
     // trace (nalgebra sums from zero, in index order).
     let mut trace = T::zero();
     for i in 0..n {
-        let i = opaque(i); // keeps the loop rolled
         trace += at(work, n, i, i).unwrap_or_else(T::zero);
     }
     let shift = rel_eps * trace.abs().max(T::lit(1e-30));
@@ -184,7 +165,6 @@ pub fn psd_in_place<T: Real>(work: &mut [T], n: usize, rel_eps: T) -> bool {
     let off = T::zero() * shift;
     for j in 0..n {
         for i in j..n {
-            let i = opaque(i); // keeps the loop rolled
             let (Some(a), Some(b)) = (at(work, n, i, j), at(work, n, j, i)) else {
                 return false;
             };
@@ -200,7 +180,6 @@ pub fn psd_in_place<T: Real>(work: &mut [T], n: usize, rel_eps: T) -> bool {
         for k in 0..j {
             let factor = -at(work, n, j, k).unwrap_or_else(T::zero);
             for i in j..n {
-                let i = opaque(i); // keeps the loop rolled
                 let x = at(work, n, i, k).unwrap_or_else(T::zero);
                 if let Some(y) = work.get_mut(j * n + i) {
                     // axpy(a, x, 1): y = a·x·1 + 1·y
@@ -219,7 +198,6 @@ pub fn psd_in_place<T: Real>(work: &mut [T], n: usize, rel_eps: T) -> bool {
             *e = denom;
         }
         for i in (j + 1)..n {
-            let i = opaque(i); // keeps the loop rolled
             if let Some(e) = work.get_mut(j * n + i) {
                 *e /= denom;
             }
