@@ -18,7 +18,7 @@ mod config;
 pub mod fault;
 mod report;
 mod run;
-mod sensors;
+pub(crate) mod sensors;
 pub mod trajectory;
 
 pub use config::{
