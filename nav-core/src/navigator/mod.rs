@@ -1,6 +1,9 @@
 //! The flight navigator's building blocks: the three estimators flown as one chain (spec
 //! `flight-navigator.md`). An estimator module never uses another; this module composes them.
 //!
+//! * [`Navigator`] (`flight`, `types`, [`baro`]): the phase state machine carry → released →
+//!   midcourse → terminal around one missile INS, with the transfer alignment under the wing
+//!   and the 17-state EKF after release (see "Flight navigator" below).
 //! * [`handover`]: the launch hand-over from the transfer alignment under the wing to the
 //!   free-flight INS and its 17-state EKF — attitude, velocity and position carried through
 //!   the lever arm, with their covariance mapped into the EKF's error state.
@@ -36,8 +39,21 @@
 //! # Ok::<(), nav_core::NavError>(())
 //! ```
 
+// Flight navigator: see the section above.
+pub mod baro;
+mod flight;
 pub mod handover;
+#[cfg(test)]
+mod tests;
+mod types;
 
+pub use baro::{BaroState, MAX_BARO_AGE_S};
+pub use flight::{ConventionalNavigator, FlightNavigator, Navigator};
 pub use handover::{
     hand_over, right_jacobian, AlignmentAtRelease, HandoverPriors, LeverArm, MasterAtRelease,
+};
+pub use types::{
+    AidAvailability, AidState, AidStatus, AidTimeouts, Aids, BaroDamping, BaroErrorModel,
+    Degradation, ImuTick, MasterNav, NavSolution, NavigatorConfig, NavigatorInitial, Phase,
+    SeparationCheck, SeparationStatus, TickReport, Transition, TransitionCause,
 };

@@ -227,6 +227,38 @@ impl<T: Real> SparseF<T> {
 /// of the third-order remainder already dropped. `q_accel`, `q_gyro`: white-noise PSDs
 /// ((m/s²)²/Hz, (rad/s)²/Hz).
 ///
+/// `Φ c` for the transition matrix of [`propagate_covariance_sparse`] over `dt_s`:
+/// `Φ = I + G + H G`, `G = F Δt`, `H = ½ G_f` with the nine second-order couplings of the
+/// generated kernel (velocity → position `G03`, `G14`, `G25`; attitude → velocity
+/// `½[Δt fⁿ×]`). Rows 9..17 of Φ are the identity. Used for a covariance column kept beside
+/// the 17 states (the flight navigator's baro error).
+pub(crate) fn transition_times<T: Real>(
+    f: &SparseF<T>,
+    dt_s: T,
+    c: &nalgebra::SVector<T, STATES>,
+) -> nalgebra::SVector<T, STATES> {
+    let g = f.scaled(dt_s);
+    let w: nalgebra::SVector<T, 9> = g.to_block() * c.fixed_rows::<15>(0);
+    let half = T::lit(0.5);
+    let w_vel: Vector3<T> = w.fixed_rows::<3>(3).into_owned();
+    let w_att: Vector3<T> = w.fixed_rows::<3>(6).into_owned();
+    let mut hw = nalgebra::SVector::<T, 9>::zeros();
+    hw.fixed_rows_mut::<3>(0).copy_from(&Vector3::new(
+        half * g.f03 * w_vel.x,
+        half * g.f14 * w_vel.y,
+        half * g.f25 * w_vel.z,
+    ));
+    hw.fixed_rows_mut::<3>(3)
+        .copy_from(&(g.f_ned * half).cross(&w_att));
+    let mut out = *c;
+    let add = w + hw;
+    out.fixed_rows_mut::<9>(0)
+        .iter_mut()
+        .zip(add.iter())
+        .for_each(|(o, a)| *o += *a);
+    out
+}
+
 /// A variance of the navigation block that would round below zero is set to zero with its row
 /// and column (PSD kept); the count of such repairs is returned.
 ///

@@ -287,4 +287,24 @@ impl<T: Real> SeekerIns<T> {
     pub fn gimbal_bias_rad(&self) -> Vector2<T> {
         self.gimbal_bias_rad
     }
+
+    /// An update computed outside the filter (the flight navigator's baro update, whose
+    /// 18th state lives beside the 17): the error estimate `x` (the filter's error-state
+    /// convention) is fed back through the same path as a LOS update and P becomes
+    /// `p_updated`. The caller keeps P symmetric PSD (it checks its update as the LOS update
+    /// does). Atomic: on error (non-finite correction or P) nothing changed.
+    pub(crate) fn apply_external_update(
+        &mut self,
+        x: &nalgebra::SVector<T, STATES>,
+        p_updated: &SMatrix<T, STATES, STATES>,
+    ) -> Result<(), NavError> {
+        if !crate::math::checks::all_finite(p_updated.as_slice()) {
+            return Err(NavError::NonFiniteInput {
+                input: "external covariance update",
+            });
+        }
+        self.feed_back_parts(x)?;
+        self.p = *p_updated;
+        Ok(())
+    }
 }

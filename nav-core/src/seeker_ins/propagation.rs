@@ -2,7 +2,9 @@
 //! the covariance steps.
 
 use super::config::VARIANCE_CEILING;
-use super::error_model::{propagate_covariance_sparse, SparseF, ATT, STATES, VEL};
+use super::error_model::{
+    propagate_covariance_sparse, transition_times, SparseF, ATT, STATES, VEL,
+};
 use super::filter::SeekerIns;
 use super::flight_noise::flight_noise_step;
 use super::mechanization::{ImuIncrement, Ins};
@@ -34,6 +36,14 @@ pub struct ClipFlags {
     pub gyro: bool,
 }
 
+/// When the covariance step runs: every `covariance_interval_steps` samples, or when the
+/// caller asks ([`SeekerIns::predict_covariance_cross`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum CovarianceSchedule {
+    Interval,
+    Deferred,
+}
+
 impl<T: Real> SeekerIns<T> {
     /// One IMU sample: bias compensation, INS step over the interval since the previous
     /// sample ([`Ins::step`]) and (every `covariance_interval_steps` samples) covariance
@@ -56,7 +66,7 @@ impl<T: Real> SeekerIns<T> {
     /// is accepted): `TimeNotIncreasing`, `NonFiniteInput`, `InputOutOfRange` (increments
     /// beyond their range).
     pub fn propagate(&mut self, sample: &ImuIncrement<T>) -> Result<(), NavError> {
-        self.counted(sample, None)
+        self.counted(sample, None, CovarianceSchedule::Interval)
     }
 
     /// One IMU sample that the IMU flags as clipped (over-range on at least one axis of the
@@ -75,7 +85,59 @@ impl<T: Real> SeekerIns<T> {
         sample: &ImuIncrement<T>,
         clipped: ClipFlags,
     ) -> Result<(), NavError> {
-        self.counted(sample, Some(clipped))
+        self.counted(sample, Some(clipped), CovarianceSchedule::Interval)
+    }
+
+    /// As [`SeekerIns::propagate`] / [`SeekerIns::propagate_clipped`] (`clip`), but the
+    /// covariance step is left pending whatever `covariance_interval_steps` says: the caller
+    /// runs it with [`SeekerIns::predict_covariance_cross`] (the flight navigator, which
+    /// carries a state of its own beside the 17 and needs the same Φ). Atomic as
+    /// `propagate`.
+    pub(crate) fn propagate_deferred(
+        &mut self,
+        sample: &ImuIncrement<T>,
+        clip: Option<ClipFlags>,
+    ) -> Result<(), NavError> {
+        self.counted(sample, clip, CovarianceSchedule::Deferred)
+    }
+
+    /// IMU samples integrated since the last covariance step.
+    pub(crate) fn steps_pending(&self) -> u16 {
+        self.steps_pending
+    }
+
+    /// [`SeekerIns::predict_covariance`] that also applies the step's transition matrix Φ
+    /// (the very Φ of the generated kernel, [`transition_times`]) to `cross`, a covariance
+    /// column `E[δx δb]` of an external state b kept beside the 17. Returns the interval
+    /// covered, s (`None`: nothing was pending). When the step changed P other than by
+    /// `Φ P Φᵀ + Q` (a variance repaired or held at its ceiling: a congruence the column
+    /// does not follow) `cross` is set to zero (the joint covariance stays PSD; that
+    /// correlation is forgotten). Errors leave the filter and `cross` unchanged.
+    pub(crate) fn predict_covariance_cross(
+        &mut self,
+        cross: &mut nalgebra::SVector<T, STATES>,
+    ) -> Result<Option<T>, NavError> {
+        if self.steps_pending == 0 {
+            return Ok(None);
+        }
+        let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
+        let f_ned = self.dv_ned_pending_m_s / dt_total;
+        let s = self.ins.state();
+        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &self.ins.c_b_n(), &f_ned);
+        let next_cross = transition_times(&f, dt_total, cross);
+        if !next_cross.iter().all(|v| v.is_finite()) {
+            return Err(NavError::NonFiniteInput {
+                input: "propagated cross-covariance",
+            });
+        }
+        let limits_before = self.health.limits_hit;
+        self.predict_covariance()?;
+        *cross = if self.health.limits_hit == limits_before {
+            next_cross
+        } else {
+            nalgebra::SVector::zeros()
+        };
+        Ok(Some(dt_total))
     }
 
     /// Counts a refused sample.
@@ -83,8 +145,9 @@ impl<T: Real> SeekerIns<T> {
         &mut self,
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
+        schedule: CovarianceSchedule,
     ) -> Result<(), NavError> {
-        let r = self.propagate_sample(sample, clip);
+        let r = self.propagate_sample(sample, clip, schedule);
         if r.is_err() {
             Health::bump(&mut self.health.imu_refused);
         }
@@ -96,13 +159,14 @@ impl<T: Real> SeekerIns<T> {
         &mut self,
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
+        schedule: CovarianceSchedule,
     ) -> Result<(), NavError> {
         if self.clock.is_some_and(|t| sample.time <= t) {
             return Err(NavError::TimeNotIncreasing);
         }
         let Some(prev) = self.ins.time() else {
             // First sample after construction or re-initialisation: the nominal interval.
-            return self.step_sample(sample, clip);
+            return self.step_sample(sample, clip, schedule);
         };
         let us = sample
             .time
@@ -110,7 +174,7 @@ impl<T: Real> SeekerIns<T> {
             .ok_or(NavError::TimeNotIncreasing)?;
         let dt_us = self.ins.dt_us();
         if us.saturating_mul(2) <= dt_us.saturating_mul(3) {
-            return self.step_sample(sample, clip);
+            return self.step_sample(sample, clip, schedule);
         }
         // round(us / dt_us) − 1 ≥ 1 (dt_us > 0 by construction: no division by zero).
         let missing = us
@@ -121,11 +185,11 @@ impl<T: Real> SeekerIns<T> {
         let max_us = seconds_to_micros(self.config.imu_faults.max_gap_s).unwrap_or(0);
         let mut next = *self;
         if missing.saturating_mul(dt_us) <= max_us {
-            next.bridge_gap(prev, missing)?;
+            next.bridge_gap(prev, missing, schedule)?;
         } else {
             next.reset_after_gap()?;
         }
-        next.step_sample(sample, clip)?;
+        next.step_sample(sample, clip, schedule)?;
         next.last_imu_fault = Some(sample.time);
         *self = next;
         Ok(())
@@ -136,6 +200,7 @@ impl<T: Real> SeekerIns<T> {
         &mut self,
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
+        schedule: CovarianceSchedule,
     ) -> Result<(), NavError> {
         let dt = self.ins.interval_to(sample.time)?;
         let compensated = ImuIncrement {
@@ -143,7 +208,7 @@ impl<T: Real> SeekerIns<T> {
             delta_theta_rad: sample.delta_theta_rad - self.gyro_bias_rad_s * dt,
             delta_v_m_s: sample.delta_v_m_s - self.accel_bias_m_s2 * dt,
         };
-        self.propagate_compensated(&compensated)?;
+        self.propagate_compensated(&compensated, schedule)?;
         self.held_run = 0;
         if self.fusion_ref.is_none() {
             // The aid timeout runs from the start of the interval of the first sample.
@@ -170,7 +235,12 @@ impl<T: Real> SeekerIns<T> {
     }
 
     /// The zero-order hold over `missing` samples after the one at `prev`.
-    fn bridge_gap(&mut self, prev: Timestamp, missing: u64) -> Result<(), NavError> {
+    fn bridge_gap(
+        &mut self,
+        prev: Timestamp,
+        missing: u64,
+        schedule: CovarianceSchedule,
+    ) -> Result<(), NavError> {
         let mut held = self.ins.last_increment().ok_or(NavError::InputOutOfRange {
             input: "IMU gap before the first sample (nothing to hold)",
         })?;
@@ -184,7 +254,7 @@ impl<T: Real> SeekerIns<T> {
         held.time = prev;
         for _ in 0..missing {
             held.time = held.time.add_micros(dt_us);
-            self.propagate_compensated(&held)?;
+            self.propagate_compensated(&held, schedule)?;
             self.held_run = self.held_run.saturating_add(1);
             self.inflate_degraded(self.held_run, dt, sa, sw);
         }
@@ -263,7 +333,11 @@ impl<T: Real> SeekerIns<T> {
     }
 
     /// INS step with a bias-compensated increment and the covariance step when due; atomic.
-    fn propagate_compensated(&mut self, compensated: &ImuIncrement<T>) -> Result<(), NavError> {
+    fn propagate_compensated(
+        &mut self,
+        compensated: &ImuIncrement<T>,
+        schedule: CovarianceSchedule,
+    ) -> Result<(), NavError> {
         // The INS steps on a copy (P, the large part, is not copied: the covariance step below
         // is atomic), and everything is committed only when both succeeded.
         let mut ins = self.ins;
@@ -276,7 +350,9 @@ impl<T: Real> SeekerIns<T> {
         let dv_pending = self.dv_ned_pending_m_s + ins.specific_force_ned_m_s2() * dt;
         let steps = self.steps_pending.saturating_add(1);
         let pending_us = self.pending_us.saturating_add(interval_us);
-        if steps >= self.config.covariance_interval_steps {
+        if steps >= self.config.covariance_interval_steps
+            && schedule == CovarianceSchedule::Interval
+        {
             let dt_total = self.pending_interval_s(steps, pending_us);
             let repairs = covariance_step(
                 &mut self.p,

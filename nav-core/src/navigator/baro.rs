@@ -1,0 +1,184 @@
+//! Baro damping as an EKF measurement: the baro's correlated error `b` as an 18th state kept
+//! beside the seeker INS's 17 (the generated 17-state kernels stay as they are).
+//!
+//! The joint covariance is `[[P, c], [cᵀ, s]]`: P the EKF's 17 × 17, `c = E[δx δb]` a
+//! 17-vector, `s = var(δb)`, with `δb = b̂ − b` (estimate minus truth, as every error state).
+//!
+//! * Prediction (each covariance step of the EKF, over its interval Δt, `e = exp(−Δt/τ)`):
+//!   P by the EKF itself; `c ← e Φ c` with the EKF's own Φ
+//!   (`SeekerIns::predict_covariance_cross`); `s ← e² s + σ_b² (1 − e²)`; `b̂ ← e b̂`.
+//! * Measurement: `z = h(t) − τ_b V_up(t) + b + v` (the baro's lag τ_b to first order, its
+//!   white noise v of variance `R`), predicted as `ẑ = ĥ + τ V̂_D + b̂` with
+//!   `τ = τ_b + age` (a sample older than the tick adds its age to the lag). The error-state
+//!   measurement `y = ẑ − z = H δx_aug − v` has `H = [e_h + τ e_VD, 1]` (`e_h`: the δh state,
+//!   `e_VD`: δV_D).
+//! * Update (one scalar, the EKF's gate): `u = P hᵀ + c`, `u_b = cᵀh + s`,
+//!   `S = h u + u_b + R`; `δx̂ = u y / S` fed back through the EKF's correction path,
+//!   `b̂ ← b̂ − u_b y / S`; `P ← P − u uᵀ/S`, `c ← c − u u_b/S`, `s ← s − u_b²/S` (the
+//!   18-state update written in its blocks; checked against the dense 18-state Joseph form
+//!   in the tests). A result with a negative variance or a non-finite entry is not applied
+//!   (`Skipped`).
+//! * What the 17-state EKF does to P without telling the column (a variance held at its
+//!   ceiling, a long IMU gap, a LOS update) is followed by `c ← 0`: the joint covariance
+//!   stays PSD (block diagonal of two PSD blocks) and the correlation between the baro error
+//!   and the INS errors is forgotten. After LOS updates in terminal this is an approximation
+//!   (the exact `c ← (I − K H) c` needs the LOS gain, which the EKF does not expose).
+
+use crate::contract::{FusionOutcome, FusionReport, Gate};
+use crate::math::kalman::gate_scalar;
+use crate::seeker_ins::{SeekerIns, POS, STATES, VEL};
+use crate::vertical_channel::BaroSample;
+use crate::{NavError, Real};
+use nalgebra::{SMatrix, SVector};
+
+use super::types::BaroErrorModel;
+
+/// Oldest baro sample accepted, s (older: `MeasurementTimeOutOfWindow`).
+pub const MAX_BARO_AGE_S: f64 = 1.0;
+
+/// The baro-error state beside the EKF.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BaroState<T> {
+    /// `E[δx δb]`, units of the error state × m.
+    pub cross: SVector<T, STATES>,
+    /// `var(δb)`, m².
+    pub variance_m2: T,
+    /// Estimate of the correlated baro error b, m.
+    pub bias_m: T,
+}
+
+impl<T: Real> BaroState<T> {
+    /// At the start of damping: no correlation, the stationary variance, zero estimate.
+    pub fn start(model: &BaroErrorModel<T>) -> Self {
+        Self {
+            cross: SVector::zeros(),
+            variance_m2: model.markov_sigma_m * model.markov_sigma_m,
+            bias_m: T::zero(),
+        }
+    }
+
+    /// The Markov part of a prediction over `dt_s` (the column has been multiplied by Φ).
+    pub fn decay(&mut self, model: &BaroErrorModel<T>, dt_s: T) {
+        let e = (-dt_s / model.markov_tau_s).exp();
+        let e2 = e * e;
+        let var = model.markov_sigma_m * model.markov_sigma_m;
+        self.cross *= e;
+        self.variance_m2 = e2 * self.variance_m2 + var * (T::one() - e2);
+        self.bias_m *= e;
+    }
+
+    /// The measurement row's 17-part `e_h + τ e_VD` for the effective lag `tau_s`.
+    pub fn h_row(tau_s: T) -> SVector<T, STATES> {
+        let mut h = SVector::<T, STATES>::zeros();
+        if let Some(v) = h.get_mut(POS + 2) {
+            *v = T::one();
+        }
+        if let Some(v) = h.get_mut(VEL + 2) {
+            *v = tau_s;
+        }
+        h
+    }
+
+    /// Predicted baro reading `ĥ + τ V̂_D + b̂`, m.
+    pub fn predicted_m(&self, ekf: &SeekerIns<T>, tau_s: T) -> T {
+        let s = ekf.state();
+        T::lit(s.position.alt_m) + tau_s * s.vel_ned_m_s.z + self.bias_m
+    }
+}
+
+/// The updated blocks of one baro fusion (before they are applied).
+#[derive(Debug, Clone, Copy)]
+pub struct BaroUpdate<T> {
+    /// The report.
+    pub report: FusionReport<T>,
+    /// Error estimate of the 17 states (EKF convention).
+    pub dx: SVector<T, STATES>,
+    /// Error estimate of the baro error, m (`δb̂`).
+    pub db_m: T,
+    /// Updated P, c, s.
+    pub p: SMatrix<T, STATES, STATES>,
+    /// Updated cross-covariance.
+    pub cross: SVector<T, STATES>,
+    /// Updated var(δb), m².
+    pub variance_m2: T,
+}
+
+/// The joint scalar update in its blocks (module doc). `None` when the sample cannot be
+/// fused numerically (skipped); a gate rejection returns the report with `Rejected` and the
+/// blocks unchanged.
+pub fn baro_update<T: Real>(
+    p: &SMatrix<T, STATES, STATES>,
+    st: &BaroState<T>,
+    h: &SVector<T, STATES>,
+    y: T,
+    r: T,
+    gate: Gate<T>,
+) -> Option<BaroUpdate<T>> {
+    let u: SVector<T, STATES> = p * h + st.cross;
+    let u_b = st.cross.dot(h) + st.variance_m2;
+    let hph = h.dot(&u) + u_b;
+    let s = hph + r;
+    let (report, inv_s) = gate_scalar(y, hph, s, gate)?;
+    if report.outcome != FusionOutcome::Fused {
+        return Some(BaroUpdate {
+            report,
+            dx: SVector::zeros(),
+            db_m: T::zero(),
+            p: *p,
+            cross: st.cross,
+            variance_m2: st.variance_m2,
+        });
+    }
+    let k = u * inv_s;
+    let k_b = u_b * inv_s;
+    let mut p_new = *p;
+    for j in 0..STATES {
+        for i in 0..=j {
+            let (Some(ui), Some(kj)) = (u.get(i), k.get(j)) else {
+                continue;
+            };
+            let v = p.get((i, j)).copied().unwrap_or_else(T::zero) - *ui * *kj;
+            if let Some(dst) = p_new.get_mut((i, j)) {
+                *dst = v;
+            }
+            if let Some(dst) = p_new.get_mut((j, i)) {
+                *dst = v;
+            }
+        }
+    }
+    let cross = st.cross - u * k_b;
+    let variance_m2 = st.variance_m2 - u_b * k_b;
+    let ok = variance_m2 >= T::zero()
+        && variance_m2.is_finite()
+        && p_new.diagonal().iter().all(|d| *d >= T::zero())
+        && crate::math::checks::all_finite(p_new.as_slice())
+        && crate::math::checks::all_finite(cross.as_slice());
+    if !ok {
+        return None;
+    }
+    Some(BaroUpdate {
+        report,
+        dx: k * y,
+        db_m: k_b * y,
+        p: p_new,
+        cross,
+        variance_m2,
+    })
+}
+
+/// Validates a baro sample against the tick time: finite, not in the future, at most
+/// [`MAX_BARO_AGE_S`] old. Returns its age, s.
+pub fn baro_age_s<T: Real>(
+    sample: &BaroSample<T>,
+    now: crate::time::Timestamp,
+) -> Result<T, NavError> {
+    crate::error::input_finite("baro.altitude_m", sample.altitude_m)?;
+    let age_us = now
+        .micros_since(sample.time)
+        .ok_or(NavError::MeasurementTimeOutOfWindow)?;
+    let age: T = crate::time::micros_to_seconds(age_us);
+    if age > T::lit(MAX_BARO_AGE_S) {
+        return Err(NavError::MeasurementTimeOutOfWindow);
+    }
+    Ok(age)
+}

@@ -1,0 +1,852 @@
+//! The navigator value and its tick (module doc of [`super`]).
+
+use super::baro::{baro_age_s, baro_update, BaroState};
+use super::handover::{hand_over, AlignmentAtRelease, MasterAtRelease};
+use super::types::{
+    AidAvailability, AidState, AidStatus, Aids, BaroDamping, Degradation, ImuTick, MasterNav,
+    NavSolution, NavigatorConfig, NavigatorInitial, Phase, SeparationStatus, TickReport,
+    Transition, TransitionCause,
+};
+use crate::contract::{AidCounters, Estimator, FusionOutcome, FusionReport};
+use crate::earth::{earth_rate_ned, radii_m, transport_rate_ned};
+use crate::math::rotation::{
+    exp_so3, log_so3, quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm,
+};
+use crate::seeker_ins::{
+    Ins, InsState, LosSample, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES,
+};
+use crate::time::Timestamp;
+use crate::transfer_alignment::{
+    compensate_lever_arm, MasterSample, SlaveHistory, SlaveSample, TaInitial, TransferAlignment,
+};
+use crate::vertical_channel::BaroSample;
+use crate::{HealthState, NavError, Real};
+use heapless::Deque;
+use nalgebra::{Matrix3, SMatrix, Vector3};
+
+/// One INS state of the carry phase at a tick time (for the master's late epochs).
+#[derive(Debug, Clone, Copy)]
+struct Snapshot<T> {
+    time: Timestamp,
+    state: InsState<T>,
+}
+
+/// The last fused master sample and what separation is judged against.
+#[derive(Debug, Clone, Copy)]
+struct MasterRecord<T> {
+    nav: MasterNav<T>,
+    /// Its lever-arm-compensated specific force in slave axes, m/s².
+    f_slave_m_s2: Vector3<T>,
+}
+
+/// The three aids' reports of a tick.
+type AidReports<T> = [AidStatus<T>; 3];
+
+/// One aid's running record.
+#[derive(Debug, Clone, Copy, Default)]
+struct AidTrack<T> {
+    last: Option<FusionReport<T>>,
+    counters: AidCounters,
+    /// Last usable sample (fused, or accepted for the baro), for the timeout.
+    last_ok: Option<Timestamp>,
+}
+
+impl<T: Real> AidTrack<T> {
+    fn status(&self, state: AidState) -> AidStatus<T> {
+        AidStatus {
+            state,
+            last: self.last,
+            counters: self.counters,
+        }
+    }
+}
+
+/// The flight navigator (module doc of [`super`]): generic over the float `T`, the
+/// alignment filter's dimensions `K`, `N`, and the depth `H` of the slave and INS histories
+/// (≥ master latency × IMU rate).
+#[derive(Debug, Clone)]
+pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
+    config: NavigatorConfig<T>,
+    design: SeekerInsDesign<T>,
+    phase: Phase,
+    /// Time of the last accepted tick (the initial time before the first).
+    time: Timestamp,
+    start: Timestamp,
+    ticked: bool,
+    ins: Ins<T>,
+    ta: TransferAlignment<T, K, N>,
+    history: SlaveHistory<T, H>,
+    snapshots: Deque<Snapshot<T>, H>,
+    /// The carry solution's covariance (NED convention).
+    carry_cov: SMatrix<T, 9, 9>,
+    last_master: Option<MasterRecord<T>>,
+    separation: SeparationStatus,
+    signal: Option<Timestamp>,
+    ekf: Option<SeekerIns<T>>,
+    released_at: Option<Timestamp>,
+    midcourse_at: Option<Timestamp>,
+    baro_state: BaroState<T>,
+    last_baro_time: Option<Timestamp>,
+    pending: Option<Transition>,
+    master: AidTrack<T>,
+    baro: AidTrack<T>,
+    seeker: AidTrack<T>,
+}
+
+/// The navigator with the flight transfer-alignment filter ([`crate::transfer_alignment::FlightFilter`]).
+pub type FlightNavigator<T, const H: usize> = Navigator<T, 5, 15, H>;
+/// The navigator with the conventional 9-state alignment ([`crate::transfer_alignment::ConventionalFilter`]).
+pub type ConventionalNavigator<T, const H: usize> = Navigator<T, 3, 9, H>;
+
+fn elapsed<T: Real>(now: Timestamp, since: Timestamp) -> T {
+    now.signed_seconds_since(since)
+}
+
+/// The EKF's 9 × 9 navigation block (δL, δl, δh, δV, φ) → NED metres for position.
+pub(crate) fn nav_block_to_ned<T: Real>(
+    p: &SMatrix<T, STATES, STATES>,
+    state: &InsState<T>,
+) -> SMatrix<T, 9, 9> {
+    let pos = &state.position;
+    let (rm, rn) = radii_m(pos.lat_rad);
+    let d = [
+        T::lit(rm + pos.alt_m),
+        T::lit((rn + pos.alt_m) * libm::cos(pos.lat_rad)),
+        -T::one(),
+    ];
+    let mut out = p.fixed_view::<9, 9>(0, 0).into_owned();
+    for (i, di) in d.iter().enumerate() {
+        for v in out.row_mut(i).iter_mut() {
+            *v *= *di;
+        }
+        for v in out.column_mut(i).iter_mut() {
+            *v *= *di;
+        }
+    }
+    out
+}
+
+/// The master's quality and motion in the hand-over's shape. Its body-rate 1σ is not on the
+/// bus: the alignment's rate-difference noise (master and slave gyro noise per sample) bounds
+/// it.
+fn at_release<T: Real>(m: &MasterNav<T>, rate_sigma_rad_s: T) -> MasterAtRelease<T> {
+    let lat = T::lit(m.position.lat_rad);
+    let alt = T::lit(m.position.alt_m);
+    let w_in = earth_rate_ned(lat) + transport_rate_ned(lat, alt, &m.vel_ned_m_s);
+    MasterAtRelease {
+        c_m_n: m.c_m_n,
+        vel_ned_m_s: m.vel_ned_m_s,
+        position: m.position,
+        rate_nm_rad_s: m.angular_rate_rad_s - m.c_m_n.transpose() * w_in,
+        attitude_sigma_rad: m.attitude_sigma_rad,
+        velocity_sigma_m_s: m.velocity_sigma_m_s,
+        position_sigma_m: m.position_sigma_m,
+        rate_sigma_rad_s,
+    }
+}
+
+/// The error `snapshot − transferred` as the INS's correction arguments.
+#[derive(Debug, Clone, Copy)]
+struct Correction<T> {
+    d_lat_rad: f64,
+    d_lon_rad: f64,
+    d_alt_m: f64,
+    d_vel_m_s: Vector3<T>,
+    phi_rad: Vector3<T>,
+}
+
+impl<T: Real> Correction<T> {
+    fn between(estimate: &InsState<T>, reference: &InsState<T>) -> Self {
+        let c_est = quat_to_dcm(&estimate.q_b_n);
+        let c_ref = quat_to_dcm(&reference.q_b_n);
+        // Ĉ = exp(−[φ×]) C  ⇒  φ = −log(Ĉ Cᵀ).
+        let phi = -log_so3(&(c_est * c_ref.transpose()));
+        Self {
+            d_lat_rad: estimate.position.lat_rad - reference.position.lat_rad,
+            d_lon_rad: estimate.position.lon_rad - reference.position.lon_rad,
+            d_alt_m: estimate.position.alt_m - reference.position.alt_m,
+            d_vel_m_s: estimate.vel_ned_m_s - reference.vel_ned_m_s,
+            phi_rad: phi,
+        }
+    }
+
+    /// The same correction as `Ins::correct` on a stored state (`None`: not finite).
+    fn apply(&self, s: &InsState<T>) -> Option<InsState<T>> {
+        let mut p = s.position;
+        p.lat_rad -= self.d_lat_rad;
+        p.lon_rad -= self.d_lon_rad;
+        p.alt_m -= self.d_alt_m;
+        let q = quat_normalize(&quat_mul(
+            &quat_from_rotation_vector(&self.phi_rad),
+            &s.q_b_n,
+        ))?;
+        Some(InsState {
+            position: p,
+            vel_ned_m_s: s.vel_ned_m_s - self.d_vel_m_s,
+            q_b_n: q,
+        })
+    }
+}
+
+impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
+    /// A navigator in carry at `initial`. Errors: `InvalidConfig` (the navigator's fields,
+    /// [`NavigatorConfig::validate`], then the alignment's and the EKF's own checks),
+    /// `NonFiniteInput` / `InputOutOfRange` for a bad initial state or covariance.
+    pub fn new(
+        config: &NavigatorConfig<T>,
+        initial: &NavigatorInitial<T>,
+    ) -> Result<Self, NavError> {
+        config.validate()?;
+        let design = SeekerIns::design(&config.ins)?;
+        let ta = TransferAlignment::<T, K, N>::new(
+            &config.alignment,
+            &TaInitial {
+                mount_misalignment_rad: Vector3::zeros(),
+            },
+        )?;
+        let ins = Ins::new(initial.state, config.imu_dt_s)?;
+        let cov = &initial.nav_covariance;
+        if !crate::math::checks::all_finite(cov.as_slice()) {
+            return Err(NavError::NonFiniteInput {
+                input: "initial.nav_covariance",
+            });
+        }
+        if crate::math::kalman::asymmetry(cov) > T::zero()
+            || cov.diagonal().iter().any(|d| *d < T::zero())
+        {
+            return Err(NavError::InputOutOfRange {
+                input: "initial.nav_covariance",
+            });
+        }
+        Ok(Self {
+            config: *config,
+            design,
+            phase: Phase::Carry,
+            time: initial.time,
+            start: initial.time,
+            ticked: false,
+            ins,
+            ta,
+            history: SlaveHistory::new(),
+            snapshots: Deque::new(),
+            carry_cov: *cov,
+            last_master: None,
+            separation: SeparationStatus::NotSignalled,
+            signal: None,
+            ekf: None,
+            released_at: None,
+            midcourse_at: None,
+            baro_state: match &config.baro {
+                BaroDamping::Ekf(m) => BaroState::start(m),
+                BaroDamping::Off => BaroState {
+                    cross: nalgebra::SVector::zeros(),
+                    variance_m2: T::zero(),
+                    bias_m: T::zero(),
+                },
+            },
+            last_baro_time: None,
+            pending: None,
+            master: AidTrack::default(),
+            baro: AidTrack::default(),
+            seeker: AidTrack::default(),
+        })
+    }
+
+    /// The current phase.
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &NavigatorConfig<T> {
+        &self.config
+    }
+
+    /// The transfer-alignment filter (carry; frozen at release).
+    pub fn alignment(&self) -> &TransferAlignment<T, K, N> {
+        &self.ta
+    }
+
+    /// The 17-state EKF (`None` before release).
+    pub fn ekf(&self) -> Option<&SeekerIns<T>> {
+        self.ekf.as_ref()
+    }
+
+    /// The baro-error state (its estimate, variance and cross-covariance with the 17).
+    pub fn baro_state(&self) -> &BaroState<T> {
+        &self.baro_state
+    }
+
+    /// The navigation solution and its covariance.
+    pub fn solution(&self) -> NavSolution<T> {
+        match &self.ekf {
+            Some(e) => NavSolution {
+                time: self.time,
+                state: *e.state(),
+                nav_covariance: nav_block_to_ned(e.covariance(), e.state()),
+            },
+            None => NavSolution {
+                time: self.time,
+                state: *self.ins.state(),
+                nav_covariance: self.carry_cov,
+            },
+        }
+    }
+
+    /// Release without an alignment (ground launch, or a test of the chain without the carry
+    /// phase): the EKF starts from `initial` now (at the last tick's time). Only in carry:
+    /// else `InputOutOfRange { input: "release_with: not in carry" }`. Errors of
+    /// [`SeekerIns`]'s construction (bad state or P0) leave the navigator unchanged. The
+    /// transition is reported by the next tick.
+    pub fn release_with(&mut self, initial: &SeekerInsInitial<T>) -> Result<(), NavError> {
+        if self.phase != Phase::Carry {
+            return Err(NavError::InputOutOfRange {
+                input: "release_with: not in carry",
+            });
+        }
+        let ekf = SeekerIns::from_design(&self.config.ins, &self.design, initial)?;
+        self.enter_released(
+            ekf,
+            SeparationStatus::Commanded,
+            TransitionCause::ReleaseCommanded,
+        );
+        Ok(())
+    }
+
+    fn enter_released(
+        &mut self,
+        ekf: SeekerIns<T>,
+        status: SeparationStatus,
+        cause: TransitionCause,
+    ) {
+        self.ekf = Some(ekf);
+        self.phase = Phase::Released;
+        self.released_at = Some(self.time);
+        self.separation = status;
+        self.pending = Some(Transition {
+            from: Phase::Carry,
+            to: Phase::Released,
+            cause,
+            time: self.time,
+        });
+    }
+
+    /// One IMU sample plus the aids that arrived since the last one (module doc). A bad IMU
+    /// sample (non-finite, beyond range, not later than the last tick, interval too long):
+    /// `Err`, nothing changed. A bad aid: refused (its state `Refused`, counted), nothing of
+    /// it applied, the tick still runs.
+    pub fn tick(
+        &mut self,
+        imu: &ImuTick<T>,
+        aids: &Aids<'_, T>,
+    ) -> Result<TickReport<T>, NavError> {
+        if self.ticked && imu.increment.time <= self.time || imu.increment.time <= self.start {
+            return Err(NavError::TimeNotIncreasing);
+        }
+        let mut transition = self.pending.take();
+        let mut degr = Degradation {
+            separation: self.separation,
+            ..Degradation::default()
+        };
+        let [master, baro, seeker] = if self.phase == Phase::Carry {
+            let r = self.tick_carry(imu, aids, &mut transition);
+            if r.is_err() {
+                // Nothing committed: restore the pending transition.
+                self.pending = transition;
+            }
+            r?
+        } else {
+            let r = self.tick_flight(imu, aids, &mut transition);
+            if r.is_err() {
+                self.pending = transition;
+            }
+            r?
+        };
+        self.ticked = true;
+        degr.separation = self.separation;
+        degr.master = self.master_availability();
+        degr.baro = self.baro_availability();
+        degr.seeker = self.seeker_availability();
+        let health = self.health(&degr);
+        Ok(TickReport {
+            solution: self.solution(),
+            phase: self.phase,
+            transition,
+            master,
+            baro,
+            seeker,
+            health,
+            degradation: degr,
+        })
+    }
+
+    fn health(&self, d: &Degradation) -> HealthState {
+        let degraded = d.master == AidAvailability::TimedOut
+            || d.baro == AidAvailability::TimedOut
+            || d.seeker == AidAvailability::TimedOut
+            || matches!(
+                d.separation,
+                SeparationStatus::SeparationUnconfirmed | SeparationStatus::UnsignalledRelease
+            );
+        let base = match &self.ekf {
+            Some(e) => e.health().state,
+            None if self.last_master.is_none() => HealthState::Initialising,
+            None => HealthState::Nominal,
+        };
+        match base {
+            HealthState::Nominal | HealthState::Initialising if degraded => HealthState::Degraded,
+            other => other,
+        }
+    }
+
+    // ---------------------------------------------------------------- carry
+
+    fn tick_carry(
+        &mut self,
+        imu: &ImuTick<T>,
+        aids: &Aids<'_, T>,
+        transition: &mut Option<Transition>,
+    ) -> Result<AidReports<T>, NavError> {
+        let inc = &imu.increment;
+        let mut ins = self.ins;
+        ins.step(inc)?;
+        let dt = ins.last_interval_s();
+        let slave = SlaveSample {
+            time: inc.time,
+            angular_rate_rad_s: inc.delta_theta_rad / dt,
+            specific_force_m_s2: inc.delta_v_m_s / dt,
+        };
+        slave.validate()?;
+        if self.history.newest().is_some_and(|s| s.time >= inc.time) {
+            return Err(NavError::TimeNotIncreasing);
+        }
+        // Commit the IMU part (nothing below fails the tick).
+        self.history.push(&slave)?;
+        self.ins = ins;
+        self.time = inc.time;
+        if self.snapshots.is_full() {
+            let _ = self.snapshots.pop_front();
+        }
+        let _ = self.snapshots.push_back(Snapshot {
+            time: inc.time,
+            state: *ins.state(),
+        });
+        let mut master_state = AidState::Waiting;
+        if let Some(m) = aids.master {
+            master_state = match self.fuse_master(m) {
+                Ok(s) => s,
+                Err(e) => {
+                    self.master.counters.record_refused();
+                    AidState::Refused(e)
+                }
+            };
+        }
+        let master_lost = self.master_availability() == AidAvailability::TimedOut;
+        if master_lost && master_state == AidState::Waiting {
+            master_state = AidState::TimedOut;
+        }
+        // Separation.
+        if let Some(sig) = aids.separation {
+            if matches!(
+                self.separation,
+                SeparationStatus::NotSignalled
+                    | SeparationStatus::SeparationUnconfirmed
+                    | SeparationStatus::AwaitingConfirmation
+            ) && self.signal.is_none_or(|s| sig > s)
+            {
+                self.signal = Some(sig);
+                self.separation = SeparationStatus::AwaitingConfirmation;
+            }
+        }
+        let imu_sees = self.last_master.is_some_and(|lm| {
+            (slave.specific_force_m_s2 - lm.f_slave_m_s2).norm()
+                > self.config.separation.specific_force_jump_m_s2
+        });
+        let mut release = None;
+        match (self.separation, self.signal) {
+            (SeparationStatus::AwaitingConfirmation, Some(sig)) => {
+                let age = elapsed::<T>(self.time, sig);
+                if imu_sees {
+                    release = Some((
+                        SeparationStatus::Confirmed,
+                        TransitionCause::SeparationConfirmed,
+                    ));
+                } else if age > self.config.separation.confirm_window_s {
+                    self.separation = SeparationStatus::SeparationUnconfirmed;
+                }
+            }
+            _ => {
+                if master_lost && imu_sees {
+                    release = Some((
+                        SeparationStatus::UnsignalledRelease,
+                        TransitionCause::UnsignalledSeparation,
+                    ));
+                }
+            }
+        }
+        if let Some((status, cause)) = release {
+            if let Some(ekf) = self.hand_over_now() {
+                self.enter_released(ekf, status, cause);
+                *transition = self.pending.take();
+            }
+        }
+        let not_used = |t: &AidTrack<T>| t.status(AidState::NotUsedInPhase);
+        Ok([
+            self.master.status(master_state),
+            not_used(&self.baro),
+            not_used(&self.seeker),
+        ])
+    }
+
+    /// The EKF at this tick from the last master and the alignment (`None` without a master
+    /// or when the EKF refuses the state).
+    fn hand_over_now(&self) -> Option<SeekerIns<T>> {
+        let lm = self.last_master?;
+        let init = hand_over(
+            &at_release(&lm.nav, self.config.alignment.rate_noise_sigma_rad_s),
+            &AlignmentAtRelease::from_filter(&self.ta),
+            &self.config.lever_arm,
+            &self.config.priors,
+        )
+        .ok()?;
+        let initial = SeekerInsInitial {
+            state: *self.ins.state(),
+            covariance: init.covariance,
+        };
+        SeekerIns::from_design(&self.config.ins, &self.design, &initial).ok()
+    }
+
+    /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic.
+    fn fuse_master(&mut self, m: &MasterNav<T>) -> Result<AidState, NavError> {
+        let tol = self.ta_tolerance_us();
+        let snap = self
+            .snapshots
+            .iter()
+            .rev()
+            .find(|s| s.time.as_micros().abs_diff(m.time.as_micros()) <= tol)
+            .copied()
+            .ok_or(NavError::MeasurementTimeOutOfWindow)?;
+        let ms = MasterSample {
+            time: m.time,
+            angular_rate_rad_s: m.angular_rate_rad_s,
+            angular_accel_rad_s2: m.angular_accel_rad_s2,
+            specific_force_m_s2: m.specific_force_m_s2,
+        };
+        ms.validate()?;
+        let mut ta = self.ta.clone();
+        let report = ta.step_delayed(&ms, &self.history)?;
+        let init = hand_over(
+            &at_release(m, self.config.alignment.rate_noise_sigma_rad_s),
+            &AlignmentAtRelease::from_filter(&ta),
+            &self.config.lever_arm,
+            &self.config.priors,
+        )?;
+        let corr = Correction::between(&snap.state, &init.state);
+        let mut ins = self.ins;
+        ins.correct(
+            corr.d_lat_rad,
+            corr.d_lon_rad,
+            corr.d_alt_m,
+            &corr.d_vel_m_s,
+            &corr.phi_rad,
+        )?;
+        let mut snaps = self.snapshots.clone();
+        for s in snaps.iter_mut().filter(|s| s.time >= snap.time) {
+            s.state = corr.apply(&s.state).ok_or(NavError::NonFiniteInput {
+                input: "master correction",
+            })?;
+        }
+        // Commit.
+        self.ta = ta;
+        self.ins = ins;
+        self.snapshots = snaps;
+        self.carry_cov = nav_block_to_ned(&init.covariance, &init.state);
+        let f_m = compensate_lever_arm(&ms, &self.config.lever_arm.nominal_m);
+        let c_m_s: Matrix3<T> = exp_so3(&(-self.ta.theta()));
+        self.last_master = Some(MasterRecord {
+            nav: *m,
+            f_slave_m_s2: c_m_s * f_m,
+        });
+        let mut worst: Option<FusionReport<T>> = None;
+        let mut any_fused = false;
+        for u in &report.updates {
+            self.master.counters.record(u.outcome);
+            any_fused |= u.outcome == FusionOutcome::Fused;
+            if worst.is_none_or(|w| u.nis > w.nis) {
+                worst = Some(*u);
+            }
+        }
+        self.master.last = worst;
+        if any_fused {
+            self.master.last_ok = Some(self.time);
+            Ok(AidState::Fused)
+        } else {
+            Ok(AidState::Rejected)
+        }
+    }
+
+    fn ta_tolerance_us(&self) -> u64 {
+        crate::time::seconds_to_micros(self.config.alignment.time_tolerance_s).unwrap_or(0)
+    }
+
+    // ---------------------------------------------------------------- flight
+
+    fn baro_model(&self) -> Option<super::types::BaroErrorModel<T>> {
+        match self.config.baro {
+            BaroDamping::Ekf(m) if matches!(self.phase, Phase::Midcourse | Phase::Terminal) => {
+                Some(m)
+            }
+            _ => None,
+        }
+    }
+
+    fn tick_flight(
+        &mut self,
+        imu: &ImuTick<T>,
+        aids: &Aids<'_, T>,
+        transition: &mut Option<Transition>,
+    ) -> Result<AidReports<T>, NavError> {
+        let Some(mut ekf) = self.ekf else {
+            return Err(NavError::InputOutOfRange {
+                input: "navigator state",
+            });
+        };
+        let inc = &imu.increment;
+        let clip = (imu.clipped.accel || imu.clipped.gyro).then_some(imu.clipped);
+        let mut bs = self.baro_state;
+        let before = ekf.health();
+        if let Some(model) = self.baro_model() {
+            ekf.propagate_deferred(inc, clip)?;
+            if ekf.steps_pending() >= self.config.ins.covariance_interval_steps {
+                if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
+                    bs.decay(&model, dt);
+                }
+            }
+            let after = ekf.health();
+            if after.limits_hit != before.limits_hit || after.gaps_reset != before.gaps_reset {
+                bs.cross = nalgebra::SVector::zeros();
+            }
+        } else {
+            match clip {
+                Some(flags) => ekf.propagate_clipped(inc, flags)?,
+                None => ekf.propagate(inc)?,
+            }
+        }
+        // Commit the IMU part.
+        self.ekf = Some(ekf);
+        self.baro_state = bs;
+        self.time = inc.time;
+        // Phase by time.
+        if self.phase == Phase::Released
+            && self
+                .released_at
+                .is_some_and(|t| elapsed::<T>(self.time, t) >= self.config.separation.coast_s)
+        {
+            self.phase = Phase::Midcourse;
+            self.midcourse_at = Some(self.time);
+            if let BaroDamping::Ekf(m) = &self.config.baro {
+                self.baro_state = BaroState::start(m);
+            }
+            transition.get_or_insert(Transition {
+                from: Phase::Released,
+                to: Phase::Midcourse,
+                cause: TransitionCause::CoastElapsed,
+                time: self.time,
+            });
+        }
+        let baro = self.baro_aid(aids.baro);
+        let seeker = self.seeker_aid(aids.seeker, transition);
+        Ok([self.master.status(AidState::NotUsedInPhase), baro, seeker])
+    }
+
+    fn baro_aid(&mut self, sample: Option<&BaroSample<T>>) -> AidStatus<T> {
+        let Some(model) = self.baro_model() else {
+            return self.baro.status(AidState::NotUsedInPhase);
+        };
+        let mut state = AidState::Waiting;
+        if let Some(b) = sample {
+            state = match self.fuse_baro(&model, b) {
+                Ok(s) => s,
+                Err(e) => {
+                    self.baro.counters.record_refused();
+                    AidState::Refused(e)
+                }
+            };
+        }
+        if state == AidState::Waiting && self.baro_availability() == AidAvailability::TimedOut {
+            state = AidState::TimedOut;
+        }
+        self.baro.status(state)
+    }
+
+    /// The baro's joint update (module `baro`); atomic.
+    fn fuse_baro(
+        &mut self,
+        model: &super::types::BaroErrorModel<T>,
+        b: &BaroSample<T>,
+    ) -> Result<AidState, NavError> {
+        let age = baro_age_s::<T>(b, self.time)?;
+        if self.last_baro_time.is_some_and(|t| b.time <= t) {
+            return Err(NavError::TimeNotIncreasing);
+        }
+        let Some(mut ekf) = self.ekf else {
+            return Err(NavError::InputOutOfRange {
+                input: "navigator state",
+            });
+        };
+        let mut bs = self.baro_state;
+        if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
+            bs.decay(model, dt);
+        }
+        let tau = model.lag_s + age;
+        let h = BaroState::h_row(tau);
+        let y = bs.predicted_m(&ekf, tau) - b.altitude_m;
+        let r = model.white_sigma_m * model.white_sigma_m;
+        let gate = self.config.ins.gate;
+        let outcome = match baro_update(ekf.covariance(), &bs, &h, y, r, gate) {
+            None => FusionOutcome::Skipped,
+            Some(u) => {
+                if u.report.outcome == FusionOutcome::Fused {
+                    ekf.apply_external_update(&u.dx, &u.p)?;
+                    bs.cross = u.cross;
+                    bs.variance_m2 = u.variance_m2;
+                    bs.bias_m -= u.db_m;
+                }
+                self.baro.last = Some(u.report);
+                u.report.outcome
+            }
+        };
+        // Commit (the propagation to the sample happened whatever the outcome).
+        self.ekf = Some(ekf);
+        self.baro_state = bs;
+        self.last_baro_time = Some(b.time);
+        self.baro.counters.record(outcome);
+        self.baro.last_ok = Some(self.time);
+        Ok(match outcome {
+            FusionOutcome::Fused => AidState::Fused,
+            FusionOutcome::Rejected => AidState::Rejected,
+            FusionOutcome::Skipped => AidState::Waiting,
+        })
+    }
+
+    fn seeker_aid(
+        &mut self,
+        sample: Option<&LosSample<T>>,
+        transition: &mut Option<Transition>,
+    ) -> AidStatus<T> {
+        if self.phase == Phase::Released {
+            return self.seeker.status(AidState::NotUsedInPhase);
+        }
+        let mut state = AidState::Waiting;
+        if let Some(s) = sample {
+            state = match self.fuse_los(s) {
+                Ok(st) => st,
+                Err(e) => {
+                    self.seeker.counters.record_refused();
+                    AidState::Refused(e)
+                }
+            };
+        }
+        if state == AidState::Fused && self.phase == Phase::Midcourse {
+            self.phase = Phase::Terminal;
+            transition.get_or_insert(Transition {
+                from: Phase::Midcourse,
+                to: Phase::Terminal,
+                cause: TransitionCause::SeekerFused,
+                time: self.time,
+            });
+        }
+        if state == AidState::Waiting && self.seeker_availability() == AidAvailability::TimedOut {
+            state = AidState::TimedOut;
+        }
+        self.seeker.status(state)
+    }
+
+    /// One LOS sample through the EKF; atomic.
+    fn fuse_los(&mut self, s: &LosSample<T>) -> Result<AidState, NavError> {
+        let Some(mut ekf) = self.ekf else {
+            return Err(NavError::InputOutOfRange {
+                input: "navigator state",
+            });
+        };
+        let mut bs = self.baro_state;
+        if let Some(model) = self.baro_model() {
+            // Keep the baro column in step: flush the pending covariance step first.
+            if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
+                bs.decay(&model, dt);
+            }
+        }
+        let report = ekf.update_los(s)?;
+        let fused = [report.pitch.outcome, report.yaw.outcome]
+            .iter()
+            .filter(|o| **o == FusionOutcome::Fused)
+            .count();
+        if fused > 0 {
+            // The LOS gain is not exposed: forget the baro column's correlation (module
+            // `baro`).
+            bs.cross = nalgebra::SVector::zeros();
+        }
+        self.ekf = Some(ekf);
+        self.baro_state = bs;
+        for r in [report.pitch, report.yaw] {
+            self.seeker.counters.record(r.outcome);
+        }
+        let worst = if report.pitch.nis >= report.yaw.nis {
+            report.pitch
+        } else {
+            report.yaw
+        };
+        self.seeker.last = Some(worst);
+        if fused > 0 {
+            self.seeker.last_ok = Some(self.time);
+            return Ok(AidState::Fused);
+        }
+        let rejected =
+            [report.pitch.outcome, report.yaw.outcome].contains(&FusionOutcome::Rejected);
+        Ok(if rejected {
+            AidState::Rejected
+        } else {
+            AidState::Waiting
+        })
+    }
+}
+
+fn lost_if(lost: bool) -> AidAvailability {
+    if lost {
+        AidAvailability::TimedOut
+    } else {
+        AidAvailability::Available
+    }
+}
+
+impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
+    /// Master: in carry, no fused sample for `timeouts.master_s` (since the start).
+    fn master_availability(&self) -> AidAvailability {
+        let since = self.master.last_ok.unwrap_or(self.start);
+        lost_if(
+            self.phase == Phase::Carry
+                && elapsed::<T>(self.time, since) > self.config.timeouts.master_s,
+        )
+    }
+
+    /// Baro: with baro damping in midcourse / terminal, no accepted sample for
+    /// `timeouts.baro_s` (since midcourse start).
+    fn baro_availability(&self) -> AidAvailability {
+        let since = self.baro.last_ok.max(self.midcourse_at);
+        lost_if(
+            self.baro_model().is_some()
+                && since.is_some_and(|t| elapsed::<T>(self.time, t) > self.config.timeouts.baro_s),
+        )
+    }
+
+    /// Seeker: in terminal, no fused component for `timeouts.seeker_s`.
+    fn seeker_availability(&self) -> AidAvailability {
+        lost_if(
+            self.phase == Phase::Terminal
+                && self
+                    .seeker
+                    .last_ok
+                    .is_some_and(|t| elapsed::<T>(self.time, t) > self.config.timeouts.seeker_s),
+        )
+    }
+}
