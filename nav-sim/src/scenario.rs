@@ -71,6 +71,7 @@ pub static REGISTRY: &[Kind] = &[
     crate::scenarios::vertical_channel_faults::KIND,
     crate::scenarios::vertical_channel::KIND_TAU_SWEEP,
     crate::scenarios::consistency_campaign::KIND,
+    crate::scenarios::mission::KIND,
 ];
 
 #[derive(Debug, Deserialize)]

@@ -17,7 +17,7 @@ pub mod campaign;
 mod config;
 pub mod fault;
 mod report;
-mod run;
+pub(crate) mod run;
 pub(crate) mod sensors;
 pub mod trajectory;
 
