@@ -72,6 +72,7 @@ pub static REGISTRY: &[Kind] = &[
     crate::scenarios::vertical_channel::KIND_TAU_SWEEP,
     crate::scenarios::consistency_campaign::KIND,
     crate::scenarios::mission::KIND,
+    crate::scenarios::mission::fault::KIND,
 ];
 
 #[derive(Debug, Deserialize)]

@@ -10,6 +10,7 @@
 //! summary and figures in [`report`].
 
 pub mod config;
+pub mod fault;
 pub mod profile;
 pub mod report;
 pub mod run;

@@ -77,6 +77,9 @@ pub struct FlightRecord {
     pub transitions: Vec<(f64, PhaseTag)>,
     /// Aid outcomes over the run: (aid, outcome) → count.
     pub aid_counts: Vec<(String, u64)>,
+    /// Ticks at which an aid was not nominal (rejected, refused, timed out) or the
+    /// navigator reported a degradation: time, phase, `aid.state` tags.
+    pub events: Vec<(f64, PhaseTag, Vec<String>)>,
 }
 
 /// Ensemble statistics of one variant.

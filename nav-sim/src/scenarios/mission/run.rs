@@ -19,7 +19,7 @@ use nav_core::contract::Gate;
 use nav_core::navigator::{
     AidState, AidTimeouts, Aids, BaroDamping, BaroErrorModel, HandoverPriors, ImuTick, LeverArm,
     MasterNav, NavSolution, Navigator, NavigatorConfig, NavigatorInitial, Phase, SeparationCheck,
-    TickReport,
+    SeparationStatus, TickReport,
 };
 use nav_core::seeker_ins::{
     default_recovery, ImuFaultPolicy, ImuIncrement, InsState, InstrumentErrors, Landmark,
@@ -294,8 +294,16 @@ fn handover_sample<T: Real>(
     }
 }
 
-/// Counts the aid outcomes of a tick report.
-fn count(out: &mut FlightRecord, rep: &TickReport<impl Real>) {
+/// Counts the aid outcomes of a tick report and logs the ticks that were not nominal.
+fn count(out: &mut FlightRecord, rep: &TickReport<impl Real>, t_s: f64) {
+    let mut tags = Vec::new();
+    let d = &rep.degradation;
+    if !matches!(
+        d.separation,
+        SeparationStatus::NotSignalled | SeparationStatus::Confirmed | SeparationStatus::Commanded
+    ) {
+        tags.push(format!("separation.{:?}", d.separation));
+    }
     for (name, st) in [
         ("master", &rep.master.state),
         ("baro", &rep.baro.state),
@@ -309,10 +317,16 @@ fn count(out: &mut FlightRecord, rep: &TickReport<impl Real>) {
             AidState::TimedOut => "timed_out",
         };
         let key = format!("{name}.{tag}");
+        if tag != "fused" {
+            tags.push(key.clone());
+        }
         match out.aid_counts.iter_mut().find(|(k, _)| *k == key) {
             Some((_, n)) => *n += 1,
             None => out.aid_counts.push((key, 1)),
         }
+    }
+    if !tags.is_empty() {
+        out.events.push((t_s, phase_tag(rep.phase), tags));
     }
 }
 
@@ -513,7 +527,7 @@ fn fly_with<T: Real, const K: usize, const NS: usize>(
         let rep = n
             .tick(&imu_tick::<T>(tick), &aids)
             .map_err(|e| anyhow!("tick at {} s: {e}", tick.imu.time.as_secs_f64()))?;
-        count(&mut out, &rep);
+        count(&mut out, &rep, truth.missile.t_s[tick.index]);
         let phase = rep.phase;
         if last_phase != Some(phase) {
             out.transitions
