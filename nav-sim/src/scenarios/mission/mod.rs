@@ -301,7 +301,7 @@ fn trajectory_figure(
             "landmark",
             &[cfg.landmark.east_m * 1e-3],
             &[cfg.landmark.north_m * 1e-3],
-            3,
+            5,
         )
     });
     render(

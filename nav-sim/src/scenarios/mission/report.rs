@@ -381,7 +381,7 @@ pub fn error_figure(v: &VariantStats, title: &str, path: &Path) -> Result<()> {
     for (g, unit, c0, scale) in groups {
         let mut series = Vec::new();
         let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
-        for a in 0..3 {
+        for (a, axis) in axes.iter().enumerate() {
             let l = |x: &Vec<f64>| -> Vec<f64> {
                 x.iter().map(|v| (v * scale).max(1e-6).log10()).collect()
             };
@@ -391,8 +391,8 @@ pub fn error_figure(v: &VariantStats, title: &str, path: &Path) -> Result<()> {
                 lo = lo.min(*x);
                 hi = hi.max(*x);
             }
-            series.push(Series::line(format!("RMS {}", axes[a]), &v.t_s, &r, a));
-            series.push(Series::dashed(format!("σ {}", axes[a]), &v.t_s, &s, a));
+            series.push(Series::line(format!("RMS {axis}"), &v.t_s, &r, a));
+            series.push(Series::dashed(format!("σ {axis}"), &v.t_s, &s, a));
         }
         series.extend(boundary_series(&b, lo, hi));
         panels.push(Panel {
