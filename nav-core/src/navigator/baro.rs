@@ -16,17 +16,22 @@
 //!   `S = h u + u_b + R`; `δx̂ = u y / S` fed back through the EKF's correction path,
 //!   `b̂ ← b̂ − u_b y / S`; `P ← P − u uᵀ/S`, `c ← c − u u_b/S`, `s ← s − u_b²/S` (the
 //!   18-state update written in its blocks; checked against the dense 18-state Joseph form
-//!   in the tests). A result with a negative variance or a non-finite entry is not applied
-//!   (`Skipped`).
-//! * What the 17-state EKF does to P without telling the column (a variance held at its
-//!   ceiling, a long IMU gap, a LOS update) is followed by `c ← 0`: the joint covariance
-//!   stays PSD (block diagonal of two PSD blocks) and the correlation between the baro error
-//!   and the INS errors is forgotten. After LOS updates in terminal this is an approximation
-//!   (the exact `c ← (I − K H) c` needs the LOS gain, which the EKF does not expose).
+//!   in the tests). As the EKF's LOS update: R is raised to `hPhᵀ / κ` when the sample would
+//!   carry more information than the working precision resolves (κ =
+//!   [`max_information_ratio`], 8 389 in f32), and every variance gets the stabilising noise
+//!   `min(ρ, STABILISING_EPS) ε` (ρ = hPhᵀ/R). A result with a negative variance or a
+//!   non-finite entry is not applied (`Skipped`).
+//! * LOS updates (terminal): the column follows the 18-state sequential update with
+//!   `h_aug = [h, 0]` (`SeekerIns::update_los_cross`): per fused component `g = h c`,
+//!   `c ← c − K g`, `s ← s − g²/S`, `b̂ ← b̂ − g ν/S`.
+//! * What the 17-state EKF does to P other than `Φ P Φᵀ + Q` and the updates above (a variance
+//!   held at its ceiling, a long IMU gap, a recovery inflation) is followed by `c ← 0`: the
+//!   joint covariance stays PSD (block diagonal of two PSD blocks) and the correlation between
+//!   the baro error and the INS errors is forgotten.
 
 use crate::contract::{FusionOutcome, FusionReport, Gate};
 use crate::math::kalman::gate_scalar;
-use crate::seeker_ins::{SeekerIns, POS, STATES, VEL};
+use crate::seeker_ins::{max_information_ratio, SeekerIns, POS, STABILISING_EPS, STATES, VEL};
 use crate::vertical_channel::BaroSample;
 use crate::{NavError, Real};
 use nalgebra::{SMatrix, SVector};
@@ -117,6 +122,9 @@ pub fn baro_update<T: Real>(
     let u: SVector<T, STATES> = p * h + st.cross;
     let u_b = st.cross.dot(h) + st.variance_m2;
     let hph = h.dot(&u) + u_b;
+    // As the LOS update: no more information than the working precision resolves.
+    let kappa = max_information_ratio::<T>();
+    let r = if hph / kappa > r { hph / kappa } else { r };
     let s = hph + r;
     let (report, inv_s) = gate_scalar(y, hph, s, gate)?;
     if report.outcome != FusionOutcome::Fused {
@@ -147,7 +155,18 @@ pub fn baro_update<T: Real>(
         }
     }
     let cross = st.cross - u * k_b;
-    let variance_m2 = st.variance_m2 - u_b * k_b;
+    let mut variance_m2 = st.variance_m2 - u_b * k_b;
+    // Stabilising noise as after a LOS update: `δ = min(ρ, STABILISING_EPS) ε` of each
+    // variance (ρ = hPhᵀ / r), a margin above the rounding of the update.
+    let rho = hph / r;
+    let cap = T::lit(STABILISING_EPS);
+    let delta = if rho < cap { rho } else { cap } * T::EPS;
+    for i in 0..STATES {
+        if let Some(v) = p_new.get_mut((i, i)) {
+            *v += *v * delta;
+        }
+    }
+    variance_m2 += variance_m2 * delta;
     let ok = variance_m2 >= T::zero()
         && variance_m2.is_finite()
         && p_new.diagonal().iter().all(|d| *d >= T::zero())

@@ -13,13 +13,15 @@ use crate::math::rotation::{
     exp_so3, log_so3, quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm,
 };
 use crate::seeker_ins::{
-    Ins, InsState, LosSample, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES,
+    CrossColumn, Ins, InsState, LosSample, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES,
 };
 use crate::time::Timestamp;
 use crate::transfer_alignment::{
     compensate_lever_arm, MasterSample, SlaveHistory, SlaveSample, TaInitial, TransferAlignment,
 };
-use crate::vertical_channel::BaroSample;
+use crate::vertical_channel::{
+    BaroSample, ClassicalDesign, ClassicalLoop, ImuSample as VerticalImu, InitialState,
+};
 use crate::{HealthState, NavError, Real};
 use heapless::Deque;
 use nalgebra::{Matrix3, SMatrix, Vector3};
@@ -37,6 +39,15 @@ struct MasterRecord<T> {
     nav: MasterNav<T>,
     /// Its lever-arm-compensated specific force in slave axes, m/s².
     f_slave_m_s2: Vector3<T>,
+}
+
+/// What the baro-inertial loop did with this tick's baro sample.
+#[derive(Debug, Clone, Copy)]
+enum LoopBaro<T> {
+    /// Its report of a new sample (`None`: no new sample).
+    Report(Option<FusionReport<T>>),
+    /// Refused by the loop.
+    Refused(NavError),
 }
 
 /// The three aids' reports of a tick.
@@ -86,6 +97,9 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     released_at: Option<Timestamp>,
     midcourse_at: Option<Timestamp>,
     baro_state: BaroState<T>,
+    /// The baro-inertial loop's design (computed at construction) and the loop (midcourse on).
+    loop_design: Option<ClassicalDesign<T>>,
+    vloop: Option<ClassicalLoop<T>>,
     last_baro_time: Option<Timestamp>,
     pending: Option<Transition>,
     master: AidTrack<T>,
@@ -238,12 +252,17 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             midcourse_at: None,
             baro_state: match &config.baro {
                 BaroDamping::Ekf(m) => BaroState::start(m),
-                BaroDamping::Off => BaroState {
+                BaroDamping::Off | BaroDamping::InertialLoop(_) => BaroState {
                     cross: nalgebra::SVector::zeros(),
                     variance_m2: T::zero(),
                     bias_m: T::zero(),
                 },
             },
+            loop_design: match &config.baro {
+                BaroDamping::InertialLoop(c) => Some(ClassicalLoop::design(c)?),
+                _ => None,
+            },
+            vloop: None,
             last_baro_time: None,
             pending: None,
             master: AidTrack::default(),
@@ -632,9 +651,15 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 None => ekf.propagate(inc)?,
             }
         }
+        let mut vloop = self.vloop;
+        let mut loop_baro = None;
+        if let Some(lp) = vloop.as_mut() {
+            loop_baro = Some(Self::loop_step(lp, &mut ekf, inc.time, aids.baro)?);
+        }
         // Commit the IMU part.
         self.ekf = Some(ekf);
         self.baro_state = bs;
+        self.vloop = vloop;
         self.time = inc.time;
         // Phase by time.
         if self.phase == Phase::Released
@@ -647,6 +672,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             if let BaroDamping::Ekf(m) = &self.config.baro {
                 self.baro_state = BaroState::start(m);
             }
+            self.start_loop();
             transition.get_or_insert(Transition {
                 from: Phase::Released,
                 to: Phase::Midcourse,
@@ -654,9 +680,120 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 time: self.time,
             });
         }
-        let baro = self.baro_aid(aids.baro);
+        let baro = match loop_baro {
+            Some(outcome) => self.loop_baro_status(outcome),
+            None => self.baro_aid(aids.baro),
+        };
         let seeker = self.seeker_aid(aids.seeker, transition);
         Ok([self.master.status(AidState::NotUsedInPhase), baro, seeker])
+    }
+
+    /// Midcourse start with [`BaroDamping::InertialLoop`]: the loop from the INS's vertical
+    /// state. A loop the design refuses to start (an INS altitude outside its range) leaves the
+    /// vertical channel free (the baro then reports `NotUsedInPhase`).
+    fn start_loop(&mut self) {
+        let (BaroDamping::InertialLoop(cfg), Some(design), Some(ekf)) =
+            (&self.config.baro, &self.loop_design, &self.ekf)
+        else {
+            return;
+        };
+        let s = ekf.state();
+        let init = InitialState {
+            time: self.time,
+            altitude_m: T::lit(s.position.alt_m),
+            vz_up_m_s: -s.vel_ned_m_s.z,
+            accel_bias_m_s2: T::zero(),
+        };
+        self.vloop = ClassicalLoop::from_design(cfg, design, &init).ok();
+    }
+
+    /// One step of the baro-inertial loop on the INS's vertical specific force, then ĥ, V̂_D
+    /// into the INS and the loop's σ into the EKF's (δh, δV_D) block, cross-covariances zero
+    /// (P stays PSD: the new P is block diagonal in {δh, δV_D} and the rest, each block PSD —
+    /// the rest a principal submatrix of a PSD matrix, the vertical block the loop's
+    /// covariance; keeping the old cross terms beside a new vertical block could make P
+    /// indefinite). A baro sample the loop refuses is dropped (`Refused`) and the loop steps on
+    /// the IMU alone. Returns the baro's outcome.
+    fn loop_step(
+        lp: &mut ClassicalLoop<T>,
+        ekf: &mut SeekerIns<T>,
+        time: Timestamp,
+        baro: Option<&BaroSample<T>>,
+    ) -> Result<LoopBaro<T>, NavError> {
+        let imu = VerticalImu {
+            time,
+            specific_force_up_m_s2: -ekf.ins().specific_force_ned_m_s2().z,
+        };
+        let mut next = *lp;
+        let outcome = match next.step(&imu, baro) {
+            Ok(r) => LoopBaro::Report(r.baro.sample),
+            Err(e) if baro.is_some() => {
+                next = *lp;
+                next.step(&imu, None)?;
+                LoopBaro::Refused(e)
+            }
+            Err(e) => return Err(e),
+        };
+        let s = ekf.state();
+        let mut x = nalgebra::SVector::<T, STATES>::zeros();
+        let (ih, iv) = (crate::seeker_ins::POS + 2, crate::seeker_ins::VEL + 2);
+        if let Some(v) = x.get_mut(ih) {
+            *v = T::lit(s.position.alt_m) - next.altitude_m();
+        }
+        if let Some(v) = x.get_mut(iv) {
+            *v = s.vel_ned_m_s.z + next.vz_up_m_s();
+        }
+        let c = next.covariance_h_vz();
+        let mut p = *ekf.covariance();
+        for k in 0..STATES {
+            for (i, j) in [(ih, k), (k, ih), (iv, k), (k, iv)] {
+                if let Some(v) = p.get_mut((i, j)) {
+                    *v = T::zero();
+                }
+            }
+        }
+        // (δh, δV_D) with δV_D = −δV_z.
+        for (i, j, v) in [
+            (ih, ih, c.m11),
+            (iv, iv, c.m22),
+            (ih, iv, -c.m12),
+            (iv, ih, -c.m12),
+        ] {
+            if let Some(dst) = p.get_mut((i, j)) {
+                *dst = v;
+            }
+        }
+        ekf.apply_external_update(&x, &p)?;
+        *lp = next;
+        Ok(outcome)
+    }
+
+    fn loop_baro_status(&mut self, outcome: LoopBaro<T>) -> AidStatus<T> {
+        let state = match outcome {
+            LoopBaro::Refused(e) => {
+                self.baro.counters.record_refused();
+                AidState::Refused(e)
+            }
+            LoopBaro::Report(None) => AidState::Waiting,
+            LoopBaro::Report(Some(r)) => {
+                self.baro.counters.record(r.outcome);
+                self.baro.last = Some(r);
+                self.baro.last_ok = Some(self.time);
+                match r.outcome {
+                    FusionOutcome::Fused => AidState::Fused,
+                    FusionOutcome::Rejected => AidState::Rejected,
+                    FusionOutcome::Skipped => AidState::Waiting,
+                }
+            }
+        };
+        let state = if state == AidState::Waiting
+            && self.baro_availability() == AidAvailability::TimedOut
+        {
+            AidState::TimedOut
+        } else {
+            state
+        };
+        self.baro.status(state)
     }
 
     fn baro_aid(&mut self, sample: Option<&BaroSample<T>>) -> AidStatus<T> {
@@ -776,16 +913,25 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 bs.decay(&model, dt);
             }
         }
-        let report = ekf.update_los(s)?;
+        let report = if self.baro_model().is_some() {
+            // The baro column follows the LOS update (module `baro`).
+            let mut col = CrossColumn {
+                cross: bs.cross,
+                variance: bs.variance_m2,
+                correction: T::zero(),
+            };
+            let r = ekf.update_los_cross(s, &mut col)?;
+            bs.cross = col.cross;
+            bs.variance_m2 = col.variance;
+            bs.bias_m -= col.correction;
+            r
+        } else {
+            ekf.update_los(s)?
+        };
         let fused = [report.pitch.outcome, report.yaw.outcome]
             .iter()
             .filter(|o| **o == FusionOutcome::Fused)
             .count();
-        if fused > 0 {
-            // The LOS gain is not exposed: forget the baro column's correlation (module
-            // `baro`).
-            bs.cross = nalgebra::SVector::zeros();
-        }
         self.ekf = Some(ekf);
         self.baro_state = bs;
         for r in [report.pitch, report.yaw] {

@@ -39,6 +39,133 @@
 //! # Ok::<(), nav_core::NavError>(())
 //! ```
 
+//!
+//! # Flight navigator
+//!
+//! [`Navigator`] owns one missile INS through the whole flight and one value per estimator;
+//! the firmware calls [`Navigator::tick`] at the IMU rate with the IMU sample and the aids that
+//! arrived ([`Aids`]), and reads a [`TickReport`] (solution with its 9 × 9 covariance, phase,
+//! transition, one [`AidStatus`] per aid, health, [`Degradation`]).
+//!
+//! | phase | what runs | aids |
+//! | --- | --- | --- |
+//! | [`Phase::Carry`] | strapdown INS ([`crate::seeker_ins::Ins`]) on the slave IMU; transfer alignment at each master epoch | master (late, time-tagged) |
+//! | [`Phase::Released`] | INS + 17-state EKF, prediction only (`propagate` / `propagate_clipped`) | none |
+//! | [`Phase::Midcourse`] | + baro damping ([`BaroDamping`]) | baro; seeker samples tried (first fused component → terminal) |
+//! | [`Phase::Terminal`] | + LOS updates | baro, seeker |
+//!
+//! **Carry.** Every tick the INS integrates the slave increment, the slave sample
+//! (rate `Δθ/dt`, specific force `Δv/dt`) goes into a [`crate::transfer_alignment::SlaveHistory`]
+//! and the INS state into a ring of `H` snapshots. A master sample of time of validity `t_m`
+//! (any latency up to `H` ticks) is matched with the slave sample of its epoch
+//! (`step_delayed`), the hand-over at `t_m` is computed with the updated alignment
+//! ([`hand_over`]), and the INS is slaved to it: the difference between the INS snapshot at
+//! `t_m` and the transferred solution is removed from the current INS state (and from the
+//! snapshots since `t_m`) — an error-state reset, as the EKF's feedback. The solution's
+//! covariance in carry is the hand-over covariance at the last master epoch (what the EKF
+//! would start from; not grown over the latency). Master samples are fused only at their
+//! epochs: the alignment is not propagated between them (a dropout longer than its
+//! `max_gap_steps` re-initialises its flexure states, as the filter documents).
+//!
+//! **Separation.** The release signal ([`Aids::separation`]) is confirmed when the slave's
+//! specific force departs from the last master's lever-arm-compensated specific force (turned
+//! into slave axes by the alignment's θ̂) by more than `specific_force_jump_m_s2` within
+//! `confirm_window_s` of the signal; then the EKF starts ([`SeekerIns`](crate::seeker_ins::SeekerIns))
+//! from the current (slaved) INS state with the hand-over P0 of the last master epoch. A
+//! signal the IMU does not confirm in the window: [`SeparationStatus::SeparationUnconfirmed`],
+//! the navigator stays in carry (degraded). Master timed out and the IMU sees the jump without
+//! a signal: [`SeparationStatus::UnsignalledRelease`] (released, degraded).
+//! What carries over: position, velocity, attitude and their covariance (the hand-over's),
+//! gyro and gimbal biases from their priors. The flight alignment's estimate of the
+//! specific-force-difference bias is **not** handed over: the EKF's accelerometer bias starts
+//! from its prior (`priors.accel_bias_sigma_m_s2`), zero estimate.
+//!
+//! **Released → midcourse** after `coast_s`. **Midcourse**: [`BaroDamping::Ekf`] fuses the
+//! baro altitude as a scalar EKF measurement with its correlated error as an 18th state kept
+//! beside the 17 (module [`baro`]); [`BaroDamping::InertialLoop`] runs the classical
+//! baro-inertial loop around the INS's vertical channel and gives the EKF its σ;
+//! [`BaroDamping::Off`] leaves the vertical channel free. **Terminal** from the first fused
+//! LOS component; the seeker is `TimedOut` after `timeouts.seeker_s` without one (the phase
+//! stays terminal, the baro keeps damping).
+//!
+//! **Refusals.** A bad IMU sample returns `Err` and changes nothing (everything is computed on
+//! copies and committed at the end). A bad aid sample is refused: its [`AidState::Refused`]
+//! names the error, its counter counts it, nothing of it is applied, the tick runs. No input
+//! stalls the navigator: the next valid tick is processed as usual.
+//!
+//! **Changes to the agreed API** (`navigator-api.md`): [`FlightNavigator`] is
+//! `Navigator<T, 5, 15, H>` (the flight alignment filter has chains of 5, not 3);
+//! [`NavigatorInitial`] carries `nav_covariance` (the solution's σ until the first master
+//! sample); [`BaroDamping::InertialLoop`] takes a
+//! [`ClassicalConfig`](crate::vertical_channel::ClassicalConfig); [`Transition`] is a struct
+//! (from, to, cause, time); [`AidState`] has no `Skipped` (a sample that cannot be fused
+//! numerically leaves the aid `Waiting`, its report says `Skipped`); [`Aids::NONE`];
+//! [`MasterNav::angular_rate_rad_s`] is the inertial body rate, and the master's rate 1σ (not
+//! on the bus) is taken as the alignment's `rate_noise_sigma_rad_s`; the solution's position
+//! covariance is in NED metres ([`NavSolution::nav_covariance`]). The baro timeout counts
+//! accepted samples, the master and seeker timeouts fused ones.
+//!
+//! ```
+//! use nalgebra::{Matrix3, SMatrix, Vector3, Quaternion};
+//! use nav_core::navigator::*;
+//! use nav_core::seeker_ins::{ClipFlags, ImuIncrement, InsState, Landmark, Position, SeekerInsConfig};
+//! use nav_core::transfer_alignment::{PaperCase, TaConfig};
+//! use nav_core::time::Timestamp;
+//!
+//! let alignment = TaConfig::<f32>::flight(PaperCase::Case1); // 100 Hz, lever arm [0, 5, 0] m
+//! let here = Position { lat_rad: 0.6458, lon_rad: 2.2166, alt_m: 100.0 };
+//! let config = NavigatorConfig {
+//!     lever_arm: LeverArm { nominal_m: alignment.lever_arm_m, sigma_m: Vector3::from_element(0.01) },
+//!     alignment,
+//!     priors: HandoverPriors { accel_bias_sigma_m_s2: 1e-3, gyro_bias_sigma_rad_s: 5e-8, gimbal_bias_sigma_rad: 7e-4 },
+//!     ins: SeekerInsConfig::flight(Landmark::new(Position { lat_rad: 0.6462, ..here })?),
+//!     imu_dt_s: 0.01,
+//!     separation: SeparationCheck { specific_force_jump_m_s2: 4.0, confirm_window_s: 0.3, coast_s: 2.0 },
+//!     baro: BaroDamping::Ekf(BaroErrorModel { white_sigma_m: 1.0, markov_sigma_m: 5.0, markov_tau_s: 100.0, lag_s: 0.0 }),
+//!     timeouts: AidTimeouts { master_s: 0.5, baro_s: 1.0, seeker_s: 2.0 },
+//! };
+//! let level = InsState { position: here, vel_ned_m_s: Vector3::zeros(), q_b_n: Quaternion::identity() };
+//! let initial = NavigatorInitial {
+//!     time: Timestamp::ZERO,
+//!     state: level,
+//!     nav_covariance: SMatrix::from_diagonal_element(1.0),
+//! };
+//! let mut nav = FlightNavigator::<f32, 32>::new(&config, &initial)?;
+//! let g = 9.80_f32;
+//! let mut log = Vec::new(); // the aircraft's master INS (here: at rest, level)
+//! for k in 1..=60_u64 {
+//!     let time = Timestamp::from_micros(k * 10_000);
+//!     // The missile drops at 0.5 s: its IMU reads 0 g.
+//!     let fz = if k > 50 { 0.0 } else { -g };
+//!     let imu = ImuTick {
+//!         increment: ImuIncrement { time, delta_theta_rad: Vector3::zeros(), delta_v_m_s: Vector3::new(0.0, 0.0, fz * 0.01) },
+//!         clipped: ClipFlags::default(),
+//!     };
+//!     log.push(MasterNav {
+//!         time,
+//!         c_m_n: Matrix3::identity(),
+//!         vel_ned_m_s: Vector3::zeros(),
+//!         position: here,
+//!         angular_rate_rad_s: Vector3::zeros(),
+//!         angular_accel_rad_s2: Vector3::zeros(),
+//!         specific_force_m_s2: Vector3::new(0.0, 0.0, -g),
+//!         attitude_sigma_rad: Vector3::new(2e-4, 2e-4, 8e-4),
+//!         velocity_sigma_m_s: Vector3::from_element(0.05),
+//!         position_sigma_m: Vector3::from_element(3.0),
+//!     });
+//!     // Master samples every 20 ms, 30 ms late, until the release.
+//!     let master = (k % 2 == 0 && k > 3 && k <= 50).then(|| log[k as usize - 4]);
+//!     let aids = Aids { master: master.as_ref(), separation: (k == 51).then_some(time), ..Aids::NONE };
+//!     let report = nav.tick(&imu, &aids)?;
+//!     if let Some(t) = report.transition {
+//!         assert_eq!((t.to, t.cause), (Phase::Released, TransitionCause::SeparationConfirmed));
+//!     }
+//!     let _sigma_north_m = report.solution.nav_covariance[(0, 0)].sqrt();
+//! }
+//! assert_eq!(nav.phase(), Phase::Released);
+//! # Ok::<(), nav_core::NavError>(())
+//! ```
+
 // Flight navigator: see the section above.
 pub mod baro;
 mod flight;

@@ -34,6 +34,8 @@ const SEPARATION_S: f64 = 20.0;
 const DROP_S: f64 = 0.5;
 const COAST_S: f64 = 2.0;
 const SEEKER_FROM_S: f64 = 25.0;
+/// The seeker loses lock here (terminal continues on the baro).
+const SEEKER_UNTIL_S: f64 = 26.5;
 
 fn landmark_position() -> Position {
     // 30 km north of the start, on the ground.
@@ -265,6 +267,19 @@ fn attitude_error<T: Real>(est: &InsState<T>, truth: &InsState<f64>) -> Vector3<
     -log_so3(&(c_hat * c.transpose()))
 }
 
+/// Error (estimate − truth) in the solution's convention: δr NED m, δv m/s, φ rad.
+fn nav_error<T: Real>(est: &InsState<T>, truth: &InsState<f64>) -> [f64; 9] {
+    let (rm, rn) = crate::earth::radii_m(truth.position.lat_rad);
+    let h = truth.position.alt_m;
+    let dn = (est.position.lat_rad - truth.position.lat_rad) * (rm + h);
+    let de =
+        (est.position.lon_rad - truth.position.lon_rad) * (rn + h) * truth.position.lat_rad.cos();
+    let dd = -(est.position.alt_m - h);
+    let dv = est.vel_ned_m_s.map(|x| x.to_f64()) - truth.vel_ned_m_s;
+    let phi = attitude_error(est, truth);
+    [dn, de, dd, dv.x, dv.y, dv.z, phi.x, phi.y, phi.z]
+}
+
 struct Run {
     phases: Vec<(f64, Phase)>,
     transitions: Vec<Transition>,
@@ -274,6 +289,20 @@ struct Run {
     terminal_pos_err_m: f64,
     baro_fused: u32,
     seeker_fused: u32,
+    /// Largest |cross-covariance| of δD or δV_D with the other navigation states, and the
+    /// vertical variances, at the last midcourse tick.
+    midcourse_vertical_cross: f64,
+    midcourse_vertical_var: [f64; 2],
+    midcourse_alt_err_m: f64,
+    final_seeker: AidState,
+    final_degradation: Degradation,
+    baro_fused_at_seeker_loss: u32,
+    /// Largest per-axis |error| / σ in carry (position, velocity, attitude; sampled each
+    /// second after the first 2 s).
+    carry_worst_normalized: f64,
+    /// Smallest eigenvalue of the joint (17 + baro) correlation matrix, sampled each second in
+    /// midcourse and terminal (baro EKF only).
+    joint_min_correlation_eigenvalue: f64,
 }
 
 fn gimbal_truth(truth: &InsState<f64>) -> crate::seeker_ins::GimbalAngles<f64> {
@@ -297,6 +326,14 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
         terminal_pos_err_m: f64::NAN,
         baro_fused: 0,
         seeker_fused: 0,
+        midcourse_vertical_cross: f64::NAN,
+        midcourse_vertical_var: [f64::NAN; 2],
+        midcourse_alt_err_m: f64::NAN,
+        final_seeker: AidState::NotUsedInPhase,
+        final_degradation: Degradation::default(),
+        baro_fused_at_seeker_loss: 0,
+        carry_worst_normalized: 0.0,
+        joint_min_correlation_eigenvalue: f64::INFINITY,
     };
     let mut last_phase = Phase::Carry;
     let steps = (end_s / DT).round() as u64;
@@ -309,20 +346,23 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
             None
         };
         let truth = world.missile_truth(&lever);
-        let baro = (t > SEPARATION_S + COAST_S && world.k % 10 == 0).then(|| BaroSample {
+        let baro = (t > SEPARATION_S + COAST_S && world.k % 4 == 0).then(|| BaroSample {
             time: inc.time,
             altitude_m: T::lit(truth.position.alt_m),
         });
-        let seeker = (t >= SEEKER_FROM_S && world.k % 10 == 0).then(|| LosSample {
-            time: inc.time,
-            gimbal: {
-                let g = gimbal_truth(&truth);
-                crate::seeker_ins::GimbalAngles {
-                    pitch_rad: T::lit(g.pitch_rad),
-                    yaw_rad: T::lit(g.yaw_rad),
+        let seeker =
+            ((SEEKER_FROM_S..SEEKER_UNTIL_S).contains(&t) && world.k % 10 == 0).then(|| {
+                LosSample {
+                    time: inc.time,
+                    gimbal: {
+                        let g = gimbal_truth(&truth);
+                        crate::seeker_ins::GimbalAngles {
+                            pitch_rad: T::lit(g.pitch_rad),
+                            yaw_rad: T::lit(g.yaw_rad),
+                        }
+                    },
                 }
-            },
-        });
+            });
         let separation = ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(inc.time);
         let aids = Aids {
             master: master.as_ref(),
@@ -347,6 +387,50 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
             }
             last_phase = report.phase;
         }
+        if report.phase == Phase::Midcourse {
+            let p = &report.solution.nav_covariance;
+            let mut m = 0.0_f64;
+            for j in 0..9 {
+                if j != 2 && j != 5 {
+                    m = m
+                        .max(p[(2, j)].to_f64().abs())
+                        .max(p[(5, j)].to_f64().abs());
+                }
+            }
+            run.midcourse_vertical_cross = m;
+            run.midcourse_vertical_var = [p[(2, 2)].to_f64(), p[(5, 5)].to_f64()];
+            run.midcourse_alt_err_m = report.solution.state.position.alt_m - truth.position.alt_m;
+        }
+        if report.phase == Phase::Carry && t > 2.0 && world.k % 100 == 0 {
+            let e = nav_error(&report.solution.state, &truth);
+            for (i, ei) in e.iter().enumerate() {
+                let sigma = report.solution.nav_covariance[(i, i)].to_f64().sqrt();
+                run.carry_worst_normalized = run.carry_worst_normalized.max(ei.abs() / sigma);
+            }
+        }
+        if matches!(report.phase, Phase::Midcourse | Phase::Terminal)
+            && matches!(cfg.baro, BaroDamping::Ekf(_))
+            && world.k % 100 == 0
+        {
+            let p = nav.ekf().unwrap().covariance().map(|x| x.to_f64());
+            let b = nav.baro_state();
+            let mut pa = SMatrix::<f64, 18, 18>::zeros();
+            pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
+            let c = b.cross.map(|x| x.to_f64());
+            pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&c);
+            pa.fixed_view_mut::<1, 17>(17, 0).copy_from(&c.transpose());
+            pa[(17, 17)] = b.variance_m2.to_f64();
+            let d = pa.diagonal().map(|v| 1.0 / v.max(1e-300).sqrt());
+            let corr = SMatrix::<f64, 18, 18>::from_fn(|i, j| pa[(i, j)] * d[i] * d[j]);
+            run.joint_min_correlation_eigenvalue = run
+                .joint_min_correlation_eigenvalue
+                .min(corr.symmetric_eigenvalues().min());
+        }
+        if (t - SEEKER_UNTIL_S).abs() < 0.5 * DT {
+            run.baro_fused_at_seeker_loss = report.baro.counters.fused;
+        }
+        run.final_seeker = report.seeker.state;
+        run.final_degradation = report.degradation;
         run.final_health = report.health;
         run.baro_fused = report.baro.counters.fused;
         run.seeker_fused = report.seeker.counters.fused;
@@ -359,7 +443,7 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
 }
 
 fn chain_phases_and_handover<T: Real>() {
-    let run = run_chain::<T>(BaroDamping::Ekf(baro_model()), 27.0);
+    let run = run_chain::<T>(BaroDamping::Ekf(baro_model()), 90.0);
     let seq: Vec<Phase> = run.phases.iter().map(|p| p.1).collect();
     assert_eq!(
         seq,
@@ -396,6 +480,30 @@ fn chain_phases_and_handover<T: Real>() {
     assert!(run.baro_fused > 0);
     assert!(run.seeker_fused > 0);
     assert!(run.terminal_pos_err_m.is_finite());
+    // The seeker lost in terminal: TimedOut after seeker_s, the phase stays, the baro damps on.
+    assert_eq!(run.final_seeker, AidState::TimedOut);
+    assert_eq!(run.final_degradation.seeker, AidAvailability::TimedOut);
+    assert_eq!(run.phases.last().map(|p| p.1), Some(Phase::Terminal));
+    assert!(run.baro_fused > run.baro_fused_at_seeker_loss);
+    assert_eq!(run.final_health, HealthState::Degraded);
+    // The joint covariance of the 17 states and the baro error stays positive definite.
+    assert!(
+        run.joint_min_correlation_eigenvalue > 0.0,
+        "{}",
+        run.joint_min_correlation_eigenvalue
+    );
+    // Carry: the solution's error within 3σ of the hand-over covariance on every axis.
+    assert!(
+        run.carry_worst_normalized < 3.0,
+        "{}",
+        run.carry_worst_normalized
+    );
+    std::println!(
+        "{}: carry worst |error|/σ {:.2}; smallest joint correlation eigenvalue {:e}",
+        core::any::type_name::<T>(),
+        run.carry_worst_normalized,
+        run.joint_min_correlation_eigenvalue
+    );
     std::println!(
         "{}: hand-over φ {:?} rad, σ {:?} rad; terminal position error {:.2} m; health {:?}",
         core::any::type_name::<T>(),
@@ -618,4 +726,477 @@ fn bad_configuration_is_named() {
             ..
         })
     ));
+}
+
+// ------------------------------------------------------------------ baro EKF (18th state)
+
+use super::baro::{baro_update, BaroState};
+use crate::contract::FusionOutcome;
+use crate::math::kalman::fuse_scalar;
+use crate::seeker_ins::{
+    propagate_covariance_sparse, SeekerIns, SeekerInsInitial, SparseF, POS, STATES, VEL,
+};
+use nalgebra::SVector;
+
+fn flight_ekf() -> SeekerIns<f64> {
+    let cfg = config::<f64>(BaroDamping::Ekf(baro_model()));
+    let mut p0 = crate::seeker_ins::paper_initial_covariance::<f64>();
+    // Correlations, so that every block of the update is exercised.
+    p0[(POS + 2, VEL + 2)] = 0.3 * (p0[(POS + 2, POS + 2)] * p0[(VEL + 2, VEL + 2)]).sqrt();
+    p0[(VEL + 2, POS + 2)] = p0[(POS + 2, VEL + 2)];
+    let init = SeekerInsInitial {
+        state: InsState {
+            position: START,
+            vel_ned_m_s: Vector3::new(SPEED_M_S, 10.0, -5.0),
+            q_b_n: crate::math::rotation::dcm_to_quat(&crate::math::rotation::euler_to_dcm(
+                0.05, 0.1, 0.3,
+            )),
+        },
+        covariance: p0,
+    };
+    <SeekerIns<f64> as crate::contract::Estimator>::new(&cfg.ins, &init).unwrap()
+}
+
+/// A cross-covariance column and variance that keep the joint matrix positive definite.
+fn joint_column(p: &SMatrix<f64, STATES, STATES>) -> (SVector<f64, STATES>, f64) {
+    // c = 0.5 P a with a along δh and δV_D: corr(δx, δb) from a regression b = 0.5 aᵀδx + w.
+    let mut a = SVector::<f64, STATES>::zeros();
+    a[POS + 2] = 0.02;
+    a[VEL + 2] = 0.5;
+    let c = p * a * 0.5;
+    let s = 0.25 * a.dot(&(p * a)) + 4.0;
+    (c, s)
+}
+
+/// `transition_times` is the generated kernel's Φ: with the noise off, the kernel maps
+/// `v vᵀ` to `(Φ v)(Φ v)ᵀ`.
+#[test]
+fn cross_column_uses_the_kernels_transition() {
+    let ekf = flight_ekf();
+    let s = ekf.state();
+    let f_ned = Vector3::new(1.5, -0.7, -9.6);
+    let f = SparseF::new(&s.position, &s.vel_ned_m_s, &quat_to_dcm(&s.q_b_n), &f_ned);
+    let dt = 0.1;
+    let v = SVector::<f64, STATES>::from_fn(|i, _| 1e-3 * (1.0 + i as f64).sin());
+    let mut p = v * v.transpose();
+    propagate_covariance_sparse(&mut p, &f, dt, 0.0, 0.0).unwrap();
+    let phi_v = crate::seeker_ins::transition_times_for_tests(&f, dt, &v);
+    let reference = phi_v * phi_v.transpose();
+    let err = (p - reference).abs().max() / reference.abs().max();
+    assert!(err < 1e-12, "relative error {err}");
+    assert!(
+        (phi_v - v).norm() > 1e-6 * v.norm(),
+        "Φ must not be the identity here"
+    );
+}
+
+/// The block update equals the dense 18-state Joseph-form update to rounding, and H
+/// matches finite differences of the predicted reading.
+#[test]
+fn baro_update_matches_dense_18_state_reference_and_finite_differences() {
+    let ekf = flight_ekf();
+    let p = *ekf.covariance();
+    let (cross, s) = joint_column(&p);
+    let st = BaroState {
+        cross,
+        variance_m2: s,
+        bias_m: 1.5,
+    };
+    let tau = 0.3;
+    let h = BaroState::h_row(tau);
+    let z = 3004.0;
+    let y = st.predicted_m(&ekf, tau) - z;
+    let r = 1.0;
+    let u = baro_update(&p, &st, &h, y, r, Gate::Off).unwrap();
+    assert_eq!(u.report.outcome, FusionOutcome::Fused);
+    // Dense reference.
+    let mut pa = SMatrix::<f64, 18, 18>::zeros();
+    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
+    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&cross);
+    pa.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&cross.transpose());
+    pa[(17, 17)] = s;
+    assert!(pa.cholesky().is_some());
+    let mut ha = SVector::<f64, 18>::zeros();
+    ha.fixed_rows_mut::<17>(0).copy_from(&h);
+    ha[17] = 1.0;
+    let mut xa = SVector::<f64, 18>::zeros();
+    let rep = fuse_scalar(&mut xa, &mut pa, &ha, y, r, Gate::Off).unwrap();
+    assert!((rep.innovation_variance - u.report.innovation_variance).abs() < 1e-9);
+    let scale = pa.abs().max();
+    let mut got = SMatrix::<f64, 18, 18>::zeros();
+    got.fixed_view_mut::<17, 17>(0, 0).copy_from(&u.p);
+    got.fixed_view_mut::<17, 1>(0, 17).copy_from(&u.cross);
+    got.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&u.cross.transpose());
+    got[(17, 17)] = u.variance_m2;
+    let e_p = (got - pa).abs().max() / scale;
+    assert!(e_p < 1e-12, "P relative error {e_p}");
+    let e_x = (u.dx - xa.fixed_rows::<17>(0)).norm() + (u.db_m - xa[17]).abs();
+    assert!(e_x < 1e-9 * xa.norm().max(1e-12), "x error {e_x}");
+    assert!(got.cholesky().is_some(), "joint P after the update is PD");
+    // H against finite differences of ẑ = ĥ + τ V̂_D + b̂ (error state: estimate − truth).
+    let eps = 1e-3;
+    let shifted = |dh: f64, dvd: f64| {
+        let mut init = SeekerInsInitial {
+            state: *ekf.state(),
+            covariance: p,
+        };
+        init.state.position.alt_m += dh;
+        init.state.vel_ned_m_s.z += dvd;
+        let e = <SeekerIns<f64> as crate::contract::Estimator>::new(ekf.config(), &init).unwrap();
+        st.predicted_m(&e, tau)
+    };
+    let z0 = st.predicted_m(&ekf, tau);
+    assert!(((shifted(eps, 0.0) - z0) / eps - h[POS + 2]).abs() < 1e-6);
+    assert!(((shifted(0.0, eps) - z0) / eps - h[VEL + 2]).abs() < 1e-6);
+    let mut st_b = st;
+    st_b.bias_m += eps;
+    assert!(((st_b.predicted_m(&ekf, tau) - z0) / eps - 1.0).abs() < 1e-9);
+}
+
+/// Prediction of the joint matrix: the column follows `e Φ c` and s the Markov law; the
+/// joint matrix stays positive definite through the navigator's deferred covariance steps.
+#[test]
+fn baro_column_prediction_keeps_the_joint_covariance_pd() {
+    let mut ekf = flight_ekf();
+    let model = baro_model::<f64>();
+    let p = *ekf.covariance();
+    let (mut cross, s) = joint_column(&p);
+    let mut st = BaroState {
+        cross,
+        variance_m2: s,
+        bias_m: 2.0,
+    };
+    let mut t = Timestamp::from_micros(DT_US);
+    for k in 0..25u64 {
+        let inc = ImuIncrement {
+            time: t,
+            delta_theta_rad: Vector3::new(1e-4, -2e-4, 3e-4),
+            delta_v_m_s: Vector3::new(0.02, 0.01, -0.098),
+        };
+        ekf.propagate_deferred(&inc, None).unwrap();
+        if k % 10 == 9 {
+            let c_before = st.cross;
+            let dt = ekf
+                .predict_covariance_cross(&mut st.cross)
+                .unwrap()
+                .unwrap();
+            assert!((dt - 0.1).abs() < 1e-12);
+            assert!((st.cross - c_before).norm() > 0.0);
+            st.decay(&model, dt);
+        }
+        t = t.add_micros(DT_US);
+    }
+    cross = st.cross;
+    let p = *ekf.covariance();
+    let mut pa = SMatrix::<f64, 18, 18>::zeros();
+    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
+    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&cross);
+    pa.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&cross.transpose());
+    pa[(17, 17)] = st.variance_m2;
+    assert!(pa.cholesky().is_some());
+    let e = (-0.2_f64 / 100.0).exp();
+    assert!((st.bias_m - 2.0 * e).abs() < 1e-12);
+    assert!(ekf.steps_pending() == 5);
+}
+
+fn chain_with_inertial_loop<T: Real>() {
+    let mut vc = crate::vertical_channel::ClassicalConfig::<T>::paper();
+    vc.baro_lag_s = T::zero();
+    vc.latitude_rad = T::lit(START.lat_rad);
+    let run = run_chain::<T>(BaroDamping::InertialLoop(vc), 27.0);
+    let seq: Vec<Phase> = run.phases.iter().map(|p| p.1).collect();
+    assert_eq!(seq, [Phase::Released, Phase::Midcourse, Phase::Terminal]);
+    assert!(run.baro_fused > 0);
+    // The EKF's vertical block is the loop's σ covariance, decoupled from the rest.
+    assert_eq!(run.midcourse_vertical_cross, 0.0);
+    assert!(run.midcourse_vertical_var[0] > 0.0 && run.midcourse_vertical_var[1] > 0.0);
+    // The loop's σ covers the altitude error (truth and baro agree here).
+    assert!(
+        run.midcourse_alt_err_m.abs() <= 3.0 * run.midcourse_vertical_var[0].sqrt(),
+        "{} vs σ {}",
+        run.midcourse_alt_err_m,
+        run.midcourse_vertical_var[0].sqrt()
+    );
+    std::println!(
+        "{}: inertial loop: midcourse altitude error {:.3} m, σ_h {:.3} m, σ_VD {:.4} m/s",
+        core::any::type_name::<T>(),
+        run.midcourse_alt_err_m,
+        run.midcourse_vertical_var[0].sqrt(),
+        run.midcourse_vertical_var[1].sqrt()
+    );
+}
+
+#[test]
+fn chain_with_inertial_loop_f64() {
+    chain_with_inertial_loop::<f64>();
+}
+
+#[test]
+fn chain_with_inertial_loop_f32() {
+    chain_with_inertial_loop::<f32>();
+}
+
+fn flight_aids_refused<T: Real>() {
+    let cfg = config::<T>(BaroDamping::Ekf(baro_model()));
+    let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
+    let mut world = World::new();
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    let truth = world.missile_truth(&lever);
+    let mut p0 = crate::seeker_ins::paper_initial_covariance::<T>();
+    p0 *= T::lit(0.01);
+    nav.release_with(&crate::seeker_ins::SeekerInsInitial {
+        state: InsState {
+            position: truth.position,
+            vel_ned_m_s: truth.vel_ned_m_s.map(|x| T::lit(x)),
+            q_b_n: Quaternion::from(truth.q_b_n.coords.map(|x| T::lit(x))),
+        },
+        covariance: p0,
+    })
+    .unwrap();
+    // A second release is refused.
+    assert!(nav
+        .release_with(&crate::seeker_ins::SeekerInsInitial {
+            state: InsState {
+                position: truth.position,
+                vel_ned_m_s: Vector3::zeros(),
+                q_b_n: Quaternion::identity(),
+            },
+            covariance: p0,
+        })
+        .is_err());
+    // Coast to midcourse.
+    for _ in 0..((COAST_S / DT) as u64 + 2) {
+        let inc = world.step(&lever);
+        nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+    }
+    assert_eq!(nav.phase(), Phase::Midcourse);
+    // Good baro samples for a while.
+    for _ in 0..20 {
+        let inc = world.step(&lever);
+        let truth = world.missile_truth(&lever);
+        let b = BaroSample {
+            time: inc.time,
+            altitude_m: T::lit(truth.position.alt_m + 0.5),
+        };
+        let r = nav
+            .tick(
+                &tick_of(&inc),
+                &Aids {
+                    baro: Some(&b),
+                    ..Aids::NONE
+                },
+            )
+            .unwrap();
+        assert_eq!(r.baro.state, AidState::Fused);
+    }
+    // Bad baro and bad LOS: refused; the solution is the one without them.
+    let inc = world.step(&lever);
+    let bad_baro = BaroSample {
+        time: inc.time,
+        altitude_m: T::lit(f64::NAN),
+    };
+    let future_baro = BaroSample {
+        time: inc.time.add_micros(1),
+        altitude_m: T::lit(3000.0),
+    };
+    let bad_los = LosSample {
+        time: inc.time,
+        gimbal: crate::seeker_ins::GimbalAngles {
+            pitch_rad: T::lit(f64::NAN),
+            yaw_rad: T::zero(),
+        },
+    };
+    for (baro, seeker) in [
+        (Some(&bad_baro), None),
+        (Some(&future_baro), None),
+        (None, Some(&bad_los)),
+    ] {
+        let mut a = nav.clone();
+        let mut b = nav.clone();
+        let ra = a
+            .tick(
+                &tick_of(&inc),
+                &Aids {
+                    baro,
+                    seeker,
+                    ..Aids::NONE
+                },
+            )
+            .unwrap();
+        let rb = b.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        let refused = |s: AidState| matches!(s, AidState::Refused(_));
+        assert!(refused(ra.baro.state) || refused(ra.seeker.state));
+        assert_eq!(ra.solution, rb.solution);
+        assert_eq!(a.baro_state(), b.baro_state());
+        assert_eq!(a.phase(), Phase::Midcourse);
+    }
+    // The next valid tick works.
+    assert!(nav.tick(&tick_of(&inc), &Aids::NONE).is_ok());
+}
+
+#[test]
+fn flight_aids_refused_change_nothing_f64() {
+    flight_aids_refused::<f64>();
+}
+
+#[test]
+fn flight_aids_refused_change_nothing_f32() {
+    flight_aids_refused::<f32>();
+}
+
+fn unsignalled<T: Real>() {
+    // Master for 3 s, then lost; the missile drops without a signal at 4 s.
+    let (mut nav, mut world) = carry_for::<T>(3.0, 3.0);
+    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
+    let mut seen = None;
+    for _ in 0..100 {
+        let mut inc = world.step(&lever);
+        if inc.time.as_secs_f64() > 3.9 {
+            inc.delta_v_m_s = Vector3::zeros();
+        }
+        let r = nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        if let Some(t) = r.transition {
+            seen = Some((t, r.degradation, r.health));
+            break;
+        }
+    }
+    let (t, d, h) = seen.unwrap();
+    assert_eq!(t.cause, TransitionCause::UnsignalledSeparation);
+    assert_eq!(t.to, Phase::Released);
+    assert_eq!(d.separation, SeparationStatus::UnsignalledRelease);
+    assert!((t.time.as_secs_f64() - 3.91).abs() < 1e-6);
+    assert_ne!(h, HealthState::Nominal);
+}
+
+#[test]
+fn unsignalled_release_f64() {
+    unsignalled::<f64>();
+}
+
+#[test]
+fn unsignalled_release_f32() {
+    unsignalled::<f32>();
+}
+
+/// f32: a baro sample far more precise than the prior (σ_h 10 km, R 0.01 m²) keeps the joint
+/// covariance PSD (conditioned R, stabilising noise). Without them the smallest correlation
+/// eigenvalue of the result is −0.28 (measured).
+#[test]
+fn baro_update_keeps_the_joint_covariance_psd_in_f32() {
+    let ekf = flight_ekf();
+    let mut p: SMatrix<f32, STATES, STATES> = ekf.covariance().map(|x| x as f32);
+    p[(POS + 2, POS + 2)] = 1.0e8;
+    let (c, s) = joint_column(&p.map(f64::from));
+    let st = BaroState::<f32> {
+        cross: c.map(|x| x as f32),
+        variance_m2: s as f32,
+        bias_m: 0.0,
+    };
+    let h = BaroState::h_row(0.2_f32);
+    let u = baro_update(&p, &st, &h, 700.0, 0.01, Gate::Off).unwrap();
+    assert_eq!(u.report.outcome, FusionOutcome::Fused);
+    let mut pa = SMatrix::<f32, 18, 18>::zeros();
+    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&u.p);
+    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&u.cross);
+    pa.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&u.cross.transpose());
+    pa[(17, 17)] = u.variance_m2;
+    assert!(crate::math::kalman::asymmetry(&pa) == 0.0);
+    // Smallest eigenvalue of the correlation matrix (in f64, of the f32 result).
+    let pd = pa.map(f64::from);
+    let d = pd.diagonal().map(|v| 1.0 / v.max(1e-300).sqrt());
+    let corr = SMatrix::<f64, 18, 18>::from_fn(|i, j| pd[(i, j)] * d[i] * d[j]);
+    let min_eig = corr.symmetric_eigenvalues().min();
+    std::println!("f32 baro update: smallest correlation eigenvalue {min_eig:e}");
+    assert!(min_eig > 0.0, "{min_eig}");
+    // The raised R: the innovation variance is at least hPhᵀ (1 + 1/κ).
+    assert!(u.report.innovation_variance > 1.0e8);
+}
+
+/// The baro column through a LOS update equals the dense 18-state sequential update (b not in
+/// the LOS rows) to rounding.
+#[test]
+fn baro_column_through_los_update_matches_dense_18_state_reference() {
+    use crate::seeker_ins::{los_model_at, CrossColumn, GimbalAngles};
+    let mut ekf = flight_ekf();
+    let mut t = Timestamp::ZERO;
+    for _ in 0..10 {
+        t = t.add_micros(DT_US);
+        ekf.propagate(&ImuIncrement {
+            time: t,
+            delta_theta_rad: Vector3::new(1e-5, 2e-5, -1e-5),
+            delta_v_m_s: Vector3::new(0.0, 0.0, -0.098),
+        })
+        .unwrap();
+    }
+    let p = *ekf.covariance();
+    let (cross, s) = joint_column(&p);
+    // A LOS sample slightly off the INS's own.
+    let st = *ekf.state();
+    let d = landmark_vector_ned(&st.position, &ekf.config().landmark);
+    let c_b_n = quat_to_dcm(&st.q_b_n);
+    let g0 = gimbal_angles_of(&(c_b_n.transpose() * d));
+    let gimbal = GimbalAngles {
+        pitch_rad: g0.pitch_rad + 2e-3,
+        yaw_rad: g0.yaw_rad - 1.5e-3,
+    };
+    let model = los_model_at(
+        &st.position,
+        &d,
+        &c_b_n,
+        &gimbal,
+        ekf.config().seeker_noise_rad,
+    )
+    .unwrap();
+    let mut col = CrossColumn {
+        cross,
+        variance: s,
+        correction: 0.0,
+    };
+    let rep = ekf
+        .update_los_cross(&LosSample { time: t, gimbal }, &mut col)
+        .unwrap();
+    assert_eq!(rep.pitch.outcome, FusionOutcome::Fused);
+    assert_eq!(rep.yaw.outcome, FusionOutcome::Fused);
+    // Dense reference.
+    let mut pa = SMatrix::<f64, 18, 18>::zeros();
+    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
+    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&cross);
+    pa.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&cross.transpose());
+    pa[(17, 17)] = s;
+    let mut xa = SVector::<f64, 18>::zeros();
+    let mut h1 = SVector::<f64, 18>::zeros();
+    h1.fixed_rows_mut::<17>(0).copy_from(&model.h_pitch);
+    let mut h2 = SVector::<f64, 18>::zeros();
+    h2.fixed_rows_mut::<17>(0).copy_from(&model.h_yaw);
+    fuse_scalar(
+        &mut xa,
+        &mut pa,
+        &h1,
+        model.residual_rad.x,
+        model.variance_rad2.x,
+        Gate::Off,
+    )
+    .unwrap();
+    let nu2 = model.residual_rad.y - h2.dot(&xa);
+    fuse_scalar(&mut xa, &mut pa, &h2, nu2, model.variance_rad2.y, Gate::Off).unwrap();
+    let ref_cross = pa.fixed_view::<17, 1>(0, 17).into_owned();
+    let e_c = (col.cross - ref_cross).abs().max() / ref_cross.abs().max();
+    let e_s = (col.variance - pa[(17, 17)]).abs() / pa[(17, 17)];
+    let e_b = (col.correction - xa[17]).abs() / xa[17].abs();
+    assert!(e_c < 1e-9 && e_s < 1e-12 && e_b < 1e-9, "{e_c} {e_s} {e_b}");
+    assert!(
+        (col.cross - cross).norm() > 1e-6 * cross.norm(),
+        "the update moved c"
+    );
+    // The 17-state P is the EKF's (simple form plus its stabilising noise).
+    let e_p = (ekf.covariance() - pa.fixed_view::<17, 17>(0, 0))
+        .abs()
+        .max()
+        / p.abs().max();
+    assert!(e_p < 1e-9, "{e_p}");
 }

@@ -6,7 +6,7 @@ use crate::error::{require_non_negative, require_positive};
 use crate::seeker_ins::{ClipFlags, ImuIncrement, InsState, LosSample, Position, SeekerInsConfig};
 use crate::time::Timestamp;
 use crate::transfer_alignment::TaConfig;
-use crate::vertical_channel::BaroSample;
+use crate::vertical_channel::{BaroSample, ClassicalConfig};
 use crate::{HealthState, NavError, Real};
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -53,6 +53,13 @@ pub enum BaroDamping<T> {
     Off,
     /// Baro altitude as a scalar EKF measurement with the correlated error as an 18th state.
     Ekf(BaroErrorModel<T>),
+    /// The classical 3rd-order baro-inertial loop ([`crate::vertical_channel::ClassicalLoop`])
+    /// around the INS's vertical channel: driven by the INS's own vertical specific force
+    /// (`C_b^n f_b`), its ĥ and V̂_D fed back into the INS every tick, the EKF's (δh, δV_D)
+    /// block replaced by the loop's σ covariance. Its `imu_dt_s` must be the navigator's. The
+    /// loop owns the vertical channel: a LOS update's correction of h and V_D is replaced by
+    /// the loop's at the next tick, and the loop's accelerometer-bias estimate is not fed back.
+    InertialLoop(ClassicalConfig<T>),
 }
 
 /// Release confirmation by the IMU, and the coast before midcourse.
@@ -335,6 +342,11 @@ impl<T: Real> NavigatorConfig<T> {
             require_non_negative("baro.markov_sigma_m", m.markov_sigma_m)?;
             require_positive("baro.markov_tau_s", m.markov_tau_s)?;
             require_non_negative("baro.lag_s", m.lag_s)?;
+        }
+        if let BaroDamping::InertialLoop(c) = &self.baro {
+            if !same(c.imu_dt_s) {
+                return Err(out_of_range("baro.imu_dt_s"));
+            }
         }
         Ok(())
     }

@@ -171,6 +171,8 @@ pub use config::{
     MAX_GAP_ATTITUDE_SIGMA_RAD, MAX_GAP_S, MAX_GAP_SAMPLES, MAX_GAP_VELOCITY_SIGMA_M_S,
     MAX_INFLATION_FACTOR, MAX_STARVED_AFTER_S, VARIANCE_CEILING,
 };
+#[cfg(test)]
+pub(crate) use error_model::transition_times as transition_times_for_tests;
 pub use error_model::{
     f_block, full_f, propagate_covariance, propagate_covariance_sparse, transition_block, FBlock,
     SparseF, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
@@ -191,4 +193,5 @@ pub use paper::{
     paper_initial_covariance, PAPER_COVARIANCE_INTERVAL_STEPS, PAPER_IMU_DT_S, PAPER_IMU_DT_US,
 };
 pub use propagation::{ClipFlags, PROPAGATION_STABILISING_EPS};
+pub(crate) use update::CrossColumn;
 pub use update::{max_information_ratio, LosReport, LosSample, LosSkipReason, STABILISING_EPS};

@@ -594,3 +594,112 @@ mod tests {
         assert!(!rank_two_variances_ok(&p.data.0, &huge, &huge, &k2, &kk2));
     }
 }
+
+/// A covariance column `c = E[δx δb]` and variance `s = var(δb)` of a state b kept beside the
+/// 17 (the flight navigator's baro error), with the correction of b's estimate accumulated by
+/// updates (`δb̂`, to be subtracted from b̂ by the owner).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct CrossColumn<T> {
+    pub(crate) cross: SVector<T, STATES>,
+    pub(crate) variance: T,
+    pub(crate) correction: T,
+}
+
+impl<T: Real> CrossColumn<T> {
+    /// The correlation forgotten (`c ← 0`): the joint covariance stays PSD.
+    pub(crate) fn forget(&mut self) {
+        self.cross = SVector::zeros();
+    }
+}
+
+impl<T: Real> SeekerIns<T> {
+    /// [`SeekerIns::update_los`] with the column of a state kept beside the 17 updated as the
+    /// 18-state sequential update would (b does not enter the LOS: `h_aug = [h, 0]`):
+    /// per fused component, `g = h c`, `c ← c − K g`, `s ← s − g²/S`, `δb̂ += g ν / S` with the
+    /// component's gain `K = P h / S`, S and ν as fused (the second against the first's
+    /// result). The components are recomputed from the filter before the update (the same
+    /// inputs, the same numbers); the filter's own update is `update_los`, unchanged. When P
+    /// changed otherwise (pending IMU samples propagated first, a recovery inflation, the 3-D
+    /// residual) the correlation is forgotten (`c ← 0`). Errors as `update_los` (the column
+    /// unchanged).
+    pub(crate) fn update_los_cross(
+        &mut self,
+        sample: &LosSample<T>,
+        col: &mut CrossColumn<T>,
+    ) -> Result<LosReport<T>, NavError> {
+        let before = *self;
+        let report = self.update_los(sample)?;
+        let fused = |r: &FusionReport<T>| r.outcome == FusionOutcome::Fused;
+        if !(fused(&report.pitch) || fused(&report.yaw)) {
+            if self.los.recoveries != before.los.recoveries {
+                col.forget();
+            }
+            return Ok(report);
+        }
+        let projected_2d = before.steps_pending == 0 && {
+            #[cfg(feature = "los-residual-3d")]
+            {
+                before.config.residual == LosResidual::Projected2d
+            }
+            #[cfg(not(feature = "los-residual-3d"))]
+            {
+                true
+            }
+        };
+        let next = if projected_2d {
+            before.cross_after_los(sample, &report, col)
+        } else {
+            None
+        };
+        match next {
+            Some(c) => *col = c,
+            None => col.forget(),
+        }
+        Ok(report)
+    }
+
+    /// The column after the fused components of `report` (`None`: cannot be formed).
+    fn cross_after_los(
+        &self,
+        sample: &LosSample<T>,
+        report: &LosReport<T>,
+        col: &CrossColumn<T>,
+    ) -> Option<CrossColumn<T>> {
+        let corrected = GimbalAngles {
+            pitch_rad: sample.gimbal.pitch_rad - self.gimbal_bias_rad.x,
+            yaw_rad: sample.gimbal.yaw_rad - self.gimbal_bias_rad.y,
+        };
+        let s = self.ins.state();
+        let d = landmark_vector_ned(&s.position, &self.config.landmark);
+        let c_b_n = self.ins.c_b_n();
+        let model = los_model_at(
+            &s.position,
+            &d,
+            &c_b_n,
+            &corrected,
+            self.config.seeker_noise_rad,
+        )
+        .ok()?;
+        let c = two_components(&self.p, &model, self.config.gate);
+        let mut out = *col;
+        let steps = [
+            (&report.pitch, &c.rep1, &model.h_pitch, &c.kk1),
+            (&report.yaw, &c.rep2, &model.h_yaw, &c.kk2),
+        ];
+        for (committed, rep, h, kk) in steps {
+            if committed.outcome != FusionOutcome::Fused {
+                continue;
+            }
+            let g = h.dot(&out.cross);
+            let inv_s = T::one() / rep.innovation_variance;
+            out.cross -= SVector::<T, STATES>::from(*kk) * g;
+            out.variance -= g * g * inv_s;
+            out.correction += g * inv_s * rep.innovation;
+        }
+        let ok = out.variance >= T::zero()
+            && out.variance.is_finite()
+            && out.correction.is_finite()
+            && crate::math::checks::all_finite(out.cross.as_slice());
+        ok.then_some(out)
+    }
+}
