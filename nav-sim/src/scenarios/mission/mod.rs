@@ -231,6 +231,28 @@ fn targets(stats: &[VariantStats]) -> Value {
             );
         }
     }
+    if let (Some(ekf), Some(lp)) = (find("full"), find("baro_loop")) {
+        let row = |v: &VariantStats| {
+            let nees = |p: PhaseTag| {
+                v.phases
+                    .iter()
+                    .find(|(q, _, _)| *q == p)
+                    .map(|(_, c, _)| sig(c.mean_nees(), 4))
+            };
+            json!({
+                "midcourse_rms_down_m": sig(v.phase_rms(PhaseTag::Midcourse, 2), 4),
+                "midcourse_rms_vel_down_m_s": sig(v.phase_rms(PhaseTag::Midcourse, 5), 4),
+                "terminal_rms_down_m": sig(v.phase_rms(PhaseTag::Terminal, 2), 4),
+                "final_rms_down_m": sig(v.final_rms(2), 4),
+                "midcourse_nees_mean": nees(PhaseTag::Midcourse),
+                "terminal_nees_mean": nees(PhaseTag::Terminal),
+            })
+        };
+        out.insert(
+            "baro_damping_by_measurement".into(),
+            json!({"ekf": row(ekf), "inertial_loop": row(lp)}),
+        );
+    }
     if let Some(ns) = find("no_seeker") {
         let v = ns.phase_max_rms(PhaseTag::Midcourse, 2);
         out.insert(

@@ -26,7 +26,9 @@ use nav_core::seeker_ins::{
     LosResidual, LosSample, Position, SeekerInsConfig, SeekerInsInitial,
 };
 use nav_core::transfer_alignment::{AxisFlexure, PaperCase, TaConfig};
-use nav_core::vertical_channel::BaroSample;
+use nav_core::vertical_channel::{
+    AidTimeouts as VcTimeouts, BaroSample, ClassicalConfig, ErrorModel,
+};
 use nav_core::Real;
 use serde::Deserialize;
 
@@ -56,6 +58,11 @@ pub struct NavigatorSettings {
     pub coast_s: f64,
     /// Aid time-outs: master (carry), baro (midcourse), seeker (terminal), s.
     pub timeouts_s: [f64; 3],
+    /// `baro_loop` variant: time constant of the baro-inertial loop's triple pole, s.
+    pub baro_loop_tau_s: f64,
+    /// `baro_loop` variant: σ of the loop's initial altitude and vertical velocity at
+    /// midcourse (m, m/s), for its σ.
+    pub baro_loop_initial_sigma: [f64; 2],
 }
 
 /// The links of the chain compared on the same seeds.
@@ -71,16 +78,20 @@ pub enum Variant {
     NoBaro,
     /// No seeker.
     NoSeeker,
+    /// Baro through the baro-inertial loop around the INS's vertical channel instead of the
+    /// EKF.
+    BaroLoop,
 }
 
 impl Variant {
     /// Every variant, in report order.
-    pub const ALL: [Self; 5] = [
+    pub const ALL: [Self; 6] = [
         Self::Full,
         Self::ConventionalAlignment,
         Self::Table4Initial,
         Self::NoBaro,
         Self::NoSeeker,
+        Self::BaroLoop,
     ];
 
     /// Name in outputs and scenario files.
@@ -91,6 +102,7 @@ impl Variant {
             Self::Table4Initial => "table4_initial",
             Self::NoBaro => "no_baro",
             Self::NoSeeker => "no_seeker",
+            Self::BaroLoop => "baro_loop",
         }
     }
 
@@ -193,6 +205,7 @@ fn navigator_config<T: Real>(
     };
     let baro = match variant {
         Variant::NoBaro => BaroDamping::Off,
+        Variant::BaroLoop => BaroDamping::InertialLoop(baro_loop::<T>(cfg, set)),
         _ => BaroDamping::Ekf(model),
     };
     Ok(NavigatorConfig {
@@ -220,6 +233,39 @@ fn navigator_config<T: Real>(
             seeker_s: T::lit(set.timeouts_s[2]),
         },
     })
+}
+
+/// The classical baro-inertial loop of the `baro_loop` variant: the vertical-channel
+/// scenarios' design (paper aid model and recovery, no gate) at the mission's IMU and baro
+/// rates, its σ computed for the missile's Table 3 accelerometer and the mission's baro.
+fn baro_loop<T: Real>(cfg: &MissionConfig, set: &NavigatorSettings) -> ClassicalConfig<T> {
+    let g0 = 9.806_65;
+    let b = &cfg.baro;
+    let baro_period = 1.0 / b.rate_hz;
+    ClassicalConfig {
+        imu_dt_s: T::lit(1.0 / cfg.imu_hz),
+        latitude_rad: T::lit(cfg.profile.start_lat_deg.to_radians()),
+        tau_s: T::lit(set.baro_loop_tau_s),
+        baro_lag_s: T::lit(b.lag_s),
+        baro_period_s: T::lit(baro_period),
+        baro_timeouts: VcTimeouts {
+            stale_after_s: T::lit(1.5 * baro_period),
+            lost_after_s: T::lit(set.timeouts_s[1]),
+        },
+        error_model: ErrorModel {
+            accel_noise_m_s2_rt_hz: T::lit(cfg.sensors.accel_noise_ug_rt_hz * 1e-6 * g0),
+            accel_bias_sigma_m_s2: T::lit(cfg.sensors.accel_bias_ug * 1e-6 * g0),
+            accel_bias_rw_m_s2_rt_s: T::zero(),
+            baro_noise_m: T::lit(b.noise_m),
+            baro_markov_sigma_m: T::lit(b.markov_sigma_m),
+            baro_markov_tau_s: T::lit(b.markov_tau_s),
+            // No velocity aid in the classical loop: unused, any valid value.
+            velocity_noise_m_s: T::lit(0.1),
+            initial_altitude_sigma_m: T::lit(set.baro_loop_initial_sigma[0]),
+            initial_vz_sigma_m_s: T::lit(set.baro_loop_initial_sigma[1]),
+        },
+        ..ClassicalConfig::paper()
+    }
 }
 
 fn master_nav<T: Real>(m: &MasterMessage) -> MasterNav<T> {
