@@ -89,11 +89,20 @@ pub struct Consistency {
     pub runs: usize,
     /// Per component, the ensemble mean of `e²/σ²` over runs and settled epochs.
     pub normalized_error_sq: Vec<(String, f64)>,
+    /// Epochs before this time after the first are left out of the figures, s.
+    pub settle_s: f64,
 }
 
 impl Consistency {
     /// Averages the runs (all of the same epochs; a shorter run limits the series).
     pub fn from_runs(dof: usize, runs: &[RunConsistency]) -> Self {
+        Self::from_runs_settled(dof, runs, SETTLE_S)
+    }
+
+    /// [`Consistency::from_runs`] with the settling time `settle_s` (s) instead of
+    /// [`SETTLE_S`] (0 for a series that starts from a settled filter, e.g. one phase of a
+    /// longer run).
+    pub fn from_runs_settled(dof: usize, runs: &[RunConsistency], settle_s: f64) -> Self {
         let n = runs.iter().map(|r| r.nees.len()).min().unwrap_or(0);
         let t_s: Vec<f64> = runs
             .first()
@@ -104,7 +113,7 @@ impl Consistency {
             .map(|k| runs.iter().map(|r| r.nees[k]).sum::<f64>() / rc)
             .collect();
         let t0 = t_s.first().copied().unwrap_or(0.0);
-        let settled: Vec<usize> = (0..n).filter(|&k| t_s[k] >= t0 + SETTLE_S).collect();
+        let settled: Vec<usize> = (0..n).filter(|&k| t_s[k] >= t0 + settle_s).collect();
         let names: Vec<String> = runs
             .first()
             .map(|r| r.normalized.iter().map(|(c, _)| c.clone()).collect())
@@ -132,13 +141,14 @@ impl Consistency {
             nees_mean,
             runs: runs.len(),
             normalized_error_sq,
+            settle_s,
         }
     }
 
     /// Settled epochs (from [`SETTLE_S`] after the first).
     fn settled(&self) -> impl Iterator<Item = usize> + '_ {
         let t0 = self.t_s.first().copied().unwrap_or(0.0);
-        (0..self.t_s.len()).filter(move |&k| self.t_s[k] >= t0 + SETTLE_S)
+        (0..self.t_s.len()).filter(move |&k| self.t_s[k] >= t0 + self.settle_s)
     }
 
     /// Mean of the run-averaged NEES over the settled epochs.
@@ -167,7 +177,7 @@ impl Consistency {
             "nees_mean": crate::output::sig(self.mean_nees(), 4),
             "nees_band_95": [crate::output::sig(lo, 4), crate::output::sig(hi, 4)],
             "frac_in_band": crate::output::sig(self.frac_in_band(), 4),
-            "settle_s": SETTLE_S,
+            "settle_s": self.settle_s,
             "normalized_error_sq": Value::Object(normalized),
         })
     }

@@ -71,6 +71,8 @@ pub static REGISTRY: &[Kind] = &[
     crate::scenarios::vertical_channel_faults::KIND,
     crate::scenarios::vertical_channel::KIND_TAU_SWEEP,
     crate::scenarios::consistency_campaign::KIND,
+    crate::scenarios::mission::KIND,
+    crate::scenarios::mission::fault::KIND,
 ];
 
 #[derive(Debug, Deserialize)]

@@ -84,7 +84,7 @@ fn flexure(cfg: &FlexureTruthConfig, dt_s: f64, n: usize, rng: &mut SimRng) -> R
 }
 
 /// `p` moved by the NED offset `d`, m (first order in `|d|/R`: metres over the ellipsoid).
-fn offset(p: &Position, d: &Vector3<f64>) -> Position {
+pub(crate) fn offset(p: &Position, d: &Vector3<f64>) -> Position {
     let (rm, rn) = radii_of_curvature_m(p.lat_rad);
     Position {
         lat_rad: p.lat_rad + d.x / (rm + p.alt_m),

@@ -17,8 +17,8 @@ pub mod campaign;
 mod config;
 pub mod fault;
 mod report;
-mod run;
-mod sensors;
+pub(crate) mod run;
+pub(crate) mod sensors;
 pub mod trajectory;
 
 pub use config::{

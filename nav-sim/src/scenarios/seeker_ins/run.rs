@@ -2,7 +2,7 @@
 //! simulated sensors (aided or free INS, with or without injected faults), its errors and σ
 //! recorded at the output epochs; and the batches of runs.
 
-use super::config::{landmark_position, output_epochs, Config, ARCSEC, R0};
+use super::config::{landmark_position, output_epochs, Config, InitialErrorConfig, ARCSEC, R0};
 use super::fault::{self, Faults};
 use super::report::{nees, statistics, Stats};
 use super::sensors::Sensors;
@@ -104,9 +104,25 @@ pub fn simulate_run<T: Real>(
 
 /// The INS's initial state: the truth's with the Table 4 errors drawn.
 fn initial_state<T: Real>(cfg: &Config, truth: &Truth, rng: &mut SimRng) -> InsState<T> {
-    let ie = &cfg.initial_error;
-    let p0 = truth.position[0];
-    let (r0, pt0, y0) = dcm_to_euler(&truth.c_b_n[0]);
+    table4_state(
+        &cfg.initial_error,
+        &truth.position[0],
+        &truth.vel_ned_m_s[0],
+        &truth.c_b_n[0],
+        rng,
+    )
+}
+
+/// A true position, velocity and attitude with the Table 4 errors of `ie` drawn (latitude and
+/// longitude as m / R_0 rad, Euler angle errors); shared with the mission scenario.
+pub(crate) fn table4_state<T: Real>(
+    ie: &InitialErrorConfig,
+    p0: &Position,
+    v0: &Vector3<f64>,
+    c0: &Matrix3<f64>,
+    rng: &mut SimRng,
+) -> InsState<T> {
+    let (r0, pt0, y0) = dcm_to_euler(c0);
     let d_euler = Vector3::new(
         normal(rng, ie.roll_deg.to_radians()),
         normal(rng, ie.pitch_deg.to_radians()),
@@ -118,7 +134,7 @@ fn initial_state<T: Real>(cfg: &Config, truth: &Truth, rng: &mut SimRng) -> InsS
             lon_rad: p0.lon_rad + normal(rng, ie.lon_m / R0),
             alt_m: p0.alt_m + normal(rng, ie.alt_m),
         },
-        vel_ned_m_s: (truth.vel_ned_m_s[0]
+        vel_ned_m_s: (v0
             + Vector3::new(
                 normal(rng, ie.vel_m_s[0]),
                 normal(rng, ie.vel_m_s[1]),
@@ -135,8 +151,26 @@ fn initial_state<T: Real>(cfg: &Config, truth: &Truth, rng: &mut SimRng) -> InsS
 
 /// The filter's P0: Table 4 and the bias σ of the filter configuration.
 fn initial_covariance(cfg: &Config, c0: &Matrix3<f64>) -> SMatrix<f64, STATES, STATES> {
-    let ie = &cfg.initial_error;
     let fc = &cfg.filter;
+    table4_covariance(
+        &cfg.initial_error,
+        c0,
+        fc.accel_bias_sigma_ug * 1e-6 * super::config::G0,
+        fc.gyro_bias_sigma_deg_h.to_radians() / 3600.0,
+        fc.gimbal_bias_sigma_deg.to_radians(),
+    )
+}
+
+/// P0 of the 17 states: the Table 4 σ of `ie` (the Euler-angle σ mapped to the misalignment
+/// φ at the attitude `c0`) and the bias σ (accelerometer m/s², gyro rad/s, gimbal rad);
+/// shared with the mission scenario.
+pub(crate) fn table4_covariance(
+    ie: &InitialErrorConfig,
+    c0: &Matrix3<f64>,
+    accel_bias_sigma_m_s2: f64,
+    gyro_bias_sigma_rad_s: f64,
+    gimbal_bias_sigma_rad: f64,
+) -> SMatrix<f64, STATES, STATES> {
     let mut p0m = SMatrix::<f64, STATES, STATES>::zeros();
     p0m[(0, 0)] = (ie.lat_m / R0).powi(2);
     p0m[(1, 1)] = (ie.lon_m / R0).powi(2);
@@ -154,11 +188,11 @@ fn initial_covariance(cfg: &Config, c0: &Matrix3<f64>) -> SMatrix<f64, STATES, S
     let patt = (patt + patt.transpose()) * 0.5;
     p0m.fixed_view_mut::<3, 3>(6, 6).copy_from(&patt);
     for i in 0..3 {
-        p0m[(9 + i, 9 + i)] = (fc.accel_bias_sigma_ug * 1e-6 * super::config::G0).powi(2);
-        p0m[(12 + i, 12 + i)] = (fc.gyro_bias_sigma_deg_h.to_radians() / 3600.0).powi(2);
+        p0m[(9 + i, 9 + i)] = accel_bias_sigma_m_s2.powi(2);
+        p0m[(12 + i, 12 + i)] = gyro_bias_sigma_rad_s.powi(2);
     }
     for i in 0..2 {
-        p0m[(15 + i, 15 + i)] = fc.gimbal_bias_sigma_deg.to_radians().powi(2);
+        p0m[(15 + i, 15 + i)] = gimbal_bias_sigma_rad.powi(2);
     }
     p0m
 }

@@ -131,8 +131,10 @@ pub(crate) fn flexure_axis(
     Ok(out)
 }
 
-/// IMU error model of one run: per-sample noise σ and drawn random-constant biases.
-struct ImuErrors {
+/// IMU error model of one run: per-sample noise σ and drawn random-constant biases (shared
+/// with the mission scenario's master INS).
+#[derive(Debug, Clone)]
+pub(crate) struct ImuErrors {
     gyro_sigma_rad_s: f64,
     accel_sigma_m_s2: f64,
     gyro_bias_rad_s: Vector3<f64>,
@@ -140,7 +142,8 @@ struct ImuErrors {
 }
 
 impl ImuErrors {
-    fn draw(cfg: &ImuConfig, dt: f64, rng: &mut SimRng) -> Self {
+    /// Draws the biases of `cfg`; the white noise is per sample of interval `dt` (s).
+    pub(crate) fn draw(cfg: &ImuConfig, dt: f64, rng: &mut SimRng) -> Self {
         let gb = cfg.gyro_bias_deg_h.to_radians() / 3600.0;
         let ab = cfg.accel_bias_ug * 1e-6 * G0_M_S2;
         Self {
@@ -150,10 +153,12 @@ impl ImuErrors {
             accel_bias_m_s2: normal3(rng, [ab; 3]),
         }
     }
-    fn gyro(&self, w: &Vector3<f64>, rng: &mut SimRng) -> Vector3<f64> {
+    /// The gyro reading of the rate `w`, rad/s.
+    pub(crate) fn gyro(&self, w: &Vector3<f64>, rng: &mut SimRng) -> Vector3<f64> {
         w + self.gyro_bias_rad_s + normal3(rng, [self.gyro_sigma_rad_s; 3])
     }
-    fn accel(&self, f: &Vector3<f64>, rng: &mut SimRng) -> Vector3<f64> {
+    /// The accelerometer reading of the specific force `f`, m/s².
+    pub(crate) fn accel(&self, f: &Vector3<f64>, rng: &mut SimRng) -> Vector3<f64> {
         f + self.accel_bias_m_s2 + normal3(rng, [self.accel_sigma_m_s2; 3])
     }
 }

@@ -22,7 +22,7 @@
 mod campaign;
 mod report;
 mod run;
-mod sensors;
+pub(crate) mod sensors;
 mod truth;
 
 pub use campaign::{draw_variant, fly_variant, CAMPAIGN, VARIANT_DURATION_S};

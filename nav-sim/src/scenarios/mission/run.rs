@@ -1,0 +1,646 @@
+//! One mission run through the flight navigator: the inputs of [`super::sensors::inputs`] fed
+//! tick by tick to `nav_core::navigator::Navigator` (f32 as on the target, or f64), its
+//! solution compared with the truth at the output epochs; the variants of "what each link
+//! buys" fly the same truth and the same inputs.
+
+use super::config::MissionConfig;
+use super::report::{FlightRecord, HandoverSample, PhaseTag, COMPONENTS};
+use super::sensors::{inputs, MasterMessage, MissionFaults, MissionInputs, Tick};
+use super::truth::{offset, simulate, MissionTruth};
+use crate::consistency::RunConsistency;
+use crate::rng::SimRng;
+use crate::scenarios::seeker_ins::run::{table4_covariance, table4_state};
+use crate::scenarios::transfer_alignment::config::Precision;
+use crate::scenarios::transfer_alignment::estimate::cast_config;
+use crate::truth::{dcm_from_quaternion, ecef_to_ned, geodetic_to_ecef, vector_from_rotation};
+use anyhow::{anyhow, Result};
+use nalgebra::{Matrix3, SMatrix, Vector3};
+use nav_core::contract::Gate;
+use nav_core::navigator::{
+    AidState, AidTimeouts, Aids, BaroDamping, BaroErrorModel, HandoverPriors, ImuTick, LeverArm,
+    MasterNav, NavSolution, Navigator, NavigatorConfig, NavigatorInitial, Phase, SeparationCheck,
+    SeparationStatus, TickReport,
+};
+use nav_core::seeker_ins::{
+    default_recovery, ImuFaultPolicy, ImuIncrement, InsState, InstrumentErrors, Landmark,
+    LosResidual, LosSample, Position, SeekerInsConfig, SeekerInsInitial,
+};
+use nav_core::transfer_alignment::{AxisFlexure, PaperCase, TaConfig};
+use nav_core::vertical_channel::{
+    AidTimeouts as VcTimeouts, BaroSample, ClassicalConfig, ErrorModel,
+};
+use nav_core::Real;
+use serde::Deserialize;
+
+/// Slave-history depth of the navigator: ≥ the largest master latency (0.1 s) × the IMU rate
+/// (100 Hz), with margin for a late message, samples.
+pub const HISTORY: usize = 64;
+
+/// The navigator's settings (TOML table `[navigator]`): everything that is design, not truth.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NavigatorSettings {
+    /// Float type the navigator runs in.
+    pub precision: Precision,
+    /// Output (statistics) rate, Hz.
+    pub output_hz: f64,
+    /// 1σ of the lever arm's knowledge per axis, m.
+    pub lever_arm_sigma_m: [f64; 3],
+    /// χ²(1) gate per scalar LOS component and baro update.
+    pub gate_nis: f64,
+    /// Covariance propagation rate of the EKF, Hz.
+    pub covariance_hz: f64,
+    /// Separation check: specific-force jump that confirms a release, m/s².
+    pub separation_jump_m_s2: f64,
+    /// Separation check: window after the signal for the IMU's confirmation, s.
+    pub separation_window_s: f64,
+    /// Released → midcourse (baro enabled) after this coast, s.
+    pub coast_s: f64,
+    /// Aid time-outs: master (carry), baro (midcourse), seeker (terminal), s.
+    pub timeouts_s: [f64; 3],
+    /// `baro_loop` variant: time constant of the baro-inertial loop's triple pole, s.
+    pub baro_loop_tau_s: f64,
+    /// `baro_loop` variant: σ of the loop's initial altitude and vertical velocity at
+    /// midcourse (m, m/s), for its σ.
+    pub baro_loop_initial_sigma: [f64; 2],
+}
+
+/// The links of the chain compared on the same seeds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Variant {
+    /// Flight transfer alignment, hand-over, baro EKF, seeker.
+    Full,
+    /// The conventional 9-state alignment in carry.
+    ConventionalAlignment,
+    /// Released with the seeker paper's Table 4 initial errors (no alignment).
+    Table4Initial,
+    /// No baro damping.
+    NoBaro,
+    /// No seeker.
+    NoSeeker,
+    /// Baro through the baro-inertial loop around the INS's vertical channel instead of the
+    /// EKF.
+    BaroLoop,
+}
+
+impl Variant {
+    /// Every variant, in report order.
+    pub const ALL: [Self; 6] = [
+        Self::Full,
+        Self::ConventionalAlignment,
+        Self::Table4Initial,
+        Self::NoBaro,
+        Self::NoSeeker,
+        Self::BaroLoop,
+    ];
+
+    /// Name in outputs and scenario files.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Full => "full",
+            Self::ConventionalAlignment => "conventional_alignment",
+            Self::Table4Initial => "table4_initial",
+            Self::NoBaro => "no_baro",
+            Self::NoSeeker => "no_seeker",
+            Self::BaroLoop => "baro_loop",
+        }
+    }
+
+    /// The variant of a name.
+    pub fn from_name(s: &str) -> Result<Self> {
+        Self::ALL
+            .into_iter()
+            .find(|v| v.name() == s)
+            .ok_or_else(|| anyhow!("unknown variant `{s}`"))
+    }
+}
+
+fn phase_tag(p: Phase) -> PhaseTag {
+    match p {
+        Phase::Carry => PhaseTag::Carry,
+        Phase::Released => PhaseTag::Released,
+        Phase::Midcourse => PhaseTag::Midcourse,
+        Phase::Terminal => PhaseTag::Terminal,
+    }
+}
+
+/// The transfer-alignment filter's configuration for the mission: the truth's lever arm and
+/// flexure model, the mount σ, the noise of one rate / specific-force difference (the
+/// missile IMU's sample at the IMU interval, the master's at its message interval, at least
+/// the filter's floor), the
+/// specific-force-difference bias σ of both accelerometers; the filter's grid is the IMU
+/// interval (the navigator's requirement) and bridges up to 1 s without master data.
+fn ta_config(cfg: &MissionConfig) -> TaConfig<f64> {
+    let base = TaConfig::<f64>::flight(PaperCase::Case3);
+    let dt = 1.0 / cfg.imu_hz;
+    let dt_master = 1.0 / cfg.master.rate_hz;
+    let fl = &cfg.carry.flexure;
+    let s = &cfg.sensors;
+    let g0 = 9.806_65;
+    let slave_gyro = s.gyro_arw_deg_rt_h.to_radians() / 60.0 / dt.sqrt();
+    let slave_acc = s.accel_noise_ug_rt_hz * 1e-6 * g0 / dt.sqrt();
+    let mi = &cfg.master.imu;
+    // The instruments' noise is below the filter's floor (Table 3 and a navigation-grade
+    // master); the floor also covers what the instruments do not: the slave's mean over the
+    // IMU interval against the master's sample at the epoch.
+    let rate = slave_gyro
+        .hypot(mi.gyro_sigma_per_sample_rad_s(dt_master))
+        .max(nav_core::transfer_alignment::RATE_NOISE_SIGMA_RANGE_RAD_S.0);
+    let acc = slave_acc
+        .hypot(mi.accel_sigma_per_sample_m_s2(dt_master))
+        .max(nav_core::transfer_alignment::ACCEL_NOISE_SIGMA_RANGE_M_S2.0);
+    TaConfig {
+        lever_arm_m: Vector3::from(cfg.carry.lever_arm_m),
+        flexure: std::array::from_fn(|a| AxisFlexure {
+            sigma_rad: fl.sigma_deg[a].to_radians(),
+            tau_s: fl.tau_s[a],
+        }),
+        mount_sigma_rad: Vector3::from(cfg.carry.mount_sigma_deg.map(f64::to_radians)),
+        rate_noise_sigma_rad_s: rate,
+        accel_noise_sigma_m_s2: acc,
+        accel_bias_sigma_m_s2: (s.accel_bias_ug * 1e-6 * g0).hypot(mi.accel_bias_ug * 1e-6 * g0),
+        dt_s: dt,
+        time_tolerance_s: 0.1 * dt,
+        max_gap_steps: (cfg.imu_hz.round() as u32).min(nav_core::transfer_alignment::MAX_GAP_STEPS),
+        gate: Gate::Off,
+        ..base
+    }
+}
+
+/// The navigator's configuration of a variant, in float type T.
+fn navigator_config<T: Real>(
+    cfg: &MissionConfig,
+    set: &NavigatorSettings,
+    variant: Variant,
+) -> Result<NavigatorConfig<T>> {
+    let s = &cfg.sensors;
+    let g0 = 9.806_65;
+    let arcsec = (1.0f64 / 3600.0).to_radians();
+    let dt = 1.0 / cfg.imu_hz;
+    let landmark = Landmark::new(cfg.landmark_position()).map_err(|e| anyhow!("landmark: {e}"))?;
+    let ins = SeekerInsConfig::<T> {
+        instrument_errors: InstrumentErrors {
+            accel_scale_factor: T::lit(s.accel_scale_factor_ppm * 1e-6),
+            accel_misalignment_rad: T::lit(s.accel_misalignment_arcsec * arcsec),
+            gyro_scale_factor: T::lit(s.gyro_scale_factor_ppm * 1e-6),
+            gyro_misalignment_rad: T::lit(s.gyro_misalignment_arcsec * arcsec),
+        },
+        imu_dt_s: T::lit(dt),
+        covariance_interval_steps: (cfg.imu_hz / set.covariance_hz).round() as u16,
+        accel_noise_density_m_s2_rt_hz: T::lit(s.accel_noise_ug_rt_hz * 1e-6 * g0),
+        gyro_noise_density_rad_s_rt_hz: T::lit(s.gyro_arw_deg_rt_h.to_radians() / 60.0),
+        seeker_noise_rad: T::lit(s.seeker_noise_deg.to_radians()),
+        gate: Gate::Nis(T::lit(set.gate_nis)),
+        recovery: default_recovery(),
+        imu_faults: ImuFaultPolicy::default(),
+        landmark,
+        residual: LosResidual::Projected2d,
+    };
+    let b = &cfg.baro;
+    let model = BaroErrorModel {
+        white_sigma_m: T::lit(b.noise_m),
+        markov_sigma_m: T::lit(b.markov_sigma_m),
+        markov_tau_s: T::lit(b.markov_tau_s),
+        lag_s: T::lit(b.lag_s),
+    };
+    let baro = match variant {
+        Variant::NoBaro => BaroDamping::Off,
+        Variant::BaroLoop => BaroDamping::InertialLoop(baro_loop::<T>(cfg, set)),
+        _ => BaroDamping::Ekf(model),
+    };
+    Ok(NavigatorConfig {
+        alignment: cast_config(&ta_config(cfg)),
+        lever_arm: LeverArm {
+            nominal_m: Vector3::from(cfg.carry.lever_arm_m).map(T::lit),
+            sigma_m: Vector3::from(set.lever_arm_sigma_m).map(T::lit),
+        },
+        priors: HandoverPriors {
+            accel_bias_sigma_m_s2: T::lit(s.accel_bias_ug * 1e-6 * g0),
+            gyro_bias_sigma_rad_s: T::lit(s.gyro_bias_deg_h.to_radians() / 3600.0),
+            gimbal_bias_sigma_rad: T::lit(s.seeker_bias_deg.to_radians()),
+        },
+        ins,
+        imu_dt_s: T::lit(dt),
+        separation: SeparationCheck {
+            specific_force_jump_m_s2: T::lit(set.separation_jump_m_s2),
+            confirm_window_s: T::lit(set.separation_window_s),
+            coast_s: T::lit(set.coast_s),
+        },
+        baro,
+        timeouts: AidTimeouts {
+            master_s: T::lit(set.timeouts_s[0]),
+            baro_s: T::lit(set.timeouts_s[1]),
+            seeker_s: T::lit(set.timeouts_s[2]),
+        },
+    })
+}
+
+/// The classical baro-inertial loop of the `baro_loop` variant: the vertical-channel
+/// scenarios' design (paper aid model and recovery, no gate) at the mission's IMU and baro
+/// rates, its σ computed for the missile's Table 3 accelerometer and the mission's baro.
+fn baro_loop<T: Real>(cfg: &MissionConfig, set: &NavigatorSettings) -> ClassicalConfig<T> {
+    let g0 = 9.806_65;
+    let b = &cfg.baro;
+    let baro_period = 1.0 / b.rate_hz;
+    ClassicalConfig {
+        imu_dt_s: T::lit(1.0 / cfg.imu_hz),
+        latitude_rad: T::lit(cfg.profile.start_lat_deg.to_radians()),
+        tau_s: T::lit(set.baro_loop_tau_s),
+        baro_lag_s: T::lit(b.lag_s),
+        baro_period_s: T::lit(baro_period),
+        baro_timeouts: VcTimeouts {
+            stale_after_s: T::lit(1.5 * baro_period),
+            lost_after_s: T::lit(set.timeouts_s[1]),
+        },
+        error_model: ErrorModel {
+            accel_noise_m_s2_rt_hz: T::lit(cfg.sensors.accel_noise_ug_rt_hz * 1e-6 * g0),
+            accel_bias_sigma_m_s2: T::lit(cfg.sensors.accel_bias_ug * 1e-6 * g0),
+            accel_bias_rw_m_s2_rt_s: T::zero(),
+            baro_noise_m: T::lit(b.noise_m),
+            baro_markov_sigma_m: T::lit(b.markov_sigma_m),
+            baro_markov_tau_s: T::lit(b.markov_tau_s),
+            // No velocity aid in the classical loop: unused, any valid value.
+            velocity_noise_m_s: T::lit(0.1),
+            initial_altitude_sigma_m: T::lit(set.baro_loop_initial_sigma[0]),
+            initial_vz_sigma_m_s: T::lit(set.baro_loop_initial_sigma[1]),
+        },
+        ..ClassicalConfig::paper()
+    }
+}
+
+fn master_nav<T: Real>(m: &MasterMessage) -> MasterNav<T> {
+    let v = |x: &Vector3<f64>| x.map(T::lit);
+    MasterNav {
+        time: m.time,
+        c_m_n: m.c_m_n.map(T::lit),
+        vel_ned_m_s: v(&m.vel_ned_m_s),
+        position: m.position,
+        angular_rate_rad_s: v(&m.angular_rate_rad_s),
+        angular_accel_rad_s2: v(&m.angular_accel_rad_s2),
+        specific_force_m_s2: v(&m.specific_force_m_s2),
+        attitude_sigma_rad: v(&m.attitude_sigma_rad),
+        velocity_sigma_m_s: v(&m.velocity_sigma_m_s),
+        position_sigma_m: v(&m.position_sigma_m),
+    }
+}
+
+/// The error (navigator − truth) of a solution: position NED m, velocity NED m/s, attitude
+/// misalignment φ (`Ĉ = (I − [φ×]) C`, NED) rad.
+fn nav_error<T: Real>(state: &InsState<T>, truth: &MissionTruth, k: usize) -> [f64; 9] {
+    let m = &truth.missile;
+    let p = &m.position[k];
+    let e = &state.position;
+    let dr = ecef_to_ned(p.lat_rad, p.lon_rad)
+        * (geodetic_to_ecef(e.lat_rad, e.lon_rad, e.alt_m)
+            - geodetic_to_ecef(p.lat_rad, p.lon_rad, p.alt_m));
+    let dv = state.vel_ned_m_s.map(|x| x.to_f64()) - m.vel_ned_m_s[k];
+    let q = state.q_b_n;
+    let q64 = nalgebra::Quaternion::new(q.w.to_f64(), q.i.to_f64(), q.j.to_f64(), q.k.to_f64());
+    let c = dcm_from_quaternion(&q64);
+    let phi = -vector_from_rotation(&(c * m.c_b_n[k].transpose()));
+    [dr.x, dr.y, dr.z, dv.x, dv.y, dv.z, phi.x, phi.y, phi.z]
+}
+
+/// Records one epoch of a solution.
+fn record<T: Real>(
+    out: &mut FlightRecord,
+    sol: &NavSolution<T>,
+    phase: Phase,
+    truth: &MissionTruth,
+    k: usize,
+) {
+    let e = nav_error(&sol.state, truth, k);
+    let p: SMatrix<f64, 9, 9> = sol.nav_covariance.map(|x| x.to_f64());
+    let sigma: [f64; 9] = std::array::from_fn(|i| p[(i, i)].max(0.0).sqrt());
+    let ev = nalgebra::SVector::<f64, 9>::from(e);
+    let nees = p.try_inverse().map_or(f64::NAN, |pi| ev.dot(&(pi * ev)));
+    let es: [(f64, f64); 9] = std::array::from_fn(|i| (e[i], sigma[i]));
+    let t = truth.missile.t_s[k];
+    out.t_s.push(t);
+    out.phase.push(Some(phase_tag(phase)));
+    out.err.push(e);
+    out.sigma.push(sigma);
+    out.consistency.push(t, nees, &es);
+}
+
+fn handover_sample<T: Real>(
+    sol: &NavSolution<T>,
+    truth: &MissionTruth,
+    k: usize,
+) -> HandoverSample {
+    let e = nav_error(&sol.state, truth, k);
+    let p: SMatrix<f64, 9, 9> = sol.nav_covariance.map(|x| x.to_f64());
+    let pa: Matrix3<f64> = p.fixed_view::<3, 3>(6, 6).into_owned();
+    let ea = Vector3::new(e[6], e[7], e[8]);
+    HandoverSample {
+        t_s: truth.missile.t_s[k],
+        err_rad: [e[6], e[7], e[8]],
+        sigma_rad: std::array::from_fn(|i| pa[(i, i)].max(0.0).sqrt()),
+        nees: pa.try_inverse().map_or(f64::NAN, |pi| ea.dot(&(pi * ea))),
+    }
+}
+
+/// Counts the aid outcomes of a tick report and logs the ticks that were not nominal.
+fn count(out: &mut FlightRecord, rep: &TickReport<impl Real>, t_s: f64) {
+    let mut tags = Vec::new();
+    let d = &rep.degradation;
+    if !matches!(
+        d.separation,
+        SeparationStatus::NotSignalled | SeparationStatus::Confirmed | SeparationStatus::Commanded
+    ) {
+        tags.push(format!("separation.{:?}", d.separation));
+    }
+    for (name, st) in [
+        ("master", &rep.master.state),
+        ("baro", &rep.baro.state),
+        ("seeker", &rep.seeker.state),
+    ] {
+        let tag = match st {
+            AidState::NotUsedInPhase | AidState::Waiting => continue,
+            AidState::Fused => "fused",
+            AidState::Rejected => "rejected",
+            AidState::Refused(_) => "refused",
+            AidState::TimedOut => "timed_out",
+        };
+        let key = format!("{name}.{tag}");
+        if tag != "fused" {
+            tags.push(key.clone());
+        }
+        match out.aid_counts.iter_mut().find(|(k, _)| *k == key) {
+            Some((_, n)) => *n += 1,
+            None => out.aid_counts.push((key, 1)),
+        }
+    }
+    if !tags.is_empty() {
+        out.events.push((t_s, phase_tag(rep.phase), tags));
+    }
+}
+
+/// The aids of a tick in float type T.
+struct TickAids<T> {
+    master: Option<MasterNav<T>>,
+    baro: Option<BaroSample<T>>,
+    seeker: Option<LosSample<T>>,
+}
+
+fn cast_aids<T: Real>(
+    tick: &Tick,
+    master: Option<&MasterMessage>,
+    variant: Variant,
+) -> TickAids<T> {
+    TickAids {
+        master: master.map(master_nav::<T>),
+        baro: tick.baro.map(|b| BaroSample {
+            time: b.time,
+            altitude_m: T::lit(b.altitude_m),
+        }),
+        seeker: tick
+            .seeker
+            .filter(|_| variant != Variant::NoSeeker)
+            .map(|s| LosSample {
+                time: s.time,
+                gimbal: nav_core::seeker_ins::GimbalAngles {
+                    pitch_rad: T::lit(s.gimbal.pitch_rad),
+                    yaw_rad: T::lit(s.gimbal.yaw_rad),
+                },
+            }),
+    }
+}
+
+fn imu_tick<T: Real>(tick: &Tick) -> ImuTick<T> {
+    ImuTick {
+        increment: ImuIncrement {
+            time: tick.imu.time,
+            delta_theta_rad: tick.imu.delta_theta_rad.map(T::lit),
+            delta_v_m_s: tick.imu.delta_v_m_s.map(T::lit),
+        },
+        clipped: tick.clipped,
+    }
+}
+
+/// The missile INS's start on the ground of the first master message: the master's state at
+/// its time of validity moved through the nominal lever arm, its position carried forward to
+/// the tick's time with its velocity (the bus latency).
+/// Its covariance: the master's σ, and for the attitude the mount and flexure σ on top (the
+/// missile's attitude is the master's until the alignment has estimated them).
+fn initial_from_master<T: Real>(
+    m: &MasterMessage,
+    cfg: &MissionConfig,
+    now: nav_core::time::Timestamp,
+) -> NavigatorInitial<T> {
+    let age_s = now.as_secs_f64() - m.time.as_secs_f64();
+    let mut var = [0.0; 9];
+    for a in 0..3 {
+        var[a] = m.position_sigma_m[a].powi(2);
+        var[3 + a] = m.velocity_sigma_m_s[a].powi(2);
+        var[6 + a] = m.attitude_sigma_rad[a].powi(2)
+            + cfg.carry.mount_sigma_deg[a].to_radians().powi(2)
+            + cfg.carry.flexure.sigma_deg[a].to_radians().powi(2);
+    }
+    let l = m.c_m_n * Vector3::from(cfg.carry.lever_arm_m);
+    let p = offset(&m.position, &(l + m.vel_ned_m_s * age_s));
+    NavigatorInitial {
+        time: now,
+        state: InsState {
+            position: Position {
+                lat_rad: p.lat_rad,
+                lon_rad: p.lon_rad,
+                alt_m: p.alt_m,
+            },
+            vel_ned_m_s: m.vel_ned_m_s.map(T::lit),
+            q_b_n: nav_core::math::rotation::dcm_to_quat(&m.c_m_n.map(T::lit)),
+        },
+        nav_covariance: SMatrix::<f64, 9, 9>::from_diagonal(&nalgebra::SVector::from(var))
+            .map(T::lit),
+    }
+}
+
+/// What a variant needs besides the inputs: the Table 4 initial state and P0 at release.
+#[derive(Debug, Clone)]
+pub struct Table4Release {
+    /// Index of the release epoch.
+    pub index: usize,
+    /// Initial state (truth + drawn Table 4 errors) and P0.
+    pub state: InsState<f64>,
+    /// P0 of the 17 states.
+    pub covariance: SMatrix<f64, 17, 17>,
+}
+
+/// The 9 × 9 navigation block of a Table 4 P0 in NED metres for the position (δL, δl scaled
+/// by the mean earth radius, as Table 4 draws them; δh → δr_D with the sign).
+fn table4_nav_covariance(p: &SMatrix<f64, 17, 17>) -> SMatrix<f64, 9, 9> {
+    let r0 = nav_core::earth::MEAN_RADIUS_M;
+    let d = [r0, r0, -1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0];
+    SMatrix::<f64, 9, 9>::from_fn(|i, j| p[(i, j)] * d[i] * d[j])
+}
+
+/// Draws the Table 4 initial state at release around the truth.
+pub fn table4_release(
+    cfg: &MissionConfig,
+    truth: &MissionTruth,
+    rng: &mut SimRng,
+) -> Table4Release {
+    let k = truth.release_index;
+    let m = &truth.missile;
+    let s = &cfg.sensors;
+    Table4Release {
+        index: k,
+        state: table4_state(
+            &cfg.initial_error,
+            &m.position[k],
+            &m.vel_ned_m_s[k],
+            &m.c_b_n[k],
+            rng,
+        ),
+        covariance: table4_covariance(
+            &cfg.initial_error,
+            &m.c_b_n[k],
+            s.accel_bias_ug * 1e-6 * 9.806_65,
+            s.gyro_bias_deg_h.to_radians() / 3600.0,
+            s.seeker_bias_deg.to_radians(),
+        ),
+    }
+}
+
+/// Flies one variant over one run's inputs with the navigator `N` in float type T.
+fn fly_with<T: Real, const K: usize, const NS: usize>(
+    cfg: &MissionConfig,
+    set: &NavigatorSettings,
+    variant: Variant,
+    truth: &MissionTruth,
+    inp: &MissionInputs,
+    t4: &Table4Release,
+) -> Result<FlightRecord> {
+    let config = navigator_config::<T>(cfg, set, variant)?;
+    let every = ((cfg.imu_hz / set.output_hz).round() as usize).max(1);
+    let mut out = FlightRecord {
+        consistency: RunConsistency::new(&COMPONENTS),
+        ..FlightRecord::default()
+    };
+    let mut nav: Option<Navigator<T, K, NS, HISTORY>> = None;
+    let mut queue: std::collections::VecDeque<MasterMessage> = Default::default();
+    let mut last_phase: Option<Phase> = None;
+    for tick in &inp.ticks {
+        queue.extend(tick.master.iter().copied());
+        if nav.is_none() {
+            let start = if variant == Variant::Table4Initial {
+                if tick.index < t4.index {
+                    continue;
+                }
+                let st = &t4.state;
+                let p17: SMatrix<T, 17, 17> = t4.covariance.map(T::lit);
+                let init = NavigatorInitial {
+                    time: tick.imu.time,
+                    nav_covariance: table4_nav_covariance(&t4.covariance).map(T::lit),
+                    state: InsState {
+                        position: st.position,
+                        vel_ned_m_s: st.vel_ned_m_s.map(T::lit),
+                        q_b_n: nalgebra::Quaternion::new(
+                            T::lit(st.q_b_n.w),
+                            T::lit(st.q_b_n.i),
+                            T::lit(st.q_b_n.j),
+                            T::lit(st.q_b_n.k),
+                        ),
+                    },
+                };
+                let mut n = Navigator::new(&config, &init).map_err(|e| anyhow!("{e}"))?;
+                n.release_with(&SeekerInsInitial {
+                    state: init.state,
+                    covariance: p17,
+                })
+                .map_err(|e| anyhow!("release_with: {e}"))?;
+                queue.clear();
+                n
+            } else {
+                let Some(first) = queue.pop_front() else {
+                    continue;
+                };
+                let init = initial_from_master::<T>(&first, cfg, tick.imu.time);
+                Navigator::new(&config, &init).map_err(|e| anyhow!("{e}"))?
+            };
+            nav = Some(start);
+            continue;
+        }
+        let Some(n) = nav.as_mut() else { continue };
+        let next = queue.pop_front();
+        let a = cast_aids::<T>(tick, next.as_ref(), variant);
+        let aids = Aids {
+            master: a.master.as_ref(),
+            baro: a.baro.as_ref(),
+            seeker: a.seeker.as_ref(),
+            separation: tick.separation,
+        };
+        let rep = n
+            .tick(&imu_tick::<T>(tick), &aids)
+            .map_err(|e| anyhow!("tick at {} s: {e}", tick.imu.time.as_secs_f64()))?;
+        count(&mut out, &rep, truth.missile.t_s[tick.index]);
+        let phase = rep.phase;
+        if last_phase != Some(phase) {
+            out.transitions
+                .push((truth.missile.t_s[tick.index], phase_tag(phase)));
+            if phase == Phase::Released && last_phase == Some(Phase::Carry) {
+                out.handover = Some(handover_sample(&rep.solution, truth, tick.index));
+            }
+            last_phase = Some(phase);
+        }
+        if tick.index % every == 0 && truth.missile.t_s[tick.index] >= 1.0 - 1e-9 {
+            record(&mut out, &rep.solution, phase, truth, tick.index);
+        }
+    }
+    Ok(out)
+}
+
+/// Flies one variant in the configured precision.
+pub fn fly(
+    cfg: &MissionConfig,
+    set: &NavigatorSettings,
+    variant: Variant,
+    truth: &MissionTruth,
+    inp: &MissionInputs,
+    t4: &Table4Release,
+) -> Result<FlightRecord> {
+    match (set.precision, variant) {
+        (Precision::F32, Variant::ConventionalAlignment) => {
+            fly_with::<f32, 3, 9>(cfg, set, variant, truth, inp, t4)
+        }
+        (Precision::F32, _) => fly_with::<f32, 5, 15>(cfg, set, variant, truth, inp, t4),
+        (Precision::F64, Variant::ConventionalAlignment) => {
+            fly_with::<f64, 3, 9>(cfg, set, variant, truth, inp, t4)
+        }
+        (Precision::F64, _) => fly_with::<f64, 5, 15>(cfg, set, variant, truth, inp, t4),
+    }
+}
+
+/// One Monte Carlo run: truth, inputs, Table 4 draw, then every variant on them.
+#[derive(Debug, Clone)]
+pub struct MissionRun {
+    /// The truth (kept for the first run's figures).
+    pub truth: Option<MissionTruth>,
+    /// Time of the seeker's first lock, s.
+    pub first_lock_s: Option<f64>,
+    /// Per variant, its record.
+    pub records: Vec<FlightRecord>,
+}
+
+/// Simulates run `r` and flies the variants.
+pub fn simulate_run(
+    cfg: &MissionConfig,
+    set: &NavigatorSettings,
+    variants: &[Variant],
+    faults: &MissionFaults,
+    keep_truth: bool,
+    rng: &mut SimRng,
+) -> Result<MissionRun> {
+    let truth = simulate(&cfg.profile, &cfg.carry, cfg.imu_dt_us(), rng)?;
+    let inp = inputs(cfg, &truth, faults, rng)?;
+    let t4 = table4_release(cfg, &truth, rng);
+    let records = variants
+        .iter()
+        .map(|v| fly(cfg, set, *v, &truth, &inp, &t4).map_err(|e| anyhow!("{}: {e}", v.name())))
+        .collect::<Result<Vec<_>>>()?;
+    Ok(MissionRun {
+        truth: keep_truth.then_some(truth),
+        first_lock_s: inp.first_lock_s,
+        records,
+    })
+}

@@ -1,0 +1,129 @@
+//! The mission through the flight navigator on a short profile (20 s of carry with a turn,
+//! 40 s of free flight towards a landmark close enough for the seeker to lock): the phase
+//! sequence, the error against the navigator's σ, and reproducibility with the same seed.
+
+use nav_sim::scenarios::mission::report::{PhaseTag, COMPONENTS};
+use nav_sim::scenarios::mission::run::Variant;
+use nav_sim::scenarios::mission::sensors::MissionFaults;
+use nav_sim::scenarios::mission::{load_scenario, monte_carlo_runs, MissionScenario};
+
+const RUNS: usize = 4;
+const SEED: u64 = 11;
+
+/// The shipped scenario shortened: release at 20 s, end at 60 s, landmark 26 km east.
+fn short() -> MissionScenario {
+    let (mut sc, _) = load_scenario("mission").unwrap();
+    let p = &mut sc.mission.profile;
+    p.release_s = 20.0;
+    p.carry_turn_start_s = 5.0;
+    p.carry_turn_s = 8.0;
+    p.carry_turn_deg = 20.0;
+    p.carry_turn_back_after_s = None;
+    p.carry_alt_m = 1500.0;
+    p.midcourse_turn_deg = -20.0;
+    p.end_s = 60.0;
+    sc.mission.landmark.north_m = 0.0;
+    sc.mission.landmark.east_m = 26_000.0;
+    sc.mission.seeker.search_after_release_s = 5.0;
+    sc.variants = vec![Variant::Full, Variant::NoSeeker];
+    sc
+}
+
+#[test]
+fn short_mission_phases_errors_and_reproducibility() {
+    let sc = short();
+    let runs = monte_carlo_runs(&sc, &MissionFaults::default(), RUNS, SEED, false, "t").unwrap();
+    let release_s = sc.mission.profile.release_s;
+    for (i, r) in runs.iter().enumerate() {
+        let full = &r.records[0];
+        // Carry → released (at the truth's release, within the signal delay and the IMU's
+        // confirmation window) → midcourse (after the coast) → terminal (after lock).
+        let seq: Vec<PhaseTag> = full.transitions.iter().map(|(_, p)| *p).collect();
+        assert_eq!(
+            seq,
+            [
+                PhaseTag::Carry,
+                PhaseTag::Released,
+                PhaseTag::Midcourse,
+                PhaseTag::Terminal
+            ],
+            "run {i}: {:?}",
+            full.transitions
+        );
+        let t_rel = full.transitions[1].0;
+        let n = &sc.navigator;
+        assert!(
+            t_rel >= release_s && t_rel <= release_s + 0.02 + n.separation_window_s,
+            "run {i}: released at {t_rel}"
+        );
+        let t_mid = full.transitions[2].0;
+        assert!(
+            (t_mid - t_rel - n.coast_s).abs() < 0.02,
+            "run {i}: midcourse at {t_mid}"
+        );
+        let lock = r.first_lock_s.unwrap();
+        assert!(
+            full.transitions[3].0 >= lock - 1e-9,
+            "run {i}: terminal before lock"
+        );
+        // Without the seeker the navigator never enters terminal.
+        let ns: Vec<PhaseTag> = r.records[1].transitions.iter().map(|(_, p)| *p).collect();
+        assert_eq!(ns.last(), Some(&PhaseTag::Midcourse), "run {i}: {ns:?}");
+        // Position and velocity within 5σ of the navigator's at every epoch of carry.
+        for (k, (e, s)) in full.err.iter().zip(&full.sigma).enumerate() {
+            if full.phase[k] == Some(PhaseTag::Carry) {
+                for c in 0..6 {
+                    assert!(
+                        e[c].abs() <= 5.0 * s[c],
+                        "run {i} t {} {}: {} vs σ {}",
+                        full.t_s[k],
+                        COMPONENTS[c],
+                        e[c],
+                        s[c]
+                    );
+                }
+            }
+        }
+    }
+    // The same seed gives the same numbers.
+    let again = monte_carlo_runs(&sc, &MissionFaults::default(), 2, SEED, false, "t").unwrap();
+    for (a, b) in runs.iter().zip(&again) {
+        assert_eq!(a.records[0].err, b.records[0].err);
+        assert_eq!(a.records[0].sigma, b.records[0].sigma);
+        assert_eq!(a.records[0].transitions, b.records[0].transitions);
+    }
+}
+
+/// The hand-over attitude lies within 3σ of the truth (the target: normalized error² in
+/// [0.5, 2]) and the velocity within 5σ through midcourse. Measured: neither holds after a
+/// carry turn — see the README, "Flight navigator", open points.
+#[test]
+#[ignore = "fails: the hand-over attitude error is 5-20σ after a carry turn (README, Flight navigator)"]
+fn handover_attitude_within_three_sigma() {
+    let sc = short();
+    let runs = monte_carlo_runs(&sc, &MissionFaults::default(), RUNS, SEED, false, "t").unwrap();
+    for (i, r) in runs.iter().enumerate() {
+        let full = &r.records[0];
+        for (k, (e, s)) in full.err.iter().zip(&full.sigma).enumerate() {
+            if full.phase[k] == Some(PhaseTag::Midcourse) {
+                for c in 3..6 {
+                    assert!(
+                        e[c].abs() <= 5.0 * s[c],
+                        "run {i} t {}: {}",
+                        full.t_s[k],
+                        COMPONENTS[c]
+                    );
+                }
+            }
+        }
+        let h = full.handover.unwrap();
+        for a in 0..3 {
+            assert!(
+                h.err_rad[a].abs() <= 3.0 * h.sigma_rad[a],
+                "run {i} axis {a}: {} vs σ {}",
+                h.err_rad[a],
+                h.sigma_rad[a]
+            );
+        }
+    }
+}
