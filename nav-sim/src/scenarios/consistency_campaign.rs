@@ -84,7 +84,9 @@ const RATIO_CLIP: f64 = 3.0;
 pub static CAMPAIGNS: &[Campaign] = &[
     crate::scenarios::transfer_alignment::campaign::CAMPAIGN,
     crate::scenarios::seeker_ins::campaign::CAMPAIGN,
+    crate::scenarios::seeker_ins::campaign::CAMPAIGN_F32,
     crate::scenarios::vertical_channel::CAMPAIGN,
+    crate::scenarios::vertical_channel::CAMPAIGN_CLASSICAL,
 ];
 
 /// Scenario kind `consistency`.
