@@ -302,8 +302,8 @@ fn run(ctx: &Context) -> Result<Value> {
     if !panels.is_empty() {
         let fig = Figure {
             title: format!(
-                "Consistency campaign: flight configurations over randomized variants \
-                 ({} runs each; target: in band ≥ {MIN_FRAC_IN_BAND} of epochs)",
+                "Consistency campaign, {} runs per variant: literal target in band ≥ \
+                 {MIN_FRAC_IN_BAND} of epochs; statistical: time-averaged NEES in its band",
                 ctx.runs
             ),
             x_label: "variant".into(),
