@@ -283,6 +283,26 @@ mod tests {
         }
     }
 
+    /// The f32 campaign flies the same variants and runs: the paper filter (f64 in both) gives
+    /// the same numbers bit for bit, the flight configuration in f32 a NEES within 15 % of f64's.
+    #[test]
+    fn f32_campaign_flies_the_same_runs() {
+        let plan = CampaignPlan {
+            variants: 1,
+            runs: 2,
+            seed: 17,
+            progress: false,
+        };
+        let a = run(&plan).unwrap();
+        let b = run_f32(&plan).unwrap();
+        assert_eq!(a[0].params, b[0].params);
+        assert_eq!(a[1].filter, "paper");
+        assert_eq!(a[1].consistency.nees_mean, b[1].consistency.nees_mean);
+        let ratio = b[0].consistency.mean_nees() / a[0].consistency.mean_nees();
+        assert!((0.85..1.15).contains(&ratio), "f32/f64 NEES {ratio}");
+        assert_ne!(a[0].consistency.nees_mean, b[0].consistency.nees_mean);
+    }
+
     /// The flight configuration's covariance scaled by 0.3² (σ × 0.3, an overconfident
     /// filter) is judged failing by the campaign's targets: NEES scales by 1/0.09.
     #[test]

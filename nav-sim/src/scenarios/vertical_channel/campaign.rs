@@ -234,6 +234,26 @@ mod tests {
         }
     }
 
+    /// The classical loop's campaign is reproducible, flies the aided campaign's variants and
+    /// reports the classical loop (its own errors and σ, not the aided loop's).
+    #[test]
+    fn classical_campaign_is_reproducible_and_flies_the_classical_loop() {
+        let plan = CampaignPlan {
+            variants: 1,
+            runs: 3,
+            seed: 21,
+            progress: false,
+        };
+        let a = run_classical(&plan).unwrap();
+        let b = run_classical(&plan).unwrap();
+        crate::scenarios::consistency_campaign::assert_same_results(&a, &b);
+        let aided = run(&plan).unwrap();
+        assert_eq!(a.len(), 1);
+        assert_eq!(a[0].params, aided[0].params);
+        assert_ne!(a[0].rms, aided[0].rms);
+        assert_ne!(a[0].consistency.nees_mean, aided[0].consistency.nees_mean);
+    }
+
     #[test]
     fn campaign_is_reproducible_and_judges_an_overconfident_sigma_failing() {
         let plan = CampaignPlan {
