@@ -220,6 +220,56 @@ pub fn h_row_total<T: Real, const K: usize, const M: usize>(
     h
 }
 
+/// Row `i` (0-2: df_X..Z) of the flight configuration's specific-force Jacobian at the
+/// predicted misalignment θ̂: the derivative of its second-order measurement model
+///
+/// ```text
+/// h_i(x) = (−[f_s×] θ + ½ θ × (θ × f_s) + [L_0×] θ̈_f + b)_i
+/// ∂h/∂θ  = −[f_s×] + ½ ((θ̂·f_s) I + θ̂ f_sᵀ − 2 f_s θ̂ᵀ)
+/// ```
+///
+/// (θ × (θ × f) = θ (θ·f) − f |θ|²). The linear row ([`h_row_total`]) predicts the measurement
+/// once the ½ term is subtracted, but as gain its θ columns miss the second term, of relative
+/// size |θ̂| (1.5 % with the paper's 0.5° mounting σ per axis, a few times the final σ of θ):
+/// the covariance then credits the df rows with an information about θ they do not carry.
+/// Entries in ascending order per axis chain `[θ, θ_f, θ̇_f, θ̈_f, b]` (`K` = 5): θ_a for every
+/// axis a (the ½ term fills the diagonal), θ̈_f,a for a ≠ i, b_i: 6 entries.
+#[inline(always)]
+pub fn h_row_flight_df<T: Real, const K: usize>(
+    i: usize,
+    theta: &Vector3<T>,
+    f_s: &Vector3<T>,
+    lever_arm_m: &Vector3<T>,
+) -> SparseRow<T, 6> {
+    let mut h = SparseRow::<T, 6>::new();
+    let half = T::lit(0.5);
+    let s = skew_row(f_s, i);
+    let lever = skew_row(lever_arm_m, i);
+    let theta_dot_f = theta.dot(f_s);
+    let (th_i, f_i) = (
+        theta.get(i).copied().unwrap_or_else(T::zero),
+        f_s.get(i).copied().unwrap_or_else(T::zero),
+    );
+    // At most 3 + 2 + 1 entries: `push` cannot fail.
+    for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
+        let (th_a, f_a) = (
+            theta.get(a).copied().unwrap_or_else(T::zero),
+            f_s.get(a).copied().unwrap_or_else(T::zero),
+        );
+        let mut d = half * (th_i * f_a - T::lit(2.0) * f_i * th_a);
+        if a == i {
+            d += half * theta_dot_f;
+        }
+        let _ = h.push(K * a, d - v);
+        if a != i {
+            let _ = h.push(K * a + 3, l);
+        } else if has_accel_bias::<K>() {
+            let _ = h.push(K * a + BIAS_STATE, T::one());
+        }
+    }
+    h
+}
+
 /// H (6×N) in the spec's state ordering (the flight configuration's chains: with 1 on the
 /// bias `b_i` of each df row, spec index `12 + i`).
 pub fn h_matrix<T: Real, const K: usize, const N: usize>(
@@ -302,6 +352,45 @@ mod tests {
                 });
             let sp9 = h_row_total::<f64, 3, 4>(FlexureModel::Conventional, row, &w, &f, &l1);
             assert_eq!(sp9.to_dense::<9>(), expected::<3, 9>(d9));
+        }
+    }
+
+    /// The flight df rows are the Jacobian of the second-order model at θ̂ (central finite
+    /// differences of h in every state it depends on), and equal the linear rows at θ̂ = 0.
+    #[test]
+    fn flight_df_rows_are_the_jacobian_of_the_second_order_model() {
+        use super::super::model::FLIGHT_CHAIN as K;
+        let f = Vector3::new(3.0, -2.0, -9.8);
+        let l0 = Vector3::new(0.3, 5.0, -0.2);
+        let model = |x: &SVector<f64, 15>| -> Vector3<f64> {
+            let th = Vector3::new(x[0], x[K], x[2 * K]);
+            let acc = Vector3::new(x[3], x[K + 3], x[2 * K + 3]);
+            let b = Vector3::new(x[4], x[K + 4], x[2 * K + 4]);
+            -f.cross(&th) + th.cross(&th.cross(&f)) * 0.5 + l0.cross(&acc) + b
+        };
+        let mut x = SVector::<f64, 15>::zeros();
+        for (j, v) in x.iter_mut().enumerate() {
+            *v = 0.01 * ((j as f64) * 0.7).sin() + if j % K == 0 { 0.012 } else { 0.0 };
+        }
+        let theta = Vector3::new(x[0], x[K], x[2 * K]);
+        let eps = 1e-6;
+        for i in 0..3 {
+            let row = h_row_flight_df::<f64, K>(i, &theta, &f, &l0).to_dense::<15>();
+            for j in 0..15 {
+                let (mut xp, mut xm) = (x, x);
+                xp[j] += eps;
+                xm[j] -= eps;
+                let fd = (model(&xp)[i] - model(&xm)[i]) / (2.0 * eps);
+                assert!(
+                    (fd - row[j]).abs() < 1e-8,
+                    "row {i} col {j}: {fd} vs {}",
+                    row[j]
+                );
+            }
+            let linear =
+                h_row_total::<f64, K, 5>(FlexureModel::Proposed, 3 + i, &Vector3::zeros(), &f, &l0);
+            let at_zero = h_row_flight_df::<f64, K>(i, &Vector3::zeros(), &f, &l0);
+            assert_eq!(at_zero.to_dense::<15>(), linear.to_dense::<15>());
         }
     }
 

@@ -11,7 +11,7 @@ use super::covariance::{
 use super::filter::TransferAlignment;
 use super::health::Channel;
 use super::history::SlaveHistory;
-use super::measurement::{h_row_total, measurement, MasterSample, SlaveSample};
+use super::measurement::{h_row_flight_df, h_row_total, measurement, MasterSample, SlaveSample};
 use super::model::{has_accel_bias, FlexureModel};
 use crate::contract::Health;
 #[allow(unused_imports)] // doc links
@@ -124,6 +124,19 @@ fn check_ranges<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> Re
     )
 }
 
+/// θ̂ of the state `x`, each axis bounded to the small-angle range: the second-order terms
+/// built from it stay bounded (and finite) when the estimate has left the model (the filter
+/// then reports `NeedsReinitialisation`); without the bound the quadratic term feeds back on
+/// itself. (θ̇̂ is bounded to the gyro range the same way.)
+#[inline(always)]
+pub(super) fn bounded_theta<T: Real, const K: usize, const N: usize>(
+    x: &SVector<T, N>,
+) -> Vector3<T> {
+    let l = T::lit(MAX_MISALIGNMENT_RAD);
+    let g = |i: usize| x.get(i).copied().unwrap_or_else(T::zero).max(-l).min(l);
+    Vector3::new(g(0), g(K), g(2 * K))
+}
+
 /// The measurement with the second-order terms of the exact kinematics removed, so that the
 /// linear model `H x` predicts it to second order in θ (flight configuration). With
 /// `C_m^s = exp(−[θ×]) = I − [θ×] + ½[θ×]² − …` and the slave gyro seeing `J_r(θ) θ̇_f`
@@ -145,15 +158,12 @@ pub(super) fn second_order_measurement<T: Real, const K: usize, const N: usize>(
     f_s: &Vector3<T>,
     omega_m: &Vector3<T>,
 ) -> SVector<T, 6> {
-    // θ̂ within the small-angle range and θ̇̂ within the gyro range: the correction stays
-    // bounded (and finite) when the estimate has left the model (the filter then reports
-    // `NeedsReinitialisation`); without the bound the quadratic term feeds back on itself.
+    let theta = bounded_theta::<T, K, N>(x);
     let g = |i: usize, lim: f64| {
         let l = T::lit(lim);
         x.get(i).copied().unwrap_or_else(T::zero).max(-l).min(l)
     };
-    let (a, w) = (MAX_MISALIGNMENT_RAD, MAX_ANGULAR_RATE_RAD_S);
-    let theta = Vector3::new(g(0, a), g(K, a), g(2 * K, a));
+    let w = MAX_ANGULAR_RATE_RAD_S;
     let rate = Vector3::new(g(2, w), g(K + 2, w), g(2 * K + 2, w));
     let half = T::lit(0.5);
     let cw = (theta.cross(&rate) - theta.cross(&theta.cross(omega_m))) * half;
@@ -345,6 +355,9 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         } else {
             z
         };
+        // The df rows' gain and covariance use the same second-order model's Jacobian at this
+        // θ̂ ([`h_row_flight_df`]; flight configuration only).
+        let theta_hat = bounded_theta::<T, K, N>(&x);
         let (_, p) = self.buffers();
         let empty = FusionReport {
             innovation: T::zero(),
@@ -366,10 +379,24 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         // Row capacity: 5 entries with the flight configuration's bias, 4 otherwise.
         macro_rules! fuse_row {
             ($row:literal) => {
-                if has_accel_bias::<K>() {
+                if has_accel_bias::<K>() && $row >= 3 {
+                    fuse_row!($row, flight_df);
+                } else if has_accel_bias::<K>() {
                     fuse_row!($row, 5);
                 } else {
                     fuse_row!($row, 4);
+                }
+            };
+            ($row:literal, flight_df) => {
+                if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
+                    // Innovation z − h(x̂): the ½ term is already out of z, the linear row
+                    // predicts the rest; gain and covariance from the Jacobian at θ̂.
+                    let linear = h_row_total::<T, K, 5>(model_k, $row, &omega_m, &f_h, &lever);
+                    let innovation = zi - linear.dot(&x);
+                    let h = h_row_flight_df::<T, K>($row % 3, &theta_hat, &f_h, &lever);
+                    let b = covariance_times_row(p, &h);
+                    let hph = h.dot(&b);
+                    *rep = fuse_bounded(&mut x, p, &b, hph, innovation, r_accel, gate);
                 }
             };
             ($row:literal, $m:literal) => {

@@ -16,11 +16,11 @@
 //!
 //! Every variant flies [`DURATION_S`] s (shortened so that the vehicle stays at least
 //! [`MIN_END_RANGE_M`] from the landmark: a short-range, fast variant ends earlier), at the
-//! scenario's rates and with the Table 3 / Table 4 errors of `seeker-straight.toml`, in f64:
-//! the campaign judges the covariance model. (The f32 build is compared with f64 on the
-//! default scenarios by `nav-sim/tests/seeker_f32_consistency.rs` and in the README,
-//! "Consistency of the seeker-aided INS".) Its runs draw from the streams of a seed drawn from the
-//! variant's stream; both filters fly each run from the same stream.
+//! scenario's rates and with the Table 3 / Table 4 errors of `seeker-straight.toml`, in f64
+//! ([`CAMPAIGN`]: the covariance model) and, on the same variants and runs, with the flight
+//! configuration in f32 as on the target ([`CAMPAIGN_F32`]; the paper filter, the accuracy
+//! reference, stays f64). Its runs draw from the streams of a seed drawn from the variant's
+//! stream; both filters fly each run from the same stream.
 
 use super::config::{load_config, output_epochs, Config};
 use super::run::{simulate_run_with, FilterKind, RunOutput};
@@ -169,8 +169,22 @@ fn rms(runs: &[RunOutput], t_s: &[f64]) -> Vec<(String, f64)> {
         .collect()
 }
 
-/// Flies one variant with both filters.
-fn fly_variant(v: usize, var: &Variant, runs: usize, progress: bool) -> Result<[VariantResult; 2]> {
+/// The flight configuration flown in f32, as on the target, over the same variants and runs;
+/// the paper filter beside it in f64 (the accuracy reference).
+pub const CAMPAIGN_F32: Campaign = Campaign {
+    estimator: "seeker_ins_f32",
+    about: "the seeker_ins variants and runs with the flight configuration in f32 (the paper \
+            filter, the accuracy reference, in f64)",
+    run: run_f32,
+};
+
+/// Flies one variant with both filters, the flight configuration in float type `T`.
+fn fly_variant<T: nav_core::Real>(
+    v: usize,
+    var: &Variant,
+    runs: usize,
+    progress: bool,
+) -> Result<[VariantResult; 2]> {
     let cfg = &var.cfg;
     let truth = trajectory::generate(&cfg.trajectory, 1.0 / cfg.rates.imu_hz);
     let epochs = output_epochs(&truth, cfg);
@@ -178,11 +192,20 @@ fn fly_variant(v: usize, var: &Variant, runs: usize, progress: bool) -> Result<[
     let none = super::fault::Faults::default();
     let label = format!("seeker v{v}");
     let out = crate::montecarlo::monte_carlo(&label, runs, var.run_seed, progress, |_, rng| {
-        let fly = |kind| {
-            let mut r = rng.clone();
-            simulate_run_with::<f64>(cfg, &truth, &epochs, &mut r, true, kind, &none)
-        };
-        Ok::<_, anyhow::Error>((fly(FilterKind::Flight)?, fly(FilterKind::Paper)?))
+        let mut r = rng.clone();
+        let flight = simulate_run_with::<T>(
+            cfg,
+            &truth,
+            &epochs,
+            &mut r,
+            true,
+            FilterKind::Flight,
+            &none,
+        )?;
+        let mut r = rng.clone();
+        let paper =
+            simulate_run_with::<f64>(cfg, &truth, &epochs, &mut r, true, FilterKind::Paper, &none)?;
+        Ok::<_, anyhow::Error>((flight, paper))
     });
     let mut flight = Vec::with_capacity(runs);
     let mut paper = Vec::with_capacity(runs);
@@ -213,7 +236,19 @@ fn run(plan: &CampaignPlan) -> Result<Vec<VariantResult>> {
     let mut out = Vec::with_capacity(2 * plan.variants);
     for v in 0..plan.variants {
         let var = draw_variant(&base, plan.seed, v);
-        out.extend(fly_variant(v, &var, plan.runs, plan.progress)?);
+        out.extend(fly_variant::<f64>(v, &var, plan.runs, plan.progress)?);
+    }
+    Ok(out)
+}
+
+/// [`CAMPAIGN_F32`]'s `run`.
+fn run_f32(plan: &CampaignPlan) -> Result<Vec<VariantResult>> {
+    let base = load_config("seeker-straight")?;
+    let mut out = Vec::with_capacity(2 * plan.variants);
+    for v in 0..plan.variants {
+        let mut var = draw_variant(&base, plan.seed, v);
+        var.cfg.filter.precision = "f32".into();
+        out.extend(fly_variant::<f32>(v, &var, plan.runs, plan.progress)?);
     }
     Ok(out)
 }
@@ -246,6 +281,26 @@ mod tests {
             let alt = p["alt_m"].as_f64().unwrap();
             assert!((500.0..5000.0).contains(&alt));
         }
+    }
+
+    /// The f32 campaign flies the same variants and runs: the paper filter (f64 in both) gives
+    /// the same numbers bit for bit, the flight configuration in f32 a NEES within 15 % of f64's.
+    #[test]
+    fn f32_campaign_flies_the_same_runs() {
+        let plan = CampaignPlan {
+            variants: 1,
+            runs: 2,
+            seed: 17,
+            progress: false,
+        };
+        let a = run(&plan).unwrap();
+        let b = run_f32(&plan).unwrap();
+        assert_eq!(a[0].params, b[0].params);
+        assert_eq!(a[1].filter, "paper");
+        assert_eq!(a[1].consistency.nees_mean, b[1].consistency.nees_mean);
+        let ratio = b[0].consistency.mean_nees() / a[0].consistency.mean_nees();
+        assert!((0.85..1.15).contains(&ratio), "f32/f64 NEES {ratio}");
+        assert_ne!(a[0].consistency.nees_mean, b[0].consistency.nees_mean);
     }
 
     /// The flight configuration's covariance scaled by 0.3² (σ × 0.3, an overconfident

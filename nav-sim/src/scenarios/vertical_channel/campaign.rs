@@ -104,6 +104,55 @@ pub fn draw_variant(base: &Config, seed: u64, v: usize) -> (Config, Value) {
     (c, params)
 }
 
+/// The classical (baro-only, third-order) loop over the same variants and runs: its σ as the
+/// flight configuration, no paper filter beside it (its design σ is the same loop's).
+pub const CAMPAIGN_CLASSICAL: Campaign = Campaign {
+    estimator: "vertical_channel_classical",
+    about: "classical baro loop over the velocity-aided loop's variants (same draws and runs)",
+    run: run_classical,
+};
+
+fn run_classical(plan: &CampaignPlan) -> Result<Vec<VariantResult>> {
+    let base = load_config("vc-montecarlo")?;
+    let mut out = Vec::new();
+    for v in 0..plan.variants {
+        let (cfg, params) = draw_variant(&base, plan.seed, v);
+        let profile = Profile::new(&cfg.profile)?;
+        let run_seed = seed_of_runs(plan.seed, v);
+        let runs: Vec<(RunConsistency, [f64; 2], usize)> = monte_carlo(
+            "vc classical",
+            plan.runs,
+            run_seed,
+            plan.progress,
+            |_, rng| {
+                let (out, _) = one_run(&cfg, &profile, cfg.classical.tau_s, false, rng)?;
+                let Some(classical) = out.consistency.into_iter().next() else {
+                    anyhow::bail!("classical consistency missing");
+                };
+                Ok((classical, out.sumsq[0], out.n))
+            },
+        )
+        .into_iter()
+        .collect::<Result<_>>()?;
+        let n: usize = runs.iter().map(|r| r.2).sum();
+        let rms = |q: usize| (runs.iter().map(|r| r.1[q]).sum::<f64>() / n.max(1) as f64).sqrt();
+        let rc: Vec<RunConsistency> = runs.iter().map(|r| r.0.clone()).collect();
+        out.push(VariantResult {
+            variant: v,
+            filter: "flight".into(),
+            params,
+            consistency: Consistency::from_runs(2, &rc),
+            rms: vec![("h_m".to_string(), rms(0)), ("vz_m_s".to_string(), rms(1))],
+        });
+    }
+    Ok(out)
+}
+
+/// Seed of variant `v`'s runs (module documentation).
+fn seed_of_runs(seed: u64, v: usize) -> u64 {
+    seed.wrapping_add((v as u64 + 1) << 32)
+}
+
 /// The runs of one variant: per run, the consistency samples of the flight and paper filters
 /// and the squared errors (h, V_z) with their count.
 pub type VariantRuns = Vec<(RunConsistency, RunConsistency, [f64; 2], usize)>;
@@ -117,7 +166,7 @@ pub fn fly_variant(
     progress: bool,
 ) -> Result<VariantRuns> {
     let profile = Profile::new(&cfg.profile)?;
-    let run_seed = seed.wrapping_add((v as u64 + 1) << 32);
+    let run_seed = seed_of_runs(seed, v);
     monte_carlo("vc variant", runs, run_seed, progress, |_, rng| {
         let (out, _) = one_run(cfg, &profile, cfg.classical.tau_s, false, rng)?;
         let mut c = out.consistency.into_iter().skip(1);
@@ -183,6 +232,26 @@ mod tests {
                 .map(|(n, v)| (n.clone(), v.iter().map(|x| x * k).collect()))
                 .collect(),
         }
+    }
+
+    /// The classical loop's campaign is reproducible, flies the aided campaign's variants and
+    /// reports the classical loop (its own errors and σ, not the aided loop's).
+    #[test]
+    fn classical_campaign_is_reproducible_and_flies_the_classical_loop() {
+        let plan = CampaignPlan {
+            variants: 1,
+            runs: 3,
+            seed: 21,
+            progress: false,
+        };
+        let a = run_classical(&plan).unwrap();
+        let b = run_classical(&plan).unwrap();
+        crate::scenarios::consistency_campaign::assert_same_results(&a, &b);
+        let aided = run(&plan).unwrap();
+        assert_eq!(a.len(), 1);
+        assert_eq!(a[0].params, aided[0].params);
+        assert_ne!(a[0].rms, aided[0].rms);
+        assert_ne!(a[0].consistency.nees_mean, aided[0].consistency.nees_mean);
     }
 
     #[test]

@@ -25,7 +25,7 @@ mod run;
 pub(crate) mod sensors;
 mod truth;
 
-pub use campaign::{draw_variant, fly_variant, CAMPAIGN, VARIANT_DURATION_S};
+pub use campaign::{draw_variant, fly_variant, CAMPAIGN, CAMPAIGN_CLASSICAL, VARIANT_DURATION_S};
 pub use run::{
     error_model, loop_configs, monte_carlo_rmse, nees_h_vz, one_run, push_consistency, simulate,
     McResult, Noise, RunOut, AXES, FILTERS,
