@@ -171,7 +171,7 @@ fn gname(r: usize, c: usize) -> String {
     format!("g{r}_{c}")
 }
 
-/// U[i][j] (rows 0..9 of Φ P) in the prediction kernel: a local of a written-out column, or an
+/// `U[i][j]` (rows 0..9 of Φ P) in the prediction kernel: a local of a written-out column, or an
 /// element of the looped columns' array.
 fn uref(j: usize, i: usize) -> String {
     if j < LOOP_FROM {
