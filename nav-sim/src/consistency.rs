@@ -133,7 +133,7 @@ pub struct Consistency {
     pub normalized_error_sq: Vec<(String, f64)>,
     /// Epochs before this time after the first are left out of the figures, s.
     pub settle_s: f64,
-    /// Effective number of independent settled epochs of one run's NEES ([`effective_epochs`]):
+    /// Effective number of independent settled epochs of one run's NEES (`effective_epochs`):
     /// the settled epochs divided by the variance inflation of their time average.
     pub nees_effective_epochs: f64,
 }

@@ -5,10 +5,10 @@
 //! it holds lock.
 //!
 //! The models are the other scenarios' (one copy each): the missile IMU and the seeker's
-//! gimbal-angle errors are the seeker scenario's [`Sensors`] (seeker paper Table 3), the baro
-//! is the vertical-channel scenarios' [`Baro`] (first-order lag, first-order Gauss-Markov
+//! gimbal-angle errors are the seeker scenario's `Sensors` (seeker paper Table 3), the baro
+//! is the vertical-channel scenarios' `Baro` (first-order lag, first-order Gauss-Markov
 //! error, white noise), the master's gyros and accelerometers the transfer alignment's
-//! [`ImuErrors`], the vibration burst that clips the accelerometers and the seeker faults the
+//! `ImuErrors`, the vibration burst that clips the accelerometers and the seeker faults the
 //! seeker fault scenario's [`Faults`]. New here: the master's navigation errors (first-order
 //! Gauss-Markov per axis with the σ the master reports), the bus, the seeker's search and
 //! lock, the release signal.
