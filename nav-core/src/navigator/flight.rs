@@ -1,6 +1,7 @@
 //! The navigator value and its tick (module doc of [`super`]).
 
 use super::baro::{baro_age_s, baro_update, BaroState};
+use super::design::NavigatorDesign;
 use super::handover::{hand_over, AlignmentAtRelease, MasterAtRelease};
 use super::types::{
     AidAvailability, AidState, AidStatus, Aids, BaroDamping, Degradation, ImuTick, MasterNav,
@@ -203,17 +204,48 @@ impl<T: Real> Correction<T> {
 }
 
 impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
-    /// A navigator in carry at `initial`. Errors: `InvalidConfig` (the navigator's fields,
+    /// The configuration-time design of `config` (the alignment's discretised chains, the
+    /// EKF's noise PSDs, the baro-inertial loop's design): computed on the ground and stored,
+    /// [`Self::from_design`] builds the navigator from it without the design code. Errors:
+    /// `InvalidConfig` ([`NavigatorConfig::validate`], then the estimators' own checks).
+    pub fn design(config: &NavigatorConfig<T>) -> Result<NavigatorDesign<T, K>, NavError> {
+        config.validate()?;
+        Ok(NavigatorDesign {
+            ins: SeekerIns::design(&config.ins)?,
+            alignment: TransferAlignment::<T, K, N>::design(&config.alignment)?,
+            baro_loop: match &config.baro {
+                BaroDamping::InertialLoop(c) => Some(ClassicalLoop::design(c)?),
+                _ => None,
+            },
+        })
+    }
+
+    /// A navigator in carry at `initial`: [`Self::from_design`] with the design computed here
+    /// ([`Self::design`]). Errors: `InvalidConfig` (the navigator's fields,
     /// [`NavigatorConfig::validate`], then the alignment's and the EKF's own checks),
     /// `NonFiniteInput` / `InputOutOfRange` for a bad initial state or covariance.
     pub fn new(
         config: &NavigatorConfig<T>,
         initial: &NavigatorInitial<T>,
     ) -> Result<Self, NavError> {
+        Self::from_design(config, &Self::design(config)?, initial)
+    }
+
+    /// A navigator in carry at `initial` from a stored design (validated against `config`, then
+    /// copied: no design code runs). Identical to [`Self::new`] for the design
+    /// [`Self::design`] computes. Errors: as [`Self::new`], and `InvalidConfig` for a design
+    /// of another configuration (stamps) or a baro-loop design missing or superfluous.
+    pub fn from_design(
+        config: &NavigatorConfig<T>,
+        design: &NavigatorDesign<T, K>,
+        initial: &NavigatorInitial<T>,
+    ) -> Result<Self, NavError> {
         config.validate()?;
-        let design = SeekerIns::design(&config.ins)?;
-        let ta = TransferAlignment::<T, K, N>::new(
+        design.check_ins(config)?;
+        design.check_baro_loop(config)?;
+        let ta = TransferAlignment::<T, K, N>::from_design(
             &config.alignment,
+            &design.alignment,
             &TaInitial {
                 mount_misalignment_rad: Vector3::zeros(),
             },
@@ -234,7 +266,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         }
         Ok(Self {
             config: *config,
-            design,
+            design: design.ins,
             phase: Phase::Carry,
             time: initial.time,
             start: initial.time,
@@ -258,10 +290,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                     bias_m: T::zero(),
                 },
             },
-            loop_design: match &config.baro {
-                BaroDamping::InertialLoop(c) => Some(ClassicalLoop::design(c)?),
-                _ => None,
-            },
+            loop_design: design.baro_loop,
             vloop: None,
             last_baro_time: None,
             pending: None,
