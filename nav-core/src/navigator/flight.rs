@@ -117,18 +117,17 @@ fn elapsed<T: Real>(now: Timestamp, since: Timestamp) -> T {
     now.signed_seconds_since(since)
 }
 
-/// The EKF's 9 × 9 navigation block (δL, δl, δh, δV, φ) → NED metres for position.
+/// The EKF's 9 × 9 navigation block (δL, δl, δh, δV, φ) → NED metres for position. The
+/// scale factors (radii of curvature at the solution) are computed in `T`: a variance needs
+/// them to the working precision only, and on the f32 target f64 is emulated in software.
 pub(crate) fn nav_block_to_ned<T: Real>(
     p: &SMatrix<T, STATES, STATES>,
     state: &InsState<T>,
 ) -> SMatrix<T, 9, 9> {
     let pos = &state.position;
-    let (rm, rn) = radii_m(pos.lat_rad);
-    let d = [
-        T::lit(rm + pos.alt_m),
-        T::lit((rn + pos.alt_m) * libm::cos(pos.lat_rad)),
-        -T::one(),
-    ];
+    let (lat, alt) = (T::lit(pos.lat_rad), T::lit(pos.alt_m));
+    let (rm, rn) = radii_m(lat);
+    let d = [rm + alt, (rn + alt) * crate::math::trig::cos(lat), -T::one()];
     let mut out = p.fixed_view::<9, 9>(0, 0).into_owned();
     for (i, di) in d.iter().enumerate() {
         for v in out.row_mut(i).iter_mut() {
@@ -564,28 +563,17 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         SeekerIns::from_design(&self.config.ins, &self.design, &initial).ok()
     }
 
-    /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic.
-    fn fuse_master(&mut self, m: &MasterNav<T>) -> Result<AidState, NavError> {
-        let tol = self.ta_tolerance_us();
-        let snap = self
-            .snapshots
-            .iter()
-            .rev()
-            .find(|s| s.time.as_micros().abs_diff(m.time.as_micros()) <= tol)
-            .copied()
-            .ok_or(NavError::MeasurementTimeOutOfWindow)?;
-        let ms = MasterSample {
-            time: m.time,
-            angular_rate_rad_s: m.angular_rate_rad_s,
-            angular_accel_rad_s2: m.angular_accel_rad_s2,
-            specific_force_m_s2: m.specific_force_m_s2,
-        };
-        ms.validate()?;
-        let mut ta = self.ta.clone();
-        let report = ta.step_delayed(&ms, &self.history)?;
+    /// The hand-over at the master's epoch with the (updated) alignment, and the INS and its
+    /// snapshots since `snap` slaved to it (computed, not committed).
+    #[allow(clippy::type_complexity)]
+    fn slave_to(
+        &self,
+        m: &MasterNav<T>,
+        snap: &Snapshot<T>,
+    ) -> Result<(SeekerInsInitial<T>, Ins<T>, Deque<Snapshot<T>, H>), NavError> {
         let init = hand_over(
             &at_release(m, self.config.alignment.rate_noise_sigma_rad_s),
-            &AlignmentAtRelease::from_filter(&ta),
+            &AlignmentAtRelease::from_filter(&self.ta),
             &self.config.lever_arm,
             &self.config.priors,
         )?;
@@ -604,8 +592,39 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 input: "master correction",
             })?;
         }
+        Ok((init, ins, snaps))
+    }
+
+    /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic.
+    fn fuse_master(&mut self, m: &MasterNav<T>) -> Result<AidState, NavError> {
+        let tol = self.ta_tolerance_us();
+        let snap = self
+            .snapshots
+            .iter()
+            .rev()
+            .find(|s| s.time.as_micros().abs_diff(m.time.as_micros()) <= tol)
+            .copied()
+            .ok_or(NavError::MeasurementTimeOutOfWindow)?;
+        let ms = MasterSample {
+            time: m.time,
+            angular_rate_rad_s: m.angular_rate_rad_s,
+            angular_accel_rad_s2: m.angular_accel_rad_s2,
+            specific_force_m_s2: m.specific_force_m_s2,
+        };
+        ms.validate()?;
+        // The alignment steps in place (its step is atomic: on error it is unchanged); a copy
+        // taken before restores it if the hand-over or the slaving fails afterwards (one copy
+        // of the filter per master sample instead of a working copy and its commit).
+        let backup = self.ta.clone();
+        let report = self.ta.step_delayed(&ms, &self.history)?;
+        let (init, ins, snaps) = match self.slave_to(m, &snap) {
+            Ok(v) => v,
+            Err(e) => {
+                self.ta = backup;
+                return Err(e);
+            }
+        };
         // Commit.
-        self.ta = ta;
         self.ins = ins;
         self.snapshots = snaps;
         self.carry_cov = nav_block_to_ned(&init.covariance, &init.state);

@@ -2,6 +2,18 @@
 //! the per-aid counters and the few counters that do not fit [`crate::contract::Health`].
 
 use super::config::{AID_TIMEOUT_US, VARIANCE_CEILING};
+
+/// 99 % of the navigation states' [`VARIANCE_CEILING`]s, computed at compile time (the health
+/// check runs every step; on the f32 target an f64 product per state is emulated).
+const NAV_CEILING_99: [f64; 9] = {
+    let mut c = [0.0; 9];
+    let mut i = 0;
+    while i < 9 {
+        c[i] = 0.99 * VARIANCE_CEILING[i];
+        i += 1;
+    }
+    c
+};
 use super::filter::SeekerIns;
 use crate::contract::AidCounters;
 use crate::{HealthState, Real};
@@ -65,11 +77,10 @@ impl<T: Real> SeekerIns<T> {
         let Some(now) = self.ins.time() else {
             return HealthState::Initialising;
         };
-        let at_ceiling = VARIANCE_CEILING
+        let at_ceiling = NAV_CEILING_99
             .iter()
-            .take(9)
             .enumerate()
-            .any(|(i, m)| self.p.get((i, i)).is_some_and(|v| *v >= T::lit(0.99 * m)));
+            .any(|(i, m)| self.p.get((i, i)).is_some_and(|v| *v >= T::lit(*m)));
         if at_ceiling || !self.ins.state().position.is_in_range() {
             return HealthState::NeedsReinitialisation;
         }

@@ -61,6 +61,15 @@ fn class(before: Phase, t: &MissionTick, report: Option<&TickReport<f32>>) -> us
     }
 }
 
+/// `NAV_MISSION_PROFILE_TICK=<tick>` at build time: the mission without measurements, the
+/// chosen tick (1-based) between two calls of [`profile_marker`] (for a `qemu -d exec` trace).
+const PROFILE_TICK: Option<&str> = option_env!("NAV_MISSION_PROFILE_TICK");
+
+#[inline(never)]
+fn profile_marker(n: u32) {
+    core::hint::black_box(n);
+}
+
 /// Bytes painted below the stack pointer before each tick (RAM is 4 MiB).
 const PAINT_BYTES: usize = 96 * 1024;
 
@@ -86,6 +95,20 @@ fn run() -> Result<bool, NavError> {
         let t = MissionTick::decode(k, &rec);
         let aids = t.aids();
         let before = nav.phase();
+        if let Some(at) = PROFILE_TICK {
+            // Profiling build: no measurement; the chosen tick between two markers.
+            let chosen = at.parse::<usize>().is_ok_and(|a| a == k + 1);
+            if chosen {
+                profile_marker(1);
+            }
+            let report = nav.tick(&t.imu, &aids)?;
+            if chosen {
+                profile_marker(2);
+            }
+            mission_output(&nav, &report, &mut out);
+            ticks += 1;
+            continue;
+        }
         // Peak stack on a copy (painting costs instructions), then the counted tick.
         let mut copy = nav.clone();
         let stack = measure::stack_bytes_within(
