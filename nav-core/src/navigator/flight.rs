@@ -892,7 +892,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             None => FusionOutcome::Skipped,
             Some(u) => {
                 if u.report.outcome == FusionOutcome::Fused {
-                    ekf.apply_external_update(&u.dx, &u.p)?;
+                    // `baro_update` returned `u.p` checked finite.
+                    ekf.apply_finite_update(&u.dx, &u.p)?;
                     bs.cross = u.cross;
                     bs.variance_m2 = u.variance_m2;
                     bs.bias_m -= u.db_m;
