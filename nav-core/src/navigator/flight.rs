@@ -127,7 +127,11 @@ pub(crate) fn nav_block_to_ned<T: Real>(
     let pos = &state.position;
     let (lat, alt) = (T::lit(pos.lat_rad), T::lit(pos.alt_m));
     let (rm, rn) = radii_m(lat);
-    let d = [rm + alt, (rn + alt) * crate::math::trig::cos(lat), -T::one()];
+    let d = [
+        rm + alt,
+        (rn + alt) * crate::math::trig::cos(lat),
+        -T::one(),
+    ];
     let mut out = p.fixed_view::<9, 9>(0, 0).into_owned();
     for (i, di) in d.iter().enumerate() {
         for v in out.row_mut(i).iter_mut() {
