@@ -160,7 +160,7 @@ fn mission_inputs(seed: u64) -> Result<Vec<f32>> {
         v.extend(inc.delta_theta_rad.iter().map(|x| *x as f32));
         v.extend(dv.iter().map(|x| *x as f32));
         // Master: its time of validity `MISSION_MASTER_LATENCY` ticks ago.
-        let master = k >= MISSION_MASTER_FROM && k < MISSION_RELEASE && k % 2 == 0;
+        let master = (MISSION_MASTER_FROM..MISSION_RELEASE).contains(&k) && k % 2 == 0;
         if master {
             let m = k - MISSION_MASTER_LATENCY;
             let rate = |j: usize| -> Result<nalgebra::Vector3<f64>> {

@@ -6,13 +6,18 @@ use super::config::{AID_TIMEOUT_US, VARIANCE_CEILING};
 /// 99 % of the navigation states' [`VARIANCE_CEILING`]s, computed at compile time (the health
 /// check runs every step; on the f32 target an f64 product per state is emulated).
 const NAV_CEILING_99: [f64; 9] = {
-    let mut c = [0.0; 9];
-    let mut i = 0;
-    while i < 9 {
-        c[i] = 0.99 * VARIANCE_CEILING[i];
-        i += 1;
-    }
-    c
+    let [a, b, c, d, e, f, g, h, i, ..] = VARIANCE_CEILING;
+    [
+        0.99 * a,
+        0.99 * b,
+        0.99 * c,
+        0.99 * d,
+        0.99 * e,
+        0.99 * f,
+        0.99 * g,
+        0.99 * h,
+        0.99 * i,
+    ]
 };
 use super::filter::SeekerIns;
 use crate::contract::AidCounters;
