@@ -1,7 +1,14 @@
 use std::{env, fs, path::PathBuf};
 
 /// Golden-vector cases (file stems written by `nav-sim golden`).
-const CASES: [&str; 5] = ["ta9", "ta12", "vc_classical", "vc_aided", "seeker_ins"];
+const CASES: [&str; 6] = [
+    "ta9",
+    "ta12",
+    "vc_classical",
+    "vc_aided",
+    "seeker_ins",
+    "mission",
+];
 
 fn main() {
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("OUT_DIR"));

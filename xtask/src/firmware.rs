@@ -206,6 +206,7 @@ pub fn qemu() -> Result<(), String> {
             Err(e) => failures.push(e),
         }
     }
+    failures.extend(mission_golden(&elf.with_file_name("nav-mission"), &decoder));
     if failures.is_empty() {
         println!("qemu: every golden case bit-identical on both machines");
         Ok(())
@@ -505,6 +506,8 @@ pub fn bench(report_only: bool) -> Result<(), String> {
                 .collect::<Vec<_>>(),
         }),
     );
+    let mission = mission_bench(&elf.with_file_name("nav-mission"), &decoder)?;
+    report.insert("mission".into(), Value::Object(mission));
     let load = cpu_load(&report);
     report.insert("cpu_load".into(), load.clone());
     let dir = root().join("target/bench");
@@ -535,15 +538,17 @@ pub fn bench(report_only: bool) -> Result<(), String> {
         }
     }
     let md = format!(
-        "{}\n{}{}",
+        "{}\n{}\n{}{}",
         budget_table(&report),
         peer_table(&report),
+        mission_table(&report),
         crate::flash::table("nav-size", &size_syms, f_text, FLASH_TOP)
     );
     std::fs::write(dir.join("report.md"), &md).map_err(|e| e.to_string())?;
     println!("\n{md}");
     eprintln!("xtask: bench: wrote {} and report.md", path.display());
-    let missed = missed_targets(&report);
+    let mut missed = missed_targets(&report);
+    missed.extend(mission_missed(&report));
     if missed.is_empty() {
         eprintln!("xtask: bench: every cost target met");
         Ok(())
@@ -583,4 +588,165 @@ fn print_table(report: &Map<String, Value>) {
             }
         }
     }
+}
+
+// ------------------------------------------------------------------ the mission image
+
+/// Per-tick instruction budget of the flight navigator (any tick of any phase), M4F.
+const MISSION_TICK_INSNS: u64 = 20_000;
+/// Peak stack budget of one navigator tick, bytes.
+const MISSION_TICK_STACK_BYTES: u64 = 2048;
+/// `.text` budget of the mission image, bytes.
+const MISSION_TEXT_BYTES: u64 = 64 * 1024;
+/// The tick classes the mission image reports (`BENCH nav_tick_<class>`), with their labels.
+const MISSION_TICKS: [(&str, &str); 9] = [
+    ("nav_tick_carry", "carry, IMU only"),
+    ("nav_tick_carry_master", "carry, a master sample arriving"),
+    (
+        "nav_tick_separation",
+        "carry → released (separation confirmed, hand-over)",
+    ),
+    ("nav_tick_released", "released (EKF prediction)"),
+    ("nav_tick_midcourse", "midcourse, IMU only"),
+    ("nav_tick_midcourse_baro", "midcourse, a baro sample"),
+    ("nav_tick_terminal", "terminal, IMU only"),
+    (
+        "nav_tick_terminal_los",
+        "terminal, a LOS sample (covariance prediction flushed on the same tick)",
+    ),
+    (
+        "nav_tick_terminal_los_baro",
+        "terminal, LOS and baro samples on the same tick",
+    ),
+];
+
+/// `GOLDEN mission …` of the mission image on both machines: the failures (empty when every
+/// tick's output is bit-identical with the host's on both).
+fn mission_golden(elf: &Path, decoder: &Path) -> Vec<String> {
+    let mut failures = Vec::new();
+    for (label, machine) in MACHINES {
+        match run_on_qemu(elf, machine, decoder) {
+            Ok(lines) => match parse_golden(&lines)
+                .into_iter()
+                .find(|(c, _, _)| c == "mission")
+            {
+                Some((_, line, ok)) => {
+                    println!("{label:<11} {line}");
+                    if !ok {
+                        failures.push(format!("{label}: mission"));
+                    }
+                }
+                None => failures.push(format!("{label}: mission not reported")),
+            },
+            Err(e) => failures.push(e),
+        }
+    }
+    failures
+}
+
+/// Runs the mission image on both machines: golden replay (must be bit-identical), worst
+/// instructions and peak stack per tick class, and the image's section sizes.
+fn mission_bench(elf: &Path, decoder: &Path) -> Result<Map<String, Value>, String> {
+    let (text, rodata, data, bss) = section_sizes(elf)?;
+    let mut out = Map::new();
+    out.insert("text_bytes".into(), json!(text));
+    out.insert("rodata_bytes".into(), json!(rodata));
+    out.insert("data_bytes".into(), json!(data));
+    out.insert("bss_bytes".into(), json!(bss));
+    let mut failures = Vec::new();
+    for (label, machine) in MACHINES {
+        let lines = run_on_qemu(elf, machine, decoder)?;
+        match parse_golden(&lines)
+            .into_iter()
+            .find(|(c, _, _)| c == "mission")
+        {
+            Some((_, _, true)) => {}
+            Some((_, line, false)) => failures.push(format!("{label}: {line}")),
+            None => failures.push(format!("{label}: mission golden not reported")),
+        }
+        let mut m = Map::new();
+        for (name, insns, stack) in parse_bench(&lines) {
+            m.insert(name, json!({ "insns": insns, "stack_bytes": stack }));
+        }
+        out.insert(label.into(), Value::Object(m));
+    }
+    if failures.is_empty() {
+        Ok(out)
+    } else {
+        Err(format!("mission image: {}", failures.join("; ")))
+    }
+}
+
+fn mission_tick(report: &Map<String, Value>, cpu: &str, name: &str) -> Option<(u64, u64)> {
+    let t = report.get("mission")?.get(cpu)?.get(name)?;
+    Some((t.get("insns")?.as_u64()?, t.get("stack_bytes")?.as_u64()?))
+}
+
+/// The mission's budgets missed (M4F ticks, stack, `.text`).
+fn mission_missed(report: &Map<String, Value>) -> Vec<String> {
+    let mut missed = Vec::new();
+    for (name, _) in MISSION_TICKS {
+        match mission_tick(report, "cortex-m4f", name) {
+            Some((n, s)) => {
+                if n > MISSION_TICK_INSNS {
+                    missed.push(format!("{name} {n} > {MISSION_TICK_INSNS} instructions"));
+                }
+                if s > MISSION_TICK_STACK_BYTES {
+                    missed.push(format!("{name} stack {s} > {MISSION_TICK_STACK_BYTES} B"));
+                }
+            }
+            None => missed.push(format!("{name} not measured")),
+        }
+    }
+    let text = report
+        .get("mission")
+        .and_then(|m| m.get("text_bytes"))
+        .and_then(Value::as_u64)
+        .unwrap_or(u64::MAX);
+    if text > MISSION_TEXT_BYTES {
+        missed.push(format!(
+            "mission image .text {text} > {MISSION_TEXT_BYTES} B"
+        ));
+    }
+    missed
+}
+
+/// Markdown table of the mission's ticks against the budgets (for the README).
+fn mission_table(report: &Map<String, Value>) -> String {
+    let mut md = format!(
+        "| flight navigator tick, worst over the mission (f32) | instructions M4F | M7 | \
+         budget {MISSION_TICK_INSNS} | peak stack, B (budget {MISSION_TICK_STACK_BYTES}) |\n\
+         | --- | --- | --- | --- | --- |\n"
+    );
+    for (name, label) in MISSION_TICKS {
+        let (n4, s4) = mission_tick(report, "cortex-m4f", name).unwrap_or((0, 0));
+        let (n7, _) = mission_tick(report, "cortex-m7", name).unwrap_or((0, 0));
+        let ok = |b: bool| if b { "✓" } else { "✗" };
+        md.push_str(&format!(
+            "| {label} (`{name}`) | {n4} | {n7} | {} | {s4} {} |\n",
+            ok(n4 <= MISSION_TICK_INSNS),
+            ok(s4 <= MISSION_TICK_STACK_BYTES)
+        ));
+    }
+    let get = |k: &str| {
+        report
+            .get("mission")
+            .and_then(|m| m.get(k))
+            .and_then(Value::as_u64)
+            .unwrap_or(0)
+    };
+    let text = get("text_bytes");
+    md.push_str(&format!(
+        "\nMission image (`nav-mission`: the navigator built from the stored design, \
+         `from_design`; the recorded mission's replay, comparison and counter reads are its only \
+         harness): `.text` {text} B (budget {MISSION_TEXT_BYTES} B {}), `.rodata` {} B \
+         (recorded mission included).\n",
+        if text <= MISSION_TEXT_BYTES {
+            "✓"
+        } else {
+            "✗"
+        },
+        get("rodata_bytes"),
+    ));
+    md
 }

@@ -11,10 +11,16 @@
 //! input).
 use crate::Real;
 
-/// `true` when every value is finite (not NaN or ±∞).
+/// `true` when every value is finite (not NaN or ±∞): `values.iter().all(|v| v.is_finite())`.
+/// Computed without a branch per value (it also runs on step paths, on 17 × 17 covariances):
+/// `v · 0` is NaN exactly when `v` is ±∞ or NaN (±0 otherwise), and a sum with a NaN term is
+/// NaN, so the sum of the `v · 0` is finite exactly when every value is.
 #[inline(never)]
 pub fn all_finite<T: Real>(values: &[T]) -> bool {
-    values.iter().all(|v| v.is_finite())
+    values
+        .iter()
+        .fold(T::zero(), |s, v| s + *v * T::zero())
+        .is_finite()
 }
 
 /// `true` when every slice of `parts` is [`all_finite`].

@@ -1,6 +1,7 @@
 //! The navigator value and its tick (module doc of [`super`]).
 
 use super::baro::{baro_age_s, baro_update, BaroState};
+use super::design::NavigatorDesign;
 use super::handover::{hand_over, AlignmentAtRelease, MasterAtRelease};
 use super::types::{
     AidAvailability, AidState, AidStatus, Aids, BaroDamping, Degradation, ImuTick, MasterNav,
@@ -116,16 +117,19 @@ fn elapsed<T: Real>(now: Timestamp, since: Timestamp) -> T {
     now.signed_seconds_since(since)
 }
 
-/// The EKF's 9 × 9 navigation block (δL, δl, δh, δV, φ) → NED metres for position.
+/// The EKF's 9 × 9 navigation block (δL, δl, δh, δV, φ) → NED metres for position. The
+/// scale factors (radii of curvature at the solution) are computed in `T`: a variance needs
+/// them to the working precision only, and on the f32 target f64 is emulated in software.
 pub(crate) fn nav_block_to_ned<T: Real>(
     p: &SMatrix<T, STATES, STATES>,
     state: &InsState<T>,
 ) -> SMatrix<T, 9, 9> {
     let pos = &state.position;
-    let (rm, rn) = radii_m(pos.lat_rad);
+    let (lat, alt) = (T::lit(pos.lat_rad), T::lit(pos.alt_m));
+    let (rm, rn) = radii_m(lat);
     let d = [
-        T::lit(rm + pos.alt_m),
-        T::lit((rn + pos.alt_m) * libm::cos(pos.lat_rad)),
+        rm + alt,
+        (rn + alt) * crate::math::trig::cos(lat),
         -T::one(),
     ];
     let mut out = p.fixed_view::<9, 9>(0, 0).into_owned();
@@ -203,17 +207,48 @@ impl<T: Real> Correction<T> {
 }
 
 impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
-    /// A navigator in carry at `initial`. Errors: `InvalidConfig` (the navigator's fields,
+    /// The configuration-time design of `config` (the alignment's discretised chains, the
+    /// EKF's noise PSDs, the baro-inertial loop's design): computed on the ground and stored,
+    /// [`Self::from_design`] builds the navigator from it without the design code. Errors:
+    /// `InvalidConfig` ([`NavigatorConfig::validate`], then the estimators' own checks).
+    pub fn design(config: &NavigatorConfig<T>) -> Result<NavigatorDesign<T, K>, NavError> {
+        config.validate()?;
+        Ok(NavigatorDesign {
+            ins: SeekerIns::design(&config.ins)?,
+            alignment: TransferAlignment::<T, K, N>::design(&config.alignment)?,
+            baro_loop: match &config.baro {
+                BaroDamping::InertialLoop(c) => Some(ClassicalLoop::design(c)?),
+                _ => None,
+            },
+        })
+    }
+
+    /// A navigator in carry at `initial`: [`Self::from_design`] with the design computed here
+    /// ([`Self::design`]). Errors: `InvalidConfig` (the navigator's fields,
     /// [`NavigatorConfig::validate`], then the alignment's and the EKF's own checks),
     /// `NonFiniteInput` / `InputOutOfRange` for a bad initial state or covariance.
     pub fn new(
         config: &NavigatorConfig<T>,
         initial: &NavigatorInitial<T>,
     ) -> Result<Self, NavError> {
+        Self::from_design(config, &Self::design(config)?, initial)
+    }
+
+    /// A navigator in carry at `initial` from a stored design (validated against `config`, then
+    /// copied: no design code runs). Identical to [`Self::new`] for the design
+    /// [`Self::design`] computes. Errors: as [`Self::new`], and `InvalidConfig` for a design
+    /// of another configuration (stamps) or a baro-loop design missing or superfluous.
+    pub fn from_design(
+        config: &NavigatorConfig<T>,
+        design: &NavigatorDesign<T, K>,
+        initial: &NavigatorInitial<T>,
+    ) -> Result<Self, NavError> {
         config.validate()?;
-        let design = SeekerIns::design(&config.ins)?;
-        let ta = TransferAlignment::<T, K, N>::new(
+        design.check_ins(config)?;
+        design.check_baro_loop(config)?;
+        let ta = TransferAlignment::<T, K, N>::from_design(
             &config.alignment,
+            &design.alignment,
             &TaInitial {
                 mount_misalignment_rad: Vector3::zeros(),
             },
@@ -234,7 +269,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         }
         Ok(Self {
             config: *config,
-            design,
+            design: design.ins,
             phase: Phase::Carry,
             time: initial.time,
             start: initial.time,
@@ -258,10 +293,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                     bias_m: T::zero(),
                 },
             },
-            loop_design: match &config.baro {
-                BaroDamping::InertialLoop(c) => Some(ClassicalLoop::design(c)?),
-                _ => None,
-            },
+            loop_design: design.baro_loop,
             vloop: None,
             last_baro_time: None,
             pending: None,
@@ -535,28 +567,17 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         SeekerIns::from_design(&self.config.ins, &self.design, &initial).ok()
     }
 
-    /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic.
-    fn fuse_master(&mut self, m: &MasterNav<T>) -> Result<AidState, NavError> {
-        let tol = self.ta_tolerance_us();
-        let snap = self
-            .snapshots
-            .iter()
-            .rev()
-            .find(|s| s.time.as_micros().abs_diff(m.time.as_micros()) <= tol)
-            .copied()
-            .ok_or(NavError::MeasurementTimeOutOfWindow)?;
-        let ms = MasterSample {
-            time: m.time,
-            angular_rate_rad_s: m.angular_rate_rad_s,
-            angular_accel_rad_s2: m.angular_accel_rad_s2,
-            specific_force_m_s2: m.specific_force_m_s2,
-        };
-        ms.validate()?;
-        let mut ta = self.ta.clone();
-        let report = ta.step_delayed(&ms, &self.history)?;
+    /// The hand-over at the master's epoch with the (updated) alignment, and the INS and its
+    /// snapshots since `snap` slaved to it (computed, not committed).
+    #[allow(clippy::type_complexity)]
+    fn slave_to(
+        &self,
+        m: &MasterNav<T>,
+        snap: &Snapshot<T>,
+    ) -> Result<(SeekerInsInitial<T>, Ins<T>, Deque<Snapshot<T>, H>), NavError> {
         let init = hand_over(
             &at_release(m, self.config.alignment.rate_noise_sigma_rad_s),
-            &AlignmentAtRelease::from_filter(&ta),
+            &AlignmentAtRelease::from_filter(&self.ta),
             &self.config.lever_arm,
             &self.config.priors,
         )?;
@@ -575,8 +596,39 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 input: "master correction",
             })?;
         }
+        Ok((init, ins, snaps))
+    }
+
+    /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic.
+    fn fuse_master(&mut self, m: &MasterNav<T>) -> Result<AidState, NavError> {
+        let tol = self.ta_tolerance_us();
+        let snap = self
+            .snapshots
+            .iter()
+            .rev()
+            .find(|s| s.time.as_micros().abs_diff(m.time.as_micros()) <= tol)
+            .copied()
+            .ok_or(NavError::MeasurementTimeOutOfWindow)?;
+        let ms = MasterSample {
+            time: m.time,
+            angular_rate_rad_s: m.angular_rate_rad_s,
+            angular_accel_rad_s2: m.angular_accel_rad_s2,
+            specific_force_m_s2: m.specific_force_m_s2,
+        };
+        ms.validate()?;
+        // The alignment steps in place (its step is atomic: on error it is unchanged); a copy
+        // taken before restores it if the hand-over or the slaving fails afterwards (one copy
+        // of the filter per master sample instead of a working copy and its commit).
+        let backup = self.ta.clone();
+        let report = self.ta.step_delayed(&ms, &self.history)?;
+        let (init, ins, snaps) = match self.slave_to(m, &snap) {
+            Ok(v) => v,
+            Err(e) => {
+                self.ta = backup;
+                return Err(e);
+            }
+        };
         // Commit.
-        self.ta = ta;
         self.ins = ins;
         self.snapshots = snaps;
         self.carry_cov = nav_block_to_ned(&init.covariance, &init.state);
@@ -844,7 +896,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             None => FusionOutcome::Skipped,
             Some(u) => {
                 if u.report.outcome == FusionOutcome::Fused {
-                    ekf.apply_external_update(&u.dx, &u.p)?;
+                    // `baro_update` returned `u.p` checked finite.
+                    ekf.apply_finite_update(&u.dx, &u.p)?;
                     bs.cross = u.cross;
                     bs.variance_m2 = u.variance_m2;
                     bs.bias_m -= u.db_m;

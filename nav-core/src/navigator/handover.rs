@@ -206,13 +206,17 @@ pub fn hand_over<T: Real>(
         + c_w * diag_var(&lever.sigma_m) * c_w.transpose()
         + c_l0 * alignment.flexure_rate_covariance * c_l0.transpose();
     // Position of the slave (first order in |l|/R: metres over the ellipsoid, in f64).
+    // The radii in `T`: the offset is metres (|l| ≪ R), so their working precision is ample
+    // for it and for the covariance's scale; on the f32 target f64 is emulated in software.
     let p = master.position;
-    let (rm, rn) = radii_m(p.lat_rad);
-    let (n_m, e_m, d_m) = (l_n.x.to_f64(), l_n.y.to_f64(), l_n.z.to_f64());
+    let (lat, alt) = (T::lit(p.lat_rad), T::lit(p.alt_m));
+    let (rm, rn) = radii_m(lat);
+    let cos_lat = crate::math::trig::cos(lat);
+    let (r_north, r_east) = (rm + alt, (rn + alt) * cos_lat);
     let position = Position {
-        lat_rad: p.lat_rad + n_m / (rm + p.alt_m),
-        lon_rad: p.lon_rad + e_m / ((rn + p.alt_m) * libm::cos(p.lat_rad)),
-        alt_m: p.alt_m - d_m,
+        lat_rad: p.lat_rad + (l_n.x / r_north).to_f64(),
+        lon_rad: p.lon_rad + (l_n.y / r_east).to_f64(),
+        alt_m: p.alt_m - l_n.z.to_f64(),
     };
     if !position.is_in_range() {
         return Err(NavError::InputOutOfRange {
@@ -220,11 +224,7 @@ pub fn hand_over<T: Real>(
         });
     }
     // NED metres → (δL, δl, δh): rad, rad, m (δh = −δD).
-    let d = Vector3::new(
-        T::lit(1.0 / (rm + position.alt_m)),
-        T::lit(1.0 / ((rn + position.alt_m) * libm::cos(position.lat_rad))),
-        -T::one(),
-    );
+    let d = Vector3::new(T::one() / r_north, T::one() / r_east, -T::one());
     let dm = Matrix3::from_diagonal(&d);
     let p_pos = dm * p_r_ned * dm;
     let mut p0 = SMatrix::<T, STATES, STATES>::zeros();

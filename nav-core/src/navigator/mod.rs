@@ -168,6 +168,7 @@
 
 // Flight navigator: see the section above.
 pub mod baro;
+mod design;
 mod flight;
 pub mod handover;
 #[cfg(test)]
@@ -175,6 +176,7 @@ mod tests;
 mod types;
 
 pub use baro::{BaroState, MAX_BARO_AGE_S};
+pub use design::NavigatorDesign;
 pub use flight::{ConventionalNavigator, FlightNavigator, Navigator};
 pub use handover::{
     hand_over, right_jacobian, AlignmentAtRelease, HandoverPriors, LeverArm, MasterAtRelease,

@@ -1200,3 +1200,83 @@ fn baro_column_through_los_update_matches_dense_18_state_reference() {
         / p.abs().max();
     assert!(e_p < 1e-9, "{e_p}");
 }
+
+// ------------------------------------------------------------------ stored design
+
+/// `from_design` with the design written to values and read back is `new`, bit for bit, after
+/// two seconds of carry; designs of another configuration, or a baro-loop design missing or
+/// superfluous, are refused by name.
+fn stored_design_is_new<T: Real>() {
+    use crate::design::DesignValues;
+    let cfg = config::<T>(BaroDamping::Off);
+    let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
+    let world = World::new();
+    let init = initial::<T>(&world, &lever);
+    let design = FlightNavigator::<T, 32>::design(&cfg).unwrap();
+    let mut values = std::vec![0.0; NavigatorDesign::<T, 5>::COUNT];
+    design.write_values(&mut values).unwrap();
+    let loaded = NavigatorDesign::<T, 5>::read_values(&values).unwrap();
+    assert_eq!(loaded, design);
+    let mut a = FlightNavigator::<T, 32>::new(&cfg, &init).unwrap();
+    let mut b = FlightNavigator::<T, 32>::from_design(&cfg, &loaded, &init).unwrap();
+    let mut wa = World::new();
+    for _ in 0..200 {
+        let inc = wa.step(&lever);
+        let master = wa.master_sample::<T>();
+        let aids = Aids {
+            master: master.as_ref(),
+            ..Aids::NONE
+        };
+        let ra = a.tick(&tick_of(&inc), &aids).unwrap();
+        let rb = b.tick(&tick_of(&inc), &aids).unwrap();
+        assert_eq!(format!("{ra:?}"), format!("{rb:?}"));
+    }
+    assert!(a.alignment().theta().iter().any(|x| *x != T::zero()));
+    assert_eq!(dump(&a), dump(&b));
+    // The EKF's design of another IMU.
+    let mut other = cfg;
+    other.ins.gyro_noise_density_rad_s_rt_hz *= T::lit(2.0);
+    assert!(matches!(
+        FlightNavigator::<T, 32>::from_design(&other, &loaded, &init),
+        Err(NavError::InvalidConfig {
+            field: "design",
+            ..
+        })
+    ));
+    // The alignment's design of another step.
+    let mut other = cfg;
+    other.alignment.mount_sigma_rad *= T::lit(2.0);
+    assert!(FlightNavigator::<T, 32>::from_design(&other, &loaded, &init).is_err());
+    // The loop asked for, no loop design stored.
+    let mut vc = crate::vertical_channel::ClassicalConfig::<T>::paper();
+    vc.baro_lag_s = T::zero();
+    vc.latitude_rad = T::lit(START.lat_rad);
+    let lp = config::<T>(BaroDamping::InertialLoop(vc));
+    assert!(FlightNavigator::<T, 32>::new(&lp, &init).is_ok());
+    assert_eq!(
+        FlightNavigator::<T, 32>::from_design(&lp, &loaded, &init).unwrap_err(),
+        NavError::InvalidConfig {
+            field: "design.baro_loop",
+            issue: crate::error::ConfigIssue::DesignMismatch
+        }
+    );
+    // A bad flag value.
+    values[TaDesignCount::<T>::N + 4] = 0.5;
+    assert!(NavigatorDesign::<T, 5>::read_values(&values).is_err());
+}
+
+struct TaDesignCount<T>(core::marker::PhantomData<T>);
+impl<T: Real> TaDesignCount<T> {
+    const N: usize =
+        <crate::transfer_alignment::TaDesign<T, 5> as crate::design::DesignValues>::COUNT;
+}
+
+#[test]
+fn stored_design_is_new_f64() {
+    stored_design_is_new::<f64>();
+}
+
+#[test]
+fn stored_design_is_new_f32() {
+    stored_design_is_new::<f32>();
+}

@@ -303,6 +303,16 @@ impl<T: Real> SeekerIns<T> {
                 input: "external covariance update",
             });
         }
+        self.apply_finite_update(x, p_updated)
+    }
+
+    /// [`Self::apply_external_update`] with `p_updated` already checked finite by the caller
+    /// (the navigator's baro update checks its whole result before it returns it).
+    pub(crate) fn apply_finite_update(
+        &mut self,
+        x: &nalgebra::SVector<T, STATES>,
+        p_updated: &SMatrix<T, STATES, STATES>,
+    ) -> Result<(), NavError> {
         self.feed_back_parts(x)?;
         self.p = *p_updated;
         Ok(())

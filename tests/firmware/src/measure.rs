@@ -34,11 +34,16 @@ pub fn instructions(f: &mut dyn FnMut()) -> u32 {
 
 /// Peak stack used by `f`, bytes: paints [SP − PAINT_BYTES, SP) and finds the lowest word `f`
 /// changed. Includes the call into `f` itself (a few words).
-#[inline(never)]
 pub fn stack_bytes(f: &mut dyn FnMut()) -> u32 {
+    stack_bytes_within(f, PAINT_BYTES)
+}
+
+/// [`stack_bytes`] with `paint_bytes` painted (a result equal to it: the region was exhausted).
+#[inline(never)]
+pub fn stack_bytes_within(f: &mut dyn FnMut(), paint_bytes: usize) -> u32 {
     let sp = cortex_m::register::msp::read() as usize;
     let top = sp & !3;
-    let bottom = top - PAINT_BYTES;
+    let bottom = top - paint_bytes;
     let mut a = bottom;
     while a < top - 16 {
         // SAFETY: below the live stack pointer, inside RAM (4 MiB); no interrupts are enabled,

@@ -31,6 +31,8 @@ use nav_core::vertical_channel::{
 };
 use nav_core::{Estimator, Gate, NavError};
 
+pub mod mission;
+
 /// A recorded filter run.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Case {
@@ -337,7 +339,7 @@ fn read_design<D: DesignValues>(bytes: &[u8]) -> Result<D, NavError> {
 /// Little-endian f64 values of `bytes` into `out`; returns how many (`usize::MAX` when the
 /// length is not a whole number of values or does not fit). One copy for every design type.
 #[inline(never)]
-fn decode_f64s(bytes: &[u8], out: &mut [f64]) -> usize {
+pub(crate) fn decode_f64s(bytes: &[u8], out: &mut [f64]) -> usize {
     if bytes.len() % 8 != 0 || bytes.len() / 8 > out.len() {
         return usize::MAX;
     }

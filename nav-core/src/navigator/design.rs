@@ -1,0 +1,118 @@
+//! The navigator's configuration-time design: the alignment filter's discretised chains, the
+//! EKF's noise PSDs and (with [`BaroDamping::InertialLoop`]) the baro-inertial loop's design —
+//! computed on the ground by [`Navigator::design`](super::Navigator::design) and stored, so a
+//! flight image built with [`Navigator::from_design`](super::Navigator::from_design) links
+//! none of the design code (discretisation, Riccati solver, f64 gravity fit).
+
+use super::types::{BaroDamping, NavigatorConfig};
+use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
+use crate::seeker_ins::{design_stamp, SeekerInsDesign};
+use crate::transfer_alignment::TaDesign;
+use crate::vertical_channel::{classical_stamp, ClassicalDesign};
+use crate::{NavError, Real};
+
+/// The designs a [`Navigator`](super::Navigator) is built from (see the module doc).
+///
+/// Stored as [`DesignValues`]: the alignment's values ([`TaDesign`]), the EKF's
+/// ([`SeekerInsDesign`]), one flag (1: a baro-loop design follows, 0: none) and the
+/// [`ClassicalDesign`]'s values (zeros when the flag is 0).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NavigatorDesign<T: Real, const K: usize> {
+    /// The transfer-alignment filter's design (for `config.alignment`).
+    pub alignment: TaDesign<T, K>,
+    /// The 17-state EKF's design (for `config.ins`).
+    pub ins: SeekerInsDesign<T>,
+    /// The baro-inertial loop's design (`Some` exactly with [`BaroDamping::InertialLoop`]).
+    pub baro_loop: Option<ClassicalDesign<T>>,
+}
+
+impl<T: Real, const K: usize> NavigatorDesign<T, K> {
+    /// The EKF's design is the one of `config.ins` (stamp) with finite PSDs ≥ 0, as the EKF
+    /// checks it when it starts at release — here already at construction. Errors:
+    /// `InvalidConfig { field: "design", issue: DesignMismatch | OutOfRange }`.
+    pub(super) fn check_ins(&self, config: &NavigatorConfig<T>) -> Result<(), NavError> {
+        self.ins.stamp.check(&design_stamp(&config.ins))?;
+        for v in [self.ins.accel_psd_m2_s3, self.ins.gyro_psd_rad2_s] {
+            if !v.is_finite() || v < T::zero() {
+                return Err(NavError::InvalidConfig {
+                    field: "design",
+                    issue: crate::error::ConfigIssue::OutOfRange,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Checks the parts the alignment and the EKF do not check themselves at construction:
+    /// the baro-loop design is present exactly when the configuration asks for the loop, and
+    /// is the loop's (stamp). Errors: `InvalidConfig { field: "design.baro_loop" }` (missing or
+    /// superfluous), `InvalidConfig { field: "design", issue: DesignMismatch }` (stamp).
+    pub(super) fn check_baro_loop(&self, config: &NavigatorConfig<T>) -> Result<(), NavError> {
+        match (&config.baro, &self.baro_loop) {
+            (BaroDamping::InertialLoop(c), Some(d)) => d.stamp().check(&classical_stamp(c)),
+            (BaroDamping::InertialLoop(_), None)
+            | (BaroDamping::Off | BaroDamping::Ekf(_), Some(_)) => Err(NavError::InvalidConfig {
+                field: "design.baro_loop",
+                issue: crate::error::ConfigIssue::DesignMismatch,
+            }),
+            (BaroDamping::Off | BaroDamping::Ekf(_), None) => Ok(()),
+        }
+    }
+}
+
+impl<T: Real, const K: usize> DesignValues for NavigatorDesign<T, K> {
+    const COUNT: usize =
+        TaDesign::<T, K>::COUNT + SeekerInsDesign::<T>::COUNT + 1 + ClassicalDesign::<T>::COUNT;
+
+    fn write_values(&self, out: &mut [f64]) -> Result<(), NavError> {
+        if out.len() != Self::COUNT {
+            return Err(NavError::CapacityExceeded);
+        }
+        let cap = NavError::CapacityExceeded;
+        let (ta, rest) = out
+            .split_at_mut_checked(TaDesign::<T, K>::COUNT)
+            .ok_or(cap)?;
+        let (ins, rest) = rest
+            .split_at_mut_checked(SeekerInsDesign::<T>::COUNT)
+            .ok_or(cap)?;
+        let (flag, lp) = rest.split_at_mut_checked(1).ok_or(cap)?;
+        self.alignment.write_values(ta)?;
+        self.ins.write_values(ins)?;
+        let mut w = ValueWriter::new(flag, 1)?;
+        w.push(if self.baro_loop.is_some() { 1.0 } else { 0.0 });
+        w.finish()?;
+        match &self.baro_loop {
+            Some(d) => d.write_values(lp),
+            None => {
+                lp.fill(0.0);
+                Ok(())
+            }
+        }
+    }
+
+    fn read_values(values: &[f64]) -> Result<Self, NavError> {
+        if values.len() != Self::COUNT {
+            return Err(BAD_VALUES);
+        }
+        let (ta, rest) = values
+            .split_at_checked(TaDesign::<T, K>::COUNT)
+            .ok_or(BAD_VALUES)?;
+        let (ins, rest) = rest
+            .split_at_checked(SeekerInsDesign::<T>::COUNT)
+            .ok_or(BAD_VALUES)?;
+        let (flag, lp) = rest.split_at_checked(1).ok_or(BAD_VALUES)?;
+        let flag = ValueReader::new(flag, 1)?.value()?;
+        let baro_loop = if flag == 1.0 {
+            Some(ClassicalDesign::read_values(lp)?)
+        } else if flag == 0.0 {
+            None
+        } else {
+            return Err(BAD_VALUES);
+        };
+        Ok(Self {
+            alignment: TaDesign::read_values(ta)?,
+            ins: SeekerInsDesign::read_values(ins)?,
+            baro_loop,
+        })
+    }
+}

@@ -1,0 +1,212 @@
+//! The mission image: the flight navigator (`FlightNavigator<f32, 16>`) built from the design
+//! computed on the host and stored in the image (`from_design`: no design code, no paper
+//! filters), ticked at 100 Hz through the recorded mission (carry under a manoeuvring aircraft
+//! with a late master, separation, coast, baro midcourse, terminal LOS), every tick's output
+//! compared bit for bit with the host's f32 run, and every tick's instructions and peak stack
+//! measured. Logs `GOLDEN mission …` and per tick class
+//! `BENCH nav_tick_<class> insns=<worst> stack=<worst> ticks=<n> at=<tick of the worst>`.
+//!
+//! The recorded inputs stand in for the sensors and the bus; the replay loop, the comparison
+//! and the counter reads are the only harness (`cargo xtask bench` reports the `.text`).
+#![no_std]
+#![no_main]
+
+#[path = "../logger.rs"]
+mod logger;
+#[allow(dead_code)] // the bench image's fixed-region helpers
+#[path = "../measure.rs"]
+mod measure;
+
+use cortex_m_rt::{entry, exception, ExceptionFrame};
+use cortex_m_semihosting::debug;
+use nav_core::navigator::{Phase, TickReport};
+use nav_core::NavError;
+use nav_golden::mission::{
+    mission_navigator, mission_output, MissionTick, MISSION_INPUT_LEN, MISSION_OUTPUT_LEN,
+};
+use nav_golden::{f32s, ulps};
+
+static INPUTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/mission.in.f32"));
+static OUTPUTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/mission.out.f32"));
+static DESIGN: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/mission.design.f64"));
+
+/// Tick classes: the phase at the start of the tick and what arrived.
+const CLASSES: [&str; 9] = [
+    "nav_tick_carry",
+    "nav_tick_carry_master",
+    "nav_tick_separation",
+    "nav_tick_released",
+    "nav_tick_midcourse",
+    "nav_tick_midcourse_baro",
+    "nav_tick_terminal",
+    "nav_tick_terminal_los",
+    "nav_tick_terminal_los_baro",
+];
+
+/// The class of a tick (index into [`CLASSES`]). A LOS sample in midcourse is the terminal
+/// phase's first (it fuses and switches); after release every LOS tick also runs the
+/// covariance prediction (the pending steps are flushed before the update, unless a baro
+/// sample of the same tick flushed them).
+fn class(before: Phase, t: &MissionTick, report: Option<&TickReport<f32>>) -> usize {
+    match before {
+        Phase::Carry if report.is_some_and(|r| r.phase != Phase::Carry) => 2,
+        Phase::Carry if t.master.is_some() => 1,
+        Phase::Carry => 0,
+        Phase::Released => 3,
+        Phase::Midcourse | Phase::Terminal if t.los.is_some() && t.baro.is_some() => 8,
+        Phase::Midcourse | Phase::Terminal if t.los.is_some() => 7,
+        Phase::Midcourse if t.baro.is_some() => 5,
+        Phase::Midcourse => 4,
+        Phase::Terminal => 6,
+    }
+}
+
+/// `NAV_MISSION_PROFILE_TICK=<tick>` at build time: the mission without measurements, the
+/// chosen tick (1-based) between two calls of [`profile_marker`] (for a `qemu -d exec` trace).
+const PROFILE_TICK: Option<&str> = option_env!("NAV_MISSION_PROFILE_TICK");
+
+#[inline(never)]
+fn profile_marker(n: u32) {
+    core::hint::black_box(n);
+}
+
+/// Bytes painted below the stack pointer before each tick (RAM is 4 MiB).
+const PAINT_BYTES: usize = 96 * 1024;
+
+#[derive(Clone, Copy, Default)]
+struct Worst {
+    insns: u32,
+    stack: u32,
+    ticks: u32,
+    at: u32,
+}
+
+fn run() -> Result<bool, NavError> {
+    let mut nav = mission_navigator(core::hint::black_box(DESIGN))?;
+    let mut worst = [Worst::default(); CLASSES.len()];
+    let mut rec = [0f32; MISSION_INPUT_LEN];
+    let mut out = [0f32; MISSION_OUTPUT_LEN];
+    let mut want = f32s(OUTPUTS);
+    let (mut ticks, mut values, mut mismatched, mut max_ulps) = (0u32, 0u32, 0u32, 0u32);
+    for (k, bytes) in INPUTS.chunks_exact(4 * MISSION_INPUT_LEN).enumerate() {
+        for (d, v) in rec.iter_mut().zip(f32s(bytes)) {
+            *d = v;
+        }
+        let t = MissionTick::decode(k, &rec);
+        let aids = t.aids();
+        let before = nav.phase();
+        if let Some(at) = PROFILE_TICK {
+            // Profiling build: no measurement; the chosen tick between two markers.
+            let chosen = at.parse::<usize>().is_ok_and(|a| a == k + 1);
+            if chosen {
+                profile_marker(1);
+            }
+            let report = nav.tick(&t.imu, &aids)?;
+            if chosen {
+                profile_marker(2);
+            }
+            mission_output(&nav, &report, &mut out);
+            ticks += 1;
+            continue;
+        }
+        // Peak stack on a copy (painting costs instructions), then the counted tick.
+        let mut copy = nav.clone();
+        let stack = measure::stack_bytes_within(
+            &mut || {
+                let _ = core::hint::black_box(copy.tick(&t.imu, &aids));
+            },
+            PAINT_BYTES,
+        );
+        let mut result = None;
+        let insns = measure::instructions(&mut || result = Some(nav.tick(&t.imu, &aids)));
+        let report = match result {
+            Some(r) => r?,
+            None => return Err(NavError::InputOutOfRange { input: "tick" }),
+        };
+        if let Some(w) = worst.get_mut(class(before, &t, Some(&report))) {
+            w.ticks += 1;
+            if insns > w.insns {
+                w.insns = insns;
+                w.at = k as u32 + 1;
+            }
+            w.stack = w.stack.max(stack);
+        }
+        mission_output(&nav, &report, &mut out);
+        for &got in &out {
+            let u = ulps(got, want.next().unwrap_or(f32::NAN));
+            values += 1;
+            if u != 0 {
+                mismatched += 1;
+                max_ulps = max_ulps.max(u);
+            }
+        }
+        ticks += 1;
+    }
+    let missing = want.count();
+    defmt::println!(
+        "GOLDEN mission steps={=u32} values={=u32} mismatched={=u32} max_ulps={=u32} missing={=usize}",
+        ticks,
+        values,
+        mismatched,
+        max_ulps,
+        missing
+    );
+    for (name, w) in CLASSES.iter().zip(worst.iter()) {
+        defmt::println!(
+            "BENCH {=str} insns={=u32} stack={=u32} ticks={=u32} at={=u32}",
+            name,
+            w.insns,
+            w.stack,
+            w.ticks,
+            w.at
+        );
+    }
+    Ok(ticks > 0 && mismatched == 0 && missing == 0)
+}
+
+#[entry]
+fn main() -> ! {
+    defmt::println!("nav-mission start");
+    let ok = match run() {
+        Ok(ok) => ok,
+        Err(e) => {
+            defmt::println!("GOLDEN mission error {}", e);
+            false
+        }
+    };
+    defmt::println!("DONE ok={=bool}", ok);
+    debug::exit(if ok {
+        debug::EXIT_SUCCESS
+    } else {
+        debug::EXIT_FAILURE
+    });
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+#[exception]
+unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
+    debug::exit(debug::EXIT_FAILURE);
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+#[cfg(not(feature = "panic-never"))]
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    defmt::println!("PANIC");
+    debug::exit(debug::EXIT_FAILURE);
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+/// The panic-never technique (see `main.rs`): the image only links if no panic is reachable.
+#[cfg(feature = "panic-never")]
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    extern "Rust" {
+        fn nav_core_contains_a_reachable_panic() -> !;
+    }
+    // SAFETY: never executed; the link fails if this call survives optimisation.
+    unsafe { nav_core_contains_a_reachable_panic() }
+}
