@@ -91,6 +91,8 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     /// The carry solution's covariance (NED convention).
     carry_cov: SMatrix<T, 9, 9>,
     last_master: Option<MasterRecord<T>>,
+    /// The IMU's own free-fall evidence (unsignalled release).
+    free_fall: super::carry::FreeFall,
     separation: SeparationStatus,
     signal: Option<Timestamp>,
     ekf: Option<SeekerIns<T>>,
@@ -245,6 +247,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             snapshots: Deque::new(),
             carry_cov: *cov,
             last_master: None,
+            free_fall: super::carry::FreeFall::default(),
             separation: SeparationStatus::NotSignalled,
             signal: None,
             ekf: None,
@@ -481,6 +484,11 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             (slave.specific_force_m_s2 - lm.f_slave_m_s2).norm()
                 > self.config.separation.specific_force_jump_m_s2
         });
+        let falling_s = self.free_fall.update(
+            self.time,
+            &slave.specific_force_m_s2,
+            self.config.separation.specific_force_jump_m_s2,
+        );
         let mut release = None;
         match (self.separation, self.signal) {
             (SeparationStatus::AwaitingConfirmation, Some(sig)) => {
@@ -495,7 +503,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 }
             }
             _ => {
-                if master_lost && imu_sees {
+                if master_lost && falling_s >= self.config.separation.confirm_window_s {
                     release = Some((
                         SeparationStatus::UnsignalledRelease,
                         TransitionCause::UnsignalledSeparation,
@@ -553,7 +561,13 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         };
         ms.validate()?;
         let mut ta = self.ta.clone();
-        let report = ta.step_delayed(&ms, &self.history)?;
+        // The slave's interval means interpolated at the master's (instantaneous) epoch; the
+        // end-stamped sample of that epoch when they cannot be (the first tick).
+        let slave = self
+            .history
+            .at_time(m.time)
+            .or_else(|_| self.history.find(m.time, tol))?;
+        let report = ta.step(&ms, &slave)?;
         let init = hand_over(
             &at_release(m, self.config.alignment.rate_noise_sigma_rad_s),
             &AlignmentAtRelease::from_filter(&ta),

@@ -73,8 +73,10 @@
 //! `confirm_window_s` of the signal; then the EKF starts ([`SeekerIns`](crate::seeker_ins::SeekerIns))
 //! from the current (slaved) INS state with the hand-over P0 of the last master epoch. A
 //! signal the IMU does not confirm in the window: [`SeparationStatus::SeparationUnconfirmed`],
-//! the navigator stays in carry (degraded). Master timed out and the IMU sees the jump without
-//! a signal: [`SeparationStatus::UnsignalledRelease`] (released, degraded).
+//! the navigator stays in carry (degraded). Without a signal the last master sample is stale
+//! once the master has timed out, so it cannot serve as the reference: the master timed out
+//! and the IMU reading free fall on its own (`|f_s|` below `specific_force_jump_m_s2` on every
+//! tick for `confirm_window_s`): [`SeparationStatus::UnsignalledRelease`] (released, degraded).
 //! What carries over: position, velocity, attitude and their covariance (the hand-over's),
 //! gyro and gimbal biases from their priors. The flight alignment's estimate of the
 //! specific-force-difference bias is **not** handed over: the EKF's accelerometer bias starts
@@ -168,6 +170,7 @@
 
 // Flight navigator: see the section above.
 pub mod baro;
+mod carry;
 mod flight;
 pub mod handover;
 #[cfg(test)]

@@ -220,6 +220,60 @@ pub fn h_row_total<T: Real, const K: usize, const M: usize>(
     h
 }
 
+/// Row `row` of H of the flight configuration (chains `[θ, θ_f, θ̇_f, θ̈_f, b]`, `K` = 5):
+/// [`h_row_total`] plus, on the df rows, the flexure terms of the slave's specific force that
+/// a manoeuvre excites. The slave station is at `l = L_0 + θ_f × L_0`, so beside `L_0 × θ̈_f`
+/// the slave feels `ω̇ × (θ_f × L_0) + ω × (ω × (θ_f × L_0))` (the lever-arm compensation uses
+/// L_0 only) and the Coriolis term `2 ω × (θ̇_f × L_0)`:
+///
+/// ```text
+/// df ∋ ([ω̇×] + [ω×]²) [L_0×] θ_f  +  2 [ω×] [L_0×] θ̇_f
+/// ```
+///
+/// In level flight these vanish; in a 1.5 g roll-in (ω ≈ 0.5 rad/s, ω̇ ≈ 1 rad/s²) with 0.5° of
+/// flexure σ and τ 0.5 s at a 4 m lever arm they reach 0.03-0.07 m/s², thirty and more times
+/// the accelerometer-matching noise. At most 12 entries per df row (`M` ≥ 12).
+#[inline(always)]
+pub fn h_row_flight<T: Real, const K: usize, const M: usize>(
+    row: usize,
+    omega_m: &Vector3<T>,
+    omega_dot_m: &Vector3<T>,
+    f_h: &Vector3<T>,
+    lever_arm_m: &Vector3<T>,
+) -> SparseRow<T, M> {
+    if row < 3 {
+        return h_row_total::<T, K, M>(FlexureModel::Proposed, row, omega_m, f_h, lever_arm_m);
+    }
+    let i = row - 3;
+    let mut h = SparseRow::<T, M>::new();
+    let s = skew_row(f_h, i);
+    let lever = skew_row(lever_arm_m, i);
+    let l_x = crate::math::rotation::skew(lever_arm_m);
+    let w_x = crate::math::rotation::skew(omega_m);
+    let a_theta_f = (crate::math::rotation::skew(omega_dot_m) + w_x * w_x) * l_x;
+    let a_rate = w_x * l_x * T::lit(2.0);
+    for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
+        if a != i {
+            let _ = h.push(K * a, -v);
+        }
+        let _ = h.push(
+            K * a + 1,
+            a_theta_f.get((i, a)).copied().unwrap_or_else(T::zero),
+        );
+        let _ = h.push(
+            K * a + 2,
+            a_rate.get((i, a)).copied().unwrap_or_else(T::zero),
+        );
+        if a != i {
+            let _ = h.push(K * a + 3, l);
+        }
+        if a == i {
+            let _ = h.push(K * a + BIAS_STATE, T::one());
+        }
+    }
+    h
+}
+
 /// H (6×N) in the spec's state ordering (the flight configuration's chains: with 1 on the
 /// bias `b_i` of each df row, spec index `12 + i`).
 pub fn h_matrix<T: Real, const K: usize, const N: usize>(

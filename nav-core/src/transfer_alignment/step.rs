@@ -11,11 +11,12 @@ use super::covariance::{
 use super::filter::TransferAlignment;
 use super::health::Channel;
 use super::history::SlaveHistory;
-use super::measurement::{h_row_total, measurement, MasterSample, SlaveSample};
+use super::measurement::{h_row_flight, h_row_total, measurement, MasterSample, SlaveSample};
 use super::model::{has_accel_bias, FlexureModel};
 use crate::contract::Health;
 #[allow(unused_imports)] // doc links
 use crate::math::kalman::fuse_scalar;
+use crate::math::kalman::SparseRow;
 use crate::math::kalman::{covariance_times_row, FusionOutcome, FusionReport};
 use crate::time::Timestamp;
 use crate::{NavError, Real};
@@ -363,18 +364,28 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             FlexureModel::Conventional
         };
         let omega_m = master.angular_rate_rad_s;
-        // Row capacity: 5 entries with the flight configuration's bias, 4 otherwise.
+        let omega_dot_m = master.angular_accel_rad_s2;
+        // Row capacity: 12 entries with the flight configuration (bias and the flexure terms of
+        // a manoeuvre, `h_row_flight`), 4 otherwise.
         macro_rules! fuse_row {
             ($row:literal) => {
                 if has_accel_bias::<K>() {
-                    fuse_row!($row, 5);
+                    fuse_row!(
+                        $row,
+                        12,
+                        h_row_flight::<T, K, 12>($row, &omega_m, &omega_dot_m, &f_h, &lever)
+                    );
                 } else {
-                    fuse_row!($row, 4);
+                    fuse_row!(
+                        $row,
+                        4,
+                        h_row_total::<T, K, 4>(model_k, $row, &omega_m, &f_h, &lever)
+                    );
                 }
             };
-            ($row:literal, $m:literal) => {
+            ($row:literal, $m:literal, $h:expr) => {
                 if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
-                    let h = h_row_total::<T, K, $m>(model_k, $row, &omega_m, &f_h, &lever);
+                    let h: SparseRow<T, $m> = $h;
                     let r = if $row < 3 { r_rate } else { r_accel };
                     let innovation = zi - h.dot(&x);
                     // Built from validated, range-checked inputs with in-range ascending
