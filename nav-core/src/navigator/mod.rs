@@ -57,8 +57,11 @@
 //! **Carry.** Every tick the INS integrates the slave increment, the slave sample
 //! (rate `Δθ/dt`, specific force `Δv/dt`) goes into a [`crate::transfer_alignment::SlaveHistory`]
 //! and the INS state into a ring of `H` snapshots. A master sample of time of validity `t_m`
-//! (any latency up to `H` ticks) is matched with the slave sample of its epoch
-//! (`step_delayed`), the hand-over at `t_m` is computed with the updated alignment
+//! (any latency up to `H` ticks) is matched with the slave at its epoch: the slave samples are
+//! interval means, i.e. values at their interval's mid-point, and are interpolated at `t_m`
+//! ([`SlaveHistory::at_time`](crate::transfer_alignment::SlaveHistory::at_time); pairing the
+//! end-stamped mean with the instantaneous master would mismatch by half an interval of the
+//! roll-in's rate and force changes). The hand-over at `t_m` is computed with the updated alignment
 //! ([`hand_over`]), and the INS is slaved to it: the difference between the INS snapshot at
 //! `t_m` and the transferred solution is removed from the current INS state (and from the
 //! snapshots since `t_m`) — an error-state reset, as the EKF's feedback. The solution's

@@ -10,7 +10,8 @@
 //!
 //! with θ = θ_m + θ_f and `C_m^s ≈ I − [θ×]`. The rigid lever-arm terms are removed from the
 //! master specific force before matching; the flexure terms cannot be (the proposed filter models
-//! the largest one, `L_0 × θ̈_f`).
+//! the largest one, `L_0 × θ̈_f`; the flight configuration also the terms a manoeuvre excites,
+//! `([ω̇×] + [ω×]²)[L_0×] θ_f + 2[ω×][L_0×] θ̇_f`, [`h_row_flight`]).
 use super::model::{has_accel_bias, FlexureModel, BIAS_STATE};
 use crate::math::kalman::SparseRow;
 use crate::time::Timestamp;
