@@ -95,10 +95,8 @@ fn short_mission_phases_errors_and_reproducibility() {
 }
 
 /// The hand-over attitude lies within 3σ of the truth (the target: normalized error² in
-/// [0.5, 2]) and the velocity within 5σ through midcourse. Measured: neither holds after a
-/// carry turn — see the README, "Flight navigator", open points.
+/// [0.5, 2]) and the velocity within 5σ through midcourse, in every run, after a carry turn.
 #[test]
-#[ignore = "fails: the hand-over attitude error is 5-20σ after a carry turn (README, Flight navigator)"]
 fn handover_attitude_within_three_sigma() {
     let sc = short();
     let runs = monte_carlo_runs(&sc, &MissionFaults::default(), RUNS, SEED, false, "t").unwrap();

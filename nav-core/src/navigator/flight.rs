@@ -92,6 +92,8 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     /// The carry solution's covariance (NED convention).
     carry_cov: SMatrix<T, 9, 9>,
     last_master: Option<MasterRecord<T>>,
+    /// The IMU's own free-fall evidence (unsignalled release).
+    free_fall: super::carry::FreeFall,
     separation: SeparationStatus,
     signal: Option<Timestamp>,
     ekf: Option<SeekerIns<T>>,
@@ -280,6 +282,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             snapshots: Deque::new(),
             carry_cov: *cov,
             last_master: None,
+            free_fall: super::carry::FreeFall::default(),
             separation: SeparationStatus::NotSignalled,
             signal: None,
             ekf: None,
@@ -513,6 +516,11 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             (slave.specific_force_m_s2 - lm.f_slave_m_s2).norm()
                 > self.config.separation.specific_force_jump_m_s2
         });
+        let falling_s = self.free_fall.update(
+            self.time,
+            &slave.specific_force_m_s2,
+            self.config.separation.specific_force_jump_m_s2,
+        );
         let mut release = None;
         match (self.separation, self.signal) {
             (SeparationStatus::AwaitingConfirmation, Some(sig)) => {
@@ -527,7 +535,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 }
             }
             _ => {
-                if master_lost && imu_sees {
+                if master_lost && falling_s >= self.config.separation.confirm_window_s {
                     release = Some((
                         SeparationStatus::UnsignalledRelease,
                         TransitionCause::UnsignalledSeparation,
@@ -619,8 +627,14 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         // The alignment steps in place (its step is atomic: on error it is unchanged); a copy
         // taken before restores it if the hand-over or the slaving fails afterwards (one copy
         // of the filter per master sample instead of a working copy and its commit).
+        // The slave's interval means interpolated at the master's (instantaneous) epoch; the
+        // end-stamped sample of that epoch when they cannot be (the first tick).
+        let slave = self
+            .history
+            .at_time(m.time)
+            .or_else(|_| self.history.find(m.time, tol))?;
         let backup = self.ta.clone();
-        let report = self.ta.step_delayed(&ms, &self.history)?;
+        let report = self.ta.step(&ms, &slave)?;
         let (init, ins, snaps) = match self.slave_to(m, &snap) {
             Ok(v) => v,
             Err(e) => {

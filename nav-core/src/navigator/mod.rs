@@ -57,8 +57,11 @@
 //! **Carry.** Every tick the INS integrates the slave increment, the slave sample
 //! (rate `Δθ/dt`, specific force `Δv/dt`) goes into a [`crate::transfer_alignment::SlaveHistory`]
 //! and the INS state into a ring of `H` snapshots. A master sample of time of validity `t_m`
-//! (any latency up to `H` ticks) is matched with the slave sample of its epoch
-//! (`step_delayed`), the hand-over at `t_m` is computed with the updated alignment
+//! (any latency up to `H` ticks) is matched with the slave at its epoch: the slave samples are
+//! interval means, i.e. values at their interval's mid-point, and are interpolated at `t_m`
+//! ([`SlaveHistory::at_time`](crate::transfer_alignment::SlaveHistory::at_time); pairing the
+//! end-stamped mean with the instantaneous master would mismatch by half an interval of the
+//! roll-in's rate and force changes). The hand-over at `t_m` is computed with the updated alignment
 //! ([`hand_over`]), and the INS is slaved to it: the difference between the INS snapshot at
 //! `t_m` and the transferred solution is removed from the current INS state (and from the
 //! snapshots since `t_m`) — an error-state reset, as the EKF's feedback. The solution's
@@ -73,8 +76,10 @@
 //! `confirm_window_s` of the signal; then the EKF starts ([`SeekerIns`](crate::seeker_ins::SeekerIns))
 //! from the current (slaved) INS state with the hand-over P0 of the last master epoch. A
 //! signal the IMU does not confirm in the window: [`SeparationStatus::SeparationUnconfirmed`],
-//! the navigator stays in carry (degraded). Master timed out and the IMU sees the jump without
-//! a signal: [`SeparationStatus::UnsignalledRelease`] (released, degraded).
+//! the navigator stays in carry (degraded). Without a signal the last master sample is stale
+//! once the master has timed out, so it cannot serve as the reference: the master timed out
+//! and the IMU reading free fall on its own (`|f_s|` below `specific_force_jump_m_s2` on every
+//! tick for `confirm_window_s`): [`SeparationStatus::UnsignalledRelease`] (released, degraded).
 //! What carries over: position, velocity, attitude and their covariance (the hand-over's),
 //! gyro and gimbal biases from their priors. The flight alignment's estimate of the
 //! specific-force-difference bias is **not** handed over: the EKF's accelerometer bias starts
@@ -168,6 +173,7 @@
 
 // Flight navigator: see the section above.
 pub mod baro;
+mod carry;
 mod design;
 mod flight;
 pub mod handover;

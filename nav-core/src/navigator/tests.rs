@@ -1052,7 +1052,7 @@ fn unsignalled<T: Real>() {
     let (mut nav, mut world) = carry_for::<T>(3.0, 3.0);
     let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     let mut seen = None;
-    for _ in 0..100 {
+    for _ in 0..200 {
         let mut inc = world.step(&lever);
         if inc.time.as_secs_f64() > 3.9 {
             inc.delta_v_m_s = Vector3::zeros();
@@ -1067,8 +1067,44 @@ fn unsignalled<T: Real>() {
     assert_eq!(t.cause, TransitionCause::UnsignalledSeparation);
     assert_eq!(t.to, Phase::Released);
     assert_eq!(d.separation, SeparationStatus::UnsignalledRelease);
-    assert!((t.time.as_secs_f64() - 3.91).abs() < 1e-6);
+    // Falling from 3.91 s; released once the IMU has read free fall for the 0.3 s window.
+    assert!(
+        (t.time.as_secs_f64() - 4.21).abs() < 1e-6,
+        "{}",
+        t.time.as_secs_f64()
+    );
     assert_ne!(h, HealthState::Nominal);
+}
+
+/// The master lost in carry while the aircraft manoeuvres: the slave's specific force departs
+/// from the stale last master sample by far more than the jump threshold (a 2 g pull-up), but
+/// the missile is still on the wing (its IMU never reads free fall): no release.
+fn stale_master_is_no_release<T: Real>() {
+    let (mut nav, mut world) = carry_for::<T>(3.0, 3.0);
+    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
+    let mut lost = 0;
+    for _ in 0..200 {
+        let mut inc = world.step(&lever);
+        if inc.time.as_secs_f64() > 3.9 {
+            inc.delta_v_m_s *= 2.0;
+        }
+        let r = nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        assert_eq!(r.transition, None);
+        assert_eq!(r.degradation.separation, SeparationStatus::NotSignalled);
+        lost += usize::from(r.master.state == AidState::TimedOut);
+    }
+    assert_eq!(nav.phase(), Phase::Carry);
+    assert!(lost > 100, "the master was lost for {lost} ticks");
+}
+
+#[test]
+fn stale_master_is_no_release_f64() {
+    stale_master_is_no_release::<f64>();
+}
+
+#[test]
+fn stale_master_is_no_release_f32() {
+    stale_master_is_no_release::<f32>();
 }
 
 #[test]

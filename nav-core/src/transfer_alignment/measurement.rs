@@ -10,7 +10,8 @@
 //!
 //! with θ = θ_m + θ_f and `C_m^s ≈ I − [θ×]`. The rigid lever-arm terms are removed from the
 //! master specific force before matching; the flexure terms cannot be (the proposed filter models
-//! the largest one, `L_0 × θ̈_f`).
+//! the largest one, `L_0 × θ̈_f`; the flight configuration also the terms a manoeuvre excites,
+//! `([ω̇×] + [ω×]²)[L_0×] θ_f + 2[ω×][L_0×] θ̇_f`, [`h_row_flight`]).
 use super::model::{has_accel_bias, FlexureModel, BIAS_STATE};
 use crate::math::kalman::SparseRow;
 use crate::time::Timestamp;
@@ -220,37 +221,99 @@ pub fn h_row_total<T: Real, const K: usize, const M: usize>(
     h
 }
 
-/// Row `i` (0-2: df_X..Z) of the flight configuration's specific-force Jacobian at the
-/// predicted misalignment θ̂: the derivative of its second-order measurement model
+/// Row `row` of H of the flight configuration (chains `[θ, θ_f, θ̇_f, θ̈_f, b]`, `K` = 5):
+/// [`h_row_total`] plus, on the df rows, the flexure terms of the slave's specific force that
+/// a manoeuvre excites. The slave station is at `l = L_0 + θ_f × L_0`, so beside `L_0 × θ̈_f`
+/// the slave feels `ω̇ × (θ_f × L_0) + ω × (ω × (θ_f × L_0))` (the lever-arm compensation uses
+/// L_0 only) and the Coriolis term `2 ω × (θ̇_f × L_0)`:
 ///
 /// ```text
-/// h_i(x) = (−[f_s×] θ + ½ θ × (θ × f_s) + [L_0×] θ̈_f + b)_i
+/// df ∋ ([ω̇×] + [ω×]²) [L_0×] θ_f  +  2 [ω×] [L_0×] θ̇_f
+/// ```
+///
+/// In level flight these vanish; in a 1.5 g roll-in (ω ≈ 0.5 rad/s, ω̇ ≈ 1 rad/s²) with 0.5° of
+/// flexure σ and τ 0.5 s at a 4 m lever arm they reach 0.03-0.07 m/s², thirty and more times
+/// the accelerometer-matching noise. At most 12 entries per df row (`M` ≥ 12).
+#[inline(always)]
+pub fn h_row_flight<T: Real, const K: usize, const M: usize>(
+    row: usize,
+    omega_m: &Vector3<T>,
+    omega_dot_m: &Vector3<T>,
+    f_h: &Vector3<T>,
+    lever_arm_m: &Vector3<T>,
+) -> SparseRow<T, M> {
+    if row < 3 {
+        return h_row_total::<T, K, M>(FlexureModel::Proposed, row, omega_m, f_h, lever_arm_m);
+    }
+    let i = row - 3;
+    let mut h = SparseRow::<T, M>::new();
+    let s = skew_row(f_h, i);
+    let lever = skew_row(lever_arm_m, i);
+    let l_x = crate::math::rotation::skew(lever_arm_m);
+    let w_x = crate::math::rotation::skew(omega_m);
+    let a_theta_f = (crate::math::rotation::skew(omega_dot_m) + w_x * w_x) * l_x;
+    let a_rate = w_x * l_x * T::lit(2.0);
+    for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
+        if a != i {
+            let _ = h.push(K * a, -v);
+        }
+        let _ = h.push(
+            K * a + 1,
+            a_theta_f.get((i, a)).copied().unwrap_or_else(T::zero),
+        );
+        let _ = h.push(
+            K * a + 2,
+            a_rate.get((i, a)).copied().unwrap_or_else(T::zero),
+        );
+        if a != i {
+            let _ = h.push(K * a + 3, l);
+        }
+        if a == i {
+            let _ = h.push(K * a + BIAS_STATE, T::one());
+        }
+    }
+    h
+}
+
+/// Row `i` (0-2: df_X..Z) of the flight configuration's specific-force Jacobian at the
+/// predicted misalignment θ̂: the derivative of its measurement model
+///
+/// ```text
+/// h_i(x) = (−[f_s×] θ + ½ θ × (θ × f_s) + [L_0×] θ̈_f
+///           + ([ω̇×] + [ω×]²) [L_0×] θ_f + 2 [ω×] [L_0×] θ̇_f + b)_i
 /// ∂h/∂θ  = −[f_s×] + ½ ((θ̂·f_s) I + θ̂ f_sᵀ − 2 f_s θ̂ᵀ)
 /// ```
 ///
-/// (θ × (θ × f) = θ (θ·f) − f |θ|²). The linear row ([`h_row_total`]) predicts the measurement
-/// once the ½ term is subtracted, but as gain its θ columns miss the second term, of relative
-/// size |θ̂| (1.5 % with the paper's 0.5° mounting σ per axis, a few times the final σ of θ):
-/// the covariance then credits the df rows with an information about θ they do not carry.
-/// Entries in ascending order per axis chain `[θ, θ_f, θ̇_f, θ̈_f, b]` (`K` = 5): θ_a for every
-/// axis a (the ½ term fills the diagonal), θ̈_f,a for a ≠ i, b_i: 6 entries.
+/// (θ × (θ × f) = θ (θ·f) − f |θ|²). The linear row ([`h_row_flight`]) predicts the
+/// measurement once the ½ term is subtracted, but as gain its θ columns miss the second term,
+/// of relative size |θ̂| (1.5 % with the paper's 0.5° mounting σ per axis, a few times the
+/// final σ of θ): the covariance would then credit the df rows with an information about θ
+/// they do not carry. The flexure terms of a manoeuvre are linear and as in [`h_row_flight`].
+/// Entries in ascending order per axis chain `[θ, θ_f, θ̇_f, θ̈_f, b]` (`K` = 5): per axis θ,
+/// θ_f, θ̇_f, then θ̈_f (a ≠ i) or b_i (a = i): 12 entries.
 #[inline(always)]
 pub fn h_row_flight_df<T: Real, const K: usize>(
     i: usize,
     theta: &Vector3<T>,
+    omega_m: &Vector3<T>,
+    omega_dot_m: &Vector3<T>,
     f_s: &Vector3<T>,
     lever_arm_m: &Vector3<T>,
-) -> SparseRow<T, 6> {
-    let mut h = SparseRow::<T, 6>::new();
+) -> SparseRow<T, 12> {
+    let mut h = SparseRow::<T, 12>::new();
     let half = T::lit(0.5);
     let s = skew_row(f_s, i);
     let lever = skew_row(lever_arm_m, i);
+    let l_x = crate::math::rotation::skew(lever_arm_m);
+    let w_x = crate::math::rotation::skew(omega_m);
+    let a_theta_f = (crate::math::rotation::skew(omega_dot_m) + w_x * w_x) * l_x;
+    let a_rate = w_x * l_x * T::lit(2.0);
     let theta_dot_f = theta.dot(f_s);
     let (th_i, f_i) = (
         theta.get(i).copied().unwrap_or_else(T::zero),
         f_s.get(i).copied().unwrap_or_else(T::zero),
     );
-    // At most 3 + 2 + 1 entries: `push` cannot fail.
+    // At most 4 entries per axis: `push` cannot fail.
     for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
         let (th_a, f_a) = (
             theta.get(a).copied().unwrap_or_else(T::zero),
@@ -261,6 +324,14 @@ pub fn h_row_flight_df<T: Real, const K: usize>(
             d += half * theta_dot_f;
         }
         let _ = h.push(K * a, d - v);
+        let _ = h.push(
+            K * a + 1,
+            a_theta_f.get((i, a)).copied().unwrap_or_else(T::zero),
+        );
+        let _ = h.push(
+            K * a + 2,
+            a_rate.get((i, a)).copied().unwrap_or_else(T::zero),
+        );
         if a != i {
             let _ = h.push(K * a + 3, l);
         } else if has_accel_bias::<K>() {
@@ -375,7 +446,8 @@ mod tests {
         let theta = Vector3::new(x[0], x[K], x[2 * K]);
         let eps = 1e-6;
         for i in 0..3 {
-            let row = h_row_flight_df::<f64, K>(i, &theta, &f, &l0).to_dense::<15>();
+            let z = Vector3::zeros();
+            let row = h_row_flight_df::<f64, K>(i, &theta, &z, &z, &f, &l0).to_dense::<15>();
             for j in 0..15 {
                 let (mut xp, mut xm) = (x, x);
                 xp[j] += eps;
@@ -387,9 +459,10 @@ mod tests {
                     row[j]
                 );
             }
-            let linear =
-                h_row_total::<f64, K, 5>(FlexureModel::Proposed, 3 + i, &Vector3::zeros(), &f, &l0);
-            let at_zero = h_row_flight_df::<f64, K>(i, &Vector3::zeros(), &f, &l0);
+            // At θ̂ = 0 the Jacobian is the linear row, manoeuvre terms included.
+            let (w, wd) = (Vector3::new(0.1, -0.4, 0.3), Vector3::new(-0.5, 0.2, 0.9));
+            let linear = h_row_flight::<f64, K, 12>(3 + i, &w, &wd, &f, &l0);
+            let at_zero = h_row_flight_df::<f64, K>(i, &Vector3::zeros(), &w, &wd, &f, &l0);
             assert_eq!(at_zero.to_dense::<15>(), linear.to_dense::<15>());
         }
     }

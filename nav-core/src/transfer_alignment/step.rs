@@ -11,11 +11,14 @@ use super::covariance::{
 use super::filter::TransferAlignment;
 use super::health::Channel;
 use super::history::SlaveHistory;
-use super::measurement::{h_row_flight_df, h_row_total, measurement, MasterSample, SlaveSample};
+use super::measurement::{
+    h_row_flight, h_row_flight_df, h_row_total, measurement, MasterSample, SlaveSample,
+};
 use super::model::{has_accel_bias, FlexureModel};
 use crate::contract::Health;
 #[allow(unused_imports)] // doc links
 use crate::math::kalman::fuse_scalar;
+use crate::math::kalman::SparseRow;
 use crate::math::kalman::{covariance_times_row, FusionOutcome, FusionReport};
 use crate::time::Timestamp;
 use crate::{NavError, Real};
@@ -376,32 +379,51 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             FlexureModel::Conventional
         };
         let omega_m = master.angular_rate_rad_s;
-        // Row capacity: 5 entries with the flight configuration's bias, 4 otherwise.
+        let omega_dot_m = master.angular_accel_rad_s2;
+        // Row capacity: the flight configuration's df rows 12 entries (the bias and the flexure
+        // terms of a manoeuvre, `h_row_flight`; gain from the Jacobian at θ̂,
+        // `h_row_flight_df`), its rate rows 5, the paper filters' rows 4.
         macro_rules! fuse_row {
             ($row:literal) => {
                 if has_accel_bias::<K>() && $row >= 3 {
                     fuse_row!($row, flight_df);
                 } else if has_accel_bias::<K>() {
-                    fuse_row!($row, 5);
+                    fuse_row!(
+                        $row,
+                        5,
+                        h_row_total::<T, K, 5>(model_k, $row, &omega_m, &f_h, &lever)
+                    );
                 } else {
-                    fuse_row!($row, 4);
+                    fuse_row!(
+                        $row,
+                        4,
+                        h_row_total::<T, K, 4>(model_k, $row, &omega_m, &f_h, &lever)
+                    );
                 }
             };
             ($row:literal, flight_df) => {
                 if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
                     // Innovation z − h(x̂): the ½ term is already out of z, the linear row
                     // predicts the rest; gain and covariance from the Jacobian at θ̂.
-                    let linear = h_row_total::<T, K, 5>(model_k, $row, &omega_m, &f_h, &lever);
+                    let linear =
+                        h_row_flight::<T, K, 12>($row, &omega_m, &omega_dot_m, &f_h, &lever);
                     let innovation = zi - linear.dot(&x);
-                    let h = h_row_flight_df::<T, K>($row % 3, &theta_hat, &f_h, &lever);
+                    let h = h_row_flight_df::<T, K>(
+                        $row % 3,
+                        &theta_hat,
+                        &omega_m,
+                        &omega_dot_m,
+                        &f_h,
+                        &lever,
+                    );
                     let b = covariance_times_row(p, &h);
                     let hph = h.dot(&b);
                     *rep = fuse_bounded(&mut x, p, &b, hph, innovation, r_accel, gate);
                 }
             };
-            ($row:literal, $m:literal) => {
+            ($row:literal, $m:literal, $h:expr) => {
                 if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
-                    let h = h_row_total::<T, K, $m>(model_k, $row, &omega_m, &f_h, &lever);
+                    let h: SparseRow<T, $m> = $h;
                     let r = if $row < 3 { r_rate } else { r_accel };
                     let innovation = zi - h.dot(&x);
                     // Built from validated, range-checked inputs with in-range ascending

@@ -565,6 +565,72 @@ fn flight_h_rows_match_finite_differences() {
     }
 }
 
+/// The flight rows in a manoeuvre against finite differences of the exact matching with the
+/// slave at the deflected station `l = L_0 + θ_f × L_0`:
+/// `f_s = exp(−[θ×]) (f_m + ω̇ × l + ω × (ω × l) + 2 ω × (θ̇_f × L_0) + θ̈_f × L_0) − b`,
+/// `df = f̃ − f_s` with `f̃ = f_m + ω̇ × L_0 + ω × (ω × L_0)`; at x = 0 (f_s = f̃).
+#[test]
+fn flight_h_rows_in_a_manoeuvre_match_finite_differences() {
+    use super::measurement::h_row_flight;
+    use crate::math::rotation::exp_so3;
+    const K: usize = FLIGHT_CHAIN;
+    const N: usize = 3 * K;
+    let f_m = Vector3::new(2.5_f64, -4.7, -14.6);
+    let lever = Vector3::new(1.5_f64, 4.0, 0.6);
+    let omega = Vector3::new(0.6_f64, 0.1, 0.2);
+    let omega_dot = Vector3::new(1.2_f64, -0.3, 0.4);
+    let f_comp = f_m + omega_dot.cross(&lever) + omega.cross(&omega.cross(&lever));
+    let df = |x: &SVector<f64, N>| -> Vector3<f64> {
+        let v = |d: usize| Vector3::new(x[d], x[K + d], x[2 * K + d]);
+        let (th, th_f, rate, acc, b) = (v(0), v(1), v(2), v(3), v(BIAS_STATE));
+        let l = lever + th_f.cross(&lever);
+        let f_s = exp_so3(&(-th))
+            * (f_m
+                + omega_dot.cross(&l)
+                + omega.cross(&omega.cross(&l))
+                + 2.0 * omega.cross(&rate.cross(&lever))
+                + acc.cross(&lever))
+            - b;
+        f_comp - f_s
+    };
+    let x0 = SVector::<f64, N>::zeros();
+    let step = 1e-6;
+    for i in 0..3 {
+        let h =
+            h_row_flight::<f64, K, 12>(3 + i, &omega, &omega_dot, &f_comp, &lever).to_dense::<N>();
+        let mut coupled = 0;
+        for j in 0..N {
+            let mut xp = x0;
+            let mut xm = x0;
+            xp[j] += step;
+            xm[j] -= step;
+            let fd = (df(&xp)[i] - df(&xm)[i]) / (2.0 * step);
+            assert!(
+                (fd - h[j]).abs() < 1e-6 * (1.0 + fd.abs()),
+                "row df_{i}, column {j}: finite difference {fd}, H {}",
+                h[j]
+            );
+            coupled += usize::from(j % K == 1 && fd.abs() > 1e-3);
+        }
+        // The flexure-angle columns are not empty in the manoeuvre.
+        assert!(coupled >= 1, "row df_{i}");
+    }
+    // The gyro rows are the plain flight rows.
+    for row in 0..3 {
+        let a =
+            h_row_flight::<f64, K, 12>(row, &omega, &omega_dot, &f_comp, &lever).to_dense::<N>();
+        let b = super::measurement::h_row_total::<f64, K, 5>(
+            FlexureModel::Proposed,
+            row,
+            &omega,
+            &f_comp,
+            &lever,
+        )
+        .to_dense::<N>();
+        assert_eq!(a, b);
+    }
+}
+
 /// A constant specific-force-difference bias b_X: in cruise df_X sees −g θ_Y + b_X, and this
 /// profile (1 s of f_X = g) does not separate them (df_Z, which sees θ_Y during the
 /// acceleration, is also explained by the flexure angular acceleration θ̈_X through the lever
