@@ -76,8 +76,8 @@ impl<T: Real> LoopCore<T> {
         })
     }
 
-    /// One bridged sub-step (one outlined copy of [`Self::advance`] for every rare path).
-    #[inline(never)]
+    /// One bridged sub-step ([`Self::advance`] from the current state).
+    #[inline(always)]
     fn advance_outlined(
         &mut self,
         now: Timestamp,

@@ -332,8 +332,10 @@ impl<T: Real> LoopCore<T> {
         self.h_ref_m = h_ref_new;
     }
 
-    /// One (sub-)step: gate, propagation, commit. On error nothing changes.
-    #[inline(always)]
+    /// One (sub-)step: gate, propagation, commit. On error nothing changes. One out-of-line
+    /// body shared by both loops' steps and every bridged sub-step (a 3-state loop does not
+    /// need a copy per call site; the call costs a few instructions per step).
+    #[inline(never)]
     pub(crate) fn advance(
         &mut self,
         sub: &SubStep<T>,
