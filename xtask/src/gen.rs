@@ -470,10 +470,18 @@ fn los_source() -> String {
          \x20   let z = T::zero();\n\
          \x20   let ok = |d: T| d.is_finite() && d >= z;\n",
     );
-    let checks: Vec<String> = (0..N)
-        .map(|i| format!("ok(updated(p[{i}][{i}], k1[{i}], kk1[{i}], k2[{i}], kk2[{i}]))"))
-        .collect();
-    let _ = writeln!(s, "    {}\n}}\n", checks.join(" && "));
+    // A loop over the diagonal: the same tests in the same order, one body (a check of 17
+    // variances needs no unrolled copy per variance).
+    s.push_str(
+        "    let k = k1.iter().zip(kk1).zip(k2.iter().zip(kk2));\n\
+         \x20   p.iter()\n\
+         \x20       .enumerate()\n\
+         \x20       .zip(k)\n\
+         \x20       .all(|((i, row), ((&a, &b), (&c, &d)))| {\n\
+         \x20           row.get(i).is_some_and(|&pii| ok(updated(pii, a, b, c, d)))\n\
+         \x20       })\n\
+         }\n\n",
+    );
     s.push_str(
         "/// `P ← P − k₁K₁ᵀ − k₂K₂ᵀ` on the upper triangle, mirrored (exactly symmetric).\n\
          #[allow(clippy::too_many_lines)]\n\

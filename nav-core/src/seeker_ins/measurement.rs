@@ -169,13 +169,18 @@ pub fn landmark_vector_ned<T: Real>(pos: &Position, lm: &Landmark<T>) -> Vector3
 }
 
 /// Longitude difference wrapped into [−π, π] (one f64 compare in the common case; any number
-/// of turns for a position that left the model range).
+/// of turns for a position that left the model range). The turns are counted with a multiply
+/// by 1/(2π), not a division: the only f64 division of a flight image would otherwise link
+/// the soft-float divider (920 B on the M4F) for this rare path. At a turn boundary the count
+/// may differ by one from the exact quotient's, which leaves the result within a few ε of ±π
+/// (the same angle for the sine and cosine it feeds).
 fn wrap_pi(x: f64) -> f64 {
-    use core::f64::consts::PI;
+    use core::f64::consts::{FRAC_1_PI, PI};
+    let turns_per_rad = 0.5 * FRAC_1_PI;
     if x > PI {
-        x - 2.0 * PI * libm::floor((x + PI) / (2.0 * PI))
+        x - 2.0 * PI * libm::floor((x + PI) * turns_per_rad)
     } else if x < -PI {
-        x + 2.0 * PI * libm::floor((PI - x) / (2.0 * PI))
+        x + 2.0 * PI * libm::floor((PI - x) * turns_per_rad)
     } else {
         x
     }

@@ -269,19 +269,52 @@ pub(super) fn fuse_bounded<T: Real, const N: usize>(
 /// after a gap longer than `max_gap_steps`, keeping θ_m = θ − θ_f with its variance grown by
 /// the flexure's stationary variance (the part of θ the filter may have put in θ_m), capped at
 /// the initial σ_m² plus that variance; no correlation with θ_m is kept.
-#[inline(never)]
+#[inline(always)]
 pub(super) fn reinit_flexure<T: Real, const K: usize, const N: usize>(
     chains: &[AxisChain<T, K>; 3],
     x: &mut SVector<T, N>,
     p: &mut SMatrix<T, N, N>,
 ) {
-    let g =
-        |m: &SMatrix<T, N, N>, r: usize, c: usize| m.get((r, c)).copied().unwrap_or_else(T::zero);
+    let [cx, cy, cz] = chains;
+    reinit_flexure_slices(
+        K,
+        [cx.p0.as_slice(), cy.p0.as_slice(), cz.p0.as_slice()],
+        x.as_mut_slice(),
+        p.as_mut_slice(),
+    );
+}
+
+/// [`reinit_flexure`] on column-major slices: `k` states per axis chain, `p0` the chains'
+/// k × k priors, `x` the n states, `p` the n × n covariance. A rare path (a long master
+/// dropout), written once for every filter dimension. Same arithmetic in the same order as
+/// the per-dimension form it replaces. (LTO may still specialise it per dimension when an
+/// image calls it with constant dimensions: `nav-size`, with both filters, keeps two copies,
+/// 312 B smaller in all than the two unrolled ones.)
+#[cold]
+#[inline(never)]
+fn reinit_flexure_slices<T: Real>(k: usize, p0: [&[T]; 3], x: &mut [T], p: &mut [T]) {
+    let n = x.len();
+    // Element (r, c) of a column-major d × d matrix; 0 outside it (as `SMatrix::get`).
+    let flat = |d: usize, r: usize, c: usize| {
+        (r < d && c < d)
+            .then(|| c.checked_mul(d).and_then(|o| o.checked_add(r)))
+            .flatten()
+    };
+    let g = |m: &[T], r: usize, c: usize| {
+        flat(n, r, c)
+            .and_then(|i| m.get(i).copied())
+            .unwrap_or_else(T::zero)
+    };
+    let at0 = |m: &[T], r: usize, c: usize| {
+        flat(k, r, c)
+            .and_then(|i| m.get(i).copied())
+            .unwrap_or_else(T::zero)
+    };
     // θ_m covariance across axes: P_θθ − P_θf − P_fθ + P_ff.
     let mut c = Matrix3::<T>::zeros();
     for a in 0..3 {
         for b in 0..3 {
-            let (ta, tb) = (K * a, K * b);
+            let (ta, tb) = (k * a, k * b);
             let v = g(p, ta, tb) - g(p, ta, tb + 1) - g(p, ta + 1, tb) + g(p, ta + 1, tb + 1);
             if let Some(e) = c.get_mut((a, b)) {
                 *e = v;
@@ -289,11 +322,11 @@ pub(super) fn reinit_flexure<T: Real, const K: usize, const N: usize>(
         }
     }
     let mut mount = [T::zero(); 3];
-    for (a, (m, ch)) in mount.iter_mut().zip(chains.iter()).enumerate() {
-        *m = x.get(K * a).copied().unwrap_or_else(T::zero)
-            - x.get(K * a + 1).copied().unwrap_or_else(T::zero);
-        let p0_mm = at(&ch.p0, 0, 0);
-        let var_f = at(&ch.p0, 1, 1);
+    for (a, (m, ch)) in mount.iter_mut().zip(p0.iter()).enumerate() {
+        *m = x.get(k * a).copied().unwrap_or_else(T::zero)
+            - x.get(k * a + 1).copied().unwrap_or_else(T::zero);
+        let p0_mm = at0(ch, 0, 0);
+        let var_f = at0(ch, 1, 1);
         if let Some(e) = c.get_mut((a, a)) {
             let caa = e.max(T::zero());
             *e = (caa + var_f).min((p0_mm + var_f).max(caa));
@@ -303,15 +336,15 @@ pub(super) fn reinit_flexure<T: Real, const K: usize, const N: usize>(
     p.fill(T::zero());
     for a in 0..3 {
         for b in 0..3 {
-            if let Some(e) = p.get_mut((K * a, K * b)) {
+            if let Some(e) = flat(n, k * a, k * b).and_then(|i| p.get_mut(i)) {
                 *e = c.get((a, b)).copied().unwrap_or_else(T::zero);
             }
         }
-        if let Some(ch) = chains.get(a) {
-            for r in 1..K {
-                for col in 1..K {
-                    if let Some(e) = p.get_mut((K * a + r, K * a + col)) {
-                        *e = at(&ch.p0, r, col);
+        if let Some(ch) = p0.get(a) {
+            for r in 1..k {
+                for col in 1..k {
+                    if let Some(e) = flat(n, k * a + r, k * a + col).and_then(|i| p.get_mut(i)) {
+                        *e = at0(ch, r, col);
                     }
                 }
             }
@@ -319,21 +352,28 @@ pub(super) fn reinit_flexure<T: Real, const K: usize, const N: usize>(
     }
     // To the θ parametrisation: row/column θ_a += row/column θ_f,a.
     for a in 0..3 {
-        let (t, f) = (K * a, K * a + 1);
-        for col in 0..N {
+        let (t, f) = (k * a, k * a + 1);
+        for col in 0..n {
             let v = g(p, t, col) + g(p, f, col);
-            if let Some(e) = p.get_mut((t, col)) {
+            if let Some(e) = flat(n, t, col).and_then(|i| p.get_mut(i)) {
                 *e = v;
             }
         }
-        for row in 0..N {
+        for row in 0..n {
             let v = g(p, row, t) + g(p, row, f);
-            if let Some(e) = p.get_mut((row, t)) {
+            if let Some(e) = flat(n, row, t).and_then(|i| p.get_mut(i)) {
                 *e = v;
             }
         }
     }
-    set_mount_only::<T, K, N>(x, &mount);
+    // x ← [θ_m,X, 0 …, θ_m,Y, 0 …, θ_m,Z, 0 …]: θ = θ_m, the flexure states at their prior mean.
+    for (a, m) in mount.iter().enumerate() {
+        for d in 0..k {
+            if let Some(e) = x.get_mut(k * a + d) {
+                *e = if d == 0 { *m } else { T::zero() };
+            }
+        }
+    }
 }
 
 /// `x ← [θ_m,X, 0 …, θ_m,Y, 0 …, θ_m,Z, 0 …]`: θ = θ_m, the flexure states at their prior mean.

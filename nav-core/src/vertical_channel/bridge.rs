@@ -2,7 +2,6 @@
 //! exact inertial coast) or longer than [`super::MAX_BRIDGED_GAP_S`] (re-anchoring).
 
 use super::core::{LoopCore, NewSamples, StepReports, SubStep, MAX_BRIDGED_GAP_US};
-use super::gate::AidReport;
 use super::samples::{AidChannel, ImuSample};
 use super::MAX_SUBSTEPS;
 use crate::contract::Health;
@@ -34,13 +33,9 @@ impl<T: Real> LoopCore<T> {
             Health::bump(&mut tmp.health.gaps_reset);
             // The covariance grows open-loop over the gap (its last interval is the step).
             tmp.sigma.tick(us.saturating_sub(dt_us), false, false);
-            let (baro, velocity) = tmp.advance_outlined(imu.time, dt_us, f, samples)?;
+            let reports = tmp.advance_outlined(imu.time, dt_us, f, samples)?;
             *self = tmp;
-            return Ok(StepReports {
-                baro,
-                velocity,
-                imu_intervals: 1,
-            });
+            return Ok(reports);
         }
         let max_sub = u64::from(MAX_SUBSTEPS);
         let sub_span = max_sub.saturating_mul(dt_us);
@@ -65,26 +60,25 @@ impl<T: Real> LoopCore<T> {
             tmp.advance_outlined(end, h, f, &NewSamples::NONE)?;
         }
         let h = imu.time.micros_since(tmp.time).unwrap_or(0);
-        let (baro, velocity) = tmp.advance_outlined(imu.time, h, f, samples)?;
+        let reports = tmp.advance_outlined(imu.time, h, f, samples)?;
         Health::bump(&mut tmp.health.gaps_bridged);
         *self = tmp;
         Ok(StepReports {
-            baro,
-            velocity,
             // n ≤ MAX_SUBSTEPS: the conversion cannot truncate.
             imu_intervals: n as u32,
+            ..reports
         })
     }
 
-    /// One bridged sub-step (one outlined copy of [`Self::advance`] for every rare path).
-    #[inline(never)]
+    /// One bridged sub-step ([`Self::advance`] from the current state).
+    #[inline(always)]
     fn advance_outlined(
         &mut self,
         now: Timestamp,
         h_us: u64,
         specific_force: T,
         samples: &NewSamples<T>,
-    ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
+    ) -> Result<StepReports<T>, NavError> {
         let sub = SubStep {
             x: self.x,
             h_ref: self.h_ref_m,

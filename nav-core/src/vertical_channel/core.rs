@@ -209,11 +209,7 @@ impl<T: Real> LoopCore<T> {
                 bridged: false,
             };
             return match self.advance(&sub, &samples) {
-                Ok((baro, velocity)) => Ok(StepReports {
-                    baro,
-                    velocity,
-                    imu_intervals: 1,
-                }),
+                Ok(r) => Ok(r),
                 Err(e) => Err(self.refused_imu(e)),
             };
         }
@@ -332,13 +328,16 @@ impl<T: Real> LoopCore<T> {
         self.h_ref_m = h_ref_new;
     }
 
-    /// One (sub-)step: gate, propagation, commit. On error nothing changes.
-    #[inline(always)]
+    /// One (sub-)step: gate, propagation, commit; the reports of one IMU interval. On error
+    /// nothing changes. One out-of-line
+    /// body shared by both loops' steps and every bridged sub-step (a 3-state loop does not
+    /// need a copy per call site; the call costs a few instructions per step).
+    #[inline(never)]
     pub(crate) fn advance(
         &mut self,
         sub: &SubStep<T>,
         samples: &NewSamples<T>,
-    ) -> Result<(AidReport<T>, AidReport<T>), NavError> {
+    ) -> Result<StepReports<T>, NavError> {
         let nominal = sub.h_us == self.nominal_us;
         let (h_s, half_h) = if nominal {
             (self.dt_s, self.half_dt_s)
@@ -399,10 +398,11 @@ impl<T: Real> LoopCore<T> {
         self.baro_tally.count(&gated.baro_verdict);
         self.velocity_tally.count(&gated.velocity_verdict);
         self.health.state = self.health_state(sub.bridged, use_baro, use_vel);
-        Ok((
-            report(baro_status, nu_h, gated.baro_verdict),
-            report(vel_status, nu_v, gated.velocity_verdict),
-        ))
+        Ok(StepReports {
+            baro: report(baro_status, nu_h, gated.baro_verdict),
+            velocity: report(vel_status, nu_v, gated.velocity_verdict),
+            imu_intervals: 1,
+        })
     }
 
     /// Health after a committed step (the rules are in the module documentation).

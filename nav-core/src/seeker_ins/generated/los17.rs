@@ -304,23 +304,13 @@ pub(in crate::seeker_ins) fn rank_two_variances_ok<T: Real>(
 ) -> bool {
     let z = T::zero();
     let ok = |d: T| d.is_finite() && d >= z;
-    ok(updated(p[0][0], k1[0], kk1[0], k2[0], kk2[0]))
-        && ok(updated(p[1][1], k1[1], kk1[1], k2[1], kk2[1]))
-        && ok(updated(p[2][2], k1[2], kk1[2], k2[2], kk2[2]))
-        && ok(updated(p[3][3], k1[3], kk1[3], k2[3], kk2[3]))
-        && ok(updated(p[4][4], k1[4], kk1[4], k2[4], kk2[4]))
-        && ok(updated(p[5][5], k1[5], kk1[5], k2[5], kk2[5]))
-        && ok(updated(p[6][6], k1[6], kk1[6], k2[6], kk2[6]))
-        && ok(updated(p[7][7], k1[7], kk1[7], k2[7], kk2[7]))
-        && ok(updated(p[8][8], k1[8], kk1[8], k2[8], kk2[8]))
-        && ok(updated(p[9][9], k1[9], kk1[9], k2[9], kk2[9]))
-        && ok(updated(p[10][10], k1[10], kk1[10], k2[10], kk2[10]))
-        && ok(updated(p[11][11], k1[11], kk1[11], k2[11], kk2[11]))
-        && ok(updated(p[12][12], k1[12], kk1[12], k2[12], kk2[12]))
-        && ok(updated(p[13][13], k1[13], kk1[13], k2[13], kk2[13]))
-        && ok(updated(p[14][14], k1[14], kk1[14], k2[14], kk2[14]))
-        && ok(updated(p[15][15], k1[15], kk1[15], k2[15], kk2[15]))
-        && ok(updated(p[16][16], k1[16], kk1[16], k2[16], kk2[16]))
+    let k = k1.iter().zip(kk1).zip(k2.iter().zip(kk2));
+    p.iter()
+        .enumerate()
+        .zip(k)
+        .all(|((i, row), ((&a, &b), (&c, &d)))| {
+            row.get(i).is_some_and(|&pii| ok(updated(pii, a, b, c, d)))
+        })
 }
 
 /// `P ← P − k₁K₁ᵀ − k₂K₂ᵀ` on the upper triangle, mirrored (exactly symmetric).
