@@ -245,32 +245,19 @@ pub fn h_row_flight<T: Real, const K: usize, const M: usize>(
     if row < 3 {
         return h_row_total::<T, K, M>(FlexureModel::Proposed, row, omega_m, f_h, lever_arm_m);
     }
-    let i = row - 3;
+    // The Jacobian at θ̂ = 0 is the linear row (the second-order terms vanish there; the
+    // diagonal θ entry it keeps is an exact zero).
+    let df = h_row_flight_df::<T, K>(
+        row - 3,
+        &Vector3::zeros(),
+        omega_m,
+        omega_dot_m,
+        f_h,
+        lever_arm_m,
+    );
     let mut h = SparseRow::<T, M>::new();
-    let s = skew_row(f_h, i);
-    let lever = skew_row(lever_arm_m, i);
-    let l_x = crate::math::rotation::skew(lever_arm_m);
-    let w_x = crate::math::rotation::skew(omega_m);
-    let a_theta_f = (crate::math::rotation::skew(omega_dot_m) + w_x * w_x) * l_x;
-    let a_rate = w_x * l_x * T::lit(2.0);
-    for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
-        if a != i {
-            let _ = h.push(K * a, -v);
-        }
-        let _ = h.push(
-            K * a + 1,
-            a_theta_f.get((i, a)).copied().unwrap_or_else(T::zero),
-        );
-        let _ = h.push(
-            K * a + 2,
-            a_rate.get((i, a)).copied().unwrap_or_else(T::zero),
-        );
-        if a != i {
-            let _ = h.push(K * a + 3, l);
-        }
-        if a == i {
-            let _ = h.push(K * a + BIAS_STATE, T::one());
-        }
+    for (index, value) in df.entries() {
+        let _ = h.push(index, value);
     }
     h
 }
