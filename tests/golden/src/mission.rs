@@ -1,7 +1,7 @@
 //! The mission case: the flight navigator ([`MissionNavigator`]) through a short mission —
 //! carry under a manoeuvring aircraft with the master INS arriving late, separation,
 //! coast, baro midcourse, terminal with LOS updates — built from a design computed on the
-//! host and stored ([`Navigator::from_design`]), as the mission firmware image runs it.
+//! host and stored ([`nav_core::navigator::Navigator::from_design`]), as the mission firmware image runs it.
 //!
 //! Files: `mission.in.f32` (records of [`MISSION_INPUT_LEN`] values, one per 100 Hz tick),
 //! `mission.out.f32` (records of [`MISSION_OUTPUT_LEN`] values), `mission.design.f64`
