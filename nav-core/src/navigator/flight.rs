@@ -165,6 +165,17 @@ fn at_release<T: Real>(m: &MasterNav<T>, rate_sigma_rad_s: T) -> MasterAtRelease
     }
 }
 
+/// A master sample's hand-over, computed and not yet committed (`Navigator::slave_to`).
+struct Slaved<T: Real> {
+    /// The carry solution's covariance: the hand-over's 9 × 9 navigation block, NED
+    /// convention (position m², velocity (m/s)², attitude rad²).
+    carry_cov: SMatrix<T, 9, 9>,
+    /// The INS slaved to the hand-over.
+    ins: Ins<T>,
+    /// The correction the snapshots since the master's epoch take (checked finite on each).
+    correction: Correction<T>,
+}
+
 /// The error `snapshot − transferred` as the INS's correction arguments.
 #[derive(Debug, Clone, Copy)]
 struct Correction<T> {
@@ -575,14 +586,12 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         SeekerIns::from_design(&self.config.ins, &self.design, &initial).ok()
     }
 
-    /// The hand-over at the master's epoch with the (updated) alignment, and the INS and its
-    /// snapshots since `snap` slaved to it (computed, not committed).
-    #[allow(clippy::type_complexity)]
-    fn slave_to(
-        &self,
-        m: &MasterNav<T>,
-        snap: &Snapshot<T>,
-    ) -> Result<(SeekerInsInitial<T>, Ins<T>, Deque<Snapshot<T>, H>), NavError> {
+    /// The hand-over at the master's epoch with the (updated) alignment: the carry covariance
+    /// (the hand-over's 9×9 navigation block, NED convention), the INS slaved to it and the
+    /// correction its snapshots since `snap` take (computed, not committed; every snapshot's
+    /// correction checked finite, so the commit cannot fail). Nothing larger than the INS is
+    /// returned: the snapshots are corrected in place at the commit, not copied.
+    fn slave_to(&self, m: &MasterNav<T>, snap: &Snapshot<T>) -> Result<Slaved<T>, NavError> {
         let init = hand_over(
             &at_release(m, self.config.alignment.rate_noise_sigma_rad_s),
             &AlignmentAtRelease::from_filter(&self.ta),
@@ -598,13 +607,16 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             &corr.d_vel_m_s,
             &corr.phi_rad,
         )?;
-        let mut snaps = self.snapshots.clone();
-        for s in snaps.iter_mut().filter(|s| s.time >= snap.time) {
-            s.state = corr.apply(&s.state).ok_or(NavError::NonFiniteInput {
+        for s in self.snapshots.iter().filter(|s| s.time >= snap.time) {
+            corr.apply(&s.state).ok_or(NavError::NonFiniteInput {
                 input: "master correction",
             })?;
         }
-        Ok((init, ins, snaps))
+        Ok(Slaved {
+            carry_cov: nav_block_to_ned(&init.covariance, &init.state),
+            ins,
+            correction: corr,
+        })
     }
 
     /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic.
@@ -635,17 +647,25 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             .or_else(|_| self.history.find(m.time, tol))?;
         let backup = self.ta.clone();
         let report = self.ta.step(&ms, &slave)?;
-        let (init, ins, snaps) = match self.slave_to(m, &snap) {
+        let Slaved {
+            carry_cov,
+            ins,
+            correction: corr,
+        } = match self.slave_to(m, &snap) {
             Ok(v) => v,
             Err(e) => {
                 self.ta = backup;
                 return Err(e);
             }
         };
-        // Commit.
+        // Commit (`slave_to` checked every snapshot's correction finite).
         self.ins = ins;
-        self.snapshots = snaps;
-        self.carry_cov = nav_block_to_ned(&init.covariance, &init.state);
+        for s in self.snapshots.iter_mut().filter(|s| s.time >= snap.time) {
+            if let Some(corrected) = corr.apply(&s.state) {
+                s.state = corrected;
+            }
+        }
+        self.carry_cov = carry_cov;
         let f_m = compensate_lever_arm(&ms, &self.config.lever_arm.nominal_m);
         let c_m_s: Matrix3<T> = exp_so3(&(-self.ta.theta()));
         self.last_master = Some(MasterRecord {
