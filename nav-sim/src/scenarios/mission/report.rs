@@ -239,38 +239,20 @@ impl VariantStats {
             return Value::Null;
         }
         let n = self.handover.len() as f64;
-        let rms: Vec<f64> = (0..3)
-            .map(|a| {
-                (self
-                    .handover
-                    .iter()
-                    .map(|h| h.err_rad[a].powi(2))
-                    .sum::<f64>()
-                    / n)
-                    .sqrt()
-                    * 1e3
-            })
+        // Per axis, the ensemble mean of `f(sample, axis)`.
+        let axis_mean = |f: &dyn Fn(&HandoverSample, usize) -> f64| -> Vec<f64> {
+            (0..3)
+                .map(|a| self.handover.iter().map(|h| f(h, a)).sum::<f64>() / n)
+                .collect()
+        };
+        let rms: Vec<f64> = axis_mean(&|h, a| h.err_rad[a].powi(2))
+            .iter()
+            .map(|m| m.sqrt() * 1e3)
             .collect();
-        let nes: Vec<f64> = (0..3)
-            .map(|a| {
-                self.handover
-                    .iter()
-                    .map(|h| (h.err_rad[a] / h.sigma_rad[a]).powi(2))
-                    .sum::<f64>()
-                    / n
-            })
-            .collect();
-        let sig_mrad: Vec<f64> = (0..3)
-            .map(|a| {
-                (self
-                    .handover
-                    .iter()
-                    .map(|h| h.sigma_rad[a].powi(2))
-                    .sum::<f64>()
-                    / n)
-                    .sqrt()
-                    * 1e3
-            })
+        let nes = axis_mean(&|h, a| (h.err_rad[a] / h.sigma_rad[a]).powi(2));
+        let sig_mrad: Vec<f64> = axis_mean(&|h, a| h.sigma_rad[a].powi(2))
+            .iter()
+            .map(|m| m.sqrt() * 1e3)
             .collect();
         let nees = self.handover.iter().map(|h| h.nees).sum::<f64>() / n;
         let (lo, hi) = nees_band_95(3, self.handover.len());
