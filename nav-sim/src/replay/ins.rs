@@ -494,8 +494,7 @@ pub struct InsReplay {
     frame_failed: bool,
     free: Run,
     relev: Run,
-    plot: Vec<PlotRow>,
-    last_plot: Option<Timestamp>,
+    plot: super::Decimated<PlotRow>,
 }
 
 impl InsReplay {
@@ -530,8 +529,7 @@ impl InsReplay {
             frame_failed: false,
             free: Run::default(),
             relev: Run::default(),
-            plot: Vec::new(),
-            last_plot: None,
+            plot: super::Decimated::new(PLOT_INTERVAL_S),
         }
     }
 
@@ -806,13 +804,9 @@ impl InsReplay {
     }
 
     fn record_plot(&mut self, t: Timestamp, q: &[f64; 4]) {
-        if self
-            .last_plot
-            .is_some_and(|l| t.signed_seconds_since::<f64>(l) < PLOT_INTERVAL_S)
-        {
+        if !self.plot.due(t) {
             return;
         }
-        self.last_plot = Some(t);
         let deg = |run: &Run| match run.q_ins() {
             Some(qi) => euler_diff(&qi, &run.reference(q)).map(f64::to_degrees),
             None => [f64::NAN; 3],
@@ -827,7 +821,7 @@ impl InsReplay {
             }
             _ => [f64::NAN; 3],
         };
-        self.plot.push(PlotRow {
+        let row = PlotRow {
             t_s: t.signed_seconds_since::<f64>(self.first_imu),
             free_att_deg: deg(&self.free),
             relev_att_deg: deg(&self.relev),
@@ -835,7 +829,8 @@ impl InsReplay {
             relev_v: vel(&self.relev),
             ap_v: refv(&self.latest_est),
             gnss_v: refv(&self.latest_gnss),
-        });
+        };
+        self.plot.push(t, || row);
     }
 
     /// Header of the INS columns of `timeseries.csv` (leading comma included).
@@ -1004,8 +999,9 @@ impl InsReplay {
         if self.unavailable().is_some() {
             return Ok(false);
         }
-        let t: Vec<f64> = self.plot.iter().map(|r| r.t_s).collect();
-        let col = |f: &dyn Fn(&PlotRow) -> f64| self.plot.iter().map(f).collect::<Vec<f64>>();
+        let rows = self.plot.rows();
+        let t: Vec<f64> = rows.iter().map(|r| r.t_s).collect();
+        let col = |f: &dyn Fn(&PlotRow) -> f64| rows.iter().map(f).collect::<Vec<f64>>();
         let t0 = self
             .free
             .inits

@@ -136,6 +136,175 @@ impl ReplayConfig {
     }
 }
 
+/// Points kept for a figure, however long the log: at most [`Decimated::CAPACITY`]; when
+/// full, every other point is dropped and the interval doubled (memory independent of the
+/// log's duration).
+#[derive(Debug, Clone)]
+pub(crate) struct Decimated<T> {
+    rows: Vec<T>,
+    every_s: f64,
+    last: Option<Timestamp>,
+}
+
+impl<T> Decimated<T> {
+    /// Most points kept per figure buffer.
+    pub(crate) const CAPACITY: usize = 20_000;
+
+    /// A buffer keeping one point per `every_s` seconds to begin with.
+    pub(crate) fn new(every_s: f64) -> Self {
+        Self {
+            rows: Vec::new(),
+            every_s,
+            last: None,
+        }
+    }
+    /// Whether a point at `t` would be kept (one interval since the last kept).
+    pub(crate) fn due(&self, t: Timestamp) -> bool {
+        self.last
+            .is_none_or(|l| t.signed_seconds_since::<f64>(l) >= self.every_s)
+    }
+    /// Keeps `row` (time of validity `t`) if one interval has passed since the last kept.
+    pub(crate) fn push(&mut self, t: Timestamp, row: impl FnOnce() -> T) {
+        if !self.due(t) {
+            return;
+        }
+        self.last = Some(t);
+        self.rows.push(row());
+        if self.rows.len() >= Self::CAPACITY {
+            let mut k = 0;
+            self.rows.retain(|_| {
+                k += 1;
+                k % 2 == 1
+            });
+            self.every_s *= 2.0;
+        }
+    }
+    /// The points kept.
+    pub(crate) fn rows(&self) -> &[T] {
+        &self.rows
+    }
+}
+
+/// Smallest change of the reference altitude over which the baro's units are judged, m.
+const BARO_UNIT_MIN_SPAN_M: f64 = 5.0;
+/// A baro altitude in m follows a reference altitude in m with a slope in this band (feet:
+/// 3.28; pressure in hPa: ≈ −0.12 per m; in km: 0.001).
+const BARO_UNIT_SLOPE_BAND: std::ops::RangeInclusive<f64> = 0.5..=2.0;
+/// A baro sample older than this is not paired with a reference sample, s.
+const BARO_PAIR_MAX_AGE_S: f64 = 0.5;
+
+/// Regression of the baro altitude on a reference altitude (the autopilot's estimate, else
+/// GNSS): the baro's units checked by how it follows the vehicle's altitude changes.
+#[derive(Debug, Clone, Copy, Default)]
+struct BaroUnitFit {
+    n: u64,
+    mean_r: f64,
+    mean_b: f64,
+    c_rb: f64,
+    c_rr: f64,
+    r_min: f64,
+    r_max: f64,
+}
+
+impl BaroUnitFit {
+    fn add(&mut self, r: f64, b: f64) {
+        if !(r.is_finite() && b.is_finite()) {
+            return;
+        }
+        if self.n == 0 {
+            (self.r_min, self.r_max) = (r, r);
+        }
+        self.n += 1;
+        let n = self.n as f64;
+        let dr = r - self.mean_r;
+        self.mean_r += dr / n;
+        self.mean_b += (b - self.mean_b) / n;
+        self.c_rb += dr * (b - self.mean_b);
+        self.c_rr += dr * (r - self.mean_r);
+        self.r_min = self.r_min.min(r);
+        self.r_max = self.r_max.max(r);
+    }
+    fn span_m(&self) -> f64 {
+        if self.n == 0 {
+            0.0
+        } else {
+            self.r_max - self.r_min
+        }
+    }
+    fn ready(&self) -> bool {
+        self.n >= 20 && self.span_m() >= BARO_UNIT_MIN_SPAN_M
+    }
+    fn slope(&self) -> f64 {
+        self.c_rb / self.c_rr
+    }
+}
+
+/// The baro units check over the log: decided once the reference has moved enough.
+#[derive(Debug, Clone, Default)]
+struct BaroUnitCheck {
+    vs_estimate: BaroUnitFit,
+    vs_gnss: BaroUnitFit,
+    verdict: Option<(&'static str, f64, f64)>,
+}
+
+impl BaroUnitCheck {
+    /// Adds a pair; errors once the slope is decided and outside the band.
+    fn add(&mut self, reference: Stream, r: f64, b: f64, baro_file: &str) -> Result<()> {
+        if self.verdict.is_some() {
+            return Ok(());
+        }
+        match reference {
+            Stream::Estimate => self.vs_estimate.add(r, b),
+            _ => self.vs_gnss.add(r, b),
+        }
+        let fit = if self.vs_estimate.ready() {
+            ("autopilot estimate", self.vs_estimate)
+        } else if self.vs_gnss.ready() && self.vs_estimate.n == 0 {
+            ("GNSS altitude", self.vs_gnss)
+        } else {
+            return Ok(());
+        };
+        let k = fit.1.slope();
+        self.verdict = Some((fit.0, k, fit.1.span_m()));
+        if !BARO_UNIT_SLOPE_BAND.contains(&k) {
+            let hint = if (-0.2..=-0.05).contains(&k) {
+                " (looks like pressure in hPa, not an altitude in m)"
+            } else if (-20.0..=-5.0).contains(&k) {
+                " (looks like pressure in Pa, not an altitude in m)"
+            } else if (2.5..=4.0).contains(&k) {
+                " (looks like feet, not m)"
+            } else if (0.0005..=0.002).contains(&k) {
+                " (looks like km, not m)"
+            } else {
+                ""
+            };
+            bail!(
+                "{baro_file}: `baro_alt_m` changes {k:.4} m per m of the {} over {:.1} m of altitude change, expected ≈ 1{hint}",
+                fit.0,
+                fit.1.span_m()
+            );
+        }
+        Ok(())
+    }
+    fn summary(&self) -> Value {
+        match self.verdict {
+            Some((reference, slope, span)) => json!({
+                "result": "Consistent",
+                "reference": reference,
+                "baro_m_per_reference_m": sig(slope, 4),
+                "over_altitude_change_m": sig(span, 4),
+            }),
+            None => json!({
+                "result": "NotDecided",
+                "reason": format!(
+                    "the reference altitude changed by {:.1} m (estimate) / {:.1} m (GNSS), less than {BARO_UNIT_MIN_SPAN_M} m",
+                    self.vs_estimate.span_m(), self.vs_gnss.span_m()
+                ),
+            }),
+        }
+    }
+}
+
 /// Online mean and variance (Welford).
 #[derive(Debug, Clone, Copy, Default)]
 struct Moments {
@@ -486,8 +655,19 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
     let mut latest_est = (f64::NAN, f64::NAN);
     let mut ap_vs_gnss = (Moments::default(), Moments::default());
     let mut last_row: Option<Timestamp> = None;
-    let mut plot_rows: Vec<[f64; 10]> = Vec::new();
-    let mut last_plot: Option<Timestamp> = None;
+    let mut plot_rows: Decimated<[f64; 10]> = Decimated::new(0.05);
+    // Differences at the reference's own time stamps: (t, classical − autopilot altitude,
+    // aided − autopilot, classical − autopilot V_z, aided − autopilot V_z); (t, GNSS −
+    // autopilot altitude, GNSS − autopilot V_z).
+    let mut ap_diff: Decimated<[f64; 5]> = Decimated::new(0.05);
+    let mut gnss_diff: Decimated<[f64; 3]> = Decimated::new(0.05);
+    let mut baro_units = BaroUnitCheck::default();
+    let mut latest_baro_t: Option<Timestamp> = None;
+    let baro_file = if log.is_dir() {
+        log.join("baro.csv").display().to_string()
+    } else {
+        format!("{}: topic `vehicle_air_data`", log.display())
+    };
     let settle_us = (cfg.settle_s.max(0.0) * 1e6) as u64;
     let settled = |t: Timestamp| {
         t.micros_since(pre.first_imu)
@@ -495,6 +675,9 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
     };
     let mut superseded_baro = 0_u64;
     let mut superseded_gnss = 0_u64;
+    let fresh = |b: Option<Timestamp>, t: Timestamp| {
+        b.is_some_and(|b| t.signed_seconds_since::<f64>(b).abs() <= BARO_PAIR_MAX_AGE_S)
+    };
 
     let mut src = source::open(log)?;
     for ev in src.by_ref() {
@@ -510,6 +693,7 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
         match ev {
             LogEvent::Baro { t, alt_m } => {
                 latest_baro = alt_m;
+                latest_baro_t = Some(t);
                 if loops.pending_baro.is_some() {
                     superseded_baro += 1;
                 }
@@ -522,6 +706,13 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
                 t, alt_m, vd_m_s, ..
             } => {
                 latest_gnss = (alt_m, -vd_m_s);
+                if fresh(latest_baro_t, t) {
+                    baro_units.add(Stream::Gnss, alt_m, latest_baro, &baro_file)?;
+                }
+                if latest_est.0.is_finite() {
+                    let s = t.signed_seconds_since::<f64>(pre.first_imu);
+                    gnss_diff.push(t, || [s, alt_m - latest_est.0, -vd_m_s - latest_est.1]);
+                }
                 if loops.pending_vel.is_some() {
                     superseded_gnss += 1;
                 }
@@ -544,6 +735,20 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
                 t, alt_m, vd_m_s, ..
             } => {
                 latest_est = (alt_m, -vd_m_s);
+                if fresh(latest_baro_t, t) {
+                    baro_units.add(Stream::Estimate, alt_m, latest_baro, &baro_file)?;
+                }
+                let (c, a) = (&loops.tally[0], &loops.tally[1]);
+                let s = t.signed_seconds_since::<f64>(pre.first_imu);
+                ap_diff.push(t, || {
+                    [
+                        s,
+                        c.alt - alt_m,
+                        a.alt - alt_m,
+                        c.vz_up + vd_m_s,
+                        a.vz_up + vd_m_s,
+                    ]
+                });
                 if settled(t) {
                     for tl in &mut loops.tally {
                         tl.alt_vs_autopilot.add(tl.alt - alt_m);
@@ -575,20 +780,18 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
                     let line: Vec<String> = row.iter().map(|v| format!("{v}")).collect();
                     writeln!(csv, "{}{}", line.join(","), ins.csv_fields())?;
                 }
-                if due(last_plot, 0.05) {
-                    last_plot = Some(t);
-                    let mut p = [0.0; 10];
-                    p.copy_from_slice(&[
+                plot_rows.push(t, || {
+                    [
                         row[0], row[2], row[3], row[4], row[5], row[6], row[7], row[8], row[9],
                         row[10],
-                    ]);
-                    plot_rows.push(p);
-                }
+                    ]
+                });
             }
         }
     }
     csv.flush()?;
     let describe = src.describe();
+    let findings = src.findings();
 
     let status = |st: &Health| {
         json!({
@@ -633,6 +836,8 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
         "settle_s": cfg.settle_s,
         "streams": stats.iter().map(|(s, st)| (s.name().to_string(), st.summary(pre.first_imu))).collect::<serde_json::Map<_, _>>(),
         "aid_samples_superseded": { "baro": superseded_baro, "gnss": superseded_gnss },
+        "log_findings": findings,
+        "baro_units_check": baro_units.summary(),
         "loops": {
             "classical": loop_summary(
                 &loops.tally[0],
@@ -663,13 +868,42 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
         "notes": "altitude differences are RMS about their mean: the mean (datum_offset) is the constant offset between altitude datums (baro vs GNSS MSL vs the autopilot's local origin); vertical velocities are compared as they are. Comparisons start settle_s after the first IMU sample.",
     });
     crate::output::write_summary(out, &summary)?;
-    plot_replay(&plot_rows, &loops.tally, &out.join("replay.png"), &describe)?;
+    plot_replay(
+        &PlotData {
+            rows: plot_rows.rows(),
+            ap_diff: ap_diff.rows(),
+            gnss_diff: gnss_diff.rows(),
+            settle_s: cfg.settle_s,
+        },
+        &loops.tally,
+        ap_vs_gnss.0.mean,
+        &out.join("replay.png"),
+        &describe,
+    )?;
     ins.plot(&out.join("ins.png"), &describe)?;
     Ok(summary)
 }
 
-fn plot_replay(rows: &[[f64; 10]], tally: &[LoopTally; 2], path: &Path, title: &str) -> Result<()> {
-    let col = |k: usize| rows.iter().map(|r| r[k]).collect::<Vec<f64>>();
+/// What `replay.png` draws.
+struct PlotData<'a> {
+    /// At the IMU steps (≤ 20 Hz): t, baro, GNSS alt, GNSS V_z, autopilot alt, autopilot V_z,
+    /// classical alt, V_z, aided alt, V_z.
+    rows: &'a [[f64; 10]],
+    /// At the autopilot's samples: t, loops − autopilot (alt ×2, V_z ×2).
+    ap_diff: &'a [[f64; 5]],
+    /// At the GNSS samples: t, GNSS − autopilot (alt, V_z).
+    gnss_diff: &'a [[f64; 3]],
+    settle_s: f64,
+}
+
+fn plot_replay(
+    d: &PlotData,
+    tally: &[LoopTally; 2],
+    gnss_minus_ap_mean_m: f64,
+    path: &Path,
+    title: &str,
+) -> Result<()> {
+    let col = |k: usize| d.rows.iter().map(|r| r[k]).collect::<Vec<f64>>();
     let t = col(0);
     let (baro, gnss, gnss_vz, ap, ap_vz, c_alt, c_vz, a_alt, a_vz) = (
         col(1),
@@ -684,32 +918,34 @@ fn plot_replay(rows: &[[f64; 10]], tally: &[LoopTally; 2], path: &Path, title: &
     );
     // References shifted into the classical loop's (baro) datum by their mean offset.
     let shift = |v: &[f64], off: f64| v.iter().map(|x| x + off).collect::<Vec<f64>>();
-    let gnss_off = if tally[0].alt_vs_gnss.n > 0 {
-        tally[0].alt_vs_gnss.mean
-    } else {
-        0.0
-    };
-    let ap_off = if tally[0].alt_vs_autopilot.n > 0 {
-        tally[0].alt_vs_autopilot.mean
-    } else {
-        0.0
-    };
+    let mean_or_zero = |m: &Moments| if m.n > 0 { m.mean } else { 0.0 };
+    let gnss_off = mean_or_zero(&tally[0].alt_vs_gnss);
+    let ap_off = mean_or_zero(&tally[0].alt_vs_autopilot);
     let gnss_s = shift(&gnss, gnss_off);
     let ap_s = shift(&ap, ap_off);
-    let diff = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x - y).collect::<Vec<f64>>();
+    let dcol = |k: usize, off: f64| d.ap_diff.iter().map(|r| r[k] - off).collect::<Vec<f64>>();
+    let td = dcol(0, 0.0);
+    let gcol = |k: usize, off: f64| d.gnss_diff.iter().map(|r| r[k] - off).collect::<Vec<f64>>();
+    let tg = gcol(0, 0.0);
+    let g_off = if gnss_minus_ap_mean_m.is_finite() {
+        gnss_minus_ap_mean_m
+    } else {
+        0.0
+    };
+    let settle = format!("statistics from t = {} s", d.settle_s);
     let fig = Figure {
-        title: format!("Replay: {title}"),
+        title: format!("Vertical loops on the log: {title}"),
         x_label: "time since the first IMU sample, s".into(),
         columns: 1,
         panels: vec![
             Panel {
                 title: format!(
-                    "altitude (baro datum; GNSS shifted {:+.1} m, autopilot {:+.1} m)",
+                    "altitude (baro datum; GNSS shifted {:+.1} m, autopilot {:+.1} m: their mean offsets)",
                     gnss_off, ap_off
                 ),
                 y_label: "altitude, m".into(),
                 series: vec![
-                    Series::line("autopilot", &t, &ap_s, 3),
+                    Series::line("autopilot estimate", &t, &ap_s, 3),
                     Series::line("GNSS", &t, &gnss_s, 2),
                     Series {
                         style: plot::Style::Points,
@@ -721,33 +957,45 @@ fn plot_replay(rows: &[[f64; 10]], tally: &[LoopTally; 2], path: &Path, title: &
                 y_range: None,
             },
             Panel {
-                title: "vertical velocity (up)".into(),
-                y_label: "V_z, m/s".into(),
+                title: "vertical velocity (up positive)".into(),
+                y_label: "V_up, m/s".into(),
                 series: vec![
                     Series::line("GNSS", &t, &gnss_vz, 2),
-                    Series::line("autopilot", &t, &ap_vz, 3),
+                    Series::line("autopilot estimate", &t, &ap_vz, 3),
                     Series::line("classical loop", &t, &c_vz, 0),
                     Series::line("aided loop", &t, &a_vz, 1),
                 ],
                 y_range: None,
             },
             Panel {
-                title: "altitude difference to the autopilot (datum offset removed)".into(),
+                title: format!(
+                    "altitude difference to the autopilot at its samples, mean offset removed ({settle})"
+                ),
                 y_label: "Δh, m".into(),
                 series: vec![
-                    Series::line("classical − autopilot", &t, &diff(&c_alt, &ap_s), 0),
-                    Series::line("aided − autopilot", &t, &diff(&a_alt, &ap_s), 1),
-                    Series::dashed("GNSS − autopilot", &t, &diff(&gnss_s, &ap_s), 2),
+                    Series::line(
+                        "classical − autopilot",
+                        &td,
+                        &dcol(1, mean_or_zero(&tally[0].alt_vs_autopilot)),
+                        0,
+                    ),
+                    Series::line(
+                        "aided − autopilot",
+                        &td,
+                        &dcol(2, mean_or_zero(&tally[1].alt_vs_autopilot)),
+                        1,
+                    ),
+                    Series::dashed("GNSS − autopilot (at GNSS samples)", &tg, &gcol(1, g_off), 2),
                 ],
                 y_range: None,
             },
             Panel {
-                title: "vertical-velocity difference to the autopilot".into(),
-                y_label: "ΔV_z, m/s".into(),
+                title: format!("vertical-velocity difference to the autopilot at its samples ({settle})"),
+                y_label: "ΔV_up, m/s".into(),
                 series: vec![
-                    Series::line("classical − autopilot", &t, &diff(&c_vz, &ap_vz), 0),
-                    Series::line("aided − autopilot", &t, &diff(&a_vz, &ap_vz), 1),
-                    Series::dashed("GNSS − autopilot", &t, &diff(&gnss_vz, &ap_vz), 2),
+                    Series::line("classical − autopilot", &td, &dcol(3, 0.0), 0),
+                    Series::line("aided − autopilot", &td, &dcol(4, 0.0), 1),
+                    Series::dashed("GNSS − autopilot (at GNSS samples)", &tg, &gcol(2, 0.0), 2),
                 ],
                 y_range: None,
             },

@@ -186,6 +186,41 @@ impl LogEvent {
 pub trait LogSource: Iterator<Item = Result<LogEvent>> {
     /// What is being read (for messages).
     fn describe(&self) -> String;
+    /// What the reader found in the log that is not an error but a user should know (values
+    /// that are not finite, by file and column; a ULog cut short), as JSON for the summary.
+    fn findings(&self) -> serde_json::Value {
+        serde_json::Value::Null
+    }
+}
+
+/// Plausible sample intervals of each stream, s: a median interval outside this band means
+/// the time column is not in seconds (or the file is not that stream).
+fn plausible_interval_s(stream: Stream) -> (f64, f64) {
+    match stream {
+        Stream::Imu => (5.0e-5, 0.5),
+        Stream::Baro | Stream::Estimate | Stream::Attitude => (1.0e-3, 5.0),
+        Stream::Gnss => (1.0e-2, 10.0),
+    }
+}
+
+/// Intervals a CSV file's time unit is judged on (its first rows).
+const UNIT_CHECK_INTERVALS: usize = 32;
+
+/// Two files whose first time stamps differ by more than this are on different clocks (or
+/// in different units), s.
+const MAX_START_SPREAD_S: f64 = 600.0;
+
+/// "(t_s looks like ms)"-style hint for a time interval `x` that is `factor` too large.
+fn unit_hint(x: f64, lo: f64, hi: f64) -> &'static str {
+    if (lo..=hi).contains(&(x * 1e-3)) {
+        " (`t_s` looks like milliseconds, not seconds)"
+    } else if (lo..=hi).contains(&(x * 1e-6)) {
+        " (`t_s` looks like microseconds, not seconds)"
+    } else if (lo..=hi).contains(&(x * 1e-9)) {
+        " (`t_s` looks like nanoseconds, not seconds)"
+    } else {
+        ""
+    }
 }
 
 /// Opens a log: a directory of CSV files, or a `.ulg` file.
@@ -238,6 +273,8 @@ struct CsvStream {
     last_t: Option<Timestamp>,
     /// An event formed from the same row, released next (the attitude of an `imu.csv` row).
     pending: Option<LogEvent>,
+    /// Per required value column (after `t_s`): rows whose value is not finite, first line.
+    non_finite: Vec<(u64, usize)>,
 }
 
 /// One parsed row: time stamp, required fields (`t_s` first), optional groups.
@@ -299,7 +336,53 @@ impl CsvStream {
             groups,
             last_t: None,
             pending: None,
+            non_finite: vec![(0, 0); required.len().saturating_sub(1)],
         })
+    }
+
+    /// The time-unit check before the replay: the median interval of the file's first rows
+    /// must be plausible for the stream (rows that do not parse are left to the replay).
+    fn check_time_unit(&self) -> Result<()> {
+        let file = File::open(&self.path)
+            .with_context(|| format!("{}: cannot open", self.path.display()))?;
+        let c = self.cols[0];
+        let mut last: Option<f64> = None;
+        let mut v: Vec<f64> = Vec::with_capacity(UNIT_CHECK_INTERVALS);
+        for line in BufReader::new(file).lines().skip(1) {
+            let Ok(line) = line else { break };
+            let Some(t) = line
+                .split(',')
+                .nth(c)
+                .and_then(|x| x.trim().parse::<f64>().ok())
+            else {
+                continue;
+            };
+            if let Some(l) = last {
+                if t > l {
+                    v.push(t - l);
+                }
+            }
+            last = Some(t);
+            if v.len() >= UNIT_CHECK_INTERVALS {
+                break;
+            }
+        }
+        if v.len() < 3 {
+            return Ok(());
+        }
+        v.sort_unstable_by(f64::total_cmp);
+        let med_s = v[v.len() / 2];
+        let (lo, hi) = plausible_interval_s(self.stream);
+        if !(lo..=hi).contains(&med_s) {
+            bail!(
+                "{}: `t_s`: median interval {med_s} s over the first {} rows, expected {lo} … {hi} s for {} samples{}",
+                self.path.display(),
+                v.len() + 1,
+                self.stream.name(),
+                unit_hint(med_s, lo, hi)
+            );
+        }
+        Ok(())
     }
 
     fn parse(&self, fields: &[&str], c: usize, name: &str) -> Result<f64> {
@@ -361,12 +444,26 @@ impl CsvStream {
             }
             let t = Timestamp::from_secs_f64(values[0]).map_err(|e| {
                 anyhow!(
-                    "{}: line {}: `t_s` = {}: {e}",
+                    "{}: line {}: `t_s` = {}: {e}{}",
                     self.path.display(),
                     self.line_no,
-                    values[0]
+                    values[0],
+                    if values[0] > 1.0e10 {
+                        " (looks like microseconds or nanoseconds, not seconds)"
+                    } else {
+                        ""
+                    }
                 )
             })?;
+            for (k, v) in values.iter().enumerate().skip(1) {
+                if !v.is_finite() {
+                    let n = &mut self.non_finite[k - 1];
+                    if n.0 == 0 {
+                        n.1 = self.line_no;
+                    }
+                    n.0 += 1;
+                }
+            }
             if let Some(last) = self.last_t {
                 if t < last {
                     bail!(
@@ -512,7 +609,9 @@ impl CsvLog {
                 }
                 continue;
             }
-            streams.push(CsvStream::open(path, stream, cols, optional)?);
+            let s = CsvStream::open(path, stream, cols, optional)?;
+            s.check_time_unit()?;
+            streams.push(s);
         }
         let heads = vec![None; streams.len()];
         Ok(Self {
@@ -535,6 +634,9 @@ impl Iterator for CsvLog {
                     Err(e) => return Some(Err(e)),
                 }
             }
+            if let Err(e) = self.check_clocks() {
+                return Some(Err(e));
+            }
         }
         // The earliest head (ties: stream order, IMU first).
         let k = self
@@ -553,9 +655,62 @@ impl Iterator for CsvLog {
     }
 }
 
+impl CsvLog {
+    /// The files' first time stamps must be on one clock in one unit (within
+    /// [`MAX_START_SPREAD_S`] of `imu.csv`'s).
+    fn check_clocks(&self) -> Result<()> {
+        let (Some(imu), Some(Some(t_imu))) = (
+            self.streams.first(),
+            self.heads.first().map(|h| h.map(|e| e.time())),
+        ) else {
+            return Ok(());
+        };
+        for (s, h) in self.streams.iter().zip(&self.heads).skip(1) {
+            let Some(t) = h.map(|e| e.time()) else {
+                continue;
+            };
+            let (a, b) = (t.as_secs_f64(), t_imu.as_secs_f64());
+            if (a - b).abs() > MAX_START_SPREAD_S {
+                let ratio = if b > 0.0 { a / b } else { f64::NAN };
+                let hint = if (500.0..2_000.0).contains(&ratio) {
+                    " (this file's `t_s` looks like milliseconds)"
+                } else if (5.0e5..2.0e6).contains(&ratio) {
+                    " (this file's `t_s` looks like microseconds)"
+                } else if (5.0e-4..2.0e-3).contains(&ratio) || (5.0e-7..2.0e-6).contains(&ratio) {
+                    " (`imu.csv`'s `t_s` looks like ms or µs)"
+                } else {
+                    ""
+                };
+                bail!(
+                    "{}: `t_s` starts at {a} s but {} starts at {b} s: the files are not on one clock in seconds{hint}",
+                    s.path.display(),
+                    imu.path.display()
+                );
+            }
+        }
+        Ok(())
+    }
+}
+
 impl LogSource for CsvLog {
     fn describe(&self) -> String {
         format!("CSV log {}", self.dir.display())
+    }
+    fn findings(&self) -> serde_json::Value {
+        let mut non_finite = Vec::new();
+        for s in &self.streams {
+            for ((n, line), name) in s.non_finite.iter().zip(s.names.iter().skip(1)) {
+                if *n > 0 {
+                    non_finite.push(serde_json::json!({
+                        "file": s.path.file_name().map(|f| f.to_string_lossy().into_owned()),
+                        "column": name,
+                        "rows": n,
+                        "first_line": line,
+                    }));
+                }
+            }
+        }
+        serde_json::json!({ "non_finite_values": non_finite })
     }
 }
 
@@ -581,10 +736,29 @@ impl Ord for Held {
     }
 }
 
+/// The file reader under the ULog parser, noting when a read found the end of the file: the
+/// parser fills a message cut short with zeros instead of failing, so a message read after
+/// the end was seen is incomplete.
+struct EofWatch {
+    inner: BufReader<File>,
+    hit: std::rc::Rc<std::cell::Cell<bool>>,
+}
+
+impl std::io::Read for EofWatch {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        if n == 0 && !buf.is_empty() {
+            self.hit.set(true);
+        }
+        Ok(n)
+    }
+}
+
 /// A PX4 ULog read as a stream (`yule_log`), topics mapped to [`LogEvent`]s.
 pub struct ULogLog {
     path: PathBuf,
-    parser: yule_log::parser::ULogParser<BufReader<File>>,
+    parser: yule_log::parser::ULogParser<EofWatch>,
+    eof_hit: std::rc::Rc<std::cell::Cell<bool>>,
     held: BinaryHeap<Held>,
     arrivals: u64,
     newest_us: u64,
@@ -593,7 +767,17 @@ pub struct ULogLog {
     attitude: Option<[f64; 4]>,
     last_t: [Option<u64>; 5],
     seen: [bool; 5],
+    /// The file ends inside a message (a log cut short, e.g. by a power loss): the time of
+    /// the last complete sample, µs.
+    truncated_after_us: Option<u64>,
 }
+
+/// The fields the replay reads from each required topic (messages).
+const NEEDED: [&str; 3] = [
+    "`sensor_combined.accelerometer_m_s2`",
+    "`vehicle_attitude.q` to rotate the accelerometer to NED",
+    "`vehicle_air_data.baro_alt_meter`",
+];
 
 const TOPICS: [&str; 5] = [
     "sensor_combined",
@@ -607,13 +791,19 @@ impl ULogLog {
     /// Opens a `.ulg` file.
     pub fn open(path: &Path) -> Result<Self> {
         let file = File::open(path).with_context(|| format!("{}: cannot open", path.display()))?;
-        let parser = yule_log::builder::ULogParserBuilder::new(BufReader::new(file))
+        let eof_hit = std::rc::Rc::new(std::cell::Cell::new(false));
+        let reader = EofWatch {
+            inner: BufReader::new(file),
+            hit: eof_hit.clone(),
+        };
+        let parser = yule_log::builder::ULogParserBuilder::new(reader)
             .set_subscription_allow_list(TOPICS)
             .build()
             .map_err(|e| anyhow!("{}: not a ULog file: {e}", path.display()))?;
         Ok(Self {
             path: path.to_path_buf(),
             parser,
+            eof_hit,
             held: BinaryHeap::new(),
             arrivals: 0,
             newest_us: 0,
@@ -621,6 +811,7 @@ impl ULogLog {
             attitude: None,
             last_t: [None; 5],
             seen: [false; 5],
+            truncated_after_us: None,
         })
     }
 
@@ -871,37 +1062,61 @@ impl ULogLog {
 
     /// Reads until an event can be released from the reorder buffer (or the file ends).
     fn fill(&mut self) -> Result<()> {
-        use yule_log::model::msg::UlogMessage;
         while !self.done
             && self
                 .held
                 .peek()
                 .is_none_or(|h| h.0.time().as_micros() + ULOG_REORDER_US > self.newest_us)
         {
-            match self.parser.next() {
-                None => {
-                    self.done = true;
-                    for (k, seen) in self.seen.iter().enumerate() {
-                        if !seen && k <= 2 {
-                            bail!(
-                                "{}: topic `{}` missing (the replay needs it)",
-                                self.path.display(),
-                                TOPICS[k]
-                            );
-                        }
-                    }
-                }
+            let end = match self.parser.next() {
+                None => true,
                 Some(Err(e)) => bail!("{}: corrupt ULog: {e}", self.path.display()),
-                Some(Ok(UlogMessage::LoggedData(data))) => {
-                    let t_us = data.data.timestamp.unwrap_or(data.timestamp);
-                    if let Some(ev) = self.map(&data.data, t_us)? {
-                        self.newest_us = self.newest_us.max(t_us);
-                        self.arrivals += 1;
-                        self.held.push(Held(ev, self.arrivals));
+                Some(Ok(_)) if self.eof_hit.get() => {
+                    // The message was cut short (its missing bytes read as zeros).
+                    if self.seen.iter().any(|s| *s) {
+                        self.truncated_after_us = Some(self.newest_us);
+                    }
+                    true
+                }
+                Some(Ok(msg)) => {
+                    self.take(msg)?;
+                    false
+                }
+            };
+            if end {
+                self.done = true;
+                for (k, seen) in self.seen.iter().enumerate() {
+                    if !seen && k <= 2 {
+                        bail!(
+                            "{}: topic `{}` missing (the replay needs {}){}",
+                            self.path.display(),
+                            TOPICS[k],
+                            NEEDED[k],
+                            if self.truncated_after_us.is_some() {
+                                " — the file ends inside a message"
+                            } else {
+                                ""
+                            }
+                        );
                     }
                 }
-                Some(Ok(_)) => {}
             }
+        }
+        Ok(())
+    }
+
+    fn take(&mut self, msg: yule_log::model::msg::UlogMessage) -> Result<()> {
+        use yule_log::model::msg::UlogMessage;
+        match msg {
+            UlogMessage::LoggedData(data) => {
+                let t_us = data.data.timestamp.unwrap_or(data.timestamp);
+                if let Some(ev) = self.map(&data.data, t_us)? {
+                    self.newest_us = self.newest_us.max(t_us);
+                    self.arrivals += 1;
+                    self.held.push(Held(ev, self.arrivals));
+                }
+            }
+            _ => {}
         }
         Ok(())
     }
@@ -922,6 +1137,14 @@ impl Iterator for ULogLog {
 impl LogSource for ULogLog {
     fn describe(&self) -> String {
         format!("ULog {}", self.path.display())
+    }
+    fn findings(&self) -> serde_json::Value {
+        serde_json::json!({
+            "truncated": self.truncated_after_us.map(|t| serde_json::json!({
+                "note": "the file ends inside a message (a log cut short): replayed up to the last complete one",
+                "last_sample_us": t,
+            })),
+        })
     }
 }
 
