@@ -126,6 +126,22 @@ fn main() -> Result<()> {
                 ),
                 _ => println!("INS not available: {}", ins["detail"]),
             }
+            let gaps: Vec<String> = summary["streams"]
+                .as_object()
+                .into_iter()
+                .flatten()
+                .filter(|(_, v)| v["gap_count"].as_u64().unwrap_or(0) > 0)
+                .map(|(k, v)| format!("{k} {}", v["gap_count"]))
+                .collect();
+            if !gaps.is_empty() {
+                println!("gaps (summary.json streams.*.gaps): {}", gaps.join(", "));
+            }
+            for (k, v) in summary["log_findings"].as_object().into_iter().flatten() {
+                if !(v.is_null() || v.as_array().is_some_and(Vec::is_empty)) {
+                    println!("log finding {k}: {v}");
+                }
+            }
+            println!("baro units check: {}", summary["baro_units_check"]);
             println!(
                 "wrote {}/{{summary.json, timeseries.csv, replay.png, ins.png where the INS ran}}",
                 out.display()

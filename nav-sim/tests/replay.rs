@@ -205,7 +205,7 @@ fn wrong_units_are_reported() {
     });
     let e = replay_err(&log);
     assert!(
-        e.contains("f_down_m_s2") && e.contains("looks like g"),
+        e.contains("imu.csv") && e.contains("f_down_m_s2") && e.contains("looks like g"),
         "{e}"
     );
 }
@@ -984,7 +984,7 @@ fn peak_rss_kb() -> u64 {
         .unwrap()
 }
 
-/// A synthetic hour of CSV log: 500 Hz IMU with gyro and attitude columns, 50 Hz baro and
+/// A synthetic hour of CSV log: 1 kHz IMU with gyro and attitude columns, 50 Hz baro and
 /// autopilot estimate, 5 Hz GNSS, a climb-and-descend altitude profile; returns its size, B.
 fn write_hour_csv(dir: &Path) -> u64 {
     use std::io::Write;
@@ -1008,8 +1008,8 @@ fn write_hour_csv(dir: &Path) -> u64 {
     };
     let (w, amp) = (2.0 * std::f64::consts::PI / 120.0, 20.0);
     let g = 9.806;
-    for k in 0..(3600 * 500) {
-        let t = 10.0 + k as f64 * 0.002;
+    for k in 0..(3600 * 1000) {
+        let t = 10.0 + k as f64 * 0.001;
         let (h, v, a) = (
             100.0 + amp * (w * t).sin(),
             amp * w * (w * t).cos(),
@@ -1026,11 +1026,11 @@ fn write_hour_csv(dir: &Path) -> u64 {
             noise(1e-3)
         )
         .unwrap();
-        if k % 10 == 0 {
+        if k % 20 == 0 {
             writeln!(baro, "{t:.6},{:.4}", h + 150.0 + noise(1.0)).unwrap();
             writeln!(est, "{t:.6},{h:.4},{:.4}", -v).unwrap();
         }
-        if k % 100 == 0 {
+        if k % 200 == 0 {
             writeln!(
                 gnss,
                 "{t:.6},{:.4},{:.4}",
@@ -1046,7 +1046,7 @@ fn write_hour_csv(dir: &Path) -> u64 {
         .sum()
 }
 
-/// The shipped SITL ULog tiled to an hour (116 copies of its data messages, the time stamps
+/// The shipped SITL ULog tiled to two hours (232 copies of its data messages, the time stamps
 /// of the replayed topics shifted by the log's span per copy); returns its size, B.
 fn write_hour_ulog(path: &Path) -> u64 {
     use std::io::Write;
@@ -1068,7 +1068,7 @@ fn write_hour_ulog(path: &Path) -> u64 {
         .map(|(_, p)| u64::from_le_bytes(p[2..10].try_into().unwrap()))
         .collect();
     let span = stamps.iter().max().unwrap() - stamps.iter().min().unwrap() + 4_000;
-    let copies = 3600_000_000 / span + 1;
+    let copies = 7_200_000_000 / span + 1;
     let mut w = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
     w.write_all(&d[..16]).unwrap();
     let mut buf = Vec::new();
@@ -1103,12 +1103,13 @@ fn write_hour_ulog(path: &Path) -> u64 {
     path.metadata().unwrap().len()
 }
 
-/// Hour-long logs of hundreds of MB replay in memory that does not grow with the log: the
-/// peak resident set stays far below the log's size (CSV and ULog, both loops and the INS).
+/// Logs of an hour and more, hundreds of MB, replay in memory that does not grow with the
+/// log: the peak resident set stays far below the log's size (a 1 h CSV log at 1 kHz and a
+/// 2 h ULog; both loops and the INS).
 /// Run alone (`cargo test -p nav-sim --test replay -- --ignored hour_long`): the peak is the
 /// process's. `NAV_LONG_LOG_DIR` keeps the generated logs there (for `/usr/bin/time -v`).
 #[test]
-#[ignore = "writes ≈ 400 MB of logs and replays two hours of flight (minutes)"]
+#[ignore = "writes ≈ 650 MB of logs and replays three hours of flight"]
 fn hour_long_logs_replay_in_constant_memory() {
     let keep = std::env::var_os("NAV_LONG_LOG_DIR").map(PathBuf::from);
     let dir = keep.clone().unwrap_or_else(|| out_dir("hour"));
@@ -1123,7 +1124,7 @@ fn hour_long_logs_replay_in_constant_memory() {
     let s = replay(&csv_dir, &cfg, &out).unwrap();
     let after_csv = peak_rss_kb();
     // The loops follow the synthetic truth (the estimate columns) over the hour.
-    assert_eq!(num(&s, &["streams", "imu", "samples"]), 1_800_000.0);
+    assert_eq!(num(&s, &["streams", "imu", "samples"]), 3_600_000.0);
     check_loops(&s, 1.0, 0.3);
     let mut cfg = config("px4-sitl-hop");
     cfg.csv_interval_s = 1.0;
@@ -1131,7 +1132,7 @@ fn hour_long_logs_replay_in_constant_memory() {
     let s2 = replay(&ulog, &cfg, &out2).unwrap();
     let after_ulog = peak_rss_kb();
     let imu = num(&s2, &["streams", "imu", "samples"]);
-    assert!(imu > 250.0 * 3500.0, "{imu}");
+    assert!(imu > 250.0 * 7100.0, "{imu}");
     eprintln!(
         "CSV log {:.0} MB, ULog {:.0} MB; peak RSS: {} kB before, {} kB after the CSV, {} kB after the ULog",
         csv_bytes as f64 / 1e6,
@@ -1140,7 +1141,7 @@ fn hour_long_logs_replay_in_constant_memory() {
         after_csv,
         after_ulog
     );
-    assert!(csv_bytes > 200_000_000 && ulog_bytes > 150_000_000);
+    assert!(csv_bytes > 300_000_000 && ulog_bytes > 300_000_000);
     // Constant memory: the replay's peak stays below 64 MB whatever the log's size.
     assert!(after_ulog < 64 * 1024, "peak RSS {after_ulog} kB");
     if keep.is_none() {

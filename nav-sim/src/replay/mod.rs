@@ -185,8 +185,12 @@ impl<T> Decimated<T> {
     }
 }
 
-/// Smallest change of the reference altitude over which the baro's units are judged, m.
-const BARO_UNIT_MIN_SPAN_M: f64 = 5.0;
+/// Smallest change of the autopilot's altitude estimate over which the baro's units are
+/// judged, m.
+const BARO_UNIT_MIN_SPAN_EST_M: f64 = 2.0;
+/// The same against GNSS altitude (its metre-level noise would flatten a fit over a smaller
+/// change), m.
+const BARO_UNIT_MIN_SPAN_GNSS_M: f64 = 10.0;
 /// A baro altitude in m follows a reference altitude in m with a slope in this band (feet:
 /// 3.28; pressure in hPa: ≈ −0.12 per m; in km: 0.001).
 const BARO_UNIT_SLOPE_BAND: std::ops::RangeInclusive<f64> = 0.5..=2.0;
@@ -231,8 +235,8 @@ impl BaroUnitFit {
             self.r_max - self.r_min
         }
     }
-    fn ready(&self) -> bool {
-        self.n >= 20 && self.span_m() >= BARO_UNIT_MIN_SPAN_M
+    fn ready(&self, min_span_m: f64) -> bool {
+        self.n >= 20 && self.span_m() >= min_span_m
     }
     fn slope(&self) -> f64 {
         self.c_rb / self.c_rr
@@ -257,9 +261,9 @@ impl BaroUnitCheck {
             Stream::Estimate => self.vs_estimate.add(r, b),
             _ => self.vs_gnss.add(r, b),
         }
-        let fit = if self.vs_estimate.ready() {
+        let fit = if self.vs_estimate.ready(BARO_UNIT_MIN_SPAN_EST_M) {
             ("autopilot estimate", self.vs_estimate)
-        } else if self.vs_gnss.ready() && self.vs_estimate.n == 0 {
+        } else if self.vs_gnss.ready(BARO_UNIT_MIN_SPAN_GNSS_M) && self.vs_estimate.n == 0 {
             ("GNSS altitude", self.vs_gnss)
         } else {
             return Ok(());
@@ -297,7 +301,7 @@ impl BaroUnitCheck {
             None => json!({
                 "result": "NotDecided",
                 "reason": format!(
-                    "the reference altitude changed by {:.1} m (estimate) / {:.1} m (GNSS), less than {BARO_UNIT_MIN_SPAN_M} m",
+                    "the autopilot's altitude changed by {:.1} m (needed: {BARO_UNIT_MIN_SPAN_EST_M} m), GNSS altitude by {:.1} m (needed without an estimate: {BARO_UNIT_MIN_SPAN_GNSS_M} m)",
                     self.vs_estimate.span_m(), self.vs_gnss.span_m()
                 ),
             }),
@@ -553,10 +557,26 @@ fn prescan(log: &Path) -> Result<PreScan> {
         } else {
             ""
         };
-        bail!("{describe}: IMU `f_down_m_s2` averages {m:.3} over the first samples, expected ≈ −9.8 m/s²{hint}");
+        let what = if log.is_dir() {
+            format!("{}: `f_down_m_s2`", log.join("imu.csv").display())
+        } else {
+            format!(
+                "{}: topic `sensor_combined`: field `accelerometer_m_s2` (rotated to NED by `vehicle_attitude.q`), down component",
+                log.display()
+            )
+        };
+        bail!("{what} averages {m:.3} over the first samples, expected ≈ −9.8 m/s²{hint}");
     }
     if !(-2_000.0..=60_000.0).contains(&first_baro_alt_m) {
-        bail!("{describe}: baro `baro_alt_m` = {first_baro_alt_m} m is outside −2 km … 60 km (wrong units?)");
+        let what = if log.is_dir() {
+            format!("{}: `baro_alt_m`", log.join("baro.csv").display())
+        } else {
+            format!(
+                "{}: topic `vehicle_air_data`: field `baro_alt_meter`",
+                log.display()
+            )
+        };
+        bail!("{what} = {first_baro_alt_m} m is outside −2 km … 60 km (wrong units?)");
     }
     intervals.sort_unstable();
     let med = intervals[intervals.len() / 2];
@@ -876,7 +896,8 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
             settle_s: cfg.settle_s,
         },
         &loops.tally,
-        ap_vs_gnss.0.mean,
+        // ap_vs_gnss is autopilot − GNSS; the figure draws GNSS − autopilot.
+        -ap_vs_gnss.0.mean,
         &out.join("replay.png"),
         &describe,
     )?;
@@ -973,6 +994,7 @@ fn plot_replay(
                 ),
                 y_label: "Δh, m".into(),
                 series: vec![
+                    Series::dashed("GNSS − autopilot (at GNSS samples)", &tg, &gcol(1, g_off), 2),
                     Series::line(
                         "classical − autopilot",
                         &td,
@@ -985,7 +1007,6 @@ fn plot_replay(
                         &dcol(2, mean_or_zero(&tally[1].alt_vs_autopilot)),
                         1,
                     ),
-                    Series::dashed("GNSS − autopilot (at GNSS samples)", &tg, &gcol(1, g_off), 2),
                 ],
                 y_range: None,
             },
@@ -993,9 +1014,9 @@ fn plot_replay(
                 title: format!("vertical-velocity difference to the autopilot at its samples ({settle})"),
                 y_label: "ΔV_up, m/s".into(),
                 series: vec![
+                    Series::dashed("GNSS − autopilot (at GNSS samples)", &tg, &gcol(2, 0.0), 2),
                     Series::line("classical − autopilot", &td, &dcol(3, 0.0), 0),
                     Series::line("aided − autopilot", &td, &dcol(4, 0.0), 1),
-                    Series::dashed("GNSS − autopilot (at GNSS samples)", &tg, &gcol(2, 0.0), 2),
                 ],
                 y_range: None,
             },
