@@ -124,7 +124,10 @@ fn main() -> Result<()> {
                     ins["free"]["attitude_vs_autopilot"],
                     ins["relevelled"]["attitude_vs_autopilot"]
                 ),
-                _ => println!("INS not available: {}", ins["detail"]),
+                _ => println!(
+                    "strapdown INS not run ({}): {}; the vertical loops ran",
+                    ins["reason"], ins["detail"]
+                ),
             }
             let gaps: Vec<String> = summary["streams"]
                 .as_object()

@@ -1107,16 +1107,13 @@ impl ULogLog {
 
     fn take(&mut self, msg: yule_log::model::msg::UlogMessage) -> Result<()> {
         use yule_log::model::msg::UlogMessage;
-        match msg {
-            UlogMessage::LoggedData(data) => {
-                let t_us = data.data.timestamp.unwrap_or(data.timestamp);
-                if let Some(ev) = self.map(&data.data, t_us)? {
-                    self.newest_us = self.newest_us.max(t_us);
-                    self.arrivals += 1;
-                    self.held.push(Held(ev, self.arrivals));
-                }
+        if let UlogMessage::LoggedData(data) = msg {
+            let t_us = data.data.timestamp.unwrap_or(data.timestamp);
+            if let Some(ev) = self.map(&data.data, t_us)? {
+                self.newest_us = self.newest_us.max(t_us);
+                self.arrivals += 1;
+                self.held.push(Held(ev, self.arrivals));
             }
-            _ => {}
         }
         Ok(())
     }
