@@ -1148,3 +1148,47 @@ fn hour_long_logs_replay_in_constant_memory() {
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
+
+/// `nan` in a ULog field the loops read is refused by the loops by name and listed by topic,
+/// field and first time stamp.
+#[test]
+fn nan_values_in_a_ulog_are_refused_and_listed() {
+    let d = std::fs::read(shipped("px4-sitl-hop/px4_sitl_hop.ulg")).unwrap();
+    let msgs = ulog_messages(&d);
+    let ids = msg_ids(&msgs, "vehicle_air_data");
+    let air: Vec<usize> = msgs
+        .iter()
+        .enumerate()
+        .filter(|(_, (t, p))| *t == b'D' && ids.contains(&data_id(p)))
+        .map(|(k, _)| k)
+        .collect();
+    let hit = [air[300], air[301], air[400]];
+    // `baro_alt_meter` follows timestamp, timestamp_sample (u64) and baro_device_id (u32).
+    let at = 2 + 8 + 8 + 4;
+    let log = edited_ulog("nan-baro", |k, _, p| {
+        let mut p = p.to_vec();
+        if hit.contains(&k) {
+            p[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        }
+        Some(p)
+    });
+    let out = log.parent().unwrap().join("out");
+    let s = replay(&log, &config("px4-sitl-hop"), &out).unwrap();
+    let found = s["log_findings"]["non_finite_values"].as_array().unwrap();
+    assert_eq!(found.len(), 1, "{found:?}");
+    assert_eq!(found[0]["topic_field"], "vehicle_air_data.baro_alt_meter");
+    assert_eq!(num(&found[0], &["samples"]), 3.0);
+    for name in ["classical", "aided"] {
+        let refused = &s["loops"][name]["aid_samples_refused"];
+        let n: f64 = refused
+            .as_object()
+            .unwrap()
+            .iter()
+            .filter(|(k, _)| k.contains("NonFiniteInput"))
+            .map(|(_, v)| v.as_f64().unwrap())
+            .sum();
+        assert_eq!(n, 3.0, "{name}: {refused}");
+    }
+    check_loops(&s, 1.0, 0.5);
+    let _ = std::fs::remove_dir_all(log.parent().unwrap());
+}

@@ -253,7 +253,8 @@ struct BaroUnitCheck {
 
 impl BaroUnitCheck {
     /// Adds a pair; errors once the slope is decided and outside the band.
-    fn add(&mut self, reference: Stream, r: f64, b: f64, baro_file: &str) -> Result<()> {
+    /// `baro_field` names the file or topic and the field (messages).
+    fn add(&mut self, reference: Stream, r: f64, b: f64, baro_field: &str) -> Result<()> {
         if self.verdict.is_some() {
             return Ok(());
         }
@@ -283,7 +284,7 @@ impl BaroUnitCheck {
                 ""
             };
             bail!(
-                "{baro_file}: `baro_alt_m` changes {k:.4} m per m of the {} over {:.1} m of altitude change, expected ≈ 1{hint}",
+                "{baro_field} changes {k:.4} m per m of the {} over {:.1} m of altitude change, expected ≈ 1{hint}",
                 fit.0,
                 fit.1.span_m()
             );
@@ -683,10 +684,13 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
     let mut gnss_diff: Decimated<[f64; 3]> = Decimated::new(0.05);
     let mut baro_units = BaroUnitCheck::default();
     let mut latest_baro_t: Option<Timestamp> = None;
-    let baro_file = if log.is_dir() {
-        log.join("baro.csv").display().to_string()
+    let baro_field = if log.is_dir() {
+        format!("{}: `baro_alt_m`", log.join("baro.csv").display())
     } else {
-        format!("{}: topic `vehicle_air_data`", log.display())
+        format!(
+            "{}: topic `vehicle_air_data`: field `baro_alt_meter`",
+            log.display()
+        )
     };
     let settle_us = (cfg.settle_s.max(0.0) * 1e6) as u64;
     let settled = |t: Timestamp| {
@@ -727,7 +731,7 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
             } => {
                 latest_gnss = (alt_m, -vd_m_s);
                 if fresh(latest_baro_t, t) {
-                    baro_units.add(Stream::Gnss, alt_m, latest_baro, &baro_file)?;
+                    baro_units.add(Stream::Gnss, alt_m, latest_baro, &baro_field)?;
                 }
                 if latest_est.0.is_finite() {
                     let s = t.signed_seconds_since::<f64>(pre.first_imu);
@@ -756,7 +760,7 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
             } => {
                 latest_est = (alt_m, -vd_m_s);
                 if fresh(latest_baro_t, t) {
-                    baro_units.add(Stream::Estimate, alt_m, latest_baro, &baro_file)?;
+                    baro_units.add(Stream::Estimate, alt_m, latest_baro, &baro_field)?;
                 }
                 let (c, a) = (&loops.tally[0], &loops.tally[1]);
                 let s = t.signed_seconds_since::<f64>(pre.first_imu);

@@ -770,6 +770,8 @@ pub struct ULogLog {
     /// The file ends inside a message (a log cut short, e.g. by a power loss): the time of
     /// the last complete sample, µs.
     truncated_after_us: Option<u64>,
+    /// Values the loops read that are not finite: (topic.field) → (count, first time stamp µs).
+    non_finite: std::collections::BTreeMap<&'static str, (u64, u64)>,
 }
 
 /// The fields the replay reads from each required topic (messages).
@@ -812,6 +814,7 @@ impl ULogLog {
             last_t: [None; 5],
             seen: [false; 5],
             truncated_after_us: None,
+            non_finite: std::collections::BTreeMap::new(),
         })
     }
 
@@ -1006,7 +1009,7 @@ impl ULogLog {
         self.last_t[k] = Some(t_us);
         self.seen[k] = true;
         let t = Timestamp::from_micros(t_us);
-        Ok(match k {
+        let ev = match k {
             0 => {
                 let Some(q) = self.attitude else {
                     return Ok(None); // no attitude yet: the down component is unknown
@@ -1057,7 +1060,37 @@ impl ULogLog {
                     v_ne,
                 })
             }
-        })
+        };
+        if let Some(ev) = &ev {
+            self.note_non_finite(ev, t_us);
+        }
+        Ok(ev)
+    }
+
+    /// Counts the values the loops read that are not finite, by topic and field.
+    fn note_non_finite(&mut self, ev: &LogEvent, t_us: u64) {
+        let fields: [(&'static str, f64); 2] = match *ev {
+            LogEvent::Imu { f_down_m_s2, .. } => [
+                ("sensor_combined.accelerometer_m_s2", f_down_m_s2),
+                ("", 0.0),
+            ],
+            LogEvent::Baro { alt_m, .. } => [("vehicle_air_data.baro_alt_meter", alt_m), ("", 0.0)],
+            LogEvent::Gnss { alt_m, vd_m_s, .. } => [
+                ("vehicle_gps_position.altitude_msl_m", alt_m),
+                ("vehicle_gps_position.vel_d_m_s", vd_m_s),
+            ],
+            LogEvent::Estimate { alt_m, vd_m_s, .. } => [
+                ("vehicle_local_position.z", alt_m),
+                ("vehicle_local_position.vz", vd_m_s),
+            ],
+            LogEvent::Attitude { .. } => return,
+        };
+        for (name, v) in fields {
+            if !v.is_finite() {
+                let e = self.non_finite.entry(name).or_insert((0, t_us));
+                e.0 += 1;
+            }
+        }
     }
 
     /// Reads until an event can be released from the reorder buffer (or the file ends).
@@ -1137,6 +1170,9 @@ impl LogSource for ULogLog {
     }
     fn findings(&self) -> serde_json::Value {
         serde_json::json!({
+            "non_finite_values": self.non_finite.iter().map(|(k, (n, t))| serde_json::json!({
+                "topic_field": k, "samples": n, "first_timestamp_us": t,
+            })).collect::<Vec<_>>(),
             "truncated": self.truncated_after_us.map(|t| serde_json::json!({
                 "note": "the file ends inside a message (a log cut short): replayed up to the last complete one",
                 "last_sample_us": t,
