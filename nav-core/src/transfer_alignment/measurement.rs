@@ -12,6 +12,7 @@
 //! master specific force before matching; the flexure terms cannot be (the proposed filter models
 //! the largest one, `L_0 × θ̈_f`; the flight configuration also the terms a manoeuvre excites,
 //! `([ω̇×] + [ω×]²)[L_0×] θ_f + 2[ω×][L_0×] θ̇_f`, [`h_row_flight`]).
+use super::config::MAX_MISALIGNMENT_RAD;
 use super::model::{has_accel_bias, FlexureModel, BIAS_STATE};
 use crate::math::kalman::SparseRow;
 use crate::time::Timestamp;
@@ -262,22 +263,43 @@ pub fn h_row_flight<T: Real, const K: usize, const M: usize>(
     h
 }
 
+/// θ̂ with each axis bounded to the small-angle range ±[`MAX_MISALIGNMENT_RAD`]: the value the
+/// flight configuration's second-order terms are built from (they stay bounded, and finite,
+/// when the estimate has left the model: the filter then reports `NeedsReinitialisation`).
+#[inline(always)]
+pub fn bounded_misalignment<T: Real>(theta: &Vector3<T>) -> Vector3<T> {
+    let l = T::lit(MAX_MISALIGNMENT_RAD);
+    theta.map(|v| v.max(-l).min(l))
+}
+
 /// Row `i` (0-2: df_X..Z) of the flight configuration's specific-force Jacobian at the
-/// predicted misalignment θ̂: the derivative of its measurement model
+/// predicted misalignment θ̂ (unbounded, as in the state): the derivative of the measurement
+/// model the filter predicts with,
 ///
 /// ```text
-/// h_i(x) = (−[f_s×] θ + ½ θ × (θ × f_s) + [L_0×] θ̈_f
-///           + ([ω̇×] + [ω×]²) [L_0×] θ_f + 2 [ω×] [L_0×] θ̇_f + b)_i
-/// ∂h/∂θ  = −[f_s×] + ½ ((θ̂·f_s) I + θ̂ f_sᵀ − 2 f_s θ̂ᵀ)
+/// h_i(x) = (−[f_s×] θ + ½ c × (c × f_s) + [L_0×] θ̈_f
+///           + ([ω̇×] + [ω×]²) [L_0×] θ_f + 2 [ω×] [L_0×] θ̇_f + b)_i ,   c = bound(θ)
+/// ∂h/∂θ  = −[f_s×] + ½ ((c·f_s) I + c f_sᵀ − 2 f_s cᵀ) D,   D = diag(∂c_a/∂θ_a)
 /// ```
 ///
-/// (θ × (θ × f) = θ (θ·f) − f |θ|²). The linear row ([`h_row_flight`]) predicts the
-/// measurement once the ½ term is subtracted, but as gain its θ columns miss the second term,
-/// of relative size |θ̂| (1.5 % with the paper's 0.5° mounting σ per axis, a few times the
-/// final σ of θ): the covariance would then credit the df rows with an information about θ
-/// they do not carry. The flexure terms of a manoeuvre are linear and as in [`h_row_flight`].
-/// Entries in ascending order per axis chain `[θ, θ_f, θ̇_f, θ̈_f, b]` (`K` = 5): per axis θ,
-/// θ_f, θ̇_f, then θ̈_f (a ≠ i) or b_i (a = i): 12 entries.
+/// (θ × (θ × f) = θ (θ·f) − f |θ|²; `c` is [`bounded_misalignment`], whose derivative `D` is 1
+/// on an axis inside the small-angle range and 0 beyond it). The linear row
+/// ([`h_row_flight`]) predicts the measurement once the ½ term is subtracted, but as gain its θ
+/// columns miss the second term, of relative size |θ̂| (1.5 % with the paper's 0.5° mounting σ
+/// per axis, a few times the final σ of θ): the covariance would then credit the df rows with
+/// an information about θ they do not carry.
+///
+/// `D` matters: beyond the bound the predicted ½ term is constant in θ, and a gain built from
+/// the ½ term's slope at the bound (as if θ̂ were there) no longer matches the innovation's
+/// dependence on the state. With `f_s` of tens of m/s² that mismatch is of the order of the
+/// linear row itself, and the update then amplifies the state's error instead of shrinking it:
+/// a filter thrown out of its model (the stress campaign's hostile corners: flexure τ 0.05 s at
+/// 500-1000 Hz with a truth that has no lever-arm flexure) ran away to non-finite values, in
+/// f64 as in f32.
+///
+/// The flexure terms of a manoeuvre are linear and as in [`h_row_flight`]. Entries in
+/// ascending order per axis chain `[θ, θ_f, θ̇_f, θ̈_f, b]` (`K` = 5): per axis θ, θ_f, θ̇_f,
+/// then θ̈_f (a ≠ i) or b_i (a = i): 12 entries.
 #[inline(always)]
 pub fn h_row_flight_df<T: Real, const K: usize>(
     i: usize,
@@ -289,26 +311,33 @@ pub fn h_row_flight_df<T: Real, const K: usize>(
 ) -> SparseRow<T, 12> {
     let mut h = SparseRow::<T, 12>::new();
     let half = T::lit(0.5);
+    let limit = T::lit(MAX_MISALIGNMENT_RAD);
+    let c = bounded_misalignment(theta);
     let s = skew_row(f_s, i);
     let lever = skew_row(lever_arm_m, i);
     let l_x = crate::math::rotation::skew(lever_arm_m);
     let w_x = crate::math::rotation::skew(omega_m);
     let a_theta_f = (crate::math::rotation::skew(omega_dot_m) + w_x * w_x) * l_x;
     let a_rate = w_x * l_x * T::lit(2.0);
-    let theta_dot_f = theta.dot(f_s);
-    let (th_i, f_i) = (
-        theta.get(i).copied().unwrap_or_else(T::zero),
+    let c_dot_f = c.dot(f_s);
+    let (c_i, f_i) = (
+        c.get(i).copied().unwrap_or_else(T::zero),
         f_s.get(i).copied().unwrap_or_else(T::zero),
     );
     // At most 4 entries per axis: `push` cannot fail.
     for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
-        let (th_a, f_a) = (
-            theta.get(a).copied().unwrap_or_else(T::zero),
+        let (c_a, f_a, th_a) = (
+            c.get(a).copied().unwrap_or_else(T::zero),
             f_s.get(a).copied().unwrap_or_else(T::zero),
+            theta.get(a).copied().unwrap_or_else(T::zero),
         );
-        let mut d = half * (th_i * f_a - T::lit(2.0) * f_i * th_a);
+        let mut d = half * (c_i * f_a - T::lit(2.0) * f_i * c_a);
         if a == i {
-            d += half * theta_dot_f;
+            d += half * c_dot_f;
+        }
+        // ∂c_a/∂θ_a: 0 beyond the bound.
+        if th_a.abs() > limit {
+            d = T::zero();
         }
         let _ = h.push(K * a, d - v);
         let _ = h.push(
@@ -445,6 +474,38 @@ mod tests {
                     "row {i} col {j}: {fd} vs {}",
                     row[j]
                 );
+            }
+            // Beyond the small-angle bound the model's ½ term is built from the bounded θ̂
+            // (constant in that axis): the Jacobian is that model's derivative, so its θ column
+            // of that axis is the linear row's.
+            let lim = MAX_MISALIGNMENT_RAD;
+            let bounded_model = |x: &SVector<f64, 15>| -> Vector3<f64> {
+                let th = Vector3::new(x[0], x[K], x[2 * K]);
+                let c = bounded_misalignment(&th);
+                -f.cross(&th) + c.cross(&c.cross(&f)) * 0.5
+            };
+            let mut xo = x;
+            xo[K] = 1.5 * lim; // θ_Y beyond the bound
+            xo[2 * K] = -1.2 * lim; // θ_Z beyond it on the other side
+            let th_out = Vector3::new(xo[0], xo[K], xo[2 * K]);
+            let row = h_row_flight_df::<f64, K>(i, &th_out, &z, &z, &f, &l0).to_dense::<15>();
+            let linear0 = h_row_flight::<f64, K, 12>(3 + i, &z, &z, &f, &l0).to_dense::<15>();
+            for a in 0..3 {
+                let j = a * K;
+                let (mut xp, mut xm) = (xo, xo);
+                xp[j] += eps;
+                xm[j] -= eps;
+                let fd = (bounded_model(&xp)[i] - bounded_model(&xm)[i]) / (2.0 * eps);
+                assert!(
+                    (fd - row[j]).abs() < 1e-8,
+                    "beyond the bound, row {i} θ axis {a}: {fd} vs {}",
+                    row[j]
+                );
+                if a > 0 {
+                    assert_eq!(row[j], linear0[j], "row {i} θ axis {a} beyond the bound");
+                } else {
+                    assert_ne!(row[j], linear0[j], "row {i} θ_X inside the bound");
+                }
             }
             // At θ̂ = 0 the Jacobian is the linear row, manoeuvre terms included.
             let (w, wd) = (Vector3::new(0.1, -0.4, 0.3), Vector3::new(-0.5, 0.2, 0.9));

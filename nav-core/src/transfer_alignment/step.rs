@@ -1,9 +1,7 @@
 //! The per-epoch work of the filters: the time plan, [`TransferAlignment::step`] (predict and
 //! fuse the six scalar measurements), [`TransferAlignment::propagate`] (prediction only) and
 //! [`TransferAlignment::step_delayed`] (match with the slave history).
-use super::config::{
-    MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_MISALIGNMENT_RAD, MAX_SPECIFIC_FORCE_M_S2,
-};
+use super::config::{MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_SPECIFIC_FORCE_M_S2};
 use super::covariance::{
     condition, fuse_bounded, initial_covariance, predict_cov, predict_state, reinit_flexure,
     set_mount_only,
@@ -11,7 +9,10 @@ use super::covariance::{
 use super::filter::TransferAlignment;
 use super::health::Channel;
 use super::history::SlaveHistory;
-use super::measurement::{h_row_flight, h_row_total, measurement, MasterSample, SlaveSample};
+use super::measurement::{
+    bounded_misalignment, h_row_flight, h_row_flight_df, h_row_total, measurement, MasterSample,
+    SlaveSample,
+};
 use super::model::{has_accel_bias, FlexureModel};
 use crate::contract::Health;
 #[allow(unused_imports)] // doc links
@@ -133,8 +134,13 @@ fn check_ranges<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> Re
 pub(super) fn bounded_theta<T: Real, const K: usize, const N: usize>(
     x: &SVector<T, N>,
 ) -> Vector3<T> {
-    let l = T::lit(MAX_MISALIGNMENT_RAD);
-    let g = |i: usize| x.get(i).copied().unwrap_or_else(T::zero).max(-l).min(l);
+    bounded_misalignment(&theta_of::<T, K, N>(x))
+}
+
+/// θ̂ of the state `x` (unbounded).
+#[inline(always)]
+pub(super) fn theta_of<T: Real, const K: usize, const N: usize>(x: &SVector<T, N>) -> Vector3<T> {
+    let g = |i: usize| x.get(i).copied().unwrap_or_else(T::zero);
     Vector3::new(g(0), g(K), g(2 * K))
 }
 
@@ -356,11 +362,12 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         } else {
             z
         };
-        // The df rows' gain and covariance use the linear row at θ̂ = 0 with the manoeuvre's
-        // flexure terms ([`h_row_flight`]). The second-order model's Jacobian at θ̂
-        // ([`h_row_flight_df`]) made the gain 1-2 % more honest on the default scenarios, but in
-        // f32 under the stress campaign's hostile corners (500-1000 Hz, τ 0.05 s) it let the
-        // state run away; not used until that is understood.
+        // The df rows' gain and covariance use the same second-order model's Jacobian at this
+        // θ̂ ([`h_row_flight_df`]; flight configuration only). It takes θ̂ unbounded: on an axis
+        // beyond the small-angle bound the predicted ½ term no longer depends on θ, and neither
+        // may the gain (a gain from the slope at the bound let a filter thrown out of its model
+        // run away to non-finite values).
+        let theta_hat = theta_of::<T, K, N>(&x);
         let (_, p) = self.buffers();
         let empty = FusionReport {
             innovation: T::zero(),
@@ -381,15 +388,12 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         let omega_m = master.angular_rate_rad_s;
         let omega_dot_m = master.angular_accel_rad_s2;
         // Row capacity: the flight configuration's df rows 12 entries (the bias and the flexure
-        // terms of a manoeuvre, `h_row_flight`), its rate rows 5, the paper filters' rows 4.
+        // terms of a manoeuvre, `h_row_flight`; gain from the Jacobian at θ̂,
+        // `h_row_flight_df`), its rate rows 5, the paper filters' rows 4.
         macro_rules! fuse_row {
             ($row:literal) => {
                 if has_accel_bias::<K>() && $row >= 3 {
-                    fuse_row!(
-                        $row,
-                        12,
-                        h_row_flight::<T, K, 12>($row, &omega_m, &omega_dot_m, &f_h, &lever)
-                    );
+                    fuse_row!($row, flight_df);
                 } else if has_accel_bias::<K>() {
                     fuse_row!(
                         $row,
@@ -402,6 +406,26 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
                         4,
                         h_row_total::<T, K, 4>(model_k, $row, &omega_m, &f_h, &lever)
                     );
+                }
+            };
+            ($row:literal, flight_df) => {
+                if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
+                    // Innovation z − h(x̂): the ½ term is already out of z, the linear row
+                    // predicts the rest; gain and covariance from the Jacobian at θ̂.
+                    let linear =
+                        h_row_flight::<T, K, 12>($row, &omega_m, &omega_dot_m, &f_h, &lever);
+                    let innovation = zi - linear.dot(&x);
+                    let h = h_row_flight_df::<T, K>(
+                        $row % 3,
+                        &theta_hat,
+                        &omega_m,
+                        &omega_dot_m,
+                        &f_h,
+                        &lever,
+                    );
+                    let b = covariance_times_row(p, &h);
+                    let hph = h.dot(&b);
+                    *rep = fuse_bounded(&mut x, p, &b, hph, innovation, r_accel, gate);
                 }
             };
             ($row:literal, $m:literal, $h:expr) => {
