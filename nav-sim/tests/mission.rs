@@ -125,3 +125,32 @@ fn handover_attitude_within_three_sigma() {
         }
     }
 }
+
+/// The release adds no error of its own: from the last carry epoch to the first released one
+/// (0.2 s apart, the EKF predicting from the hand-over) the attitude and vertical-velocity
+/// errors move by less than half their σ in every run. Master samples whose slave
+/// interpolation reaches past the release signal (the missile already dropping, the wing's
+/// flexure gone from its IMU) would kick them by up to several σ.
+#[test]
+fn release_adds_no_error() {
+    let sc = short();
+    let runs = monte_carlo_runs(&sc, &MissionFaults::default(), RUNS, SEED, false, "t").unwrap();
+    for (i, r) in runs.iter().enumerate() {
+        let full = &r.records[0];
+        let k = full
+            .phase
+            .iter()
+            .position(|p| *p == Some(PhaseTag::Released))
+            .unwrap();
+        assert_eq!(full.phase[k - 1], Some(PhaseTag::Carry));
+        for c in [5, 6, 7, 8] {
+            let d = full.err[k][c] - full.err[k - 1][c];
+            assert!(
+                d.abs() <= 0.5 * full.sigma[k][c],
+                "run {i} {}: moved {d} at release, σ {}",
+                COMPONENTS[c],
+                full.sigma[k][c]
+            );
+        }
+    }
+}

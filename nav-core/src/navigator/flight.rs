@@ -621,6 +621,20 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
 
     /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic.
     fn fuse_master(&mut self, m: &MasterNav<T>) -> Result<AidState, NavError> {
+        // A separation signalled at `s` and awaiting the IMU's confirmation: a master sample
+        // whose slave interpolation reaches past `s` (epoch later than one IMU interval before
+        // it) would pair the aircraft on the lever arm with the missile already dropping (the
+        // flexure's motion gone from its IMU); it is not fused (nothing changes, nothing
+        // counted) and the hand-over uses the samples before. Fused again if the IMU does not
+        // confirm the separation.
+        let imu_dt_us = crate::time::seconds_to_micros(self.config.imu_dt_s).unwrap_or(0);
+        if self.separation == SeparationStatus::AwaitingConfirmation
+            && self
+                .signal
+                .is_some_and(|s| m.time.as_micros().saturating_add(imu_dt_us) > s.as_micros())
+        {
+            return Ok(AidState::NotUsedInPhase);
+        }
         let tol = self.ta_tolerance_us();
         let snap = self
             .snapshots

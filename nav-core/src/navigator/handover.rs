@@ -15,12 +15,20 @@
 //!   their covariances add the master's, the attitude error's effect on the lever-arm terms
 //!   (`[(Ĉ l)×] P_φm [(Ĉ l)×]ᵀ`), the lever arm's own uncertainty and the flexure-rate
 //!   estimate's;
-//! * sensor biases and gimbal errors start from their priors (the alignment filter does not
-//!   hand them over: zero estimate, prior variance).
+//! * sensor biases and gimbal errors start from their priors (zero estimate, prior variance);
+//! * the accelerometer bias's correlation with the attitude error: the flight alignment
+//!   estimates θ together with the specific-force-difference bias `b = b_m − b_s` (df =
+//!   θ × f + b: in level flight a tilt and a horizontal bias are the same measurement), so
+//!   their errors are correlated, `P_θb`. The slave's bias `b_s` is the part of `b` its prior
+//!   explains, `E[b_s | b] = −β b` with `β = σ_bs² / (σ_bm² + σ_bs²)`, and (the estimate being
+//!   uncorrelated with its error) `cov(δθ, b_s) = β P_θb`; the EKF's bias error is `b_s` (zero
+//!   estimate), so `cov(φ_s, ∇) = −β C_s^n J_r P_θb`. Without it the EKF treats the tilt and
+//!   the bias as independent and its horizontal velocity σ grows as if their effects added,
+//!   where in truth they largely cancel (`g φ ≈ −∇` along the level axes).
 //!
-//! Cross-covariances between the blocks are neglected (master and alignment errors are
-//! independent; the attitude–velocity coupling through the lever arm is `|ω × l| σ_φm`, below
-//! 10⁻³ m/s for any pylon).
+//! The other cross-covariances between the blocks are neglected (master and alignment errors
+//! are independent; the attitude–velocity coupling through the lever arm is `|ω × l| σ_φm`,
+//! below 10⁻³ m/s for any pylon).
 
 use crate::earth::radii_m;
 use crate::error::{input_finite, NavError};
@@ -29,7 +37,7 @@ use crate::math::rotation::{dcm_to_quat, exp_so3, skew};
 use crate::seeker_ins::{
     InsState, Position, SeekerInsInitial, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
 };
-use crate::transfer_alignment::TransferAlignment;
+use crate::transfer_alignment::{has_accel_bias, TransferAlignment, BIAS_STATE};
 use crate::Real;
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -68,6 +76,13 @@ pub struct AlignmentAtRelease<T> {
     pub flexure_rate_rad_s: Vector3<T>,
     /// Covariance of θ̂̇_f, (rad/s)².
     pub flexure_rate_covariance: Matrix3<T>,
+    /// Cross-covariance of θ̂'s error (rows, rad) with the error of the estimated
+    /// specific-force-difference bias `b = b_m − b_s` (columns, m/s²; master minus slave
+    /// accelerometer bias), rad·m/s². Zero for a filter without that state.
+    pub theta_bias_covariance: Matrix3<T>,
+    /// Prior variance of each axis' specific-force-difference bias in the alignment
+    /// (`σ_bm² + σ_bs²`), (m/s²)². Zero for a filter without that state.
+    pub bias_prior_variance_m2_s4: T,
 }
 
 impl<T: Real> AlignmentAtRelease<T> {
@@ -86,6 +101,21 @@ impl<T: Real> AlignmentAtRelease<T> {
                     .copied()
                     .unwrap_or_else(T::zero)
             }),
+            theta_bias_covariance: if has_accel_bias::<K>() {
+                Matrix3::from_fn(|i, j| {
+                    p.get((i, 3 * BIAS_STATE + j))
+                        .copied()
+                        .unwrap_or_else(T::zero)
+                })
+            } else {
+                Matrix3::zeros()
+            },
+            bias_prior_variance_m2_s4: if has_accel_bias::<K>() {
+                let s = f.config().accel_bias_sigma_m_s2;
+                s * s
+            } else {
+                T::zero()
+            },
         }
     }
 }
@@ -236,6 +266,15 @@ pub fn hand_over<T: Real>(
     let sb = priors.gimbal_bias_sigma_rad * priors.gimbal_bias_sigma_rad;
     p0.fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS)
         .fill_diagonal(ab);
+    // Attitude–accelerometer-bias cross-covariance (module doc): −β C_s^n J_r P_θb, β the
+    // slave's share of the difference bias's prior variance (at most 1).
+    if alignment.bias_prior_variance_m2_s4 > T::zero() {
+        let beta = (ab / alignment.bias_prior_variance_m2_s4).min(T::one());
+        let p_phi_b = -(a * alignment.theta_bias_covariance) * beta;
+        p0.fixed_view_mut::<3, 3>(ATT, ACC_BIAS).copy_from(&p_phi_b);
+        p0.fixed_view_mut::<3, 3>(ACC_BIAS, ATT)
+            .copy_from(&p_phi_b.transpose());
+    }
     p0.fixed_view_mut::<3, 3>(GYRO_BIAS, GYRO_BIAS)
         .fill_diagonal(gb);
     p0.fixed_view_mut::<2, 2>(GIMBAL, GIMBAL).fill_diagonal(sb);
@@ -309,6 +348,18 @@ fn validate<T: Real>(
         &alignment.flexure_rate_covariance,
         "alignment.flexure_rate_covariance",
     )?;
+    if !all_finite(alignment.theta_bias_covariance.as_slice()) {
+        return Err(NavError::NonFiniteInput {
+            input: "alignment.theta_bias_covariance",
+        });
+    }
+    let bias_var = alignment.bias_prior_variance_m2_s4;
+    input_finite("alignment.bias_prior_variance_m2_s4", bias_var)?;
+    if bias_var < T::zero() {
+        return Err(NavError::InputOutOfRange {
+            input: "alignment.bias_prior_variance_m2_s4",
+        });
+    }
     finite3(&lever.nominal_m, "lever.nominal_m")?;
     sigma3(&lever.sigma_m, "lever.sigma_m")
 }
@@ -343,6 +394,10 @@ mod tests {
             flexure_rad: Vector3::new(0.004, -0.001, 0.001),
             flexure_rate_rad_s: Vector3::new(0.03, 0.005, -0.004),
             flexure_rate_covariance: Matrix3::from_diagonal_element(1e-6),
+            // θ's error correlated with the difference bias's (P_bb 5e-7 (m/s²)², ρ ≈ −0.5 on
+            // the level axes).
+            theta_bias_covariance: Matrix3::from_diagonal(&Vector3::new(-1.1e-7, -1.5e-7, 2e-8)),
+            bias_prior_variance_m2_s4: 1e-6 + 0.25e-3 * 0.25e-3,
         }
     }
 
@@ -500,6 +555,79 @@ mod tests {
         }
         let out = hand_over(&master(), &a, &LEVER, &PRIORS).unwrap();
         assert!(out.covariance.cholesky().is_some());
+        // After one step the θ and difference-bias errors are correlated; the hand-over reads
+        // the filter's cross block and its bias prior.
+        let mut f = f;
+        let t = crate::time::Timestamp::from_micros(10_000);
+        let ms = crate::transfer_alignment::MasterSample {
+            time: t,
+            angular_rate_rad_s: Vector3::new(0.1, -0.05, 0.2),
+            angular_accel_rad_s2: Vector3::zeros(),
+            specific_force_m_s2: Vector3::new(1.0, 2.0, -9.8),
+        };
+        let ss = crate::transfer_alignment::SlaveSample {
+            time: t,
+            angular_rate_rad_s: Vector3::new(0.1, -0.05, 0.2),
+            specific_force_m_s2: Vector3::new(1.0, 2.0, -9.8),
+        };
+        f.step(&ms, &ss).unwrap();
+        let a = AlignmentAtRelease::from_filter(&f);
+        let p = f.covariance();
+        for i in 0..3 {
+            for j in 0..3 {
+                assert_eq!(a.theta_bias_covariance[(i, j)], p[(i, 12 + j)]);
+            }
+        }
+        assert!(a.theta_bias_covariance.abs().max() > 0.0);
+        assert_eq!(
+            a.bias_prior_variance_m2_s4,
+            c.accel_bias_sigma_m_s2 * c.accel_bias_sigma_m_s2
+        );
+        let out = hand_over(&master(), &a, &LEVER, &PRIORS).unwrap();
+        assert!(out.covariance.cholesky().is_some());
+    }
+
+    /// The attitude–accelerometer-bias block is `−β C_s^n J_r P_θb` (module doc), its
+    /// transpose below the diagonal, and zero without a difference-bias state.
+    #[test]
+    fn attitude_bias_cross_covariance() {
+        let a = alignment();
+        let out = hand_over(&master(), &a, &LEVER, &PRIORS).unwrap();
+        let c_s_n = master().c_m_n * exp_so3(&a.theta_rad);
+        let beta = PRIORS.accel_bias_sigma_m_s2.powi(2) / a.bias_prior_variance_m2_s4;
+        let want = -(c_s_n * right_jacobian(&a.theta_rad) * a.theta_bias_covariance) * beta;
+        let got = out
+            .covariance
+            .fixed_view::<3, 3>(ATT, ACC_BIAS)
+            .into_owned();
+        assert!(
+            (got - want).norm() < 1e-12 * want.norm().max(1e-30),
+            "{got} vs {want}"
+        );
+        assert!(want.norm() > 0.0);
+        let lower = out
+            .covariance
+            .fixed_view::<3, 3>(ACC_BIAS, ATT)
+            .into_owned();
+        assert_eq!(lower, got.transpose());
+        assert!(out.covariance.cholesky().is_some());
+        let mut none = a;
+        none.bias_prior_variance_m2_s4 = 0.0;
+        let out = hand_over(&master(), &none, &LEVER, &PRIORS).unwrap();
+        let z = out
+            .covariance
+            .fixed_view::<3, 3>(ATT, ACC_BIAS)
+            .into_owned();
+        assert_eq!(z, Matrix3::zeros());
+        // A negative prior variance is refused, named.
+        let mut bad = a;
+        bad.bias_prior_variance_m2_s4 = -1.0;
+        assert_eq!(
+            hand_over(&master(), &bad, &LEVER, &PRIORS).unwrap_err(),
+            NavError::InputOutOfRange {
+                input: "alignment.bias_prior_variance_m2_s4"
+            }
+        );
     }
 
     /// P0 is symmetric and positive definite; refused inputs say which.
@@ -551,6 +679,8 @@ mod tests {
             flexure_rad: a0.flexure_rad.cast(),
             flexure_rate_rad_s: a0.flexure_rate_rad_s.cast(),
             flexure_rate_covariance: a0.flexure_rate_covariance.cast(),
+            theta_bias_covariance: a0.theta_bias_covariance.cast(),
+            bias_prior_variance_m2_s4: a0.bias_prior_variance_m2_s4 as f32,
         };
         let l32 = LeverArm::<f32> {
             nominal_m: LEVER.nominal_m.cast(),

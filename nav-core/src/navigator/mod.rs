@@ -29,6 +29,8 @@
 //!     flexure_rad: Vector3::zeros(),
 //!     flexure_rate_rad_s: Vector3::zeros(),
 //!     flexure_rate_covariance: Matrix3::from_diagonal_element(1e-6),
+//!     theta_bias_covariance: Matrix3::zeros(),
+//!     bias_prior_variance_m2_s4: 0.0,
 //! };
 //! let lever = LeverArm { nominal_m: Vector3::new(1.5, 4.0, 0.6), sigma_m: Vector3::from_element(0.01) };
 //! let priors = HandoverPriors { accel_bias_sigma_m_s2: 1e-3, gyro_bias_sigma_rad_s: 5e-8, gimbal_bias_sigma_rad: 7e-4 };
@@ -83,7 +85,13 @@
 //! What carries over: position, velocity, attitude and their covariance (the hand-over's),
 //! gyro and gimbal biases from their priors. The flight alignment's estimate of the
 //! specific-force-difference bias is **not** handed over: the EKF's accelerometer bias starts
-//! from its prior (`priors.accel_bias_sigma_m_s2`), zero estimate.
+//! from its prior (`priors.accel_bias_sigma_m_s2`), zero estimate, but with the attitude–bias
+//! cross-covariance the alignment's joint estimate of θ and that bias implies ([`handover`]).
+//! While a signalled separation awaits the IMU's confirmation, master samples whose epoch is
+//! within one IMU interval of the signal's or later are not fused (`NotUsedInPhase`): the
+//! slave interpolated at that epoch is already the dropping missile, no longer the wing's
+//! (the flexure's motion gone), and one such sample moved the hand-over's attitude and
+//! vertical velocity by several σ.
 //!
 //! **Released → midcourse** after `coast_s`. **Midcourse**: [`BaroDamping::Ekf`] fuses the
 //! baro altitude as a scalar EKF measurement with its correlated error as an 18th state kept

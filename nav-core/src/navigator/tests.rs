@@ -682,6 +682,65 @@ fn unconfirmed_and_timeout<T: Real>() {
     assert_eq!(nav.phase(), Phase::Carry);
 }
 
+/// While a signalled separation awaits the IMU's confirmation, a master sample whose epoch is
+/// later than one IMU interval before the signal's is not fused (nothing counted, the
+/// alignment untouched); earlier ones are; after the window closes unconfirmed, all are again.
+fn master_after_signal<T: Real>() {
+    let (mut nav, mut world) = carry_for::<T>(3.0, 100.0);
+    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
+    let mut signal = None;
+    let mut prev: Option<(SeparationStatus, u32)> = None;
+    let (mut early, mut withheld, mut resumed) = (0, 0, 0);
+    for k in 0..60 {
+        let inc = world.step(&lever);
+        let m = world.master_sample::<T>();
+        let sig = *signal.get_or_insert(inc.time);
+        let aids = Aids {
+            master: m.as_ref(),
+            separation: (k == 0).then_some(inc.time),
+            ..Aids::NONE
+        };
+        let ta = format!("{:?}", nav.alignment());
+        let r = nav.tick(&tick_of(&inc), &aids).unwrap();
+        let awaiting = prev.is_some_and(|p| p.0 == SeparationStatus::AwaitingConfirmation);
+        let fused_before = prev.map(|p| p.1);
+        prev = Some((r.degradation.separation, r.master.counters.fused));
+        let Some(m) = m else { continue };
+        if awaiting && m.time.as_micros() + DT_US > sig.as_micros() {
+            assert_eq!(r.master.state, AidState::NotUsedInPhase, "k {k}");
+            assert_eq!(Some(r.master.counters.fused), fused_before);
+            assert_eq!(format!("{:?}", nav.alignment()), ta);
+            withheld += 1;
+        } else {
+            assert_eq!(r.master.state, AidState::Fused, "k {k}");
+            if awaiting || k == 0 {
+                early += 1;
+            } else {
+                resumed += 1;
+            }
+        }
+    }
+    assert_eq!(
+        prev.map(|p| p.0),
+        Some(SeparationStatus::SeparationUnconfirmed)
+    );
+    // The samples of the latency before the signal, the window's, the ones after it.
+    assert!(
+        early >= 1 && withheld >= 10 && resumed >= 10,
+        "{early} {withheld} {resumed}"
+    );
+}
+
+#[test]
+fn master_after_signal_f64() {
+    master_after_signal::<f64>();
+}
+
+#[test]
+fn master_after_signal_f32() {
+    master_after_signal::<f32>();
+}
+
 #[test]
 fn unconfirmed_separation_and_master_timeout_f64() {
     unconfirmed_and_timeout::<f64>();

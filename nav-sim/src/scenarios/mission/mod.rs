@@ -136,6 +136,7 @@ fn run_scenario(ctx: &Context) -> Result<Value> {
     let find = |n: &str| stats.iter().find(|s| s.name == n);
     // Figures.
     if let Some(full) = find("full") {
+        report::error_csv(full, &ctx.out_dir.join("errors.csv"))?;
         report::error_figure(
             full,
             &format!(

@@ -16,6 +16,8 @@ pub const COMPONENTS: [&str; 9] = [
 ];
 /// States in the NEES.
 pub const NAV_DOF: usize = 9;
+/// The state groups of the per-group NEES (3 states each: components `3g..3g + 3`).
+pub const GROUPS: [&str; 3] = ["position", "velocity", "attitude"];
 
 /// The navigator's phase as recorded (mirrors `nav_core::navigator::Phase`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash)]
@@ -71,6 +73,8 @@ pub struct FlightRecord {
     pub sigma: Vec<[f64; 9]>,
     /// NEES of the 9 states and `e²/σ²` per component, per epoch.
     pub consistency: RunConsistency,
+    /// NEES of the position, velocity and attitude 3 × 3 blocks ([`GROUPS`]), per epoch.
+    pub group_nees: Vec<[f64; 3]>,
     /// The hand-over (none if the run never released through the alignment).
     pub handover: Option<HandoverSample>,
     /// Phase transitions: time, new phase.
@@ -102,6 +106,9 @@ pub struct VariantStats {
     /// Per phase (by the modal phase of the epochs): its consistency (no settling time) and
     /// its span, s.
     pub phases: Vec<(PhaseTag, Consistency, (f64, f64))>,
+    /// Per phase (as `phases`): the ensemble mean of each group's NEES ([`GROUPS`], 3 states
+    /// each) over runs and the phase's epochs.
+    pub group_nees: Vec<(PhaseTag, [f64; 3])>,
     /// Hand-over samples of the runs.
     pub handover: Vec<HandoverSample>,
     /// Mean time of each phase's first entry over the runs that entered it, s.
@@ -171,6 +178,24 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
             ))
         })
         .collect();
+    let group_nees = PhaseTag::ALL
+        .iter()
+        .filter_map(|p| {
+            let keep: Vec<usize> = (0..n).filter(|&k| phase[k] == Some(*p)).collect();
+            if keep.is_empty() {
+                return None;
+            }
+            let count = (keep.len() * records.len()) as f64;
+            let mean: [f64; 3] = std::array::from_fn(|g| {
+                records
+                    .iter()
+                    .map(|r| keep.iter().map(|&k| r.group_nees[k][g]).sum::<f64>())
+                    .sum::<f64>()
+                    / count
+            });
+            Some((*p, mean))
+        })
+        .collect();
     let phase_entry_s = PhaseTag::ALL
         .iter()
         .map(|p| {
@@ -200,6 +225,7 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
         sigma,
         consistency,
         phases,
+        group_nees,
         handover: records.iter().filter_map(|r| r.handover).collect(),
         phase_entry_s,
         aid_counts,
@@ -274,6 +300,17 @@ impl VariantStats {
         let mut phases = Map::new();
         for (p, c, (a, b)) in &self.phases {
             let comp = |i: usize| sig(self.phase_rms(*p, i), 4);
+            let groups =
+                self.group_nees
+                    .iter()
+                    .find(|(q, _)| q == p)
+                    .map_or(Value::Null, |(_, g)| {
+                        let mut m = Map::new();
+                        for (name, v) in GROUPS.iter().zip(g) {
+                            m.insert((*name).into(), json!(sig(*v, 4)));
+                        }
+                        Value::Object(m)
+                    });
             phases.insert(
                 p.name().into(),
                 json!({
@@ -287,6 +324,7 @@ impl VariantStats {
                     },
                     "max_rms_down_m": sig(self.phase_max_rms(*p, 2), 4),
                     "consistency": c.summary(),
+                    "group_nees_mean": groups,
                 }),
             );
         }
@@ -347,6 +385,35 @@ fn boundary_series(b: &[(f64, PhaseTag)], lo: f64, hi: f64) -> Vec<Series> {
             )
         })
         .collect()
+}
+
+/// `errors.csv`: per epoch, the modal phase, the ensemble RMS error and the navigator's σ
+/// (root-mean-square over runs) of the 9 components ([`COMPONENTS`]; m, m/s, rad).
+pub fn error_csv(v: &VariantStats, path: &Path) -> Result<()> {
+    let mut out = String::from("t_s,phase");
+    for c in COMPONENTS {
+        out.push_str(&format!(",rms_{c}"));
+    }
+    for c in COMPONENTS {
+        out.push_str(&format!(",sigma_{c}"));
+    }
+    out.push('\n');
+    for k in 0..v.t_s.len() {
+        out.push_str(&format!(
+            "{},{}",
+            v.t_s[k],
+            v.phase[k].map_or("none", PhaseTag::name)
+        ));
+        for c in 0..9 {
+            out.push_str(&format!(",{:.6e}", v.rms[c][k]));
+        }
+        for c in 0..9 {
+            out.push_str(&format!(",{:.6e}", v.sigma[c][k]));
+        }
+        out.push('\n');
+    }
+    std::fs::write(path, out)?;
+    Ok(())
 }
 
 /// `errors.png`: RMS error and the navigator's σ of position, velocity and attitude (per

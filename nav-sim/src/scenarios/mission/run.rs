@@ -315,6 +315,12 @@ fn record<T: Real>(
     let ev = nalgebra::SVector::<f64, 9>::from(e);
     let nees = p.try_inverse().map_or(f64::NAN, |pi| ev.dot(&(pi * ev)));
     let es: [(f64, f64); 9] = std::array::from_fn(|i| (e[i], sigma[i]));
+    let group: [f64; 3] = std::array::from_fn(|g| {
+        let pg: Matrix3<f64> = p.fixed_view::<3, 3>(3 * g, 3 * g).into_owned();
+        let eg = Vector3::new(e[3 * g], e[3 * g + 1], e[3 * g + 2]);
+        pg.try_inverse().map_or(f64::NAN, |pi| eg.dot(&(pi * eg)))
+    });
+    out.group_nees.push(group);
     let t = truth.missile.t_s[k];
     out.t_s.push(t);
     out.phase.push(Some(phase_tag(phase)));
