@@ -13,11 +13,7 @@
 #![no_std]
 #![no_main]
 
-#[path = "../src/logger.rs"]
-mod logger;
-
 use cortex_m_rt::entry;
-use cortex_m_semihosting::debug;
 use nalgebra::{Matrix3, Quaternion, SMatrix, Vector3};
 use nav_core::navigator::{
     AidState, AidTimeouts, Aids, BaroDamping, BaroErrorModel, FlightNavigator, HandoverPriors,
@@ -29,6 +25,7 @@ use nav_core::seeker_ins::{
 use nav_core::transfer_alignment::{PaperCase, TaConfig};
 use nav_core::vertical_channel::BaroSample;
 use nav_core::{NavError, Timestamp};
+use nav_firmware::harness;
 
 /// IMU interval, µs (100 Hz).
 const DT_US: u64 = 10_000;
@@ -177,31 +174,5 @@ fn run() -> Result<(), NavError> {
 fn main() -> ! {
     let ok = run().is_ok();
     defmt::println!("navigator example ok={=bool}", ok);
-    debug::exit(if ok {
-        debug::EXIT_SUCCESS
-    } else {
-        debug::EXIT_FAILURE
-    });
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[cfg(not(feature = "panic-never"))]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-/// The panic-never technique (as the firmware image): the image only links if every panic is
-/// unreachable.
-#[cfg(feature = "panic-never")]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    extern "Rust" {
-        fn nav_core_contains_a_reachable_panic() -> !;
-    }
-    // SAFETY: never executed; the link fails if this call survives optimisation.
-    unsafe { nav_core_contains_a_reachable_panic() }
+    harness::exit(ok)
 }
