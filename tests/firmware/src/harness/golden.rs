@@ -36,7 +36,8 @@ impl<'a> Golden<'a> {
         }
     }
 
-    /// Compares the next outputs of the run.
+    /// Compares the next outputs of the run (not inlined: one copy for every replay loop).
+    #[inline(never)]
     pub fn compare(&mut self, outputs: &[f32]) {
         for &got in outputs {
             let want = match self.want.split_first_chunk::<4>() {
