@@ -4,7 +4,10 @@
 //! the baro after the coast — and its report read every cycle.
 //!
 //! The drivers are stand-ins (the aircraft at rest, level; the missile drops at 1 s and then
-//! reads level flight again); a real image reads its sensors and the bus.
+//! reads level flight again); a real image reads its sensors and the bus. The configuration,
+//! the place and the master's reported σ are the recorded mission's
+//! (`nav_golden::mission::mission_config`, `nav_golden::seeker_start`, `MASTER_SIGMA`): the
+//! navigator the mission image replays bit-identical to the host.
 //!
 //! Built for `thumbv7em-none-eabihf` by `cargo xtask thumb` (with `panic-never`: it links only
 //! if no panic is reachable); run it on QEMU with
@@ -13,25 +16,18 @@
 #![no_std]
 #![no_main]
 
-#[path = "../src/logger.rs"]
-mod logger;
-
 use cortex_m_rt::entry;
-use cortex_m_semihosting::debug;
 use nalgebra::{Matrix3, Quaternion, SMatrix, Vector3};
 use nav_core::navigator::{
-    AidState, AidTimeouts, Aids, BaroDamping, BaroErrorModel, FlightNavigator, HandoverPriors,
-    ImuTick, LeverArm, MasterNav, NavigatorConfig, NavigatorInitial, Phase, SeparationCheck,
+    AidState, Aids, FlightNavigator, ImuTick, MasterNav, NavigatorInitial, Phase,
 };
-use nav_core::seeker_ins::{
-    ClipFlags, ImuIncrement, InsState, Landmark, Position, SeekerInsConfig,
-};
-use nav_core::transfer_alignment::{PaperCase, TaConfig};
+use nav_core::seeker_ins::{ClipFlags, ImuIncrement, InsState, Position};
 use nav_core::vertical_channel::BaroSample;
 use nav_core::{NavError, Timestamp};
+use nav_firmware::harness;
+use nav_golden::mission::{mission_config, MASTER_SIGMA, MISSION_DT_US as DT_US};
+use nav_golden::seeker_start;
 
-/// IMU interval, µs (100 Hz).
-const DT_US: u64 = 10_000;
 /// Master data latency, IMU ticks (30 ms).
 const LATENCY: u64 = 3;
 /// Release at this tick (1 s); the missile reads 0 g for 0.3 s after it.
@@ -40,77 +36,40 @@ const DROP_TICKS: u64 = 30;
 /// Gravity the stand-in IMU reads at rest, m/s².
 const G: f32 = 9.80;
 
-const HERE: Position = Position {
-    lat_rad: 0.645_771_823_237_901_2,
-    lon_rad: 2.216_568_150_032_737,
-    alt_m: 1000.0,
-};
-
-fn config() -> Result<NavigatorConfig<f32>, NavError> {
-    let alignment = TaConfig::<f32>::flight(PaperCase::Case1);
-    Ok(NavigatorConfig {
-        lever_arm: LeverArm {
-            nominal_m: alignment.lever_arm_m,
-            sigma_m: Vector3::from_element(0.01),
-        },
-        alignment,
-        priors: HandoverPriors {
-            accel_bias_sigma_m_s2: 1e-3,
-            gyro_bias_sigma_rad_s: 5e-8,
-            gimbal_bias_sigma_rad: 7e-4,
-        },
-        ins: SeekerInsConfig::flight(Landmark::new(Position {
-            lat_rad: HERE.lat_rad + 0.005,
-            alt_m: 0.0,
-            ..HERE
-        })?),
-        imu_dt_s: 0.01,
-        separation: SeparationCheck {
-            specific_force_jump_m_s2: 4.0,
-            confirm_window_s: 0.3,
-            coast_s: 1.0,
-        },
-        baro: BaroDamping::Ekf(BaroErrorModel {
-            white_sigma_m: 1.0,
-            markov_sigma_m: 5.0,
-            markov_tau_s: 100.0,
-            lag_s: 0.0,
-        }),
-        timeouts: AidTimeouts {
-            master_s: 0.5,
-            baro_s: 1.0,
-            seeker_s: 2.0,
-        },
-    })
-}
-
-/// The bus's master sample with time of validity `time` (the aircraft at rest, level).
-fn master_at(time: Timestamp) -> MasterNav<f32> {
+/// The bus's master sample with time of validity `time` (the aircraft at rest, level, at
+/// `here`).
+fn master_at(time: Timestamp, here: Position) -> MasterNav<f32> {
+    let (attitude_sigma_rad, velocity_sigma_m_s, position_sigma_m) = MASTER_SIGMA;
     MasterNav {
         time,
         c_m_n: Matrix3::identity(),
         vel_ned_m_s: Vector3::zeros(),
-        position: HERE,
+        position: here,
         angular_rate_rad_s: Vector3::zeros(),
         angular_accel_rad_s2: Vector3::zeros(),
         specific_force_m_s2: Vector3::new(0.0, 0.0, -G),
-        attitude_sigma_rad: Vector3::new(2e-4, 2e-4, 8e-4),
-        velocity_sigma_m_s: Vector3::from_element(0.05),
-        position_sigma_m: Vector3::from_element(3.0),
+        attitude_sigma_rad: Vector3::new(
+            attitude_sigma_rad,
+            attitude_sigma_rad,
+            4.0 * attitude_sigma_rad,
+        ),
+        velocity_sigma_m_s: Vector3::from_element(velocity_sigma_m_s),
+        position_sigma_m: Vector3::from_element(position_sigma_m),
     }
 }
 
 fn run() -> Result<(), NavError> {
+    let here = seeker_start();
     let initial = NavigatorInitial {
         time: Timestamp::ZERO,
         state: InsState {
-            position: HERE,
+            position: here,
             vel_ned_m_s: Vector3::zeros(),
             q_b_n: Quaternion::identity(),
         },
         nav_covariance: SMatrix::from_diagonal_element(1.0),
     };
-    let mut nav = FlightNavigator::<f32, 32>::new(&config()?, &initial)?;
+    let mut nav = FlightNavigator::<f32, 32>::new(&mission_config()?, &initial)?;
     let mut refused = 0u32;
     for k in 1..=400u64 {
         let time = Timestamp::from_micros(k * DT_US);
@@ -125,7 +84,7 @@ fn run() -> Result<(), NavError> {
             clipped: ClipFlags::default(),
         };
         let master = (k % 2 == 0 && k > LATENCY && k < RELEASE_TICK)
-            .then(|| master_at(Timestamp::from_micros((k - LATENCY) * DT_US)));
+            .then(|| master_at(Timestamp::from_micros((k - LATENCY) * DT_US), here));
         let baro = (k % 4 == 0).then_some(BaroSample {
             time,
             altitude_m: 1000.0,
@@ -177,31 +136,5 @@ fn run() -> Result<(), NavError> {
 fn main() -> ! {
     let ok = run().is_ok();
     defmt::println!("navigator example ok={=bool}", ok);
-    debug::exit(if ok {
-        debug::EXIT_SUCCESS
-    } else {
-        debug::EXIT_FAILURE
-    });
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[cfg(not(feature = "panic-never"))]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-/// The panic-never technique (as the firmware image): the image only links if every panic is
-/// unreachable.
-#[cfg(feature = "panic-never")]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    extern "Rust" {
-        fn nav_core_contains_a_reachable_panic() -> !;
-    }
-    // SAFETY: never executed; the link fails if this call survives optimisation.
-    unsafe { nav_core_contains_a_reachable_panic() }
+    harness::exit(ok)
 }

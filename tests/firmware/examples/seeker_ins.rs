@@ -9,11 +9,7 @@
 #![no_std]
 #![no_main]
 
-#[path = "../src/logger.rs"]
-mod logger;
-
-use cortex_m_rt::{entry, exception, ExceptionFrame};
-use cortex_m_semihosting::debug;
+use cortex_m_rt::entry;
 use nalgebra::{Quaternion, Vector3};
 use nav_core::contract::{Estimator, FusionOutcome};
 use nav_core::design::DesignValues;
@@ -24,6 +20,7 @@ use nav_core::seeker_ins::{
 };
 use nav_core::time::Timestamp;
 use nav_core::{HealthState, NavError};
+use nav_firmware::harness;
 
 /// Start: 37° N, 127° E, 1000 m.
 const START: Position = Position {
@@ -116,24 +113,9 @@ fn fly() -> Result<(), NavError> {
 
 #[entry]
 fn main() -> ! {
-    match fly() {
-        Ok(()) => debug::exit(debug::EXIT_SUCCESS),
-        Err(_) => debug::exit(debug::EXIT_FAILURE),
+    let result = fly();
+    if let Err(e) = result {
+        defmt::println!("seeker INS example: {}", e);
     }
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[exception]
-unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
+    harness::exit(result.is_ok())
 }

@@ -11,11 +11,7 @@
 #![no_std]
 #![no_main]
 
-#[path = "../src/logger.rs"]
-mod logger;
-
 use cortex_m_rt::entry;
-use cortex_m_semihosting::debug;
 use nalgebra::Vector3;
 use nav_core::design::DesignValues;
 use nav_core::transfer_alignment::{
@@ -23,6 +19,7 @@ use nav_core::transfer_alignment::{
     TaDesign, TaInitial,
 };
 use nav_core::{Estimator, FusionOutcome, HealthState, NavError, Timestamp};
+use nav_firmware::harness;
 
 /// The design the ground computed for this configuration (`nav-sim golden` records it from
 /// the golden vectors' configuration; empty when not recorded).
@@ -147,31 +144,5 @@ fn run() -> Result<(), NavError> {
 fn main() -> ! {
     let ok = run().is_ok();
     defmt::println!("TA example ok={=bool}", ok);
-    debug::exit(if ok {
-        debug::EXIT_SUCCESS
-    } else {
-        debug::EXIT_FAILURE
-    });
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[cfg(not(feature = "panic-never"))]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-/// The panic-never technique (as the firmware image): the image only links if every panic is
-/// unreachable.
-#[cfg(feature = "panic-never")]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    extern "Rust" {
-        fn nav_core_contains_a_reachable_panic() -> !;
-    }
-    // SAFETY: never executed; the link fails if this call survives optimisation.
-    unsafe { nav_core_contains_a_reachable_panic() }
+    harness::exit(ok)
 }

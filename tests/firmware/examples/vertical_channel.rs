@@ -12,16 +12,13 @@
 #![no_std]
 #![no_main]
 
-#[path = "../src/logger.rs"]
-mod logger;
-
 use cortex_m_rt::entry;
-use cortex_m_semihosting::debug;
 use nav_core::design::DesignValues;
 use nav_core::vertical_channel::{
     Aid, AidedConfig, AidedDesign, AidedLoop, BaroSample, ImuSample, InitialState, VelocitySample,
 };
 use nav_core::{Estimator, FusionOutcome, Gate, HealthState, NavError, Timestamp};
+use nav_firmware::harness;
 
 /// The aided loop's design for [`AidedConfig::paper`], computed on the ground.
 static STORED_DESIGN: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/vc_aided.design.f64"));
@@ -116,23 +113,10 @@ fn flight() -> Result<(), NavError> {
 
 #[entry]
 fn main() -> ! {
-    match flight() {
-        Ok(()) => {
-            defmt::println!("vertical channel example: ok");
-            debug::exit(debug::EXIT_SUCCESS);
-        }
-        Err(e) => {
-            defmt::println!("vertical channel example: {}", e);
-            debug::exit(debug::EXIT_FAILURE);
-        }
+    let result = flight();
+    match result {
+        Ok(()) => defmt::println!("vertical channel example: ok"),
+        Err(e) => defmt::println!("vertical channel example: {}", e),
     }
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
+    harness::exit(result.is_ok())
 }

@@ -4,7 +4,8 @@
 //! (`OnBoard`: the filters' `new`), and with the design computed on the host and stored in the
 //! image (`Stored`: `from_design`, what a flight image without design code runs).
 
-use nav_golden::{f32s, replay_with, ulps, Case, DesignSource, OnBoard, Stored, CASES};
+use nav_firmware::harness::golden::Golden;
+use nav_golden::{replay_with, Case, DesignSource, OnBoard, Stored, CASES};
 
 macro_rules! golden_files {
     ($name:literal) => {
@@ -48,32 +49,14 @@ fn check(case: Case, label: &str, designs: &dyn DesignSource) -> bool {
         defmt::println!("GOLDEN {=str} skipped (no recording)", label);
         return true;
     }
-    let mut want = f32s(expected);
-    let (mut values, mut mismatched, mut max_ulps) = (0u32, 0u32, 0u32);
-    let result = replay_with(case, inputs, designs, &mut |_, out| {
-        for &got in out {
-            let u = ulps(got, want.next().unwrap_or(f32::NAN));
-            values += 1;
-            if u != 0 {
-                mismatched += 1;
-                max_ulps = max_ulps.max(u);
-            }
-        }
-    });
-    let extra = want.count();
+    let mut golden = Golden::new(expected);
+    let result = replay_with(case, inputs, designs, &mut |_, out| golden.compare(out));
+    let verdict = golden.finish();
     match result {
-        Ok(steps) => defmt::println!(
-            "GOLDEN {=str} steps={=usize} values={=u32} mismatched={=u32} max_ulps={=u32} missing={=usize}",
-            label,
-            steps,
-            values,
-            mismatched,
-            max_ulps,
-            extra
-        ),
+        Ok(steps) => verdict.log(label, steps),
         Err(e) => defmt::println!("GOLDEN {=str} error {}", label, e),
     }
-    result.is_ok() && mismatched == 0 && extra == 0
+    result.is_ok() && verdict.ok()
 }
 
 /// Replays every recorded case (on-board designs, then stored designs); returns the number of

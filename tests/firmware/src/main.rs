@@ -2,16 +2,15 @@
 //!
 //! Results are logged with defmt over semihosting as
 //! `BENCH <kernel> insns=<n> stack=<bytes>` and decoded on the host by `cargo xtask bench`.
+//! Counter, stack painting, golden comparison, logger and handlers: `nav_firmware::harness`.
 #![no_std]
 #![no_main]
 
 mod golden;
 mod kernels;
-mod logger;
-mod measure;
 
-use cortex_m_rt::{entry, exception, ExceptionFrame};
-use cortex_m_semihosting::debug;
+use cortex_m_rt::entry;
+use nav_firmware::harness::{self, measure};
 
 #[entry]
 fn main() -> ! {
@@ -52,41 +51,11 @@ fn main() -> ! {
     if golden_failures != 0 {
         defmt::println!("GOLDEN FAILED cases={=u32}", golden_failures);
     }
-    if failures == 0 && golden_failures == 0 {
+    let ok = failures == 0 && golden_failures == 0;
+    if ok {
         defmt::println!("DONE ok");
-        debug::exit(debug::EXIT_SUCCESS);
     } else {
         defmt::println!("DONE failures={=u32}", failures + golden_failures);
-        debug::exit(debug::EXIT_FAILURE);
     }
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[exception]
-unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[cfg(not(feature = "panic-never"))]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    defmt::println!("PANIC");
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-/// The panic-never technique: this handler refers to a symbol nobody defines, so the image only
-/// links if the optimiser proved every panic in the code it contains unreachable.
-#[cfg(feature = "panic-never")]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    extern "Rust" {
-        fn nav_core_contains_a_reachable_panic() -> !;
-    }
-    // SAFETY: never executed; the link fails if this call survives optimisation.
-    unsafe { nav_core_contains_a_reachable_panic() }
+    harness::exit(ok)
 }

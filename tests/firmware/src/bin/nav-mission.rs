@@ -7,24 +7,19 @@
 //! `BENCH nav_tick_<class> insns=<worst> stack=<worst> ticks=<n> at=<tick of the worst>`.
 //!
 //! The recorded inputs stand in for the sensors and the bus; the replay loop, the comparison
-//! and the counter reads are the only harness (`cargo xtask bench` reports the `.text`).
+//! and the counter reads (`nav_firmware::harness`) are the only harness (`cargo xtask bench`
+//! reports the `.text`).
 #![no_std]
 #![no_main]
 
-#[path = "../logger.rs"]
-mod logger;
-#[allow(dead_code)] // the bench image's fixed-region helpers
-#[path = "../measure.rs"]
-mod measure;
-
-use cortex_m_rt::{entry, exception, ExceptionFrame};
-use cortex_m_semihosting::debug;
+use cortex_m_rt::entry;
 use nav_core::navigator::{Phase, TickReport};
 use nav_core::NavError;
+use nav_firmware::harness::{self, golden::Golden, measure};
+use nav_golden::f32s;
 use nav_golden::mission::{
     mission_navigator, mission_output, MissionTick, MISSION_INPUT_LEN, MISSION_OUTPUT_LEN,
 };
-use nav_golden::{f32s, ulps};
 
 static INPUTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/mission.in.f32"));
 static OUTPUTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/mission.out.f32"));
@@ -86,8 +81,8 @@ fn run() -> Result<bool, NavError> {
     let mut worst = [Worst::default(); CLASSES.len()];
     let mut rec = [0f32; MISSION_INPUT_LEN];
     let mut out = [0f32; MISSION_OUTPUT_LEN];
-    let mut want = f32s(OUTPUTS);
-    let (mut ticks, mut values, mut mismatched, mut max_ulps) = (0u32, 0u32, 0u32, 0u32);
+    let mut golden = Golden::new(OUTPUTS);
+    let mut ticks = 0usize;
     for (k, bytes) in INPUTS.chunks_exact(4 * MISSION_INPUT_LEN).enumerate() {
         for (d, v) in rec.iter_mut().zip(f32s(bytes)) {
             *d = v;
@@ -132,25 +127,11 @@ fn run() -> Result<bool, NavError> {
             w.stack = w.stack.max(stack);
         }
         mission_output(&nav, &report, &mut out);
-        for &got in &out {
-            let u = ulps(got, want.next().unwrap_or(f32::NAN));
-            values += 1;
-            if u != 0 {
-                mismatched += 1;
-                max_ulps = max_ulps.max(u);
-            }
-        }
+        golden.compare(&out);
         ticks += 1;
     }
-    let missing = want.count();
-    defmt::println!(
-        "GOLDEN mission steps={=u32} values={=u32} mismatched={=u32} max_ulps={=u32} missing={=usize}",
-        ticks,
-        values,
-        mismatched,
-        max_ulps,
-        missing
-    );
+    let verdict = golden.finish();
+    verdict.log("mission", ticks);
     for (name, w) in CLASSES.iter().zip(worst.iter()) {
         defmt::println!(
             "BENCH {=str} insns={=u32} stack={=u32} ticks={=u32} at={=u32}",
@@ -161,7 +142,7 @@ fn run() -> Result<bool, NavError> {
             w.at
         );
     }
-    Ok(ticks > 0 && mismatched == 0 && missing == 0)
+    Ok(ticks > 0 && verdict.ok())
 }
 
 #[entry]
@@ -175,38 +156,5 @@ fn main() -> ! {
         }
     };
     defmt::println!("DONE ok={=bool}", ok);
-    debug::exit(if ok {
-        debug::EXIT_SUCCESS
-    } else {
-        debug::EXIT_FAILURE
-    });
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[exception]
-unsafe fn HardFault(_frame: &ExceptionFrame) -> ! {
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-#[cfg(not(feature = "panic-never"))]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    defmt::println!("PANIC");
-    debug::exit(debug::EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
-}
-
-/// The panic-never technique (see `main.rs`): the image only links if no panic is reachable.
-#[cfg(feature = "panic-never")]
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    extern "Rust" {
-        fn nav_core_contains_a_reachable_panic() -> !;
-    }
-    // SAFETY: never executed; the link fails if this call survives optimisation.
-    unsafe { nav_core_contains_a_reachable_panic() }
+    harness::exit(ok)
 }

@@ -3,8 +3,6 @@
 #![no_std]
 #![no_main]
 
-#[path = "../logger.rs"]
-mod logger;
 #[path = "../size_image.rs"]
 mod size_image;
 
