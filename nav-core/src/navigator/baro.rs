@@ -131,20 +131,46 @@ pub(crate) struct BaroGain<T> {
     pub(crate) delta: T,
 }
 
-/// The joint scalar update's gate and small blocks (module doc). `None` when the sample
-/// cannot be fused numerically (the baro blocks; P is checked where it is updated); a gate
-/// rejection returns the report with `Rejected` (nothing to apply).
+/// The joint scalar update's gate and small blocks (module doc) for the measurement row of
+/// the effective lag `tau_s` ([`BaroState::h_row`]), over its two non-zero columns only:
+/// `u = P[:, h] + τ P[:, V_D] + c` — the numbers of the dense products, whose other terms are
+/// zero. `None` when the sample cannot be fused numerically (the baro blocks; P is checked
+/// where it is updated); a gate rejection returns the report with `Rejected` (nothing to
+/// apply).
 pub(crate) fn baro_gain<T: Real>(
     p: &SMatrix<T, STATES, STATES>,
     st: &BaroState<T>,
-    h: &SVector<T, STATES>,
+    tau_s: T,
     y: T,
     r: T,
     gate: Gate<T>,
 ) -> Option<Result<BaroGain<T>, FusionReport<T>>> {
-    let u: SVector<T, STATES> = p * h + st.cross;
-    let u_b = st.cross.dot(h) + st.variance_m2;
-    let hph = h.dot(&u) + u_b;
+    let zero = T::zero();
+    let col = |j: usize| p.as_slice().get(j * STATES..(j + 1) * STATES);
+    let (Some(ph), Some(pv)) = (col(POS + 2), col(VEL + 2)) else {
+        return None;
+    };
+    let mut u = st.cross;
+    for ((ui, a), b) in u.iter_mut().zip(ph.iter()).zip(pv.iter()) {
+        *ui = (*a + *b * tau_s) + *ui;
+    }
+    let at = |v: &SVector<T, STATES>, i: usize| v.get(i).copied().unwrap_or(zero);
+    let u_b = (at(&st.cross, POS + 2) + at(&st.cross, VEL + 2) * tau_s) + st.variance_m2;
+    let hph = (at(&u, POS + 2) + at(&u, VEL + 2) * tau_s) + u_b;
+    gain_from(u, u_b, hph, st, y, r, gate)
+}
+
+/// The gate and the small blocks from `u = P hᵀ + c`, `u_b = cᵀh + s`, `hPhᵀ` of the joint
+/// row (module doc).
+fn gain_from<T: Real>(
+    u: SVector<T, STATES>,
+    u_b: T,
+    hph: T,
+    st: &BaroState<T>,
+    y: T,
+    r: T,
+    gate: Gate<T>,
+) -> Option<Result<BaroGain<T>, FusionReport<T>>> {
     // As the LOS update: no more information than the working precision resolves.
     let kappa = max_information_ratio::<T>();
     let r = if hph / kappa > r { hph / kappa } else { r };
@@ -226,7 +252,10 @@ pub fn baro_update<T: Real>(
     r: T,
     gate: Gate<T>,
 ) -> Option<BaroUpdate<T>> {
-    match baro_gain(p, st, h, y, r, gate)? {
+    let u: SVector<T, STATES> = p * h + st.cross;
+    let u_b = st.cross.dot(h) + st.variance_m2;
+    let hph = h.dot(&u) + u_b;
+    match gain_from(u, u_b, hph, st, y, r, gate)? {
         Err(report) => Some(BaroUpdate {
             report,
             dx: SVector::zeros(),

@@ -952,11 +952,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             bs.decay(model, dt);
         }
         let tau = model.lag_s + age;
-        let h = BaroState::h_row(tau);
         let y = bs.predicted_m(ekf, tau) - b.altitude_m;
         let r = model.white_sigma_m * model.white_sigma_m;
         let gate = self.config.ins.gate;
-        let outcome = match baro_gain(ekf.covariance(), bs, &h, y, r, gate) {
+        let outcome = match baro_gain(ekf.covariance(), bs, tau, y, r, gate) {
             None => FusionOutcome::Skipped,
             Some(Err(report)) => {
                 self.baro.last = Some(report);

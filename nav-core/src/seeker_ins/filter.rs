@@ -305,44 +305,41 @@ impl<T: Real> SeekerIns<T> {
     ) -> Result<bool, NavError> {
         let zero = T::zero();
         let (u, k) = (u.as_slice(), k.as_slice());
-        let mut ok = true;
-        for (j, (col, kj)) in self
-            .p
-            .as_slice()
-            .chunks_exact(STATES)
-            .zip(k.iter())
-            .enumerate()
-        {
-            for (i, (pij, ui)) in col.iter().zip(u.iter()).take(j + 1).enumerate() {
-                let v = *pij - *ui * *kj;
-                ok &= if i == j {
-                    let d = v + v * delta;
-                    d >= zero && d.is_finite()
-                } else {
-                    v.is_finite()
-                };
+        // Check pass over the upper triangle: `v · 0` is zero for a finite v, NaN otherwise.
+        let mut probe = zero;
+        let mut variances_ok = true;
+        for (j, (col, kj)) in self.p.as_slice().chunks_exact(STATES).zip(k).enumerate() {
+            for (pij, ui) in col.iter().zip(u).take(j) {
+                probe += (*pij - *ui * *kj) * zero;
+            }
+            if let (Some(pjj), Some(uj)) = (col.get(j), u.get(j)) {
+                let v = *pjj - *uj * *kj;
+                let d = v + v * delta;
+                variances_ok &= d >= zero && d.is_finite();
             }
         }
-        if !ok {
+        if !(variances_ok && probe == zero) {
             return Ok(false);
         }
         self.feed_back_parts(x)?;
-        for j in 0..STATES {
-            let kj = k.get(j).copied().unwrap_or(zero);
-            for i in 0..=j {
-                let ui = u.get(i).copied().unwrap_or(zero);
-                let Some(v) = self.p.get((i, j)).map(|p| *p - ui * kj) else {
-                    continue;
-                };
-                if let Some(dst) = self.p.get_mut((i, j)) {
-                    *dst = v;
-                }
-                if let Some(dst) = self.p.get_mut((j, i)) {
-                    *dst = v;
+        let p = self.p.as_mut_slice();
+        // Upper triangle, in place (column j, rows ≤ j: only entries not read again).
+        for (j, (col, kj)) in p.chunks_exact_mut(STATES).zip(k).enumerate() {
+            for (pij, ui) in col.iter_mut().zip(u).take(j + 1) {
+                *pij -= *ui * *kj;
+            }
+        }
+        // Mirrored (exactly symmetric), then the stabilising noise.
+        for j in 1..STATES {
+            for i in 0..j {
+                if let Some(v) = p.get(j * STATES + i).copied() {
+                    if let Some(dst) = p.get_mut(i * STATES + j) {
+                        *dst = v;
+                    }
                 }
             }
         }
-        for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
+        for (j, col) in p.chunks_exact_mut(STATES).enumerate() {
             if let Some(v) = col.get_mut(j) {
                 *v += *v * delta;
             }
