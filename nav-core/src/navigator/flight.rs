@@ -134,13 +134,25 @@ pub(crate) fn nav_block_to_ned<T: Real>(
         (rn + alt) * crate::math::trig::cos(lat),
         -T::one(),
     ];
-    let mut out = p.fixed_view::<9, 9>(0, 0).into_owned();
-    for (i, di) in d.iter().enumerate() {
-        for v in out.row_mut(i).iter_mut() {
-            *v *= *di;
-        }
-        for v in out.column_mut(i).iter_mut() {
-            *v *= *di;
+    // Element (r, c) times the scale of each position index among r, c, the smaller first
+    // (as scaling row i then column i for i = 0, 1, 2): column slices, no strided view.
+    let scale = |i: usize| d.get(i).copied();
+    let mut out = SMatrix::<T, 9, 9>::zeros();
+    for (c, (dst, src)) in out
+        .as_mut_slice()
+        .chunks_exact_mut(9)
+        .zip(p.as_slice().chunks_exact(STATES))
+        .enumerate()
+    {
+        for (r, (o, v)) in dst.iter_mut().zip(src.iter()).enumerate() {
+            let mut x = *v;
+            if let Some(s) = scale(r.min(c)) {
+                x *= s;
+            }
+            if let Some(s) = scale(r.max(c)) {
+                x *= s;
+            }
+            *o = x;
         }
     }
     out
@@ -933,6 +945,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// (`SeekerIns::update_rank_one`). A result that is not a covariance, or a correction the
     /// INS refuses, is not applied (`Skipped`): the covariance step stays, as for every
     /// outcome.
+    #[inline(never)]
     fn fuse_baro(
         &mut self,
         model: &super::types::BaroErrorModel<T>,
@@ -1022,6 +1035,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// One LOS sample through the EKF, in place: a sample the EKF would refuse is refused
     /// before the pending covariance step runs (nothing of it changes the filter), then the
     /// step (atomic) and the update, with the baro column when the baro is in the EKF.
+    #[inline(never)]
     fn fuse_los(&mut self, s: &LosSample<T>) -> Result<AidState, NavError> {
         let model = self.baro_model();
         let Some(ekf) = self.ekf.as_mut() else {
