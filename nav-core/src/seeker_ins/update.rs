@@ -659,8 +659,9 @@ impl<T: Real> SeekerIns<T> {
     /// 18-state sequential update would (b does not enter the LOS: `h_aug = [h, 0]`):
     /// per fused component, `g = h c`, `c ← c − K g`, `s ← s − g²/S`, `δb̂ += g ν / S` with the
     /// component's gain `K = P h / S`, S and ν as fused (the second against the first's
-    /// result). The components are recomputed from the filter before the update (the same
-    /// inputs, the same numbers); the filter's own update is `update_los`, unchanged. When P
+    /// result). The column is formed from the very components the update fused (computed
+    /// once, against P before the update; no copy of the filter); the filter's own update is
+    /// `update_los`'s, unchanged. When P
     /// changed otherwise (pending IMU samples propagated first, a recovery inflation, the 3-D
     /// residual) the correlation is forgotten (`c ← 0`). Errors as `update_los` (the column
     /// unchanged).
