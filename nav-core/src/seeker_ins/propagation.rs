@@ -189,8 +189,8 @@ impl<T: Real> SeekerIns<T> {
             return Ok(None);
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
-        let (ins, dv) = (self.ins, self.dv_ned_pending_m_s);
-        self.covariance_step_cross(&ins, dt_total, &dv, cross)?;
+        let dv = self.dv_ned_pending_m_s;
+        self.covariance_step_cross(None, dt_total, &dv, cross)?;
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
@@ -415,8 +415,8 @@ impl<T: Real> SeekerIns<T> {
         {
             let dt_total = self.pending_interval_s(steps, pending_us);
             match cross {
-                Some(c) => self.covariance_step_cross(&ins, dt_total, &dv_pending, c)?,
-                None => self.covariance_step_at(&ins, dt_total, &dv_pending)?,
+                Some(c) => self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c)?,
+                None => self.covariance_step_at(Some(&ins), dt_total, &dv_pending)?,
             }
             stepped = Some(dt_total);
             self.steps_pending = 0;
@@ -440,13 +440,14 @@ impl<T: Real> SeekerIns<T> {
     /// are the caller's. Atomic (P unchanged on error).
     fn covariance_step_at(
         &mut self,
-        ins: &Ins<T>,
+        ins: Option<&Ins<T>>,
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
     ) -> Result<(), NavError> {
         let f_ned = dv_ned_m_s / dt_total_s;
-        let s = ins.state();
-        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &ins.c_b_n(), &f_ned);
+        let at = ins.unwrap_or(&self.ins);
+        let s = at.state();
+        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
         self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s)
     }
 
@@ -456,10 +457,11 @@ impl<T: Real> SeekerIns<T> {
     fn covariance_step_f(
         &mut self,
         f: &SparseF<T>,
-        ins: &Ins<T>,
+        ins: Option<&Ins<T>>,
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
     ) -> Result<(), NavError> {
+        let ins = ins.unwrap_or(&self.ins);
         let repairs = propagate_covariance_sparse(
             &mut self.p,
             f,
@@ -481,17 +483,19 @@ impl<T: Real> SeekerIns<T> {
     }
 
     /// [`Self::covariance_step_at`] that also applies the step's Φ to `cross` (module doc of
-    /// [`Self::predict_covariance_cross`]); atomic (P and `cross` unchanged on error).
+    /// [`Self::predict_covariance_cross`]); atomic (P and `cross` unchanged on error). `ins`:
+    /// the INS of the step (`None`: the filter's own).
     fn covariance_step_cross(
         &mut self,
-        ins: &Ins<T>,
+        ins: Option<&Ins<T>>,
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
         cross: &mut nalgebra::SVector<T, STATES>,
     ) -> Result<(), NavError> {
         let f_ned = dv_ned_m_s / dt_total_s;
-        let s = ins.state();
-        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &ins.c_b_n(), &f_ned);
+        let at = ins.unwrap_or(&self.ins);
+        let s = at.state();
+        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
         let next_cross = transition_times(&f, dt_total_s, cross);
         if !next_cross.iter().all(|v| v.is_finite()) {
             return Err(NavError::NonFiniteInput {
@@ -538,8 +542,8 @@ impl<T: Real> SeekerIns<T> {
             return Ok(());
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
-        let (ins, dv) = (self.ins, self.dv_ned_pending_m_s);
-        self.covariance_step_at(&ins, dt_total, &dv)?;
+        let dv = self.dv_ned_pending_m_s;
+        self.covariance_step_at(None, dt_total, &dv)?;
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
