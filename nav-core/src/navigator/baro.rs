@@ -108,37 +108,114 @@ pub struct BaroUpdate<T> {
     pub variance_m2: T,
 }
 
-/// The joint scalar update in its blocks (module doc). `None` when the sample cannot be
-/// fused numerically (skipped); a gate rejection returns the report with `Rejected` and the
-/// blocks unchanged.
-pub fn baro_update<T: Real>(
+/// One baro fusion without its P: the gain, the small blocks updated, and what P's update
+/// `P ← P − u kᵀ`, then `P_ii ← P_ii + P_ii δ`, needs (applied in place by the navigator,
+/// `SeekerIns::update_rank_one`, which checks it first).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct BaroGain<T> {
+    /// The report.
+    pub(crate) report: FusionReport<T>,
+    /// `u = P hᵀ + c` (units of the error state × m).
+    pub(crate) u: SVector<T, STATES>,
+    /// The gain `k = u / S` (units of the error state / m).
+    pub(crate) k: SVector<T, STATES>,
+    /// Error estimate of the 17 states (EKF convention).
+    pub(crate) dx: SVector<T, STATES>,
+    /// Error estimate of the baro error, m (`δb̂`).
+    pub(crate) db_m: T,
+    /// Updated cross-covariance.
+    pub(crate) cross: SVector<T, STATES>,
+    /// Updated var(δb) with its stabilising noise, m².
+    pub(crate) variance_m2: T,
+    /// Relative stabilising noise of every variance (dimensionless).
+    pub(crate) delta: T,
+}
+
+/// The joint scalar update's gate and small blocks (module doc) for the measurement row of
+/// the effective lag `tau_s` ([`BaroState::h_row`]), over its two non-zero columns only:
+/// `u = P[:, h] + τ P[:, V_D] + c` — the numbers of the dense products, whose other terms are
+/// zero. `None` when the sample cannot be fused numerically (the baro blocks; P is checked
+/// where it is updated); a gate rejection returns the report with `Rejected` (nothing to
+/// apply).
+pub(crate) fn baro_gain<T: Real>(
     p: &SMatrix<T, STATES, STATES>,
     st: &BaroState<T>,
-    h: &SVector<T, STATES>,
+    tau_s: T,
     y: T,
     r: T,
     gate: Gate<T>,
-) -> Option<BaroUpdate<T>> {
-    let u: SVector<T, STATES> = p * h + st.cross;
-    let u_b = st.cross.dot(h) + st.variance_m2;
-    let hph = h.dot(&u) + u_b;
+) -> Option<Result<BaroGain<T>, FusionReport<T>>> {
+    let zero = T::zero();
+    let col = |j: usize| p.as_slice().get(j * STATES..(j + 1) * STATES);
+    let (Some(ph), Some(pv)) = (col(POS + 2), col(VEL + 2)) else {
+        return None;
+    };
+    let mut u = st.cross;
+    for ((ui, a), b) in u.iter_mut().zip(ph.iter()).zip(pv.iter()) {
+        *ui = (*a + *b * tau_s) + *ui;
+    }
+    let at = |v: &SVector<T, STATES>, i: usize| v.get(i).copied().unwrap_or(zero);
+    let u_b = (at(&st.cross, POS + 2) + at(&st.cross, VEL + 2) * tau_s) + st.variance_m2;
+    let hph = (at(&u, POS + 2) + at(&u, VEL + 2) * tau_s) + u_b;
+    gain_from(u, u_b, hph, st, y, r, gate)
+}
+
+/// The gate and the small blocks from `u = P hᵀ + c`, `u_b = cᵀh + s`, `hPhᵀ` of the joint
+/// row (module doc).
+fn gain_from<T: Real>(
+    u: SVector<T, STATES>,
+    u_b: T,
+    hph: T,
+    st: &BaroState<T>,
+    y: T,
+    r: T,
+    gate: Gate<T>,
+) -> Option<Result<BaroGain<T>, FusionReport<T>>> {
     // As the LOS update: no more information than the working precision resolves.
     let kappa = max_information_ratio::<T>();
     let r = if hph / kappa > r { hph / kappa } else { r };
     let s = hph + r;
     let (report, inv_s) = gate_scalar(y, hph, s, gate)?;
     if report.outcome != FusionOutcome::Fused {
-        return Some(BaroUpdate {
-            report,
-            dx: SVector::zeros(),
-            db_m: T::zero(),
-            p: *p,
-            cross: st.cross,
-            variance_m2: st.variance_m2,
-        });
+        return Some(Err(report));
     }
     let k = u * inv_s;
     let k_b = u_b * inv_s;
+    let cross = st.cross - u * k_b;
+    let mut variance_m2 = st.variance_m2 - u_b * k_b;
+    // Stabilising noise as after a LOS update: `δ = min(ρ, STABILISING_EPS) ε` of each
+    // variance (ρ = hPhᵀ / r), a margin above the rounding of the update.
+    let rho = hph / r;
+    let cap = T::lit(STABILISING_EPS);
+    let delta = if rho < cap { rho } else { cap } * T::EPS;
+    variance_m2 += variance_m2 * delta;
+    let ok = variance_m2 >= T::zero()
+        && variance_m2.is_finite()
+        && crate::math::checks::all_finite(cross.as_slice());
+    if !ok {
+        return None;
+    }
+    Some(Ok(BaroGain {
+        report,
+        u,
+        k,
+        dx: k * y,
+        db_m: k_b * y,
+        cross,
+        variance_m2,
+        delta,
+    }))
+}
+
+/// P after a baro gain: `P − u kᵀ` (upper triangle, mirrored), then `P_ii + P_ii δ` — the
+/// numbers `SeekerIns::update_rank_one` writes in place. `None`: a variance negative or an
+/// entry not finite.
+pub(crate) fn rank_one_p<T: Real>(
+    p: &SMatrix<T, STATES, STATES>,
+    u: &SVector<T, STATES>,
+    k: &SVector<T, STATES>,
+    delta: T,
+) -> Option<SMatrix<T, STATES, STATES>> {
     let mut p_new = *p;
     for j in 0..STATES {
         for i in 0..=j {
@@ -154,35 +231,48 @@ pub fn baro_update<T: Real>(
             }
         }
     }
-    let cross = st.cross - u * k_b;
-    let mut variance_m2 = st.variance_m2 - u_b * k_b;
-    // Stabilising noise as after a LOS update: `δ = min(ρ, STABILISING_EPS) ε` of each
-    // variance (ρ = hPhᵀ / r), a margin above the rounding of the update.
-    let rho = hph / r;
-    let cap = T::lit(STABILISING_EPS);
-    let delta = if rho < cap { rho } else { cap } * T::EPS;
     for i in 0..STATES {
         if let Some(v) = p_new.get_mut((i, i)) {
             *v += *v * delta;
         }
     }
-    variance_m2 += variance_m2 * delta;
-    let ok = variance_m2 >= T::zero()
-        && variance_m2.is_finite()
-        && p_new.diagonal().iter().all(|d| *d >= T::zero())
-        && crate::math::checks::all_finite(p_new.as_slice())
-        && crate::math::checks::all_finite(cross.as_slice());
-    if !ok {
-        return None;
+    let ok = p_new.diagonal().iter().all(|d| *d >= T::zero())
+        && crate::math::checks::all_finite(p_new.as_slice());
+    ok.then_some(p_new)
+}
+
+/// The joint scalar update in its blocks (module doc), P included (the reference of the
+/// navigator's in-place update). `None` when the sample cannot be fused numerically
+/// (skipped); a gate rejection returns the report with `Rejected` and the blocks unchanged.
+pub fn baro_update<T: Real>(
+    p: &SMatrix<T, STATES, STATES>,
+    st: &BaroState<T>,
+    h: &SVector<T, STATES>,
+    y: T,
+    r: T,
+    gate: Gate<T>,
+) -> Option<BaroUpdate<T>> {
+    let u: SVector<T, STATES> = p * h + st.cross;
+    let u_b = st.cross.dot(h) + st.variance_m2;
+    let hph = h.dot(&u) + u_b;
+    match gain_from(u, u_b, hph, st, y, r, gate)? {
+        Err(report) => Some(BaroUpdate {
+            report,
+            dx: SVector::zeros(),
+            db_m: T::zero(),
+            p: *p,
+            cross: st.cross,
+            variance_m2: st.variance_m2,
+        }),
+        Ok(g) => Some(BaroUpdate {
+            report: g.report,
+            dx: g.dx,
+            db_m: g.db_m,
+            p: rank_one_p(p, &g.u, &g.k, g.delta)?,
+            cross: g.cross,
+            variance_m2: g.variance_m2,
+        }),
     }
-    Some(BaroUpdate {
-        report,
-        dx: k * y,
-        db_m: k_b * y,
-        p: p_new,
-        cross,
-        variance_m2,
-    })
 }
 
 /// Validates a baro sample against the tick time: finite, not in the future, at most

@@ -1,6 +1,6 @@
 //! The navigator value and its tick (module doc of [`super`]).
 
-use super::baro::{baro_age_s, baro_update, BaroState};
+use super::baro::{baro_age_s, baro_gain, BaroState};
 use super::design::NavigatorDesign;
 use super::handover::{hand_over, AlignmentAtRelease, MasterAtRelease};
 use super::types::{
@@ -134,13 +134,25 @@ pub(crate) fn nav_block_to_ned<T: Real>(
         (rn + alt) * crate::math::trig::cos(lat),
         -T::one(),
     ];
-    let mut out = p.fixed_view::<9, 9>(0, 0).into_owned();
-    for (i, di) in d.iter().enumerate() {
-        for v in out.row_mut(i).iter_mut() {
-            *v *= *di;
-        }
-        for v in out.column_mut(i).iter_mut() {
-            *v *= *di;
+    // Element (r, c) times the scale of each position index among r, c, the smaller first
+    // (as scaling row i then column i for i = 0, 1, 2): column slices, no strided view.
+    let scale = |i: usize| d.get(i).copied();
+    let mut out = SMatrix::<T, 9, 9>::zeros();
+    for (c, (dst, src)) in out
+        .as_mut_slice()
+        .chunks_exact_mut(9)
+        .zip(p.as_slice().chunks_exact(STATES))
+        .enumerate()
+    {
+        for (r, (o, v)) in dst.iter_mut().zip(src.iter()).enumerate() {
+            let mut x = *v;
+            if let Some(s) = scale(r.min(c)) {
+                x *= s;
+            }
+            if let Some(s) = scale(r.max(c)) {
+                x *= s;
+            }
+            *o = x;
         }
     }
     out
@@ -414,7 +426,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             ..Degradation::default()
         };
         let [master, baro, seeker] = if self.phase == Phase::Carry {
-            let r = self.tick_carry(imu, aids, &mut transition);
+            let r = self.tick_carry_apart(imu, aids, &mut transition);
             if r.is_err() {
                 // Nothing committed: restore the pending transition.
                 self.pending = transition;
@@ -465,6 +477,18 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     }
 
     // ---------------------------------------------------------------- carry
+
+    /// [`Self::tick_carry`] in a frame of its own (not inlined): the carry phase's stack is
+    /// not on the flight phases' path.
+    #[inline(never)]
+    fn tick_carry_apart(
+        &mut self,
+        imu: &ImuTick<T>,
+        aids: &Aids<'_, T>,
+        transition: &mut Option<Transition>,
+    ) -> Result<AidReports<T>, NavError> {
+        self.tick_carry(imu, aids, transition)
+    }
 
     fn tick_carry(
         &mut self,
@@ -719,48 +743,79 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         }
     }
 
+    /// The flight phases' tick, in place: everything that can refuse the IMU sample is
+    /// checked before the filter changes (the EKF's propagation is atomic without a copy of
+    /// the filter, `SeekerIns::propagate_cross`), then each aid is validated before it
+    /// touches anything. Not inlined: the carry phase's frame is not on this path's stack.
+    #[inline(never)]
     fn tick_flight(
         &mut self,
         imu: &ImuTick<T>,
         aids: &Aids<'_, T>,
         transition: &mut Option<Transition>,
     ) -> Result<AidReports<T>, NavError> {
-        let Some(mut ekf) = self.ekf else {
+        let inc = &imu.increment;
+        let clip = (imu.clipped.accel || imu.clipped.gyro).then_some(imu.clipped);
+        let model = self.baro_model();
+        if self.vloop.is_some() {
+            return self.tick_flight_loop(imu, aids, transition);
+        }
+        let Some(ekf) = self.ekf.as_mut() else {
             return Err(NavError::InputOutOfRange {
                 input: "navigator state",
             });
         };
-        let inc = &imu.increment;
-        let clip = (imu.clipped.accel || imu.clipped.gyro).then_some(imu.clipped);
-        let mut bs = self.baro_state;
-        let before = ekf.health();
-        if let Some(model) = self.baro_model() {
-            ekf.propagate_deferred(inc, clip)?;
-            if ekf.steps_pending() >= self.config.ins.covariance_interval_steps {
-                if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
-                    bs.decay(&model, dt);
-                }
+        if let Some(model) = model {
+            let bs = &mut self.baro_state;
+            let before = ekf.health();
+            if let Some(dt) = ekf.propagate_cross(inc, clip, &mut bs.cross)? {
+                bs.decay(&model, dt);
             }
             let after = ekf.health();
             if after.limits_hit != before.limits_hit || after.gaps_reset != before.gaps_reset {
                 bs.cross = nalgebra::SVector::zeros();
             }
         } else {
-            match clip {
-                Some(flags) => ekf.propagate_clipped(inc, flags)?,
-                None => ekf.propagate(inc)?,
-            }
+            ekf.propagate_uncounted(inc, clip)?;
         }
-        let mut vloop = self.vloop;
-        let mut loop_baro = None;
-        if let Some(lp) = vloop.as_mut() {
-            loop_baro = Some(Self::loop_step(lp, &mut ekf, inc.time, aids.baro)?);
-        }
-        // Commit the IMU part.
-        self.ekf = Some(ekf);
-        self.baro_state = bs;
-        self.vloop = vloop;
         self.time = inc.time;
+        self.after_imu(aids, transition, None)
+    }
+
+    /// [`Self::tick_flight`] with the baro-inertial loop: the loop can refuse the IMU part
+    /// after the EKF has integrated it, so the EKF and the loop step on copies committed
+    /// together (more stack; the loop configuration only).
+    #[inline(never)]
+    fn tick_flight_loop(
+        &mut self,
+        imu: &ImuTick<T>,
+        aids: &Aids<'_, T>,
+        transition: &mut Option<Transition>,
+    ) -> Result<AidReports<T>, NavError> {
+        let (Some(mut ekf), Some(mut lp)) = (self.ekf, self.vloop) else {
+            return Err(NavError::InputOutOfRange {
+                input: "navigator state",
+            });
+        };
+        let inc = &imu.increment;
+        match (imu.clipped.accel || imu.clipped.gyro).then_some(imu.clipped) {
+            Some(flags) => ekf.propagate_clipped(inc, flags)?,
+            None => ekf.propagate(inc)?,
+        }
+        let outcome = Self::loop_step(&mut lp, &mut ekf, inc.time, aids.baro)?;
+        self.ekf = Some(ekf);
+        self.vloop = Some(lp);
+        self.time = inc.time;
+        self.after_imu(aids, transition, Some(outcome))
+    }
+
+    /// After the committed IMU part: the phase by time, then the aids.
+    fn after_imu(
+        &mut self,
+        aids: &Aids<'_, T>,
+        transition: &mut Option<Transition>,
+        loop_baro: Option<LoopBaro<T>>,
+    ) -> Result<AidReports<T>, NavError> {
         // Phase by time.
         if self.phase == Phase::Released
             && self
@@ -844,26 +899,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             *v = s.vel_ned_m_s.z + next.vz_up_m_s();
         }
         let c = next.covariance_h_vz();
-        let mut p = *ekf.covariance();
-        for k in 0..STATES {
-            for (i, j) in [(ih, k), (k, ih), (iv, k), (k, iv)] {
-                if let Some(v) = p.get_mut((i, j)) {
-                    *v = T::zero();
-                }
-            }
-        }
-        // (δh, δV_D) with δV_D = −δV_z.
-        for (i, j, v) in [
-            (ih, ih, c.m11),
-            (iv, iv, c.m22),
-            (ih, iv, -c.m12),
-            (iv, ih, -c.m12),
-        ] {
-            if let Some(dst) = p.get_mut((i, j)) {
-                *dst = v;
-            }
-        }
-        ekf.apply_external_update(&x, &p)?;
+        // (δh, δV_D) with δV_D = −δV_z; P changed in place (no copy).
+        ekf.set_vertical_block(&x, c.m11, c.m22, -c.m12)?;
         *lp = next;
         Ok(outcome)
     }
@@ -916,7 +953,13 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         self.baro.status(state)
     }
 
-    /// The baro's joint update (module `baro`); atomic.
+    /// The baro's joint update (module `baro`), in place: the sample is checked (finite, time,
+    /// age) before anything changes; the pending covariance step runs (atomic), then the
+    /// update is checked on the gain and P's result before it is applied
+    /// (`SeekerIns::update_rank_one`). A result that is not a covariance, or a correction the
+    /// INS refuses, is not applied (`Skipped`): the covariance step stays, as for every
+    /// outcome.
+    #[inline(never)]
     fn fuse_baro(
         &mut self,
         model: &super::types::BaroErrorModel<T>,
@@ -926,37 +969,40 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         if self.last_baro_time.is_some_and(|t| b.time <= t) {
             return Err(NavError::TimeNotIncreasing);
         }
-        let Some(mut ekf) = self.ekf else {
+        let Some(ekf) = self.ekf.as_mut() else {
             return Err(NavError::InputOutOfRange {
                 input: "navigator state",
             });
         };
-        let mut bs = self.baro_state;
+        let bs = &mut self.baro_state;
         if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
             bs.decay(model, dt);
         }
         let tau = model.lag_s + age;
-        let h = BaroState::h_row(tau);
-        let y = bs.predicted_m(&ekf, tau) - b.altitude_m;
+        let y = bs.predicted_m(ekf, tau) - b.altitude_m;
         let r = model.white_sigma_m * model.white_sigma_m;
         let gate = self.config.ins.gate;
-        let outcome = match baro_update(ekf.covariance(), &bs, &h, y, r, gate) {
+        let outcome = match baro_gain(ekf.covariance(), bs, tau, y, r, gate) {
             None => FusionOutcome::Skipped,
-            Some(u) => {
-                if u.report.outcome == FusionOutcome::Fused {
-                    // `baro_update` returned `u.p` checked finite.
-                    ekf.apply_finite_update(&u.dx, &u.p)?;
-                    bs.cross = u.cross;
-                    bs.variance_m2 = u.variance_m2;
-                    bs.bias_m -= u.db_m;
+            Some(Err(report)) => {
+                self.baro.last = Some(report);
+                report.outcome
+            }
+            Some(Ok(g)) => {
+                if ekf
+                    .update_rank_one(&g.dx, &g.u, &g.k, g.delta)
+                    .unwrap_or(false)
+                {
+                    bs.cross = g.cross;
+                    bs.variance_m2 = g.variance_m2;
+                    bs.bias_m -= g.db_m;
+                    self.baro.last = Some(g.report);
+                    g.report.outcome
+                } else {
+                    FusionOutcome::Skipped
                 }
-                self.baro.last = Some(u.report);
-                u.report.outcome
             }
         };
-        // Commit (the propagation to the sample happened whatever the outcome).
-        self.ekf = Some(ekf);
-        self.baro_state = bs;
         self.last_baro_time = Some(b.time);
         self.baro.counters.record(outcome);
         self.baro.last_ok = Some(self.time);
@@ -1000,21 +1046,25 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         self.seeker.status(state)
     }
 
-    /// One LOS sample through the EKF; atomic.
+    /// One LOS sample through the EKF, in place: a sample the EKF would refuse is refused
+    /// before the pending covariance step runs (nothing of it changes the filter), then the
+    /// step (atomic) and the update, with the baro column when the baro is in the EKF.
+    #[inline(never)]
     fn fuse_los(&mut self, s: &LosSample<T>) -> Result<AidState, NavError> {
-        let Some(mut ekf) = self.ekf else {
+        let model = self.baro_model();
+        let Some(ekf) = self.ekf.as_mut() else {
             return Err(NavError::InputOutOfRange {
                 input: "navigator state",
             });
         };
-        let mut bs = self.baro_state;
-        if let Some(model) = self.baro_model() {
-            // Keep the baro column in step: flush the pending covariance step first.
+        ekf.check_los(s)?;
+        let bs = &mut self.baro_state;
+        // The pending covariance step first (in place, atomic; the update then needs no copy
+        // of the filter), the baro column in step with it.
+        let report = if let Some(model) = model {
             if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
                 bs.decay(&model, dt);
             }
-        }
-        let report = if self.baro_model().is_some() {
             // The baro column follows the LOS update (module `baro`).
             let mut col = CrossColumn {
                 cross: bs.cross,
@@ -1027,14 +1077,16 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             bs.bias_m -= col.correction;
             r
         } else {
+            if ekf.los_at_ins_time(s) {
+                // As `update_los` would on a copy of the filter.
+                ekf.predict_covariance()?;
+            }
             ekf.update_los(s)?
         };
         let fused = [report.pitch.outcome, report.yaw.outcome]
             .iter()
             .filter(|o| **o == FusionOutcome::Fused)
             .count();
-        self.ekf = Some(ekf);
-        self.baro_state = bs;
         for r in [report.pitch, report.yaw] {
             self.seeker.counters.record(r.outcome);
         }

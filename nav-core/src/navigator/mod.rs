@@ -101,10 +101,15 @@
 //! LOS component; the seeker is `TimedOut` after `timeouts.seeker_s` without one (the phase
 //! stays terminal, the baro keeps damping).
 //!
-//! **Refusals.** A bad IMU sample returns `Err` and changes nothing (everything is computed on
-//! copies and committed at the end). A bad aid sample is refused: its [`AidState::Refused`]
-//! names the error, its counter counts it, nothing of it is applied, the tick runs. No input
-//! stalls the navigator: the next valid tick is processed as usual.
+//! **Refusals.** A bad IMU sample returns `Err` and changes nothing. A bad aid sample is
+//! refused: its [`AidState::Refused`] names the error, its counter counts it, nothing of it is
+//! applied, the tick runs. No input stalls the navigator: the next valid tick is processed as
+//! usual. In flight the tick works in place, without copies of the filter: what can refuse an
+//! input is checked before anything changes (a LOS sample before the pending covariance step
+//! runs), and a step whose numbers can still fail (a covariance step, an update's P) is
+//! atomic by itself — checked on its small quantities, or on its result before it is written.
+//! The baro-inertial loop configuration steps the EKF and the loop on copies (the loop can
+//! refuse after the INS has integrated the sample).
 //!
 //! **Changes to the agreed API** (`navigator-api.md`): [`FlightNavigator`] is
 //! `Navigator<T, 5, 15, H>` (the flight alignment filter has chains of 5, not 3);

@@ -1375,3 +1375,160 @@ fn stored_design_is_new_f64() {
 fn stored_design_is_new_f32() {
     stored_design_is_new::<f32>();
 }
+
+/// The navigator's baro update (the gain over the row's two columns, P updated in place after
+/// its check) gives the numbers of the reference [`baro_update`] bit for bit, f32 and f64.
+fn baro_update_in_place_is_the_reference<T: Real>() {
+    let ekf64 = flight_ekf();
+    let p64 = *ekf64.covariance();
+    let (c64, s64) = joint_column(&p64);
+    let cfg = config::<T>(BaroDamping::Ekf(baro_model()));
+    let s0 = ekf64.state();
+    let ekf = <SeekerIns<T> as crate::contract::Estimator>::new(
+        &cfg.ins,
+        &SeekerInsInitial {
+            state: InsState {
+                position: s0.position,
+                vel_ned_m_s: s0.vel_ned_m_s.map(|x| T::lit(x)),
+                q_b_n: Quaternion::from(s0.q_b_n.coords.map(|x| T::lit(x))),
+            },
+            covariance: p64.map(|x| T::lit(x)),
+        },
+    )
+    .unwrap();
+    let st = BaroState::<T> {
+        cross: c64.map(|x| T::lit(x)),
+        variance_m2: T::lit(s64),
+        bias_m: T::lit(1.5),
+    };
+    let p = *ekf.covariance();
+    for (tau, z) in [(0.3, 3004.0), (0.0, 2990.0), (0.05, 3000.5)] {
+        let (tau, z) = (T::lit(tau), T::lit(z));
+        let y = st.predicted_m(&ekf, tau) - z;
+        let r = T::one();
+        let reference = baro_update(&p, &st, &BaroState::h_row(tau), y, r, Gate::Off).unwrap();
+        let Some(Ok(g)) = super::baro::baro_gain(&p, &st, tau, y, r, Gate::Off) else {
+            panic!("the gain is formed");
+        };
+        let mut e = ekf;
+        assert!(e.update_rank_one(&g.dx, &g.u, &g.k, g.delta).unwrap());
+        let bits = |m: &[T]| m.iter().map(|v| v.to_f64().to_bits()).collect::<Vec<_>>();
+        assert_eq!(
+            bits(e.covariance().as_slice()),
+            bits(reference.p.as_slice())
+        );
+        assert_eq!(bits(g.cross.as_slice()), bits(reference.cross.as_slice()));
+        assert_eq!(bits(g.dx.as_slice()), bits(reference.dx.as_slice()));
+        assert_eq!(
+            g.variance_m2.to_f64().to_bits(),
+            reference.variance_m2.to_f64().to_bits()
+        );
+        assert_eq!(g.db_m.to_f64().to_bits(), reference.db_m.to_f64().to_bits());
+        // A gain whose P would not be a covariance is refused with nothing changed.
+        let mut f = ekf;
+        let huge = g.u * T::lit(1e6);
+        assert!(!f.update_rank_one(&g.dx, &huge, &huge, g.delta).unwrap());
+        assert_eq!(f, ekf);
+    }
+}
+
+#[test]
+fn baro_update_in_place_is_the_reference_f64() {
+    baro_update_in_place_is_the_reference::<f64>();
+}
+
+#[test]
+fn baro_update_in_place_is_the_reference_f32() {
+    baro_update_in_place_is_the_reference::<f32>();
+}
+
+/// A LOS sample refused (a non-finite or out-of-range gimbal angle) while
+/// IMU samples wait for their covariance step leaves the EKF (P, its pending step, every
+/// counter) and the baro column exactly as the same tick without it.
+fn refused_los_keeps_the_pending_step<T: Real>() {
+    let cfg = config::<T>(BaroDamping::Ekf(baro_model()));
+    let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
+    let mut world = World::new();
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    let truth = world.missile_truth(&lever);
+    let mut p0 = crate::seeker_ins::paper_initial_covariance::<T>();
+    p0 *= T::lit(0.01);
+    nav.release_with(&crate::seeker_ins::SeekerInsInitial {
+        state: InsState {
+            position: truth.position,
+            vel_ned_m_s: truth.vel_ned_m_s.map(|x| T::lit(x)),
+            q_b_n: Quaternion::from(truth.q_b_n.coords.map(|x| T::lit(x))),
+        },
+        covariance: p0,
+    })
+    .unwrap();
+    for _ in 0..((COAST_S / DT) as u64 + 2) {
+        let inc = world.step(&lever);
+        nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+    }
+    assert_eq!(nav.phase(), Phase::Midcourse);
+    // A baro sample (the column becomes non-zero), then IMU ticks: steps pending.
+    let inc = world.step(&lever);
+    let truth = world.missile_truth(&lever);
+    let b = BaroSample {
+        time: inc.time,
+        altitude_m: T::lit(truth.position.alt_m + 0.5),
+    };
+    let aids = Aids {
+        baro: Some(&b),
+        ..Aids::NONE
+    };
+    assert_eq!(
+        nav.tick(&tick_of(&inc), &aids).unwrap().baro.state,
+        AidState::Fused
+    );
+    for _ in 0..3 {
+        let inc = world.step(&lever);
+        nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+    }
+    assert!(nav.ekf().unwrap().steps_pending() > 0);
+    assert!(nav.baro_state().cross.norm() > T::zero());
+    let inc = world.step(&lever);
+    let gimbal = |pitch: f64| crate::seeker_ins::GimbalAngles {
+        pitch_rad: T::lit(pitch),
+        yaw_rad: T::zero(),
+    };
+    let bad = [
+        LosSample {
+            time: inc.time,
+            gimbal: gimbal(f64::NAN),
+        },
+        LosSample {
+            time: inc.time,
+            gimbal: gimbal(1.5),
+        },
+    ];
+    for s in &bad {
+        let mut a = nav.clone();
+        let mut b = nav.clone();
+        let aids = Aids {
+            seeker: Some(s),
+            ..Aids::NONE
+        };
+        let ra = a.tick(&tick_of(&inc), &aids).unwrap();
+        let rb = b.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        assert!(matches!(ra.seeker.state, AidState::Refused(_)));
+        assert!(
+            a.ekf().unwrap().steps_pending() > 1,
+            "the step still pending"
+        );
+        assert_eq!(a.ekf(), b.ekf());
+        assert_eq!(a.baro_state(), b.baro_state());
+        assert_eq!(ra.solution, rb.solution);
+    }
+}
+
+#[test]
+fn refused_los_keeps_the_pending_step_f64() {
+    refused_los_keeps_the_pending_step::<f64>();
+}
+
+#[test]
+fn refused_los_keeps_the_pending_step_f32() {
+    refused_los_keeps_the_pending_step::<f32>();
+}

@@ -288,33 +288,101 @@ impl<T: Real> SeekerIns<T> {
         self.gimbal_bias_rad
     }
 
-    /// An update computed outside the filter (the flight navigator's baro update, whose
-    /// 18th state lives beside the 17): the error estimate `x` (the filter's error-state
-    /// convention) is fed back through the same path as a LOS update and P becomes
-    /// `p_updated`. The caller keeps P symmetric PSD (it checks its update as the LOS update
-    /// does). Atomic: on error (non-finite correction or P) nothing changed.
-    pub(crate) fn apply_external_update(
+    /// A scalar update computed outside the filter (the flight navigator's baro update,
+    /// whose 18th state lives beside the 17), applied in place: the error estimate `x` (the
+    /// filter's error-state convention) is fed back through the same path as a LOS update,
+    /// then `P ← P − u kᵀ` (upper triangle computed, mirrored: exactly symmetric) and
+    /// `P_ii ← P_ii + P_ii δ` (`delta`: the update's relative stabilising noise). Checked
+    /// before anything changes: `Ok(false)` (nothing changed) when a variance would be
+    /// negative or an entry not finite; `Err` (nothing changed) when the feedback is refused
+    /// (a corrected position outside the model range). No copy of P.
+    pub(crate) fn update_rank_one(
         &mut self,
         x: &nalgebra::SVector<T, STATES>,
-        p_updated: &SMatrix<T, STATES, STATES>,
+        u: &nalgebra::SVector<T, STATES>,
+        k: &nalgebra::SVector<T, STATES>,
+        delta: T,
+    ) -> Result<bool, NavError> {
+        let zero = T::zero();
+        let (u, k) = (u.as_slice(), k.as_slice());
+        // Check pass over the upper triangle: `v · 0` is zero for a finite v, NaN otherwise.
+        let mut probe = zero;
+        let mut variances_ok = true;
+        for (j, (col, kj)) in self.p.as_slice().chunks_exact(STATES).zip(k).enumerate() {
+            for (pij, ui) in col.iter().zip(u).take(j) {
+                probe += (*pij - *ui * *kj) * zero;
+            }
+            if let (Some(pjj), Some(uj)) = (col.get(j), u.get(j)) {
+                let v = *pjj - *uj * *kj;
+                let d = v + v * delta;
+                variances_ok &= d >= zero && d.is_finite();
+            }
+        }
+        if !(variances_ok && probe == zero) {
+            return Ok(false);
+        }
+        self.feed_back_parts(x)?;
+        let p = self.p.as_mut_slice();
+        // Upper triangle, in place (column j, rows ≤ j: only entries not read again).
+        for (j, (col, kj)) in p.chunks_exact_mut(STATES).zip(k).enumerate() {
+            for (pij, ui) in col.iter_mut().zip(u).take(j + 1) {
+                *pij -= *ui * *kj;
+            }
+        }
+        // Mirrored (exactly symmetric), then the stabilising noise.
+        for j in 1..STATES {
+            for i in 0..j {
+                if let Some(v) = p.get(j * STATES + i).copied() {
+                    if let Some(dst) = p.get_mut(i * STATES + j) {
+                        *dst = v;
+                    }
+                }
+            }
+        }
+        for (j, col) in p.chunks_exact_mut(STATES).enumerate() {
+            if let Some(v) = col.get_mut(j) {
+                *v += *v * delta;
+            }
+        }
+        Ok(true)
+    }
+
+    /// The flight navigator's baro-inertial loop owns the vertical channel: the error
+    /// estimate `x` is fed back (as a LOS update's), then the (δh, δV_D) rows and columns of
+    /// P are replaced by the loop's block `[[var_h, cov_h_vd], [cov_h_vd, var_vd]]` (m², m²/s,
+    /// (m/s)²) with zero cross-covariances, in place. Checked first: `Err` (nothing changed)
+    /// for a block entry not finite or a refused feedback.
+    pub(crate) fn set_vertical_block(
+        &mut self,
+        x: &nalgebra::SVector<T, STATES>,
+        var_h_m2: T,
+        var_vd_m2_s2: T,
+        cov_h_vd_m2_s: T,
     ) -> Result<(), NavError> {
-        if !crate::math::checks::all_finite(p_updated.as_slice()) {
+        if !(var_h_m2.is_finite() && var_vd_m2_s2.is_finite() && cov_h_vd_m2_s.is_finite()) {
             return Err(NavError::NonFiniteInput {
                 input: "external covariance update",
             });
         }
-        self.apply_finite_update(x, p_updated)
-    }
-
-    /// [`Self::apply_external_update`] with `p_updated` already checked finite by the caller
-    /// (the navigator's baro update checks its whole result before it returns it).
-    pub(crate) fn apply_finite_update(
-        &mut self,
-        x: &nalgebra::SVector<T, STATES>,
-        p_updated: &SMatrix<T, STATES, STATES>,
-    ) -> Result<(), NavError> {
         self.feed_back_parts(x)?;
-        self.p = *p_updated;
+        let (ih, iv) = (super::POS + 2, super::VEL + 2);
+        for k in 0..STATES {
+            for (i, j) in [(ih, k), (k, ih), (iv, k), (k, iv)] {
+                if let Some(v) = self.p.get_mut((i, j)) {
+                    *v = T::zero();
+                }
+            }
+        }
+        for (i, j, v) in [
+            (ih, ih, var_h_m2),
+            (iv, iv, var_vd_m2_s2),
+            (ih, iv, cov_h_vd_m2_s),
+            (iv, ih, cov_h_vd_m2_s),
+        ] {
+            if let Some(dst) = self.p.get_mut((i, j)) {
+                *dst = v;
+            }
+        }
         Ok(())
     }
 }

@@ -11,7 +11,7 @@ use super::mechanization::{ImuIncrement, Ins};
 use crate::contract::Health;
 use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
 use crate::{NavError, Real};
-use nalgebra::{SMatrix, Vector3};
+use nalgebra::Vector3;
 
 /// Relative variance added to every state after each covariance step, in units of ε of the
 /// working precision: `P ← P + δ diag(P)`, `δ = 4 ε` (4.8e-7 in f32, 8.9e-16 in f64). The
@@ -42,6 +42,9 @@ pub struct ClipFlags {
 enum CovarianceSchedule {
     Interval,
     Deferred,
+    /// As `Interval`, with an external column propagated by the same Φ
+    /// ([`SeekerIns::propagate_cross`]; regular, unclipped samples only).
+    Cross,
 }
 
 impl<T: Real> SeekerIns<T> {
@@ -101,9 +104,74 @@ impl<T: Real> SeekerIns<T> {
         self.counted(sample, clip, CovarianceSchedule::Deferred)
     }
 
+    /// [`SeekerIns::propagate`] / [`SeekerIns::propagate_clipped`] (`clip`) without counting
+    /// a refused sample in `Health::imu_refused` (the flight navigator's refused tick changes
+    /// nothing). Atomic without a copy of the filter on the regular path.
+    pub(crate) fn propagate_uncounted(
+        &mut self,
+        sample: &ImuIncrement<T>,
+        clip: Option<ClipFlags>,
+    ) -> Result<(), NavError> {
+        self.propagate_sample(sample, clip, CovarianceSchedule::Interval)
+    }
+
     /// IMU samples integrated since the last covariance step.
+    #[cfg(test)]
     pub(crate) fn steps_pending(&self) -> u16 {
         self.steps_pending
+    }
+
+    /// [`SeekerIns::propagate_deferred`] followed, when `covariance_interval_steps` samples
+    /// are pending, by [`SeekerIns::predict_covariance_cross`] on `cross`: the same numbers,
+    /// atomic as a whole (filter and `cross` unchanged on error) without a copy of the
+    /// filter on the regular path — the INS steps on a copy of the INS and the covariance
+    /// step (itself atomic) runs before the INS is committed. A clipped sample or a gap (P
+    /// changes before the covariance step) takes the general path on a copy of the filter
+    /// (more stack). Returns the interval of the covariance step that ran, s (`None`: none).
+    /// A refused sample is not counted in `Health::imu_refused` (the flight navigator's
+    /// refused tick changes nothing).
+    pub(crate) fn propagate_cross(
+        &mut self,
+        sample: &ImuIncrement<T>,
+        clip: Option<ClipFlags>,
+        cross: &mut nalgebra::SVector<T, STATES>,
+    ) -> Result<Option<T>, NavError> {
+        let dt_us = self.ins.dt_us();
+        let gap = self.ins.time().is_some_and(|prev| {
+            sample
+                .time
+                .micros_since(prev)
+                .is_some_and(|us| us.saturating_mul(2) > dt_us.saturating_mul(3))
+        });
+        if clip.is_some() || gap {
+            return self.propagate_cross_on_copy(sample, clip, cross);
+        }
+        if self.clock.is_some_and(|t| sample.time <= t) {
+            return Err(NavError::TimeNotIncreasing);
+        }
+        self.step_sample(sample, None, CovarianceSchedule::Cross, Some(cross))
+    }
+
+    /// [`SeekerIns::propagate_cross`]'s general path: deferred propagation and the covariance
+    /// step on a copy, committed together.
+    #[inline(never)]
+    fn propagate_cross_on_copy(
+        &mut self,
+        sample: &ImuIncrement<T>,
+        clip: Option<ClipFlags>,
+        cross: &mut nalgebra::SVector<T, STATES>,
+    ) -> Result<Option<T>, NavError> {
+        let mut next = *self;
+        next.propagate_deferred(sample, clip)?;
+        let mut c = *cross;
+        let dt = if next.steps_pending >= next.config.covariance_interval_steps {
+            next.predict_covariance_cross(&mut c)?
+        } else {
+            None
+        };
+        *self = next;
+        *cross = c;
+        Ok(dt)
     }
 
     /// [`SeekerIns::predict_covariance`] that also applies the step's transition matrix Φ
@@ -121,22 +189,11 @@ impl<T: Real> SeekerIns<T> {
             return Ok(None);
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
-        let f_ned = self.dv_ned_pending_m_s / dt_total;
-        let s = self.ins.state();
-        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &self.ins.c_b_n(), &f_ned);
-        let next_cross = transition_times(&f, dt_total, cross);
-        if !next_cross.iter().all(|v| v.is_finite()) {
-            return Err(NavError::NonFiniteInput {
-                input: "propagated cross-covariance",
-            });
-        }
-        let limits_before = self.health.limits_hit;
-        self.predict_covariance()?;
-        *cross = if self.health.limits_hit == limits_before {
-            next_cross
-        } else {
-            nalgebra::SVector::zeros()
-        };
+        let dv = self.dv_ned_pending_m_s;
+        self.covariance_step_cross(None, dt_total, &dv, cross)?;
+        self.steps_pending = 0;
+        self.pending_us = 0;
+        self.dv_ned_pending_m_s = Vector3::zeros();
         Ok(Some(dt_total))
     }
 
@@ -166,7 +223,7 @@ impl<T: Real> SeekerIns<T> {
         }
         let Some(prev) = self.ins.time() else {
             // First sample after construction or re-initialisation: the nominal interval.
-            return self.step_sample(sample, clip, schedule);
+            return self.step_sample(sample, clip, schedule, None).map(|_| ());
         };
         let us = sample
             .time
@@ -174,7 +231,7 @@ impl<T: Real> SeekerIns<T> {
             .ok_or(NavError::TimeNotIncreasing)?;
         let dt_us = self.ins.dt_us();
         if us.saturating_mul(2) <= dt_us.saturating_mul(3) {
-            return self.step_sample(sample, clip, schedule);
+            return self.step_sample(sample, clip, schedule, None).map(|_| ());
         }
         // round(us / dt_us) − 1 ≥ 1 (dt_us > 0 by construction: no division by zero).
         let missing = us
@@ -189,7 +246,7 @@ impl<T: Real> SeekerIns<T> {
         } else {
             next.reset_after_gap()?;
         }
-        next.step_sample(sample, clip, schedule)?;
+        next.step_sample(sample, clip, schedule, None)?;
         next.last_imu_fault = Some(sample.time);
         *self = next;
         Ok(())
@@ -201,14 +258,15 @@ impl<T: Real> SeekerIns<T> {
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
         schedule: CovarianceSchedule,
-    ) -> Result<(), NavError> {
+        cross: Option<&mut nalgebra::SVector<T, STATES>>,
+    ) -> Result<Option<T>, NavError> {
         let dt = self.ins.interval_to(sample.time)?;
         let compensated = ImuIncrement {
             time: sample.time,
             delta_theta_rad: sample.delta_theta_rad - self.gyro_bias_rad_s * dt,
             delta_v_m_s: sample.delta_v_m_s - self.accel_bias_m_s2 * dt,
         };
-        self.propagate_compensated(&compensated, schedule)?;
+        let stepped = self.propagate_compensated(&compensated, schedule, cross)?;
         self.held_run = 0;
         if self.fusion_ref.is_none() {
             // The aid timeout runs from the start of the interval of the first sample.
@@ -231,7 +289,7 @@ impl<T: Real> SeekerIns<T> {
                 self.last_imu_fault = Some(sample.time);
             }
         }
-        Ok(())
+        Ok(stepped)
     }
 
     /// The zero-order hold over `missing` samples after the one at `prev`.
@@ -254,7 +312,7 @@ impl<T: Real> SeekerIns<T> {
         held.time = prev;
         for _ in 0..missing {
             held.time = held.time.add_micros(dt_us);
-            self.propagate_compensated(&held, schedule)?;
+            self.propagate_compensated(&held, schedule, None)?;
             self.held_run = self.held_run.saturating_add(1);
             self.inflate_degraded(self.held_run, dt, sa, sw);
         }
@@ -337,7 +395,8 @@ impl<T: Real> SeekerIns<T> {
         &mut self,
         compensated: &ImuIncrement<T>,
         schedule: CovarianceSchedule,
-    ) -> Result<(), NavError> {
+        cross: Option<&mut nalgebra::SVector<T, STATES>>,
+    ) -> Result<Option<T>, NavError> {
         // The INS steps on a copy (P, the large part, is not copied: the covariance step below
         // is atomic), and everything is committed only when both succeeded.
         let mut ins = self.ins;
@@ -350,28 +409,16 @@ impl<T: Real> SeekerIns<T> {
         let dv_pending = self.dv_ned_pending_m_s + ins.specific_force_ned_m_s2() * dt;
         let steps = self.steps_pending.saturating_add(1);
         let pending_us = self.pending_us.saturating_add(interval_us);
+        let mut stepped = None;
         if steps >= self.config.covariance_interval_steps
-            && schedule == CovarianceSchedule::Interval
+            && schedule != CovarianceSchedule::Deferred
         {
             let dt_total = self.pending_interval_s(steps, pending_us);
-            let repairs = covariance_step(
-                &mut self.p,
-                &ins,
-                dt_total,
-                &dv_pending,
-                self.design.accel_psd_m2_s3,
-                self.design.gyro_psd_rad2_s,
-            )?;
-            // Flight configuration: the instrument errors the 17 states do not model.
-            flight_noise_step(
-                &mut self.p,
-                &mut self.bias_charge,
-                &self.config.instrument_errors,
-                &ins,
-                &dv_pending,
-                dt_total,
-            );
-            self.after_covariance_step(repairs);
+            match cross {
+                Some(c) => self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c)?,
+                None => self.covariance_step_at(Some(&ins), dt_total, &dv_pending)?,
+            }
+            stepped = Some(dt_total);
             self.steps_pending = 0;
             self.pending_us = 0;
             self.dv_ned_pending_m_s = Vector3::zeros();
@@ -384,6 +431,84 @@ impl<T: Real> SeekerIns<T> {
             Health::bump(&mut self.counters.out_of_range_samples);
         }
         self.ins = ins;
+        Ok(stepped)
+    }
+
+    /// The covariance step over `dt_total_s` at the INS `ins` with the velocity increment
+    /// `dv_ned_m_s` (m/s) of the interval: `Φ P Φᵀ + Q`, the flight configuration's
+    /// instrument-error noise, repairs, stabilising noise and ceilings. The pending counters
+    /// are the caller's. Atomic (P unchanged on error).
+    fn covariance_step_at(
+        &mut self,
+        ins: Option<&Ins<T>>,
+        dt_total_s: T,
+        dv_ned_m_s: &Vector3<T>,
+    ) -> Result<(), NavError> {
+        let f_ned = dv_ned_m_s / dt_total_s;
+        let at = ins.unwrap_or(&self.ins);
+        let s = at.state();
+        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
+        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s)
+    }
+
+    /// [`Self::covariance_step_at`] with F given. Not inlined: one copy serves every
+    /// covariance step.
+    #[inline(never)]
+    fn covariance_step_f(
+        &mut self,
+        f: &SparseF<T>,
+        ins: Option<&Ins<T>>,
+        dt_total_s: T,
+        dv_ned_m_s: &Vector3<T>,
+    ) -> Result<(), NavError> {
+        let ins = ins.unwrap_or(&self.ins);
+        let repairs = propagate_covariance_sparse(
+            &mut self.p,
+            f,
+            dt_total_s,
+            self.design.accel_psd_m2_s3,
+            self.design.gyro_psd_rad2_s,
+        )?;
+        // Flight configuration: the instrument errors the 17 states do not model.
+        flight_noise_step(
+            &mut self.p,
+            &mut self.bias_charge,
+            &self.config.instrument_errors,
+            ins,
+            dv_ned_m_s,
+            dt_total_s,
+        );
+        self.after_covariance_step(repairs);
+        Ok(())
+    }
+
+    /// [`Self::covariance_step_at`] that also applies the step's Φ to `cross` (module doc of
+    /// [`Self::predict_covariance_cross`]); atomic (P and `cross` unchanged on error). `ins`:
+    /// the INS of the step (`None`: the filter's own).
+    fn covariance_step_cross(
+        &mut self,
+        ins: Option<&Ins<T>>,
+        dt_total_s: T,
+        dv_ned_m_s: &Vector3<T>,
+        cross: &mut nalgebra::SVector<T, STATES>,
+    ) -> Result<(), NavError> {
+        let f_ned = dv_ned_m_s / dt_total_s;
+        let at = ins.unwrap_or(&self.ins);
+        let s = at.state();
+        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
+        let next_cross = transition_times(&f, dt_total_s, cross);
+        if !next_cross.iter().all(|v| v.is_finite()) {
+            return Err(NavError::NonFiniteInput {
+                input: "propagated cross-covariance",
+            });
+        }
+        let limits_before = self.health.limits_hit;
+        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s)?;
+        *cross = if self.health.limits_hit == limits_before {
+            next_cross
+        } else {
+            nalgebra::SVector::zeros()
+        };
         Ok(())
     }
 
@@ -417,45 +542,11 @@ impl<T: Real> SeekerIns<T> {
             return Ok(());
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
-        let repairs = covariance_step(
-            &mut self.p,
-            &self.ins,
-            dt_total,
-            &self.dv_ned_pending_m_s,
-            self.design.accel_psd_m2_s3,
-            self.design.gyro_psd_rad2_s,
-        )?;
-        // Flight configuration: the instrument errors the 17 states do not model.
-        flight_noise_step(
-            &mut self.p,
-            &mut self.bias_charge,
-            &self.config.instrument_errors,
-            &self.ins,
-            &self.dv_ned_pending_m_s,
-            dt_total,
-        );
-        self.after_covariance_step(repairs);
+        let dv = self.dv_ned_pending_m_s;
+        self.covariance_step_at(None, dt_total, &dv)?;
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
         Ok(())
     }
-}
-
-/// `P ← Φ P Φᵀ + Q_d` over `dt_total_s` with F at the INS state and the mean specific force
-/// `dv_ned / dt_total`; atomic (P unchanged on error). Not inlined: one copy serves every
-/// covariance step.
-#[inline(never)]
-fn covariance_step<T: Real>(
-    p: &mut SMatrix<T, STATES, STATES>,
-    ins: &Ins<T>,
-    dt_total_s: T,
-    dv_ned_m_s: &Vector3<T>,
-    q_accel: T,
-    q_gyro: T,
-) -> Result<u32, NavError> {
-    let f_ned = dv_ned_m_s / dt_total_s;
-    let s = ins.state();
-    let f = SparseF::new(&s.position, &s.vel_ned_m_s, &ins.c_b_n(), &f_ned);
-    propagate_covariance_sparse(p, &f, dt_total_s, q_accel, q_gyro)
 }

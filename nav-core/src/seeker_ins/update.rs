@@ -119,7 +119,17 @@ impl<T: Real> SeekerIns<T> {
     /// doc of [`super`]). With IMU samples pending, P is first propagated on a copy of the
     /// filter (more stack) and committed with the update.
     pub fn update_los(&mut self, sample: &LosSample<T>) -> Result<LosReport<T>, NavError> {
-        let r = self.update_los_checked(sample);
+        self.update_los_col(sample, None)
+    }
+
+    /// [`Self::update_los`], with `col` (when given, and P up to date with the 2-D residual)
+    /// updated from the very components fused (`update_los_cross`).
+    fn update_los_col(
+        &mut self,
+        sample: &LosSample<T>,
+        col: Option<&mut CrossColumn<T>>,
+    ) -> Result<LosReport<T>, NavError> {
+        let r = self.update_los_checked(sample, col);
         match r {
             Ok(_) => self.last_los = Some(sample.time),
             Err(_) => self.los.record_refused(),
@@ -127,36 +137,58 @@ impl<T: Real> SeekerIns<T> {
         r
     }
 
-    fn update_los_checked(&mut self, sample: &LosSample<T>) -> Result<LosReport<T>, NavError> {
+    /// What makes [`Self::update_los`] refuse `sample` (`Err`, nothing changed but the
+    /// refusal counter): not later than the previous LOS sample, gimbal angles not finite or
+    /// beyond their limits. A sample that passes is not refused by `update_los` (the filter's
+    /// INS state and P do not enter these checks).
+    pub(crate) fn check_los(&self, sample: &LosSample<T>) -> Result<(), NavError> {
         if self.last_los.is_some_and(|t| sample.time <= t) {
             return Err(NavError::TimeNotIncreasing);
         }
-        validate_gimbal(&sample.gimbal, self.config.seeker_noise_rad)?;
-        let at_ins_time = self.ins.time().is_some_and(|t| {
+        validate_gimbal(&sample.gimbal, self.config.seeker_noise_rad)
+    }
+
+    /// Whether `sample` is within one IMU interval of the INS time (else `update_los` skips
+    /// it, `NotAtInsTime`, without propagating P).
+    pub(crate) fn los_at_ins_time(&self, sample: &LosSample<T>) -> bool {
+        self.ins.time().is_some_and(|t| {
             let d = t.as_micros().abs_diff(sample.time.as_micros());
             d <= self.ins.dt_us()
-        });
-        if !at_ins_time {
+        })
+    }
+
+    fn update_los_checked(
+        &mut self,
+        sample: &LosSample<T>,
+        col: Option<&mut CrossColumn<T>>,
+    ) -> Result<LosReport<T>, NavError> {
+        self.check_los(sample)?;
+        if !self.los_at_ins_time(sample) {
             return Ok(self.skip_all(sample, T::zero(), LosSkipReason::NotAtInsTime));
         }
         if self.steps_pending > 0 {
             return self.update_los_pending(sample);
         }
-        self.update_los_now(sample)
+        self.update_los_now(sample, col)
     }
 
     #[inline(never)]
     fn update_los_pending(&mut self, sample: &LosSample<T>) -> Result<LosReport<T>, NavError> {
         let mut next = *self;
         next.predict_covariance()?;
-        let report = next.update_los_now(sample)?;
+        let report = next.update_los_now(sample, None)?;
         *self = next;
         Ok(report)
     }
 
-    /// Not inlined: one copy serves the direct and the pending-prediction paths.
+    /// Not inlined: one copy serves the direct and the pending-prediction paths. `col` (the
+    /// 2-D residual only): updated after a committed fusion, from the same components.
     #[inline(never)]
-    fn update_los_now(&mut self, sample: &LosSample<T>) -> Result<LosReport<T>, NavError> {
+    fn update_los_now(
+        &mut self,
+        sample: &LosSample<T>,
+        col: Option<&mut CrossColumn<T>>,
+    ) -> Result<LosReport<T>, NavError> {
         let sigma = self.config.seeker_noise_rad;
         let measured = &sample.gimbal;
         let corrected = GimbalAngles {
@@ -184,7 +216,17 @@ impl<T: Real> SeekerIns<T> {
         }
         let model = los_model_at(&s.position, &d, &c_b_n, &corrected, sigma)?;
         let c = two_components(&self.p, &model, gate);
-        Ok(self.commit_two(sample, &model, &c))
+        let report = self.commit_two(sample, &model, &c);
+        if let Some(col) = col {
+            let fused = |r: &FusionReport<T>| r.outcome == FusionOutcome::Fused;
+            if fused(&report.pitch) || fused(&report.yaw) {
+                match cross_after_los(&report, &model, &c, col) {
+                    Some(next) => *col = next,
+                    None => col.forget(),
+                }
+            }
+        }
+        Ok(report)
     }
 
     /// Checks and applies a computed 2-D update (or reports why not).
@@ -617,8 +659,9 @@ impl<T: Real> SeekerIns<T> {
     /// 18-state sequential update would (b does not enter the LOS: `h_aug = [h, 0]`):
     /// per fused component, `g = h c`, `c ← c − K g`, `s ← s − g²/S`, `δb̂ += g ν / S` with the
     /// component's gain `K = P h / S`, S and ν as fused (the second against the first's
-    /// result). The components are recomputed from the filter before the update (the same
-    /// inputs, the same numbers); the filter's own update is `update_los`, unchanged. When P
+    /// result). The column is formed from the very components the update fused (computed
+    /// once, against P before the update; no copy of the filter); the filter's own update is
+    /// `update_los`'s, unchanged. When P
     /// changed otherwise (pending IMU samples propagated first, a recovery inflation, the 3-D
     /// residual) the correlation is forgotten (`c ← 0`). Errors as `update_los` (the column
     /// unchanged).
@@ -627,79 +670,56 @@ impl<T: Real> SeekerIns<T> {
         sample: &LosSample<T>,
         col: &mut CrossColumn<T>,
     ) -> Result<LosReport<T>, NavError> {
-        let before = *self;
-        let report = self.update_los(sample)?;
-        let fused = |r: &FusionReport<T>| r.outcome == FusionOutcome::Fused;
-        if !(fused(&report.pitch) || fused(&report.yaw)) {
-            if self.los.recoveries != before.los.recoveries {
-                col.forget();
-            }
-            return Ok(report);
-        }
-        let projected_2d = before.steps_pending == 0 && {
+        let recoveries = self.los.recoveries;
+        let projected_2d = self.steps_pending == 0 && {
             #[cfg(feature = "los-residual-3d")]
             {
-                before.config.residual == LosResidual::Projected2d
+                self.config.residual == LosResidual::Projected2d
             }
             #[cfg(not(feature = "los-residual-3d"))]
             {
                 true
             }
         };
-        let next = if projected_2d {
-            before.cross_after_los(sample, &report, col)
-        } else {
-            None
-        };
-        match next {
-            Some(c) => *col = c,
-            None => col.forget(),
+        let report = self.update_los_col(sample, projected_2d.then_some(&mut *col))?;
+        let fused = |r: &FusionReport<T>| r.outcome == FusionOutcome::Fused;
+        if !(fused(&report.pitch) || fused(&report.yaw)) {
+            if self.los.recoveries != recoveries {
+                col.forget();
+            }
+        } else if !projected_2d {
+            col.forget();
         }
         Ok(report)
     }
+}
 
-    /// The column after the fused components of `report` (`None`: cannot be formed).
-    fn cross_after_los(
-        &self,
-        sample: &LosSample<T>,
-        report: &LosReport<T>,
-        col: &CrossColumn<T>,
-    ) -> Option<CrossColumn<T>> {
-        let corrected = GimbalAngles {
-            pitch_rad: sample.gimbal.pitch_rad - self.gimbal_bias_rad.x,
-            yaw_rad: sample.gimbal.yaw_rad - self.gimbal_bias_rad.y,
-        };
-        let s = self.ins.state();
-        let d = landmark_vector_ned(&s.position, &self.config.landmark);
-        let c_b_n = self.ins.c_b_n();
-        let model = los_model_at(
-            &s.position,
-            &d,
-            &c_b_n,
-            &corrected,
-            self.config.seeker_noise_rad,
-        )
-        .ok()?;
-        let c = two_components(&self.p, &model, self.config.gate);
-        let mut out = *col;
-        let steps = [
-            (&report.pitch, &c.rep1, &model.h_pitch, &c.kk1),
-            (&report.yaw, &c.rep2, &model.h_yaw, &c.kk2),
-        ];
-        for (committed, rep, h, kk) in steps {
-            if committed.outcome != FusionOutcome::Fused {
-                continue;
-            }
-            let g = h.dot(&out.cross);
-            let inv_s = T::one() / rep.innovation_variance;
-            out.cross -= SVector::<T, STATES>::from(*kk) * g;
-            out.variance -= g * g * inv_s;
-            out.correction += g * inv_s * rep.innovation;
+/// The column after the fused components of `report` (`None`: cannot be formed): the
+/// components `c` of `model` as computed against P before the update.
+fn cross_after_los<T: Real>(
+    report: &LosReport<T>,
+    model: &LosModel<T>,
+    c: &TwoComponents<T>,
+    col: &CrossColumn<T>,
+) -> Option<CrossColumn<T>> {
+    let mut out = *col;
+    let steps = [
+        (&report.pitch, &c.rep1, &model.h_pitch, &c.kk1),
+        (&report.yaw, &c.rep2, &model.h_yaw, &c.kk2),
+    ];
+    for (committed, rep, h, kk) in steps {
+        if committed.outcome != FusionOutcome::Fused {
+            continue;
         }
-        let ok = out.variance >= T::zero()
-            && out.variance.is_finite()
-            && out.correction.is_finite()
-            && crate::math::checks::all_finite(out.cross.as_slice());
-        ok.then_some(out)
+        let g = h.dot(&out.cross);
+        let inv_s = T::one() / rep.innovation_variance;
+        out.cross -= SVector::<T, STATES>::from(*kk) * g;
+        out.variance -= g * g * inv_s;
+        out.correction += g * inv_s * rep.innovation;
     }
+    let ok = out.variance >= T::zero()
+        && out.variance.is_finite()
+        && out.correction.is_finite()
+        && crate::math::checks::all_finite(out.cross.as_slice());
+    ok.then_some(out)
 }
