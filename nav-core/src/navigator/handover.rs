@@ -75,23 +75,15 @@ impl<T: Real> AlignmentAtRelease<T> {
     /// covariance, θ̂_f, θ̂̇_f and the covariance of θ̂̇_f (the filter's θ̇_f block, states 6..9
     /// of its derivative-major state).
     pub fn from_filter<const K: usize, const N: usize>(f: &TransferAlignment<T, K, N>) -> Self {
-        let p = f.covariance();
         Self {
             theta_rad: f.theta(),
             theta_covariance_rad2: f.theta_covariance(),
             flexure_rad: f.theta_f(),
             flexure_rate_rad_s: f.theta_f_rate(),
-            flexure_rate_covariance: Matrix3::from_fn(|i, j| {
-                p.get((FLEXURE_RATE + i, FLEXURE_RATE + j))
-                    .copied()
-                    .unwrap_or_else(T::zero)
-            }),
+            flexure_rate_covariance: f.theta_f_rate_covariance(),
         }
     }
 }
-
-/// Index of θ̇_f in a transfer-alignment filter's state `[θ, θ_f, θ̇_f, …]`.
-const FLEXURE_RATE: usize = 6;
 
 /// The pylon's lever arm from the master IMU to the slave IMU, master body axes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -173,7 +165,89 @@ pub fn hand_over<T: Real>(
     lever: &LeverArm<T>,
     priors: &HandoverPriors<T>,
 ) -> Result<SeekerInsInitial<T>, NavError> {
-    validate(master, alignment, lever, priors)?;
+    let nav = hand_over_nav(master, alignment, lever, priors)?;
+    let mut covariance = SMatrix::<T, STATES, STATES>::zeros();
+    nav.blocks.write_p0(priors, &mut covariance);
+    Ok(SeekerInsInitial {
+        state: nav.state,
+        covariance,
+    })
+}
+
+/// The hand-over's navigation part: the transferred INS state and the three diagonal
+/// blocks of its covariance (the cross blocks are zero, module doc).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct NavHandover<T> {
+    pub(crate) state: InsState<T>,
+    pub(crate) blocks: NavBlocks<T>,
+}
+
+/// The navigation blocks of the hand-over's P0, symmetrised as P0 is: position (δL rad,
+/// δl rad, δh m: rad², rad², m²), velocity NED ((m/s)²), attitude φ (rad²).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct NavBlocks<T> {
+    pub(crate) pos: Matrix3<T>,
+    pub(crate) vel: Matrix3<T>,
+    pub(crate) att: Matrix3<T>,
+}
+
+/// `(B + Bᵀ) / 2`, entry by entry as the symmetrisation of the whole P0.
+fn symmetrised<T: Real>(b: &Matrix3<T>) -> Matrix3<T> {
+    Matrix3::from_fn(|i, j| (b[(i, j)] + b[(j, i)]) * T::lit(0.5))
+}
+
+impl<T: Real> NavBlocks<T> {
+    /// The 9 × 9 navigation block `[δr, δv, φ]` of P0 (zero cross blocks).
+    pub(crate) fn nav9(&self) -> SMatrix<T, 9, 9> {
+        let mut p = SMatrix::<T, 9, 9>::zeros();
+        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&self.pos);
+        p.fixed_view_mut::<3, 3>(3, 3).copy_from(&self.vel);
+        p.fixed_view_mut::<3, 3>(6, 6).copy_from(&self.att);
+        p
+    }
+
+    /// Writes the whole 17-state P0 into `p0` (every entry): these blocks, the priors'
+    /// variances on the bias and gimbal states, zero elsewhere. In place: a P0 is built once,
+    /// where it is used.
+    pub(crate) fn write_p0(&self, priors: &HandoverPriors<T>, p0: &mut SMatrix<T, STATES, STATES>) {
+        p0.fill(T::zero());
+        p0.fixed_view_mut::<3, 3>(POS, POS).copy_from(&self.pos);
+        p0.fixed_view_mut::<3, 3>(VEL, VEL).copy_from(&self.vel);
+        p0.fixed_view_mut::<3, 3>(ATT, ATT).copy_from(&self.att);
+        let ab = priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2;
+        let gb = priors.gyro_bias_sigma_rad_s * priors.gyro_bias_sigma_rad_s;
+        let sb = priors.gimbal_bias_sigma_rad * priors.gimbal_bias_sigma_rad;
+        // A diagonal entry symmetrised is itself ((v + v)/2 = v exactly).
+        p0.fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS)
+            .fill_diagonal(ab);
+        p0.fixed_view_mut::<3, 3>(GYRO_BIAS, GYRO_BIAS)
+            .fill_diagonal(gb);
+        p0.fixed_view_mut::<2, 2>(GIMBAL, GIMBAL).fill_diagonal(sb);
+    }
+}
+
+/// [`hand_over`] without the states the alignment does not hand over: the INS state and the
+/// navigation blocks of P0 (what the carry phase needs at every master sample; the 17 × 17 P0
+/// is written once, at separation, by [`NavBlocks::write_p0`]). Same checks and errors as
+/// [`hand_over`] (the priors included).
+pub(crate) fn hand_over_nav<T: Real>(
+    master: &MasterAtRelease<T>,
+    alignment: &AlignmentAtRelease<T>,
+    lever: &LeverArm<T>,
+    priors: &HandoverPriors<T>,
+) -> Result<NavHandover<T>, NavError> {
+    validate_master(master, lever, priors)?;
+    hand_over_checked_master(master, alignment, lever)
+}
+
+/// [`hand_over_nav`] for a master, lever arm and priors that passed [`validate_master`]:
+/// checks the alignment only (its errors as [`hand_over`]'s).
+pub(crate) fn hand_over_checked_master<T: Real>(
+    master: &MasterAtRelease<T>,
+    alignment: &AlignmentAtRelease<T>,
+    lever: &LeverArm<T>,
+) -> Result<NavHandover<T>, NavError> {
+    validate_alignment(alignment)?;
     let c_m_n = master.c_m_n;
     let theta = alignment.theta_rad;
     // Attitude.
@@ -227,32 +301,24 @@ pub fn hand_over<T: Real>(
     let d = Vector3::new(T::one() / r_north, T::one() / r_east, -T::one());
     let dm = Matrix3::from_diagonal(&d);
     let p_pos = dm * p_r_ned * dm;
-    let mut p0 = SMatrix::<T, STATES, STATES>::zeros();
-    p0.fixed_view_mut::<3, 3>(POS, POS).copy_from(&p_pos);
-    p0.fixed_view_mut::<3, 3>(VEL, VEL).copy_from(&p_v);
-    p0.fixed_view_mut::<3, 3>(ATT, ATT).copy_from(&p_phi);
-    let ab = priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2;
-    let gb = priors.gyro_bias_sigma_rad_s * priors.gyro_bias_sigma_rad_s;
-    let sb = priors.gimbal_bias_sigma_rad * priors.gimbal_bias_sigma_rad;
-    p0.fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS)
-        .fill_diagonal(ab);
-    p0.fixed_view_mut::<3, 3>(GYRO_BIAS, GYRO_BIAS)
-        .fill_diagonal(gb);
-    p0.fixed_view_mut::<2, 2>(GIMBAL, GIMBAL).fill_diagonal(sb);
-    let p0 = (p0 + p0.transpose()) * T::lit(0.5);
-    Ok(SeekerInsInitial {
+    Ok(NavHandover {
         state: InsState {
             position,
             vel_ned_m_s: vel,
             q_b_n: dcm_to_quat(&c_s_n),
         },
-        covariance: p0,
+        blocks: NavBlocks {
+            pos: symmetrised(&p_pos),
+            vel: symmetrised(&p_v),
+            att: symmetrised(&p_phi),
+        },
     })
 }
 
-fn validate<T: Real>(
+/// The checks of [`hand_over`] on what does not come from the alignment: the master, the
+/// lever arm and the priors (errors as [`hand_over`]'s).
+pub(crate) fn validate_master<T: Real>(
     master: &MasterAtRelease<T>,
-    alignment: &AlignmentAtRelease<T>,
     lever: &LeverArm<T>,
     priors: &HandoverPriors<T>,
 ) -> Result<(), NavError> {
@@ -295,6 +361,12 @@ fn validate<T: Real>(
             return Err(NavError::InputOutOfRange { input });
         }
     }
+    finite3(&lever.nominal_m, "lever.nominal_m")?;
+    sigma3(&lever.sigma_m, "lever.sigma_m")
+}
+
+/// The checks of [`hand_over`] on the alignment's estimate.
+fn validate_alignment<T: Real>(alignment: &AlignmentAtRelease<T>) -> Result<(), NavError> {
     finite3(&alignment.theta_rad, "alignment.theta_rad")?;
     finite3(&alignment.flexure_rad, "alignment.flexure_rad")?;
     finite3(
@@ -308,9 +380,7 @@ fn validate<T: Real>(
     covariance3(
         &alignment.flexure_rate_covariance,
         "alignment.flexure_rate_covariance",
-    )?;
-    finite3(&lever.nominal_m, "lever.nominal_m")?;
-    sigma3(&lever.sigma_m, "lever.sigma_m")
+    )
 }
 
 #[cfg(test)]

@@ -69,6 +69,10 @@ impl<T: Real> TaInitial<T> {
 /// The covariance is double-buffered: a step predicts from the current buffer into the other
 /// one, fuses there, and only then makes it current, so an error leaves the filter untouched
 /// without copying P. The `Debug` output shows the state (current buffer only).
+///
+/// The scratch buffer also carries a prediction run ahead of the next epoch
+/// ([`Self::predict_ahead`]): a tick without master data can do the first prediction of the
+/// next step, which then continues from it (bit-identical results).
 #[derive(Clone)]
 pub struct TransferAlignment<T: Real, const K: usize, const N: usize> {
     pub(super) cfg: TaConfig<T>,
@@ -97,6 +101,9 @@ pub struct TransferAlignment<T: Real, const K: usize, const N: usize> {
     /// Time stamp of the last accepted sample.
     pub(super) last: Option<Timestamp>,
     pub(super) monitor: Monitor,
+    /// The state after one prediction from the current epoch, its covariance in the scratch
+    /// buffer ([`Self::predict_ahead`]); `None`: nothing prepared.
+    pub(super) ahead: Option<SVector<T, N>>,
 }
 
 impl<T: Real, const K: usize, const N: usize> core::fmt::Debug for TransferAlignment<T, K, N> {
@@ -186,6 +193,7 @@ impl<T: Real, const K: usize, const N: usize> Estimator for TransferAlignment<T,
             grid: None,
             last: None,
             monitor: Monitor::new(),
+            ahead: None,
         })
     }
 
@@ -204,6 +212,7 @@ impl<T: Real, const K: usize, const N: usize> Estimator for TransferAlignment<T,
         set_mount_only::<T, K, N>(&mut self.x, &[m.x, m.y, m.z]);
         let p = initial_covariance::<T, K, N>(&self.chains);
         self.p = [p, p];
+        self.ahead = None;
         let mon = &mut self.monitor;
         Health::bump(&mut mon.health.reinitialisations);
         for c in mon.channels.iter_mut() {
@@ -354,6 +363,11 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// Covariance of θ = θ_m + θ_f (rad², the filter's own θ block).
     pub fn theta_covariance(&self) -> Matrix3<T> {
         Matrix3::from_fn(|a, b| self.p_at(K * a, K * b))
+    }
+
+    /// Covariance of θ̇_f, (rad/s)² (the filter's own θ̇_f block; read in place).
+    pub fn theta_f_rate_covariance(&self) -> Matrix3<T> {
+        Matrix3::from_fn(|a, b| self.p_at(K * a + 2, K * b + 2))
     }
 
     /// Covariance of θ_m = θ − θ_f (rad²): `P_θθ − P_θf − P_fθ + P_ff`.

@@ -208,8 +208,11 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             q_d,
             p,
             second,
+            ahead,
             ..
         } = self;
+        // Whatever the plan, the prepared prediction is used up (or overwritten) here.
+        let ahead = ahead.take();
         let [a, b] = p;
         let (cur, scratch) = if *second { (&*b, a) } else { (&*a, b) };
         if plan.gap == GapOutcome::FlexureReinitialised {
@@ -221,11 +224,78 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             scratch.copy_from(cur);
             return;
         }
-        predict_state(phi, x);
-        predict_cov(phi, q_d, Some(cur), scratch);
+        // The first prediction: done ahead (`predict_ahead`: its covariance is in the scratch
+        // buffer already), or now.
+        match ahead {
+            Some(xa) => *x = xa,
+            None => {
+                predict_state(phi, x);
+                predict_cov(phi, q_d, Some(cur), scratch);
+            }
+        }
         for _ in 1..plan.predictions {
             predict_state(phi, x);
             predict_cov(phi, q_d, None, scratch);
+        }
+    }
+
+    /// Runs the first prediction of the next epoch now, into the scratch buffer, so that the
+    /// next [`Self::step`] or [`Self::propagate`] has one prediction less to do (a tick
+    /// without master data carries it, the tick of the master sample does not). The estimate
+    /// is unchanged: state, covariance, time, health and every accessor read the current
+    /// epoch. The next call whose time plan starts with a prediction continues from it with
+    /// bit-identical results; a plan without one (a sample in the same step, a gap reset),
+    /// [`crate::contract::Estimator::reinitialise`] or a step undone by [`Self::step_then`] discards it.
+    /// Returns `false` (nothing done) before the first epoch or when a prediction is already
+    /// prepared.
+    #[inline(never)]
+    pub fn predict_ahead(&mut self) -> bool {
+        if self.grid.is_none() || self.ahead.is_some() {
+            return false;
+        }
+        let Self {
+            phi,
+            q_d,
+            p,
+            second,
+            x,
+            ..
+        } = self;
+        let [a, b] = p;
+        let (cur, scratch) = if *second { (&*b, a) } else { (&*a, b) };
+        let mut xa = *x;
+        predict_state(phi, &mut xa);
+        predict_cov(phi, q_d, Some(cur), scratch);
+        self.ahead = Some(xa);
+        true
+    }
+
+    /// [`Self::step`], then `then` on the stepped filter; when `then` fails the step is undone
+    /// (the estimate, its covariance, time and every counter as before the call — the step
+    /// wrote the other covariance buffer only, so nothing larger than the state is saved) and
+    /// its error returned. For a caller whose own commit depends on the updated estimate
+    /// (the navigator's hand-over), without a copy of the filter. Errors: those of
+    /// [`Self::step`] (nothing changed), then those of `then` (step undone).
+    pub fn step_then<R>(
+        &mut self,
+        master: &MasterSample<T>,
+        slave: &SlaveSample<T>,
+        then: impl FnOnce(&Self) -> Result<R, NavError>,
+    ) -> Result<(StepReport<T>, R), NavError> {
+        let (x, grid, last, monitor, second) =
+            (self.x, self.grid, self.last, self.monitor, self.second);
+        let report = self.step(master, slave)?;
+        match then(self) {
+            Ok(r) => Ok((report, r)),
+            Err(e) => {
+                self.x = x;
+                self.grid = grid;
+                self.last = last;
+                self.monitor = monitor;
+                self.second = second;
+                self.ahead = None;
+                Err(e)
+            }
         }
     }
 
@@ -473,6 +543,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         self.x = x;
         self.second = !self.second;
         self.grid = Some(plan.grid);
+        self.ahead = None;
     }
 
     /// Counts a bridged gap (more than one prediction) or a reset one.

@@ -169,6 +169,127 @@ fn step_and_errors<T: Real, const K: usize, const N: usize>() {
     assert_eq!(f.aid_counters(Channel::ForceY).rejected, 0);
 }
 
+/// A prediction run ahead ([`TransferAlignment::predict_ahead`]) changes nothing of the
+/// estimate, and the steps and propagations after it are bit for bit those without it,
+/// whatever their time plan (predictions, none, a gap reset), across a refusal and a
+/// re-initialisation.
+fn predict_ahead_is_exact<T: Real, const K: usize, const N: usize>() {
+    let mut a = new::<T, K, N>(cfg()).unwrap();
+    let mut b = a.clone();
+    let same = |a: &TransferAlignment<T, K, N>, b: &TransferAlignment<T, K, N>| {
+        assert_eq!(format!("{a:?}"), format!("{b:?}"));
+        assert_eq!(a.covariance(), b.covariance());
+        assert_eq!(a.state(), b.state());
+    };
+    // Nothing to predict before the first epoch.
+    assert!(!a.predict_ahead());
+    let (m, s) = samples::<T>(0.0);
+    assert_eq!(a.step(&m, &s), b.step(&m, &s));
+    let step_both = |a: &mut TransferAlignment<T, K, N>,
+                     b: &mut TransferAlignment<T, K, N>,
+                     t: f64,
+                     predictions: u32| {
+        assert!(a.predict_ahead());
+        assert!(!a.predict_ahead(), "one prediction ahead at most");
+        same(a, b);
+        let (m, s) = samples::<T>(t);
+        let ra = a.step(&m, &s).unwrap();
+        assert_eq!(ra.predictions, predictions);
+        assert_eq!(Ok(ra), b.step(&m, &s));
+        same(a, b);
+    };
+    step_both(&mut a, &mut b, 0.02, 2);
+    step_both(&mut a, &mut b, 0.03, 1);
+    // A sample in the same step (no prediction) discards it.
+    step_both(&mut a, &mut b, 0.034, 0);
+    // Propagation continues from it.
+    assert!(a.predict_ahead());
+    assert_eq!(
+        a.propagate(Timestamp::from_millis(50)),
+        b.propagate(Timestamp::from_millis(50))
+    );
+    same(&a, &b);
+    // A refused sample keeps it; the next step uses it.
+    assert!(a.predict_ahead());
+    let (m, s) = samples::<T>(0.05);
+    assert!(a.step(&m, &s).is_err());
+    assert!(b.step(&m, &s).is_err());
+    same(&a, &b);
+    assert!(!a.predict_ahead(), "still prepared");
+    let (m, s) = samples::<T>(0.06);
+    assert_eq!(a.step(&m, &s), b.step(&m, &s));
+    same(&a, &b);
+    // A gap reset (5 steps, max 3) discards it.
+    step_both(&mut a, &mut b, 0.11, 0);
+    assert_eq!(a.health().gaps_reset, 1);
+    // Re-initialisation discards it.
+    assert!(a.predict_ahead());
+    a.reinitialise(&TaInitial::default()).unwrap();
+    b.reinitialise(&TaInitial::default()).unwrap();
+    same(&a, &b);
+    step_both(&mut a, &mut b, 0.12, 1);
+}
+
+#[test]
+fn predict_ahead_is_exact_f32_f64() {
+    predict_ahead_is_exact::<f64, 3, 9>();
+    predict_ahead_is_exact::<f32, 4, 12>();
+    predict_ahead_is_exact::<f64, 5, 15>();
+    predict_ahead_is_exact::<f32, 5, 15>();
+}
+
+/// [`TransferAlignment::step_then`]: a failing continuation undoes the step (the filter as
+/// before, bit for bit, and it continues as a twin that never saw the sample); a refused
+/// sample does not call it; a successful one commits as [`TransferAlignment::step`].
+fn step_then_undoes<T: Real, const K: usize, const N: usize>() {
+    let mut f = new::<T, K, N>(cfg()).unwrap();
+    for t in [0.0, 0.01] {
+        let (m, s) = samples::<T>(t);
+        f.step(&m, &s).unwrap();
+    }
+    let mut twin = f.clone();
+    assert!(f.predict_ahead());
+    let before = format!("{f:?}");
+    let (m, s) = samples::<T>(0.02);
+    let undone = f.step_then(&m, &s, |g| {
+        assert_ne!(
+            format!("{g:?}"),
+            before,
+            "the continuation sees the stepped filter"
+        );
+        Err::<(), _>(NavError::InputOutOfRange { input: "test" })
+    });
+    assert_eq!(undone, Err(NavError::InputOutOfRange { input: "test" }));
+    assert_eq!(format!("{f:?}"), before);
+    assert_eq!(f.covariance(), twin.covariance());
+    let (report, theta) = f.step_then(&m, &s, |g| Ok(g.theta())).unwrap();
+    assert_eq!(Ok(report), twin.step(&m, &s));
+    assert_eq!(theta, twin.theta());
+    assert_eq!(format!("{f:?}"), format!("{twin:?}"));
+    // Refused (same time again): the continuation is not called.
+    let mut called = false;
+    let refused = f.step_then(&m, &s, |_| {
+        called = true;
+        Ok(())
+    });
+    assert_eq!(refused, Err(NavError::TimeNotIncreasing));
+    assert!(!called);
+    let (m, s) = samples::<T>(0.03);
+    assert_eq!(f.step(&m, &s), twin.step(&m, &s));
+    assert_eq!(
+        f.health().imu_refused,
+        twin.health().imu_refused + 1,
+        "the refusal counted, the undone step not"
+    );
+}
+
+#[test]
+fn step_then_undoes_f32_f64() {
+    step_then_undoes::<f64, 4, 12>();
+    step_then_undoes::<f32, 5, 15>();
+    step_then_undoes::<f64, 5, 15>();
+}
+
 #[test]
 fn step_reports_and_errors_leave_state_f32_f64() {
     step_and_errors::<f64, 4, 12>();
