@@ -97,6 +97,12 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     /// convention): what the EKF starts from at separation, kept so that the separation tick
     /// does not compute the hand-over again (the alignment has not changed since).
     handover: Option<NavBlocks<T>>,
+    /// The last master sample's correction of the INS snapshots, applied on the next tick
+    /// (the snapshots are read at the next master sample only).
+    snapshot_fix: Option<SnapshotFix<T>>,
+    /// Predictions the alignment's last step ran (what the next master sample will likely
+    /// need: the ticks before it run them ahead).
+    master_steps: u32,
     last_master: Option<MasterRecord<T>>,
     /// The IMU's own free-fall evidence (unsignalled release).
     free_fall: super::carry::FreeFall,
@@ -115,6 +121,10 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     baro: AidTrack<T>,
     seeker: AidTrack<T>,
 }
+
+/// Alignment predictions a carry tick without master data runs ahead at most (each ≈ one
+/// `TransferAlignment::propagate`).
+const MAX_AHEAD_PER_TICK: u32 = 2;
 
 /// The navigator with the flight transfer-alignment filter ([`crate::transfer_alignment::FlightFilter`]).
 pub type FlightNavigator<T, const H: usize> = Navigator<T, 5, 15, H>;
@@ -180,17 +190,13 @@ fn at_release<T: Real>(m: &MasterNav<T>, rate_sigma_rad_s: T) -> MasterAtRelease
     }
 }
 
-/// A master sample's hand-over, computed and not yet committed (`slave_to`).
-struct Slaved<T: Real> {
-    /// The carry solution's covariance: the hand-over's 9 × 9 navigation block, NED
-    /// convention (position m², velocity (m/s)², attitude rad²).
-    carry_cov: SMatrix<T, 9, 9>,
-    /// The same blocks in the EKF's convention (kept for the separation).
-    blocks: NavBlocks<T>,
-    /// The INS slaved to the hand-over.
-    ins: Ins<T>,
-    /// The correction the snapshots since the master's epoch take (checked finite on each).
+/// A master sample's correction of the INS snapshots stamped `from..=until` (its epoch to
+/// its tick), not applied yet.
+#[derive(Debug, Clone, Copy)]
+struct SnapshotFix<T> {
     correction: Correction<T>,
+    from: Timestamp,
+    until: Timestamp,
 }
 
 /// The error `snapshot − transferred` as the INS's correction arguments.
@@ -247,33 +253,34 @@ impl<T: Real> Correction<T> {
     }
 }
 
-/// The hand-over at the master's epoch with the (updated) alignment `ta`: the carry
-/// covariance (the hand-over's 9×9 navigation block, NED convention, and its blocks in the
-/// EKF's), the INS slaved to it and the correction its snapshots since `snap` take
-/// (computed, not committed; the correction checked finite, so the commit cannot fail).
-/// Nothing larger than the INS is returned: the snapshots are corrected in place at the
-/// commit, not copied.
+/// Where a master sample's hand-over is committed: the navigator's carry fields.
+struct CarryTargets<'a, T: Real> {
+    ins: &'a mut Ins<T>,
+    carry_cov: &'a mut SMatrix<T, 9, 9>,
+    handover: &'a mut Option<NavBlocks<T>>,
+    snapshot_fix: &'a mut Option<SnapshotFix<T>>,
+}
+
+/// The hand-over at the master's epoch with the (updated) alignment `ta`, and the INS slaved
+/// to it, committed into `out` only when nothing failed: the carry covariance (the
+/// hand-over's 9×9 navigation block, NED convention, and its blocks in the EKF's), the INS
+/// corrected in place (`Ins::correct` is atomic and the last fallible step), and the
+/// correction its snapshots since `snap` take (checked finite, applied on the next tick).
+/// Nothing is returned by value.
 fn slave_to<T: Real, const K: usize, const N: usize>(
     config: &NavigatorConfig<T>,
-    ins: &Ins<T>,
     ta: &TransferAlignment<T, K, N>,
     master: &MasterAtRelease<T>,
     snap: &Snapshot<T>,
-) -> Result<Slaved<T>, NavError> {
+    now: Timestamp,
+    out: CarryTargets<'_, T>,
+) -> Result<(), NavError> {
     let nav = hand_over_checked_master(
         master,
         &AlignmentAtRelease::from_filter(ta),
         &config.lever_arm,
     )?;
     let corr = Correction::between(&snap.state, &nav.state);
-    let mut ins = *ins;
-    ins.correct(
-        corr.d_lat_rad,
-        corr.d_lon_rad,
-        corr.d_alt_m,
-        &corr.d_vel_m_s,
-        &corr.phi_rad,
-    )?;
     // A finite correction applies to every stored state (finite, unit quaternion): checked
     // once here instead of on each snapshot.
     if !corr.is_finite() {
@@ -281,12 +288,22 @@ fn slave_to<T: Real, const K: usize, const N: usize>(
             input: "master correction",
         });
     }
-    Ok(Slaved {
-        carry_cov: nav9_to_ned(nav.blocks.nav9(), ned_factors(&nav.state)),
-        blocks: nav.blocks,
-        ins,
+    out.ins.correct(
+        corr.d_lat_rad,
+        corr.d_lon_rad,
+        corr.d_alt_m,
+        &corr.d_vel_m_s,
+        &corr.phi_rad,
+    )?;
+    // Commit (nothing below fails).
+    *out.carry_cov = nav9_to_ned(nav.blocks.nav9(), ned_factors(&nav.state));
+    *out.handover = Some(nav.blocks);
+    *out.snapshot_fix = Some(SnapshotFix {
         correction: corr,
-    })
+        from: snap.time,
+        until: now,
+    });
+    Ok(())
 }
 
 impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
@@ -363,6 +380,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             snapshots: Deque::new(),
             carry_cov: *cov,
             handover: None,
+            snapshot_fix: None,
+            master_steps: 0,
             last_master: None,
             free_fall: super::carry::FreeFall::default(),
             separation: SeparationStatus::NotSignalled,
@@ -560,6 +579,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         self.history.push(&slave)?;
         self.ins = ins;
         self.time = inc.time;
+        self.apply_snapshot_fix();
         if self.snapshots.is_full() {
             let _ = self.snapshots.pop_front();
         }
@@ -577,9 +597,16 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 }
             };
         } else {
-            // A tick without master data carries the alignment's next prediction (the master
-            // tick then has one less to do).
-            self.ta.predict_ahead();
+            // A tick without master data carries the alignment's next predictions, as many as
+            // the last master sample needed (at most two a tick): the master tick then has
+            // those less to do.
+            let mut run = 0;
+            while run < MAX_AHEAD_PER_TICK
+                && self.ta.steps_ahead() < self.master_steps
+                && self.ta.predict_ahead()
+            {
+                run += 1;
+            }
         }
         let master_lost = self.master_availability() == AidAvailability::TimedOut;
         if master_lost && master_state == AidState::Waiting {
@@ -651,12 +678,49 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     fn hand_over_now(&self) -> Option<SeekerIns<T>> {
         self.last_master?;
         let blocks = self.handover?;
+        let priors = &self.config.priors;
+        if blocks.p0_passes_checks(priors) {
+            // P0 written once, in place in the new EKF.
+            return SeekerIns::from_design_with(
+                &self.config.ins,
+                &self.design,
+                self.ins.state(),
+                |p0| blocks.write_p0(priors, p0),
+            )
+            .ok();
+        }
+        // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
+        self.hand_over_dense(&blocks)
+    }
+
+    /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.
+    #[cold]
+    #[inline(never)]
+    fn hand_over_dense(&self, blocks: &NavBlocks<T>) -> Option<SeekerIns<T>> {
         let mut initial = SeekerInsInitial {
             state: *self.ins.state(),
             covariance: SMatrix::zeros(),
         };
         blocks.write_p0(&self.config.priors, &mut initial.covariance);
         SeekerIns::from_design(&self.config.ins, &self.design, &initial).ok()
+    }
+
+    /// The last master sample's correction into the snapshots it covers (the same
+    /// operations, in the same order, as when applied at that master's tick: the snapshots
+    /// are read at the next master sample only).
+    fn apply_snapshot_fix(&mut self) {
+        let Some(fix) = self.snapshot_fix.take() else {
+            return;
+        };
+        for s in self
+            .snapshots
+            .iter_mut()
+            .filter(|s| s.time >= fix.from && s.time <= fix.until)
+        {
+            if let Some(corrected) = fix.correction.apply(&s.state) {
+                s.state = corrected;
+            }
+        }
     }
 
     /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic: the
@@ -690,26 +754,27 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             .history
             .at_time(m.time)
             .or_else(|_| self.history.find(m.time, tol))?;
+        let now = self.time;
         let Self {
-            ta, config, ins, ..
-        } = self;
-        let (report, slaved) =
-            ta.step_then(&ms, &slave, |ta| slave_to(config, ins, ta, &at, &snap))?;
-        let Slaved {
-            carry_cov,
-            blocks,
+            ta,
+            config,
             ins,
-            correction: corr,
-        } = slaved;
-        // Commit (`slave_to` checked the correction finite: every snapshot takes it).
-        self.ins = ins;
-        for s in self.snapshots.iter_mut().filter(|s| s.time >= snap.time) {
-            if let Some(corrected) = corr.apply(&s.state) {
-                s.state = corrected;
-            }
-        }
-        self.carry_cov = carry_cov;
-        self.handover = Some(blocks);
+            carry_cov,
+            handover,
+            snapshot_fix,
+            ..
+        } = self;
+        let (report, ()) = ta.step_then(&ms, &slave, |ta| {
+            let out = CarryTargets {
+                ins,
+                carry_cov,
+                handover,
+                snapshot_fix,
+            };
+            slave_to(config, ta, &at, &snap, now, out)
+        })?;
+        // After the first epoch (nothing predicted) the next sample needs at least one.
+        self.master_steps = report.predictions.max(1);
         let f_m = compensate_lever_arm(&ms, &self.config.lever_arm.nominal_m);
         let c_m_s: Matrix3<T> = exp_so3(&(-self.ta.theta()));
         self.last_master = Some(MasterRecord {

@@ -25,9 +25,11 @@
 use crate::earth::radii_m;
 use crate::error::{input_finite, NavError};
 use crate::math::checks::all_finite;
+use crate::math::kalman::is_psd;
 use crate::math::rotation::{dcm_to_quat, exp_so3, skew};
 use crate::seeker_ins::{
-    InsState, Position, SeekerInsInitial, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
+    InsState, Position, SeekerInsInitial, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES,
+    VARIANCE_CEILING, VEL,
 };
 use crate::transfer_alignment::TransferAlignment;
 use crate::Real;
@@ -204,6 +206,34 @@ impl<T: Real> NavBlocks<T> {
         p.fixed_view_mut::<3, 3>(3, 3).copy_from(&self.vel);
         p.fixed_view_mut::<3, 3>(6, 6).copy_from(&self.att);
         p
+    }
+
+    /// `true` when the P0 of these blocks and `priors` ([`Self::write_p0`]) passes the
+    /// covariance checks of the EKF's constructor — finite, variances within
+    /// [`VARIANCE_CEILING`], symmetric, PSD — checked on its blocks (P0 is block diagonal):
+    /// each navigation block exactly symmetric with a Cholesky factor of `B + 10⁻⁶ tr(B) I`
+    /// (a sufficient condition for the EKF's `P + 10⁻⁶ tr(P) I` of the whole P0, whose shift
+    /// is at least as large), the priors' variances finite and within their ceilings. A few
+    /// hundred operations instead of the dense 17 × 17 check.
+    pub(crate) fn p0_passes_checks(&self, priors: &HandoverPriors<T>) -> bool {
+        let blocks = [(POS, &self.pos), (VEL, &self.vel), (ATT, &self.att)];
+        let within = |i: usize, v: T| {
+            VARIANCE_CEILING
+                .get(i)
+                .is_some_and(|c| v.is_finite() && v >= T::zero() && v <= T::lit(*c))
+        };
+        let nav_ok = blocks.iter().all(|(at, b)| {
+            all_finite(b.as_slice())
+                && *b == &b.transpose()
+                && (0..3).all(|k| within(at + k, b[(k, k)]))
+                && is_psd(*b, T::lit(1e-6))
+        });
+        let ab = priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2;
+        let gb = priors.gyro_bias_sigma_rad_s * priors.gyro_bias_sigma_rad_s;
+        let sb = priors.gimbal_bias_sigma_rad * priors.gimbal_bias_sigma_rad;
+        let priors_ok = (0..3).all(|k| within(ACC_BIAS + k, ab) && within(GYRO_BIAS + k, gb))
+            && (0..2).all(|k| within(GIMBAL + k, sb));
+        nav_ok && priors_ok
     }
 
     /// Writes the whole 17-state P0 into `p0` (every entry): these blocks, the priors'
@@ -427,6 +457,101 @@ mod tests {
     };
 
     /// The right Jacobian satisfies its defining relation (finite differences of exp).
+    /// The hand-over's blocks: `hand_over` is their P0; the cheap block check vouches for
+    /// them, and the EKF built with P0 written in place is the one the public constructor
+    /// (with its dense checks) builds. Blocks that are not PSD fail both checks.
+    #[test]
+    fn p0_from_blocks_is_the_hand_over_and_passes_the_ekf_checks() {
+        use crate::contract::Estimator;
+        use crate::seeker_ins::{Landmark, SeekerIns, SeekerInsConfig};
+        fn check<T: Real>() {
+            let m = master();
+            let cast3 = |v: &Vector3<f64>| v.map(T::lit);
+            let master = MasterAtRelease::<T> {
+                c_m_n: m.c_m_n.map(T::lit),
+                vel_ned_m_s: cast3(&m.vel_ned_m_s),
+                position: m.position,
+                rate_nm_rad_s: cast3(&m.rate_nm_rad_s),
+                attitude_sigma_rad: cast3(&m.attitude_sigma_rad),
+                velocity_sigma_m_s: cast3(&m.velocity_sigma_m_s),
+                position_sigma_m: cast3(&m.position_sigma_m),
+                rate_sigma_rad_s: T::lit(m.rate_sigma_rad_s),
+            };
+            let a = alignment();
+            let align = AlignmentAtRelease::<T> {
+                theta_rad: cast3(&a.theta_rad),
+                theta_covariance_rad2: a.theta_covariance_rad2.map(T::lit),
+                flexure_rad: cast3(&a.flexure_rad),
+                flexure_rate_rad_s: cast3(&a.flexure_rate_rad_s),
+                flexure_rate_covariance: a.flexure_rate_covariance.map(T::lit),
+            };
+            let lever = LeverArm {
+                nominal_m: cast3(&LEVER.nominal_m),
+                sigma_m: cast3(&LEVER.sigma_m),
+            };
+            let priors = HandoverPriors {
+                accel_bias_sigma_m_s2: T::lit(PRIORS.accel_bias_sigma_m_s2),
+                gyro_bias_sigma_rad_s: T::lit(PRIORS.gyro_bias_sigma_rad_s),
+                gimbal_bias_sigma_rad: T::lit(PRIORS.gimbal_bias_sigma_rad),
+            };
+            let full = hand_over(&master, &align, &lever, &priors).unwrap();
+            let nav = hand_over_nav(&master, &align, &lever, &priors).unwrap();
+            let mut p0 = SMatrix::<T, STATES, STATES>::from_element(T::lit(7.0));
+            nav.blocks.write_p0(&priors, &mut p0);
+            assert_eq!(p0, full.covariance);
+            assert!(nav.blocks.p0_passes_checks(&priors));
+            let landmark = Landmark::new(Position {
+                lat_rad: 0.651,
+                ..master.position
+            })
+            .unwrap();
+            let cfg = SeekerInsConfig::<T>::flight(landmark);
+            let design = SeekerIns::design(&cfg).unwrap();
+            let dense = SeekerIns::from_design(&cfg, &design, &full).unwrap();
+            let in_place = SeekerIns::from_design_with(&cfg, &design, &full.state, |p| {
+                nav.blocks.write_p0(&priors, p)
+            })
+            .unwrap();
+            assert!(in_place == dense);
+            // A velocity block with a negative eigenvalue well beyond the dense check's
+            // tolerance: refused by both.
+            let mut bad = nav.blocks;
+            bad.vel[(0, 1)] = bad.vel[(0, 0)] * T::lit(3.0);
+            bad.vel[(1, 0)] = bad.vel[(0, 1)];
+            assert!(!bad.p0_passes_checks(&priors));
+            let mut p = full.covariance;
+            bad.write_p0(&priors, &mut p);
+            let refused = SeekerIns::from_design(
+                &cfg,
+                &design,
+                &SeekerInsInitial {
+                    state: full.state,
+                    covariance: p,
+                },
+            );
+            assert_eq!(
+                refused.err(),
+                Some(NavError::CovarianceNotPositiveSemiDefinite)
+            );
+            // The block check is stricter: the dense check's tolerance is relative to the
+            // whole trace (dominated by the altitude's m²), so it accepts an attitude block
+            // that is not PSD at its own scale; the navigator then leaves the decision to it.
+            let mut small = nav.blocks;
+            small.att[(0, 1)] = small.att[(0, 0)] * T::lit(3.0);
+            small.att[(1, 0)] = small.att[(0, 1)];
+            assert!(!small.p0_passes_checks(&priors));
+            // Not symmetric, or a variance beyond its ceiling: not vouched for.
+            let mut asym = nav.blocks;
+            asym.vel[(0, 1)] += T::lit(1e-3);
+            assert!(!asym.p0_passes_checks(&priors));
+            let mut huge = nav.blocks;
+            huge.pos[(2, 2)] = T::lit(1e30);
+            assert!(!huge.p0_passes_checks(&priors));
+        }
+        check::<f64>();
+        check::<f32>();
+    }
+
     #[test]
     fn right_jacobian_matches_finite_differences() {
         let th = Vector3::new(0.3, -0.2, 0.5);

@@ -101,9 +101,18 @@ pub struct TransferAlignment<T: Real, const K: usize, const N: usize> {
     /// Time stamp of the last accepted sample.
     pub(super) last: Option<Timestamp>,
     pub(super) monitor: Monitor,
-    /// The state after one prediction from the current epoch, its covariance in the scratch
-    /// buffer ([`Self::predict_ahead`]); `None`: nothing prepared.
-    pub(super) ahead: Option<SVector<T, N>>,
+    /// Predictions run from the current epoch ahead of the next one, their covariance in the
+    /// scratch buffer ([`Self::predict_ahead`]); `None`: nothing prepared.
+    pub(super) ahead: Option<Ahead<T, N>>,
+}
+
+/// Predictions run ahead of the next epoch ([`TransferAlignment::predict_ahead`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Ahead<T: Real, const N: usize> {
+    /// The state after `steps` predictions from the current epoch.
+    pub(super) x: SVector<T, N>,
+    /// Predictions run (≥ 1).
+    pub(super) steps: u32,
 }
 
 impl<T: Real, const K: usize, const N: usize> core::fmt::Debug for TransferAlignment<T, K, N> {

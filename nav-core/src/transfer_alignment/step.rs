@@ -8,7 +8,7 @@ use super::covariance::{
     condition, fuse_bounded, initial_covariance, predict_cov, predict_state, reinit_flexure,
     set_mount_only,
 };
-use super::filter::TransferAlignment;
+use super::filter::{Ahead, TransferAlignment};
 use super::health::Channel;
 use super::history::SlaveHistory;
 use super::measurement::{h_row_flight, h_row_total, measurement, MasterSample, SlaveSample};
@@ -224,33 +224,39 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             scratch.copy_from(cur);
             return;
         }
-        // The first prediction: done ahead (`predict_ahead`: its covariance is in the scratch
-        // buffer already), or now.
-        match ahead {
-            Some(xa) => *x = xa,
-            None => {
+        // The first predictions: done ahead (`predict_ahead`: their covariance is in the
+        // scratch buffer already) unless more than the plan has, or now.
+        let done = match ahead {
+            Some(a) if a.steps <= plan.predictions => {
+                *x = a.x;
+                a.steps
+            }
+            _ => {
                 predict_state(phi, x);
                 predict_cov(phi, q_d, Some(cur), scratch);
+                1
             }
-        }
-        for _ in 1..plan.predictions {
+        };
+        for _ in done..plan.predictions {
             predict_state(phi, x);
             predict_cov(phi, q_d, None, scratch);
         }
     }
 
-    /// Runs the first prediction of the next epoch now, into the scratch buffer, so that the
-    /// next [`Self::step`] or [`Self::propagate`] has one prediction less to do (a tick
-    /// without master data carries it, the tick of the master sample does not). The estimate
+    /// Runs one more prediction of the next epoch now, into the scratch buffer, so that the
+    /// next [`Self::step`] or [`Self::propagate`] has one prediction less to do (ticks
+    /// without master data carry them, the tick of the master sample does not). The estimate
     /// is unchanged: state, covariance, time, health and every accessor read the current
-    /// epoch. The next call whose time plan starts with a prediction continues from it with
-    /// bit-identical results; a plan without one (a sample in the same step, a gap reset),
-    /// [`crate::contract::Estimator::reinitialise`] or a step undone by [`Self::step_then`] discards it.
-    /// Returns `false` (nothing done) before the first epoch or when a prediction is already
-    /// prepared.
+    /// epoch. The next call whose time plan has at least as many predictions continues from
+    /// them with bit-identical results; a plan with fewer (a sample in the same step, a gap
+    /// reset), [`crate::contract::Estimator::reinitialise`] or a step undone by
+    /// [`Self::step_then`] discards them (the call then predicts from the current epoch, as
+    /// without them). Returns `false` (nothing done) before the first epoch or when
+    /// `max_gap_steps` predictions are prepared.
     #[inline(never)]
     pub fn predict_ahead(&mut self) -> bool {
-        if self.grid.is_none() || self.ahead.is_some() {
+        let done = self.steps_ahead();
+        if self.grid.is_none() || done >= self.cfg.max_gap_steps {
             return false;
         }
         let Self {
@@ -259,15 +265,27 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             p,
             second,
             x,
+            ahead,
             ..
         } = self;
         let [a, b] = p;
         let (cur, scratch) = if *second { (&*b, a) } else { (&*a, b) };
-        let mut xa = *x;
+        let (mut xa, src) = match ahead {
+            Some(a) => (a.x, None),
+            None => (*x, Some(cur)),
+        };
         predict_state(phi, &mut xa);
-        predict_cov(phi, q_d, Some(cur), scratch);
-        self.ahead = Some(xa);
+        predict_cov(phi, q_d, src, scratch);
+        *ahead = Some(Ahead {
+            x: xa,
+            steps: done + 1,
+        });
         true
+    }
+
+    /// Predictions prepared by [`Self::predict_ahead`] for the next epoch (0: none).
+    pub fn steps_ahead(&self) -> u32 {
+        self.ahead.map_or(0, |a| a.steps)
     }
 
     /// [`Self::step`], then `then` on the stepped filter; when `then` fails the step is undone

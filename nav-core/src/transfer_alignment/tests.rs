@@ -169,10 +169,10 @@ fn step_and_errors<T: Real, const K: usize, const N: usize>() {
     assert_eq!(f.aid_counters(Channel::ForceY).rejected, 0);
 }
 
-/// A prediction run ahead ([`TransferAlignment::predict_ahead`]) changes nothing of the
-/// estimate, and the steps and propagations after it are bit for bit those without it,
-/// whatever their time plan (predictions, none, a gap reset), across a refusal and a
-/// re-initialisation.
+/// Predictions run ahead ([`TransferAlignment::predict_ahead`]) change nothing of the
+/// estimate, and the steps and propagations after them are bit for bit those without them,
+/// whatever their time plan (as many predictions, more, fewer, none, a gap reset), across a
+/// refusal and a re-initialisation.
 fn predict_ahead_is_exact<T: Real, const K: usize, const N: usize>() {
     let mut a = new::<T, K, N>(cfg()).unwrap();
     let mut b = a.clone();
@@ -185,49 +185,64 @@ fn predict_ahead_is_exact<T: Real, const K: usize, const N: usize>() {
     assert!(!a.predict_ahead());
     let (m, s) = samples::<T>(0.0);
     assert_eq!(a.step(&m, &s), b.step(&m, &s));
+    // `ahead` predictions prepared, then a sample at `t` whose plan has `predictions`.
     let step_both = |a: &mut TransferAlignment<T, K, N>,
                      b: &mut TransferAlignment<T, K, N>,
+                     ahead: u32,
                      t: f64,
                      predictions: u32| {
-        assert!(a.predict_ahead());
-        assert!(!a.predict_ahead(), "one prediction ahead at most");
+        for k in 0..ahead {
+            assert!(a.predict_ahead());
+            assert_eq!(a.steps_ahead(), k + 1);
+        }
         same(a, b);
         let (m, s) = samples::<T>(t);
         let ra = a.step(&m, &s).unwrap();
         assert_eq!(ra.predictions, predictions);
         assert_eq!(Ok(ra), b.step(&m, &s));
+        assert_eq!(a.steps_ahead(), 0);
         same(a, b);
     };
-    step_both(&mut a, &mut b, 0.02, 2);
-    step_both(&mut a, &mut b, 0.03, 1);
-    // A sample in the same step (no prediction) discards it.
-    step_both(&mut a, &mut b, 0.034, 0);
-    // Propagation continues from it.
-    assert!(a.predict_ahead());
+    step_both(&mut a, &mut b, 2, 0.02, 2);
+    step_both(&mut a, &mut b, 1, 0.03, 1);
+    // Fewer than the plan: continued.
+    step_both(&mut a, &mut b, 1, 0.05, 2);
+    // More than the plan, or a sample in the same step: discarded.
+    step_both(&mut a, &mut b, 2, 0.06, 1);
+    step_both(&mut a, &mut b, 1, 0.064, 0);
+    // At most `max_gap_steps` (3 here).
+    for _ in 0..3 {
+        assert!(a.predict_ahead());
+    }
+    assert!(!a.predict_ahead());
+    assert_eq!(a.steps_ahead(), 3);
+    same(&a, &b);
+    // Propagation continues from them.
     assert_eq!(
-        a.propagate(Timestamp::from_millis(50)),
-        b.propagate(Timestamp::from_millis(50))
+        a.propagate(Timestamp::from_millis(90)),
+        b.propagate(Timestamp::from_millis(90))
     );
     same(&a, &b);
-    // A refused sample keeps it; the next step uses it.
+    // A refused sample keeps them; the next step uses them.
     assert!(a.predict_ahead());
-    let (m, s) = samples::<T>(0.05);
+    let (m, s) = samples::<T>(0.09);
     assert!(a.step(&m, &s).is_err());
     assert!(b.step(&m, &s).is_err());
     same(&a, &b);
-    assert!(!a.predict_ahead(), "still prepared");
-    let (m, s) = samples::<T>(0.06);
+    assert_eq!(a.steps_ahead(), 1, "still prepared");
+    let (m, s) = samples::<T>(0.1);
     assert_eq!(a.step(&m, &s), b.step(&m, &s));
     same(&a, &b);
-    // A gap reset (5 steps, max 3) discards it.
-    step_both(&mut a, &mut b, 0.11, 0);
+    // A gap reset (5 steps, max 3) discards them.
+    step_both(&mut a, &mut b, 2, 0.15, 0);
     assert_eq!(a.health().gaps_reset, 1);
-    // Re-initialisation discards it.
+    // Re-initialisation discards them.
     assert!(a.predict_ahead());
     a.reinitialise(&TaInitial::default()).unwrap();
     b.reinitialise(&TaInitial::default()).unwrap();
+    assert_eq!(a.steps_ahead(), 0);
     same(&a, &b);
-    step_both(&mut a, &mut b, 0.12, 1);
+    step_both(&mut a, &mut b, 1, 0.16, 1);
 }
 
 #[test]
