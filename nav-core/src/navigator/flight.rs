@@ -459,22 +459,20 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 input: "release_with: not in carry",
             });
         }
-        let ekf = SeekerIns::from_design(&self.config.ins, &self.design, initial)?;
+        self.ekf = Some(SeekerIns::from_design(
+            &self.config.ins,
+            &self.design,
+            initial,
+        )?);
         self.enter_released(
-            ekf,
             SeparationStatus::Commanded,
             TransitionCause::ReleaseCommanded,
         );
         Ok(())
     }
 
-    fn enter_released(
-        &mut self,
-        ekf: SeekerIns<T>,
-        status: SeparationStatus,
-        cause: TransitionCause,
-    ) {
-        self.ekf = Some(ekf);
+    /// The phase change to released, the EKF in place (`self.ekf`).
+    fn enter_released(&mut self, status: SeparationStatus, cause: TransitionCause) {
         self.phase = Phase::Released;
         self.released_at = Some(self.time);
         self.separation = status;
@@ -657,8 +655,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             }
         }
         if let Some((status, cause)) = release {
-            if let Some(ekf) = self.hand_over_now() {
-                self.enter_released(ekf, status, cause);
+            if self.hand_over_now() {
+                self.enter_released(status, cause);
                 *transition = self.pending.take();
             }
         }
@@ -670,24 +668,26 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         ])
     }
 
-    /// The EKF at this tick from the last master and the alignment (`None` without a master
-    /// or when the EKF refuses the state): the current INS state with the hand-over P0 of the
-    /// last fused master sample (its navigation blocks kept from that tick: the alignment has
-    /// not changed since, so the hand-over would give them again bit for bit).
+    /// Starts the EKF (`self.ekf`) at this tick from the last master and the alignment;
+    /// `false` (nothing changed) without a master or when the EKF refuses the state: the
+    /// current INS state with the hand-over P0 of the last fused master sample (its
+    /// navigation blocks kept from that tick: the alignment has not changed since, so the
+    /// hand-over would give them again bit for bit), written in place into the new EKF.
     #[inline(never)]
-    fn hand_over_now(&self) -> Option<SeekerIns<T>> {
-        self.last_master?;
-        let blocks = self.handover?;
-        let priors = &self.config.priors;
-        if blocks.p0_passes_checks(priors) {
-            // P0 written once, in place in the new EKF.
-            return SeekerIns::from_design_with(
+    fn hand_over_now(&mut self) -> bool {
+        let (Some(_), Some(blocks)) = (self.last_master, self.handover) else {
+            return false;
+        };
+        let priors = self.config.priors;
+        if blocks.p0_passes_checks(&priors) {
+            return SeekerIns::start_in(
+                &mut self.ekf,
                 &self.config.ins,
                 &self.design,
                 self.ins.state(),
-                |p0| blocks.write_p0(priors, p0),
+                |p0| blocks.write_p0(&priors, p0),
             )
-            .ok();
+            .is_ok();
         }
         // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
         self.hand_over_dense(&blocks)
@@ -696,13 +696,19 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.
     #[cold]
     #[inline(never)]
-    fn hand_over_dense(&self, blocks: &NavBlocks<T>) -> Option<SeekerIns<T>> {
+    fn hand_over_dense(&mut self, blocks: &NavBlocks<T>) -> bool {
         let mut initial = SeekerInsInitial {
             state: *self.ins.state(),
             covariance: SMatrix::zeros(),
         };
         blocks.write_p0(&self.config.priors, &mut initial.covariance);
-        SeekerIns::from_design(&self.config.ins, &self.design, &initial).ok()
+        match SeekerIns::from_design(&self.config.ins, &self.design, &initial) {
+            Ok(ekf) => {
+                self.ekf = Some(ekf);
+                true
+            }
+            Err(_) => false,
+        }
     }
 
     /// The last master sample's correction into the snapshots it covers (the same

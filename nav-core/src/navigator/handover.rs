@@ -508,10 +508,12 @@ mod tests {
             let cfg = SeekerInsConfig::<T>::flight(landmark);
             let design = SeekerIns::design(&cfg).unwrap();
             let dense = SeekerIns::from_design(&cfg, &design, &full).unwrap();
-            let in_place = SeekerIns::from_design_with(&cfg, &design, &full.state, |p| {
+            let mut in_place = None;
+            SeekerIns::start_in(&mut in_place, &cfg, &design, &full.state, |p| {
                 nav.blocks.write_p0(&priors, p)
             })
             .unwrap();
+            let in_place = in_place.unwrap();
             assert!(in_place == dense);
             // A velocity block with a negative eigenvalue well beyond the dense check's
             // tolerance: refused by both.

@@ -330,23 +330,25 @@ impl<T: Real> SeekerIns<T> {
         }
     }
 
-    /// [`Estimator::from_design`] with P0 written in place into the new EKF by `write_p0`
-    /// (every entry), for a P0 its caller has shown to pass the covariance checks of
-    /// `from_design` (finite, variances within [`VARIANCE_CEILING`], symmetric PSD): the
-    /// navigator's hand-over P0, checked block by block. The same EKF as `from_design` without
-    /// the dense 17 × 17 check and without a P0 built elsewhere and copied. Errors: those of
-    /// the configuration, the design and the state, as `from_design`.
-    pub(crate) fn from_design_with(
+    /// [`Estimator::from_design`] into `slot`, with P0 written in place into the new EKF by
+    /// `write_p0` (every entry), for a P0 its caller has shown to pass the covariance checks
+    /// of `from_design` (finite, variances within [`VARIANCE_CEILING`], symmetric PSD): the
+    /// navigator's hand-over P0, checked block by block. The same EKF as `from_design`,
+    /// without the dense 17 × 17 check, without a P0 built elsewhere and copied, and without
+    /// the EKF passing through the stack. Errors (`slot` unchanged): those of the
+    /// configuration, the design and the state, as `from_design`.
+    pub(crate) fn start_in(
+        slot: &mut Option<Self>,
         config: &SeekerInsConfig<T>,
         design: &SeekerInsDesign<T>,
         state: &InsState<T>,
         write_p0: impl FnOnce(&mut SMatrix<T, STATES, STATES>),
-    ) -> Result<Self, NavError> {
+    ) -> Result<(), NavError> {
         validate_config(config)?;
         check_design(config, design)?;
         let ins = Ins::new(*state, config.imu_dt_s)?;
-        let mut ekf = Self::assemble(config, design, ins, &SMatrix::zeros());
+        let ekf = slot.insert(Self::assemble(config, design, ins, &SMatrix::zeros()));
         write_p0(&mut ekf.p);
-        Ok(ekf)
+        Ok(())
     }
 }
