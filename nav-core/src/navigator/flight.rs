@@ -2,7 +2,9 @@
 
 use super::baro::{baro_age_s, baro_gain, BaroState};
 use super::design::NavigatorDesign;
-use super::handover::{hand_over, AlignmentAtRelease, MasterAtRelease};
+use super::handover::{
+    hand_over_checked_master, validate_master, AlignmentAtRelease, MasterAtRelease, NavBlocks,
+};
 use super::types::{
     AidAvailability, AidState, AidStatus, Aids, BaroDamping, Degradation, ImuTick, MasterNav,
     NavSolution, NavigatorConfig, NavigatorInitial, Phase, SeparationStatus, TickReport,
@@ -25,6 +27,7 @@ use crate::vertical_channel::{
 };
 use crate::{HealthState, NavError, Real};
 use heapless::Deque;
+use nalgebra::Quaternion;
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
 /// One INS state of the carry phase at a tick time (for the master's late epochs).
@@ -34,10 +37,9 @@ struct Snapshot<T> {
     state: InsState<T>,
 }
 
-/// The last fused master sample and what separation is judged against.
+/// What separation is judged against, from the last fused master sample.
 #[derive(Debug, Clone, Copy)]
 struct MasterRecord<T> {
-    nav: MasterNav<T>,
     /// Its lever-arm-compensated specific force in slave axes, m/s².
     f_slave_m_s2: Vector3<T>,
 }
@@ -91,6 +93,16 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     snapshots: Deque<Snapshot<T>, H>,
     /// The carry solution's covariance (NED convention).
     carry_cov: SMatrix<T, 9, 9>,
+    /// The navigation blocks of the hand-over P0 at the last fused master sample (the EKF's
+    /// convention): what the EKF starts from at separation, kept so that the separation tick
+    /// does not compute the hand-over again (the alignment has not changed since).
+    handover: Option<NavBlocks<T>>,
+    /// The last master sample's correction of the INS snapshots, applied on the next tick
+    /// (the snapshots are read at the next master sample only).
+    snapshot_fix: Option<SnapshotFix<T>>,
+    /// Predictions the alignment's last step ran (what the next master sample will likely
+    /// need: the ticks before it run them ahead).
+    master_steps: u32,
     last_master: Option<MasterRecord<T>>,
     /// The IMU's own free-fall evidence (unsignalled release).
     free_fall: super::carry::FreeFall,
@@ -110,6 +122,10 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     seeker: AidTrack<T>,
 }
 
+/// Alignment predictions a carry tick without master data runs ahead at most (each ≈ one
+/// `TransferAlignment::propagate`).
+const MAX_AHEAD_PER_TICK: u32 = 2;
+
 /// The navigator with the flight transfer-alignment filter ([`crate::transfer_alignment::FlightFilter`]).
 pub type FlightNavigator<T, const H: usize> = Navigator<T, 5, 15, H>;
 /// The navigator with the conventional 9-state alignment ([`crate::transfer_alignment::ConventionalFilter`]).
@@ -126,16 +142,10 @@ pub(crate) fn nav_block_to_ned<T: Real>(
     p: &SMatrix<T, STATES, STATES>,
     state: &InsState<T>,
 ) -> SMatrix<T, 9, 9> {
-    let pos = &state.position;
-    let (lat, alt) = (T::lit(pos.lat_rad), T::lit(pos.alt_m));
-    let (rm, rn) = radii_m(lat);
-    let d = [
-        rm + alt,
-        (rn + alt) * crate::math::trig::cos(lat),
-        -T::one(),
-    ];
+    let d = ned_factors(state);
     // Element (r, c) times the scale of each position index among r, c, the smaller first
-    // (as scaling row i then column i for i = 0, 1, 2): column slices, no strided view.
+    // (as [`nav9_to_ned`] scales row i then column i for i = 0, 1, 2): P's column slices,
+    // no strided view copied.
     let scale = |i: usize| d.get(i).copied();
     let mut out = SMatrix::<T, 9, 9>::zeros();
     for (c, (dst, src)) in out
@@ -153,6 +163,32 @@ pub(crate) fn nav_block_to_ned<T: Real>(
                 x *= s;
             }
             *o = x;
+        }
+    }
+    out
+}
+
+/// `(R_M + h, (R_N + h) cos L, −1)` at `state`: δL, δl, δh → NED metres.
+fn ned_factors<T: Real>(state: &InsState<T>) -> [T; 3] {
+    let pos = &state.position;
+    let (lat, alt) = (T::lit(pos.lat_rad), T::lit(pos.alt_m));
+    let (rm, rn) = radii_m(lat);
+    [
+        rm + alt,
+        (rn + alt) * crate::math::trig::cos(lat),
+        -T::one(),
+    ]
+}
+
+/// The scaling of [`nav_block_to_ned`] on a 9 × 9 navigation block, rows then columns by
+/// the factors `d` of the position states.
+fn nav9_to_ned<T: Real>(mut out: SMatrix<T, 9, 9>, d: [T; 3]) -> SMatrix<T, 9, 9> {
+    for (i, di) in d.iter().enumerate() {
+        for v in out.row_mut(i).iter_mut() {
+            *v *= *di;
+        }
+        for v in out.column_mut(i).iter_mut() {
+            *v *= *di;
         }
     }
     out
@@ -177,15 +213,13 @@ fn at_release<T: Real>(m: &MasterNav<T>, rate_sigma_rad_s: T) -> MasterAtRelease
     }
 }
 
-/// A master sample's hand-over, computed and not yet committed (`Navigator::slave_to`).
-struct Slaved<T: Real> {
-    /// The carry solution's covariance: the hand-over's 9 × 9 navigation block, NED
-    /// convention (position m², velocity (m/s)², attitude rad²).
-    carry_cov: SMatrix<T, 9, 9>,
-    /// The INS slaved to the hand-over.
-    ins: Ins<T>,
-    /// The correction the snapshots since the master's epoch take (checked finite on each).
+/// A master sample's correction of the INS snapshots stamped `from..=until` (its epoch to
+/// its tick), not applied yet.
+#[derive(Debug, Clone, Copy)]
+struct SnapshotFix<T> {
     correction: Correction<T>,
+    from: Timestamp,
+    until: Timestamp,
 }
 
 /// The error `snapshot − transferred` as the INS's correction arguments.
@@ -196,6 +230,8 @@ struct Correction<T> {
     d_alt_m: f64,
     d_vel_m_s: Vector3<T>,
     phi_rad: Vector3<T>,
+    /// `φ` as the quaternion `Ins::correct` applies (computed once for every snapshot).
+    dq: Quaternion<T>,
 }
 
 impl<T: Real> Correction<T> {
@@ -210,7 +246,19 @@ impl<T: Real> Correction<T> {
             d_alt_m: estimate.position.alt_m - reference.position.alt_m,
             d_vel_m_s: estimate.vel_ned_m_s - reference.vel_ned_m_s,
             phi_rad: phi,
+            dq: quat_from_rotation_vector(&phi),
         }
+    }
+
+    /// Every number finite: then [`Self::apply`] succeeds on any stored (finite, unit
+    /// quaternion) INS state.
+    fn is_finite(&self) -> bool {
+        let f = |v: f64| v.is_finite();
+        f(self.d_lat_rad)
+            && f(self.d_lon_rad)
+            && f(self.d_alt_m)
+            && crate::math::checks::all_finite(self.d_vel_m_s.as_slice())
+            && crate::math::checks::all_finite(self.dq.coords.as_slice())
     }
 
     /// The same correction as `Ins::correct` on a stored state (`None`: not finite).
@@ -219,16 +267,66 @@ impl<T: Real> Correction<T> {
         p.lat_rad -= self.d_lat_rad;
         p.lon_rad -= self.d_lon_rad;
         p.alt_m -= self.d_alt_m;
-        let q = quat_normalize(&quat_mul(
-            &quat_from_rotation_vector(&self.phi_rad),
-            &s.q_b_n,
-        ))?;
+        let q = quat_normalize(&quat_mul(&self.dq, &s.q_b_n))?;
         Some(InsState {
             position: p,
             vel_ned_m_s: s.vel_ned_m_s - self.d_vel_m_s,
             q_b_n: q,
         })
     }
+}
+
+/// Where a master sample's hand-over is committed: the navigator's carry fields.
+struct CarryTargets<'a, T: Real> {
+    ins: &'a mut Ins<T>,
+    carry_cov: &'a mut SMatrix<T, 9, 9>,
+    handover: &'a mut Option<NavBlocks<T>>,
+    snapshot_fix: &'a mut Option<SnapshotFix<T>>,
+}
+
+/// The hand-over at the master's epoch with the (updated) alignment `ta`, and the INS slaved
+/// to it, committed into `out` only when nothing failed: the carry covariance (the
+/// hand-over's 9×9 navigation block, NED convention, and its blocks in the EKF's), the INS
+/// corrected in place (`Ins::correct` is atomic and the last fallible step), and the
+/// correction its snapshots since `snap` take (checked finite, applied on the next tick).
+/// Nothing is returned by value.
+fn slave_to<T: Real, const K: usize, const N: usize>(
+    config: &NavigatorConfig<T>,
+    ta: &TransferAlignment<T, K, N>,
+    master: &MasterAtRelease<T>,
+    snap: &Snapshot<T>,
+    now: Timestamp,
+    out: CarryTargets<'_, T>,
+) -> Result<(), NavError> {
+    let nav = hand_over_checked_master(
+        master,
+        &AlignmentAtRelease::from_filter(ta),
+        &config.lever_arm,
+    )?;
+    let corr = Correction::between(&snap.state, &nav.state);
+    // A finite correction applies to every stored state (finite, unit quaternion): checked
+    // once here instead of on each snapshot.
+    if !corr.is_finite() {
+        return Err(NavError::NonFiniteInput {
+            input: "master correction",
+        });
+    }
+    out.ins.correct(
+        corr.d_lat_rad,
+        corr.d_lon_rad,
+        corr.d_alt_m,
+        &corr.d_vel_m_s,
+        &corr.phi_rad,
+    )?;
+    // Commit (nothing below fails).
+    *out.carry_cov = nav9_to_ned(nav.blocks.nav9(), ned_factors(&nav.state));
+    *out.handover = Some(nav.blocks);
+    *out.snapshot_fix = Some(SnapshotFix {
+        correction: corr,
+        from: snap.time,
+        until: now,
+    });
+    Ok(())
 }
 
 impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
@@ -304,6 +402,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             history: SlaveHistory::new(),
             snapshots: Deque::new(),
             carry_cov: *cov,
+            handover: None,
+            snapshot_fix: None,
+            master_steps: 0,
             last_master: None,
             free_fall: super::carry::FreeFall::default(),
             separation: SeparationStatus::NotSignalled,
@@ -381,22 +482,20 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 input: "release_with: not in carry",
             });
         }
-        let ekf = SeekerIns::from_design(&self.config.ins, &self.design, initial)?;
+        self.ekf = Some(SeekerIns::from_design(
+            &self.config.ins,
+            &self.design,
+            initial,
+        )?);
         self.enter_released(
-            ekf,
             SeparationStatus::Commanded,
             TransitionCause::ReleaseCommanded,
         );
         Ok(())
     }
 
-    fn enter_released(
-        &mut self,
-        ekf: SeekerIns<T>,
-        status: SeparationStatus,
-        cause: TransitionCause,
-    ) {
-        self.ekf = Some(ekf);
+    /// The phase change to released, the EKF in place (`self.ekf`).
+    fn enter_released(&mut self, status: SeparationStatus, cause: TransitionCause) {
         self.phase = Phase::Released;
         self.released_at = Some(self.time);
         self.separation = status;
@@ -513,6 +612,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         self.history.push(&slave)?;
         self.ins = ins;
         self.time = inc.time;
+        self.apply_snapshot_fix();
         if self.snapshots.is_full() {
             let _ = self.snapshots.pop_front();
         }
@@ -529,6 +629,17 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                     AidState::Refused(e)
                 }
             };
+        } else {
+            // A tick without master data carries the alignment's next predictions, as many as
+            // the last master sample needed (at most two a tick): the master tick then has
+            // those less to do.
+            let mut run = 0;
+            while run < MAX_AHEAD_PER_TICK
+                && self.ta.steps_ahead() < self.master_steps
+                && self.ta.predict_ahead()
+            {
+                run += 1;
+            }
         }
         let master_lost = self.master_availability() == AidAvailability::TimedOut;
         if master_lost && master_state == AidState::Waiting {
@@ -579,8 +690,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             }
         }
         if let Some((status, cause)) = release {
-            if let Some(ekf) = self.hand_over_now() {
-                self.enter_released(ekf, status, cause);
+            if self.hand_over_now() {
+                self.enter_released(status, cause);
                 *transition = self.pending.take();
             }
         }
@@ -592,58 +703,72 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         ])
     }
 
-    /// The EKF at this tick from the last master and the alignment (`None` without a master
-    /// or when the EKF refuses the state).
-    fn hand_over_now(&self) -> Option<SeekerIns<T>> {
-        let lm = self.last_master?;
-        let init = hand_over(
-            &at_release(&lm.nav, self.config.alignment.rate_noise_sigma_rad_s),
-            &AlignmentAtRelease::from_filter(&self.ta),
-            &self.config.lever_arm,
-            &self.config.priors,
-        )
-        .ok()?;
-        let initial = SeekerInsInitial {
-            state: *self.ins.state(),
-            covariance: init.covariance,
+    /// Starts the EKF (`self.ekf`) at this tick from the last master and the alignment;
+    /// `false` (nothing changed) without a master or when the EKF refuses the state: the
+    /// current INS state with the hand-over P0 of the last fused master sample (its
+    /// navigation blocks kept from that tick: the alignment has not changed since, so the
+    /// hand-over would give them again bit for bit), written in place into the new EKF.
+    #[inline(never)]
+    fn hand_over_now(&mut self) -> bool {
+        let (Some(_), Some(blocks)) = (self.last_master, self.handover) else {
+            return false;
         };
-        SeekerIns::from_design(&self.config.ins, &self.design, &initial).ok()
-    }
-
-    /// The hand-over at the master's epoch with the (updated) alignment: the carry covariance
-    /// (the hand-over's 9×9 navigation block, NED convention), the INS slaved to it and the
-    /// correction its snapshots since `snap` take (computed, not committed; every snapshot's
-    /// correction checked finite, so the commit cannot fail). Nothing larger than the INS is
-    /// returned: the snapshots are corrected in place at the commit, not copied.
-    fn slave_to(&self, m: &MasterNav<T>, snap: &Snapshot<T>) -> Result<Slaved<T>, NavError> {
-        let init = hand_over(
-            &at_release(m, self.config.alignment.rate_noise_sigma_rad_s),
-            &AlignmentAtRelease::from_filter(&self.ta),
-            &self.config.lever_arm,
-            &self.config.priors,
-        )?;
-        let corr = Correction::between(&snap.state, &init.state);
-        let mut ins = self.ins;
-        ins.correct(
-            corr.d_lat_rad,
-            corr.d_lon_rad,
-            corr.d_alt_m,
-            &corr.d_vel_m_s,
-            &corr.phi_rad,
-        )?;
-        for s in self.snapshots.iter().filter(|s| s.time >= snap.time) {
-            corr.apply(&s.state).ok_or(NavError::NonFiniteInput {
-                input: "master correction",
-            })?;
+        let priors = self.config.priors;
+        if blocks.p0_passes_checks(&priors) {
+            return SeekerIns::start_in(
+                &mut self.ekf,
+                &self.config.ins,
+                &self.design,
+                self.ins.state(),
+                |p0| blocks.write_p0(&priors, p0),
+            )
+            .is_ok();
         }
-        Ok(Slaved {
-            carry_cov: nav_block_to_ned(&init.covariance, &init.state),
-            ins,
-            correction: corr,
-        })
+        // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
+        self.hand_over_dense(&blocks)
     }
 
-    /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic.
+    /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.
+    #[cold]
+    #[inline(never)]
+    fn hand_over_dense(&mut self, blocks: &NavBlocks<T>) -> bool {
+        let mut initial = SeekerInsInitial {
+            state: *self.ins.state(),
+            covariance: SMatrix::zeros(),
+        };
+        blocks.write_p0(&self.config.priors, &mut initial.covariance);
+        match SeekerIns::from_design(&self.config.ins, &self.design, &initial) {
+            Ok(ekf) => {
+                self.ekf = Some(ekf);
+                true
+            }
+            Err(_) => false,
+        }
+    }
+
+    /// The last master sample's correction into the snapshots it covers (the same
+    /// operations, in the same order, as when applied at that master's tick: the snapshots
+    /// are read at the next master sample only).
+    fn apply_snapshot_fix(&mut self) {
+        let Some(fix) = self.snapshot_fix.take() else {
+            return;
+        };
+        for s in self
+            .snapshots
+            .iter_mut()
+            .filter(|s| s.time >= fix.from && s.time <= fix.until)
+        {
+            if let Some(corrected) = fix.correction.apply(&s.state) {
+                s.state = corrected;
+            }
+        }
+    }
+
+    /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic: the
+    /// cheap checks first, then the alignment steps in place and is undone
+    /// ([`TransferAlignment::step_then`]) when the hand-over or the slaving fails (no copy of
+    /// the filter).
+    #[inline(never)]
     fn fuse_master(&mut self, m: &MasterNav<T>) -> Result<AidState, NavError> {
         // A separation signalled at `s` and awaiting the IMU's confirmation: a master sample
         // whose slave interpolation reaches past `s` (epoch later than one IMU interval before
@@ -674,40 +799,40 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             specific_force_m_s2: m.specific_force_m_s2,
         };
         ms.validate()?;
-        // The alignment steps in place (its step is atomic: on error it is unchanged); a copy
-        // taken before restores it if the hand-over or the slaving fails afterwards (one copy
-        // of the filter per master sample instead of a working copy and its commit).
+        // The hand-over's checks of the master before the alignment steps: a bad master
+        // sample does not touch the alignment.
+        let at = at_release(m, self.config.alignment.rate_noise_sigma_rad_s);
+        validate_master(&at, &self.config.lever_arm, &self.config.priors)?;
         // The slave's interval means interpolated at the master's (instantaneous) epoch; the
         // end-stamped sample of that epoch when they cannot be (the first tick).
         let slave = self
             .history
             .at_time(m.time)
             .or_else(|_| self.history.find(m.time, tol))?;
-        let backup = self.ta.clone();
-        let report = self.ta.step(&ms, &slave)?;
-        let Slaved {
-            carry_cov,
+        let now = self.time;
+        let Self {
+            ta,
+            config,
             ins,
-            correction: corr,
-        } = match self.slave_to(m, &snap) {
-            Ok(v) => v,
-            Err(e) => {
-                self.ta = backup;
-                return Err(e);
-            }
-        };
-        // Commit (`slave_to` checked every snapshot's correction finite).
-        self.ins = ins;
-        for s in self.snapshots.iter_mut().filter(|s| s.time >= snap.time) {
-            if let Some(corrected) = corr.apply(&s.state) {
-                s.state = corrected;
-            }
-        }
-        self.carry_cov = carry_cov;
+            carry_cov,
+            handover,
+            snapshot_fix,
+            ..
+        } = self;
+        let (report, ()) = ta.step_then(&ms, &slave, |ta| {
+            let out = CarryTargets {
+                ins,
+                carry_cov,
+                handover,
+                snapshot_fix,
+            };
+            slave_to(config, ta, &at, &snap, now, out)
+        })?;
+        // After the first epoch (nothing predicted) the next sample needs at least one.
+        self.master_steps = report.predictions.max(1);
         let f_m = compensate_lever_arm(&ms, &self.config.lever_arm.nominal_m);
         let c_m_s: Matrix3<T> = exp_so3(&(-self.ta.theta()));
         self.last_master = Some(MasterRecord {
-            nav: *m,
             f_slave_m_s2: c_m_s * f_m,
         });
         let mut worst: Option<FusionReport<T>> = None;

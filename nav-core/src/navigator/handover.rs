@@ -33,11 +33,13 @@
 use crate::earth::radii_m;
 use crate::error::{input_finite, NavError};
 use crate::math::checks::all_finite;
+use crate::math::kalman::is_psd;
 use crate::math::rotation::{dcm_to_quat, exp_so3, skew};
 use crate::seeker_ins::{
-    InsState, Position, SeekerInsInitial, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
+    InsState, Position, SeekerInsInitial, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES,
+    VARIANCE_CEILING, VEL,
 };
-use crate::transfer_alignment::{has_accel_bias, TransferAlignment, BIAS_STATE};
+use crate::transfer_alignment::TransferAlignment;
 use crate::Real;
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -90,38 +92,17 @@ impl<T: Real> AlignmentAtRelease<T> {
     /// covariance, θ̂_f, θ̂̇_f and the covariance of θ̂̇_f (the filter's θ̇_f block, states 6..9
     /// of its derivative-major state).
     pub fn from_filter<const K: usize, const N: usize>(f: &TransferAlignment<T, K, N>) -> Self {
-        let p = f.covariance();
         Self {
             theta_rad: f.theta(),
             theta_covariance_rad2: f.theta_covariance(),
             flexure_rad: f.theta_f(),
             flexure_rate_rad_s: f.theta_f_rate(),
-            flexure_rate_covariance: Matrix3::from_fn(|i, j| {
-                p.get((FLEXURE_RATE + i, FLEXURE_RATE + j))
-                    .copied()
-                    .unwrap_or_else(T::zero)
-            }),
-            theta_bias_covariance: if has_accel_bias::<K>() {
-                Matrix3::from_fn(|i, j| {
-                    p.get((i, 3 * BIAS_STATE + j))
-                        .copied()
-                        .unwrap_or_else(T::zero)
-                })
-            } else {
-                Matrix3::zeros()
-            },
-            bias_prior_variance_m2_s4: if has_accel_bias::<K>() {
-                let s = f.config().accel_bias_sigma_m_s2;
-                s * s
-            } else {
-                T::zero()
-            },
+            flexure_rate_covariance: f.theta_f_rate_covariance(),
+            theta_bias_covariance: f.theta_bias_covariance(),
+            bias_prior_variance_m2_s4: f.accel_bias_prior_variance(),
         }
     }
 }
-
-/// Index of θ̇_f in a transfer-alignment filter's state `[θ, θ_f, θ̇_f, …]`.
-const FLEXURE_RATE: usize = 6;
 
 /// The pylon's lever arm from the master IMU to the slave IMU, master body axes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -203,7 +184,152 @@ pub fn hand_over<T: Real>(
     lever: &LeverArm<T>,
     priors: &HandoverPriors<T>,
 ) -> Result<SeekerInsInitial<T>, NavError> {
-    validate(master, alignment, lever, priors)?;
+    let nav = hand_over_nav(master, alignment, lever, priors)?;
+    let mut covariance = SMatrix::<T, STATES, STATES>::zeros();
+    nav.blocks.write_p0(priors, &mut covariance);
+    Ok(SeekerInsInitial {
+        state: nav.state,
+        covariance,
+    })
+}
+
+/// The hand-over's navigation part: the transferred INS state and the three diagonal
+/// blocks of its covariance (the cross blocks are zero, module doc).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct NavHandover<T> {
+    pub(crate) state: InsState<T>,
+    pub(crate) blocks: NavBlocks<T>,
+}
+
+/// The navigation blocks of the hand-over's P0, symmetrised as P0 is: position (δL rad,
+/// δl rad, δh m: rad², rad², m²), velocity NED ((m/s)²), attitude φ (rad²).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct NavBlocks<T> {
+    pub(crate) pos: Matrix3<T>,
+    pub(crate) vel: Matrix3<T>,
+    pub(crate) att: Matrix3<T>,
+    /// Attitude–accelerometer-bias cross-covariance before the slave's share β of the
+    /// difference bias (module doc): `−C_s^n J_r P_θb`, rad·m/s².
+    pub(crate) att_bias_unscaled: Matrix3<T>,
+    /// The alignment's prior variance of the difference bias (`σ_bm² + σ_bs²`), (m/s²)²;
+    /// zero: no cross block.
+    pub(crate) bias_prior_variance_m2_s4: T,
+}
+
+/// `(B + Bᵀ) / 2`, entry by entry as the symmetrisation of the whole P0.
+fn symmetrised<T: Real>(b: &Matrix3<T>) -> Matrix3<T> {
+    Matrix3::from_fn(|i, j| (b[(i, j)] + b[(j, i)]) * T::lit(0.5))
+}
+
+impl<T: Real> NavBlocks<T> {
+    /// The 9 × 9 navigation block `[δr, δv, φ]` of P0 (zero cross blocks).
+    pub(crate) fn nav9(&self) -> SMatrix<T, 9, 9> {
+        let mut p = SMatrix::<T, 9, 9>::zeros();
+        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&self.pos);
+        p.fixed_view_mut::<3, 3>(3, 3).copy_from(&self.vel);
+        p.fixed_view_mut::<3, 3>(6, 6).copy_from(&self.att);
+        p
+    }
+
+    /// `true` when the P0 of these blocks and `priors` ([`Self::write_p0`]) passes the
+    /// covariance checks of the EKF's constructor — finite, variances within
+    /// [`VARIANCE_CEILING`], symmetric, PSD — checked on its blocks (P0 is block diagonal):
+    /// each navigation block exactly symmetric with a Cholesky factor of `B + 10⁻⁶ tr(B) I`
+    /// (a sufficient condition for the EKF's `P + 10⁻⁶ tr(P) I` of the whole P0, whose shift
+    /// is at least as large), the priors' variances finite and within their ceilings. A few
+    /// hundred operations instead of the dense 17 × 17 check.
+    pub(crate) fn p0_passes_checks(&self, priors: &HandoverPriors<T>) -> bool {
+        let blocks = [(POS, &self.pos), (VEL, &self.vel), (ATT, &self.att)];
+        let within = |i: usize, v: T| {
+            VARIANCE_CEILING
+                .get(i)
+                .is_some_and(|c| v.is_finite() && v >= T::zero() && v <= T::lit(*c))
+        };
+        let ab = priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2;
+        // With an attitude–bias cross block X, [att X; Xᵀ ab·I] is checked by its Schur
+        // complement att − X Xᵀ / ab (a sufficient condition for the shifted Cholesky of the
+        // whole P0 as the diagonal blocks' one is without X).
+        let cross_ok = match self.att_bias(ab) {
+            None => true,
+            Some(x) if ab > T::zero() && all_finite(x.as_slice()) => {
+                let s = self.att - x * x.transpose() * (T::one() / ab);
+                is_psd(&symmetrised(&s), T::lit(1e-6))
+            }
+            Some(_) => false,
+        };
+        let nav_ok = cross_ok
+            && blocks.iter().all(|(at, b)| {
+                all_finite(b.as_slice())
+                    && *b == &b.transpose()
+                    && (0..3).all(|k| within(at + k, b[(k, k)]))
+                    && is_psd(*b, T::lit(1e-6))
+            });
+        let gb = priors.gyro_bias_sigma_rad_s * priors.gyro_bias_sigma_rad_s;
+        let sb = priors.gimbal_bias_sigma_rad * priors.gimbal_bias_sigma_rad;
+        let priors_ok = (0..3).all(|k| within(ACC_BIAS + k, ab) && within(GYRO_BIAS + k, gb))
+            && (0..2).all(|k| within(GIMBAL + k, sb));
+        nav_ok && priors_ok
+    }
+
+    /// Writes the whole 17-state P0 into `p0` (every entry): these blocks, the priors'
+    /// variances on the bias and gimbal states, zero elsewhere. In place: a P0 is built once,
+    /// where it is used.
+    pub(crate) fn write_p0(&self, priors: &HandoverPriors<T>, p0: &mut SMatrix<T, STATES, STATES>) {
+        p0.fill(T::zero());
+        p0.fixed_view_mut::<3, 3>(POS, POS).copy_from(&self.pos);
+        p0.fixed_view_mut::<3, 3>(VEL, VEL).copy_from(&self.vel);
+        p0.fixed_view_mut::<3, 3>(ATT, ATT).copy_from(&self.att);
+        let ab = priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2;
+        let gb = priors.gyro_bias_sigma_rad_s * priors.gyro_bias_sigma_rad_s;
+        let sb = priors.gimbal_bias_sigma_rad * priors.gimbal_bias_sigma_rad;
+        // A diagonal entry symmetrised is itself ((v + v)/2 = v exactly).
+        p0.fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS)
+            .fill_diagonal(ab);
+        // Attitude–accelerometer-bias cross-covariance (module doc): −β C_s^n J_r P_θb, β the
+        // slave's share of the difference bias's prior variance (at most 1); written with its
+        // exact transpose, so P0 stays exactly symmetric.
+        if let Some(x) = self.att_bias(ab) {
+            p0.fixed_view_mut::<3, 3>(ATT, ACC_BIAS).copy_from(&x);
+            p0.fixed_view_mut::<3, 3>(ACC_BIAS, ATT)
+                .copy_from(&x.transpose());
+        }
+        p0.fixed_view_mut::<3, 3>(GYRO_BIAS, GYRO_BIAS)
+            .fill_diagonal(gb);
+        p0.fixed_view_mut::<2, 2>(GIMBAL, GIMBAL).fill_diagonal(sb);
+    }
+
+    /// The attitude–accelerometer-bias block of P0 for the accelerometer-bias prior variance
+    /// `ab` ((m/s²)²), `None` when the alignment has no difference-bias state.
+    fn att_bias(&self, ab: T) -> Option<Matrix3<T>> {
+        (self.bias_prior_variance_m2_s4 > T::zero()).then(|| {
+            let beta = (ab / self.bias_prior_variance_m2_s4).min(T::one());
+            self.att_bias_unscaled * beta
+        })
+    }
+}
+
+/// [`hand_over`] without the states the alignment does not hand over: the INS state and the
+/// navigation blocks of P0 (what the carry phase needs at every master sample; the 17 × 17 P0
+/// is written once, at separation, by [`NavBlocks::write_p0`]). Same checks and errors as
+/// [`hand_over`] (the priors included).
+pub(crate) fn hand_over_nav<T: Real>(
+    master: &MasterAtRelease<T>,
+    alignment: &AlignmentAtRelease<T>,
+    lever: &LeverArm<T>,
+    priors: &HandoverPriors<T>,
+) -> Result<NavHandover<T>, NavError> {
+    validate_master(master, lever, priors)?;
+    hand_over_checked_master(master, alignment, lever)
+}
+
+/// [`hand_over_nav`] for a master, lever arm and priors that passed [`validate_master`]:
+/// checks the alignment only (its errors as [`hand_over`]'s).
+pub(crate) fn hand_over_checked_master<T: Real>(
+    master: &MasterAtRelease<T>,
+    alignment: &AlignmentAtRelease<T>,
+    lever: &LeverArm<T>,
+) -> Result<NavHandover<T>, NavError> {
+    validate_alignment(alignment)?;
     let c_m_n = master.c_m_n;
     let theta = alignment.theta_rad;
     // Attitude.
@@ -257,41 +383,26 @@ pub fn hand_over<T: Real>(
     let d = Vector3::new(T::one() / r_north, T::one() / r_east, -T::one());
     let dm = Matrix3::from_diagonal(&d);
     let p_pos = dm * p_r_ned * dm;
-    let mut p0 = SMatrix::<T, STATES, STATES>::zeros();
-    p0.fixed_view_mut::<3, 3>(POS, POS).copy_from(&p_pos);
-    p0.fixed_view_mut::<3, 3>(VEL, VEL).copy_from(&p_v);
-    p0.fixed_view_mut::<3, 3>(ATT, ATT).copy_from(&p_phi);
-    let ab = priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2;
-    let gb = priors.gyro_bias_sigma_rad_s * priors.gyro_bias_sigma_rad_s;
-    let sb = priors.gimbal_bias_sigma_rad * priors.gimbal_bias_sigma_rad;
-    p0.fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS)
-        .fill_diagonal(ab);
-    // Attitude–accelerometer-bias cross-covariance (module doc): −β C_s^n J_r P_θb, β the
-    // slave's share of the difference bias's prior variance (at most 1).
-    if alignment.bias_prior_variance_m2_s4 > T::zero() {
-        let beta = (ab / alignment.bias_prior_variance_m2_s4).min(T::one());
-        let p_phi_b = -(a * alignment.theta_bias_covariance) * beta;
-        p0.fixed_view_mut::<3, 3>(ATT, ACC_BIAS).copy_from(&p_phi_b);
-        p0.fixed_view_mut::<3, 3>(ACC_BIAS, ATT)
-            .copy_from(&p_phi_b.transpose());
-    }
-    p0.fixed_view_mut::<3, 3>(GYRO_BIAS, GYRO_BIAS)
-        .fill_diagonal(gb);
-    p0.fixed_view_mut::<2, 2>(GIMBAL, GIMBAL).fill_diagonal(sb);
-    let p0 = (p0 + p0.transpose()) * T::lit(0.5);
-    Ok(SeekerInsInitial {
+    Ok(NavHandover {
         state: InsState {
             position,
             vel_ned_m_s: vel,
             q_b_n: dcm_to_quat(&c_s_n),
         },
-        covariance: p0,
+        blocks: NavBlocks {
+            pos: symmetrised(&p_pos),
+            vel: symmetrised(&p_v),
+            att: symmetrised(&p_phi),
+            att_bias_unscaled: -(a * alignment.theta_bias_covariance),
+            bias_prior_variance_m2_s4: alignment.bias_prior_variance_m2_s4,
+        },
     })
 }
 
-fn validate<T: Real>(
+/// The checks of [`hand_over`] on what does not come from the alignment: the master, the
+/// lever arm and the priors (errors as [`hand_over`]'s).
+pub(crate) fn validate_master<T: Real>(
     master: &MasterAtRelease<T>,
-    alignment: &AlignmentAtRelease<T>,
     lever: &LeverArm<T>,
     priors: &HandoverPriors<T>,
 ) -> Result<(), NavError> {
@@ -334,6 +445,12 @@ fn validate<T: Real>(
             return Err(NavError::InputOutOfRange { input });
         }
     }
+    finite3(&lever.nominal_m, "lever.nominal_m")?;
+    sigma3(&lever.sigma_m, "lever.sigma_m")
+}
+
+/// The checks of [`hand_over`] on the alignment's estimate.
+fn validate_alignment<T: Real>(alignment: &AlignmentAtRelease<T>) -> Result<(), NavError> {
     finite3(&alignment.theta_rad, "alignment.theta_rad")?;
     finite3(&alignment.flexure_rad, "alignment.flexure_rad")?;
     finite3(
@@ -360,8 +477,7 @@ fn validate<T: Real>(
             input: "alignment.bias_prior_variance_m2_s4",
         });
     }
-    finite3(&lever.nominal_m, "lever.nominal_m")?;
-    sigma3(&lever.sigma_m, "lever.sigma_m")
+    Ok(())
 }
 
 #[cfg(test)]
@@ -412,6 +528,105 @@ mod tests {
     };
 
     /// The right Jacobian satisfies its defining relation (finite differences of exp).
+    /// The hand-over's blocks: `hand_over` is their P0; the cheap block check vouches for
+    /// them, and the EKF built with P0 written in place is the one the public constructor
+    /// (with its dense checks) builds. Blocks that are not PSD fail both checks.
+    #[test]
+    fn p0_from_blocks_is_the_hand_over_and_passes_the_ekf_checks() {
+        use crate::contract::Estimator;
+        use crate::seeker_ins::{Landmark, SeekerIns, SeekerInsConfig};
+        fn check<T: Real>() {
+            let m = master();
+            let cast3 = |v: &Vector3<f64>| v.map(T::lit);
+            let master = MasterAtRelease::<T> {
+                c_m_n: m.c_m_n.map(T::lit),
+                vel_ned_m_s: cast3(&m.vel_ned_m_s),
+                position: m.position,
+                rate_nm_rad_s: cast3(&m.rate_nm_rad_s),
+                attitude_sigma_rad: cast3(&m.attitude_sigma_rad),
+                velocity_sigma_m_s: cast3(&m.velocity_sigma_m_s),
+                position_sigma_m: cast3(&m.position_sigma_m),
+                rate_sigma_rad_s: T::lit(m.rate_sigma_rad_s),
+            };
+            let a = alignment();
+            let align = AlignmentAtRelease::<T> {
+                theta_rad: cast3(&a.theta_rad),
+                theta_covariance_rad2: a.theta_covariance_rad2.map(T::lit),
+                flexure_rad: cast3(&a.flexure_rad),
+                flexure_rate_rad_s: cast3(&a.flexure_rate_rad_s),
+                flexure_rate_covariance: a.flexure_rate_covariance.map(T::lit),
+                theta_bias_covariance: a.theta_bias_covariance.map(T::lit),
+                bias_prior_variance_m2_s4: T::lit(a.bias_prior_variance_m2_s4),
+            };
+            let lever = LeverArm {
+                nominal_m: cast3(&LEVER.nominal_m),
+                sigma_m: cast3(&LEVER.sigma_m),
+            };
+            let priors = HandoverPriors {
+                accel_bias_sigma_m_s2: T::lit(PRIORS.accel_bias_sigma_m_s2),
+                gyro_bias_sigma_rad_s: T::lit(PRIORS.gyro_bias_sigma_rad_s),
+                gimbal_bias_sigma_rad: T::lit(PRIORS.gimbal_bias_sigma_rad),
+            };
+            let full = hand_over(&master, &align, &lever, &priors).unwrap();
+            let nav = hand_over_nav(&master, &align, &lever, &priors).unwrap();
+            let mut p0 = SMatrix::<T, STATES, STATES>::from_element(T::lit(7.0));
+            nav.blocks.write_p0(&priors, &mut p0);
+            assert_eq!(p0, full.covariance);
+            assert!(nav.blocks.p0_passes_checks(&priors));
+            let landmark = Landmark::new(Position {
+                lat_rad: 0.651,
+                ..master.position
+            })
+            .unwrap();
+            let cfg = SeekerInsConfig::<T>::flight(landmark);
+            let design = SeekerIns::design(&cfg).unwrap();
+            let dense = SeekerIns::from_design(&cfg, &design, &full).unwrap();
+            let mut in_place = None;
+            SeekerIns::start_in(&mut in_place, &cfg, &design, &full.state, |p| {
+                nav.blocks.write_p0(&priors, p)
+            })
+            .unwrap();
+            let in_place = in_place.unwrap();
+            assert!(in_place == dense);
+            // A velocity block with a negative eigenvalue well beyond the dense check's
+            // tolerance: refused by both.
+            let mut bad = nav.blocks;
+            bad.vel[(0, 1)] = bad.vel[(0, 0)] * T::lit(3.0);
+            bad.vel[(1, 0)] = bad.vel[(0, 1)];
+            assert!(!bad.p0_passes_checks(&priors));
+            let mut p = full.covariance;
+            bad.write_p0(&priors, &mut p);
+            let refused = SeekerIns::from_design(
+                &cfg,
+                &design,
+                &SeekerInsInitial {
+                    state: full.state,
+                    covariance: p,
+                },
+            );
+            assert_eq!(
+                refused.err(),
+                Some(NavError::CovarianceNotPositiveSemiDefinite)
+            );
+            // The block check is stricter: the dense check's tolerance is relative to the
+            // whole trace (dominated by the altitude's m²), so it accepts an attitude block
+            // that is not PSD at its own scale; the navigator then leaves the decision to it.
+            let mut small = nav.blocks;
+            small.att[(0, 1)] = small.att[(0, 0)] * T::lit(3.0);
+            small.att[(1, 0)] = small.att[(0, 1)];
+            assert!(!small.p0_passes_checks(&priors));
+            // Not symmetric, or a variance beyond its ceiling: not vouched for.
+            let mut asym = nav.blocks;
+            asym.vel[(0, 1)] += T::lit(1e-3);
+            assert!(!asym.p0_passes_checks(&priors));
+            let mut huge = nav.blocks;
+            huge.pos[(2, 2)] = T::lit(1e30);
+            assert!(!huge.p0_passes_checks(&priors));
+        }
+        check::<f64>();
+        check::<f32>();
+    }
+
     #[test]
     fn right_jacobian_matches_finite_differences() {
         let th = Vector3::new(0.3, -0.2, 0.5);

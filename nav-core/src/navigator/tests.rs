@@ -633,6 +633,84 @@ fn refused_inputs_change_nothing<T: Real>() {
     assert!(nav.tick(&tick_of(&inc), &Aids::NONE).is_ok());
 }
 
+/// A master sample whose hand-over fails only after the alignment has stepped (the slave's
+/// station, through the lever arm, beyond the INS's altitude range while the master is inside
+/// it): refused, and the alignment undone — the navigator continues exactly as without it.
+fn master_refused_after_the_alignment_step<T: Real>() {
+    let (mut nav, mut world) = carry_for::<T>(1.0, 10.0);
+    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
+    // Advance to a tick with a master sample.
+    let mut inc = world.step(&lever);
+    while world.master_sample::<T>().is_none() {
+        nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        inc = world.step(&lever);
+    }
+    let mut m = world.master_sample::<T>().unwrap();
+    // A banked master whose lever arm points up, at the top of the altitude range.
+    let l0 = nav.config().lever_arm.nominal_m;
+    let c = [T::lit(0.5), T::lit(-0.5)]
+        .map(|roll| crate::math::rotation::euler_to_dcm(roll, T::zero(), T::zero()))
+        .into_iter()
+        .find(|c| (c * l0).z < T::lit(-1.0))
+        .unwrap();
+    m.c_m_n = c;
+    m.position.alt_m = crate::seeker_ins::MAX_ALT_M - 0.5;
+    let mut twin = nav.clone();
+    let before = format!("{:?}", nav.alignment());
+    let r = nav
+        .tick(
+            &tick_of(&inc),
+            &Aids {
+                master: Some(&m),
+                ..Aids::NONE
+            },
+        )
+        .unwrap();
+    assert_eq!(
+        r.master.state,
+        AidState::Refused(NavError::InputOutOfRange {
+            input: "master.position"
+        })
+    );
+    assert_eq!(format!("{:?}", nav.alignment()), before);
+    let r2 = twin.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+    assert_eq!(r.solution, r2.solution);
+    assert_eq!(
+        format!("{:?}", nav.alignment()),
+        format!("{:?}", twin.alignment())
+    );
+    // The next ticks (with master samples) as the twin's, bit for bit.
+    for _ in 0..6 {
+        let inc = world.step(&lever);
+        let m = world.master_sample::<T>();
+        let aids = Aids {
+            master: m.as_ref(),
+            ..Aids::NONE
+        };
+        let a = nav.tick(&tick_of(&inc), &aids).unwrap();
+        let b = twin.tick(&tick_of(&inc), &aids).unwrap();
+        assert_eq!(a.solution, b.solution);
+        assert_eq!(a.master.last, b.master.last);
+        // The refusal is the only count that differs.
+        assert_eq!(a.master.counters.refused, b.master.counters.refused + 1);
+        assert_eq!(a.master.counters.fused, b.master.counters.fused);
+    }
+    assert_eq!(
+        format!("{:?}", nav.alignment()),
+        format!("{:?}", twin.alignment())
+    );
+}
+
+#[test]
+fn master_refused_after_the_alignment_step_f64() {
+    master_refused_after_the_alignment_step::<f64>();
+}
+
+#[test]
+fn master_refused_after_the_alignment_step_f32() {
+    master_refused_after_the_alignment_step::<f32>();
+}
+
 #[test]
 fn refused_inputs_change_nothing_f64() {
     refused_inputs_change_nothing::<f64>();

@@ -144,30 +144,7 @@ impl<T: Real> Estimator for SeekerIns<T> {
         check_design(config, design)?;
         validate_covariance(&initial.covariance)?;
         let ins = Ins::new(initial.state, config.imu_dt_s)?;
-        Ok(Self {
-            ins,
-            p: initial.covariance,
-            accel_bias_m_s2: Vector3::zeros(),
-            gyro_bias_rad_s: Vector3::zeros(),
-            gimbal_bias_rad: Vector2::zeros(),
-            steps_pending: 0,
-            pending_us: 0,
-            dv_ned_pending_m_s: Vector3::zeros(),
-            config: *config,
-            design: *design,
-            los: AidCounters::default(),
-            counters: SeekerCounters::default(),
-            health: Health::default(),
-            held_run: 0,
-            clipped_run: 0,
-            clock: None,
-            last_los: None,
-            fusion_ref: None,
-            last_imu_fault: None,
-            run_start: None,
-            last_update: LastUpdate::None,
-            bias_charge: EquivalentBiasCharge::default(),
-        })
+        Ok(Self::assemble(config, design, ins, &initial.covariance))
     }
 
     /// Restarts the navigation solution: position, velocity and attitude from
@@ -383,6 +360,63 @@ impl<T: Real> SeekerIns<T> {
                 *dst = v;
             }
         }
+        Ok(())
+    }
+}
+
+impl<T: Real> SeekerIns<T> {
+    /// The EKF at the start of its life (every estimate zero, no counts) from checked parts.
+    fn assemble(
+        config: &SeekerInsConfig<T>,
+        design: &SeekerInsDesign<T>,
+        ins: Ins<T>,
+        p0: &SMatrix<T, STATES, STATES>,
+    ) -> Self {
+        Self {
+            ins,
+            p: *p0,
+            accel_bias_m_s2: Vector3::zeros(),
+            gyro_bias_rad_s: Vector3::zeros(),
+            gimbal_bias_rad: Vector2::zeros(),
+            steps_pending: 0,
+            pending_us: 0,
+            dv_ned_pending_m_s: Vector3::zeros(),
+            config: *config,
+            design: *design,
+            los: AidCounters::default(),
+            counters: SeekerCounters::default(),
+            health: Health::default(),
+            held_run: 0,
+            clipped_run: 0,
+            clock: None,
+            last_los: None,
+            fusion_ref: None,
+            last_imu_fault: None,
+            run_start: None,
+            last_update: LastUpdate::None,
+            bias_charge: EquivalentBiasCharge::default(),
+        }
+    }
+
+    /// [`Estimator::from_design`] into `slot`, with P0 written in place into the new EKF by
+    /// `write_p0` (every entry), for a P0 its caller has shown to pass the covariance checks
+    /// of `from_design` (finite, variances within [`VARIANCE_CEILING`], symmetric PSD): the
+    /// navigator's hand-over P0, checked block by block. The same EKF as `from_design`,
+    /// without the dense 17 × 17 check, without a P0 built elsewhere and copied, and without
+    /// the EKF passing through the stack. Errors (`slot` unchanged): those of the
+    /// configuration, the design and the state, as `from_design`.
+    pub(crate) fn start_in(
+        slot: &mut Option<Self>,
+        config: &SeekerInsConfig<T>,
+        design: &SeekerInsDesign<T>,
+        state: &InsState<T>,
+        write_p0: impl FnOnce(&mut SMatrix<T, STATES, STATES>),
+    ) -> Result<(), NavError> {
+        validate_config(config)?;
+        check_design(config, design)?;
+        let ins = Ins::new(*state, config.imu_dt_s)?;
+        let ekf = slot.insert(Self::assemble(config, design, ins, &SMatrix::zeros()));
+        write_p0(&mut ekf.p);
         Ok(())
     }
 }

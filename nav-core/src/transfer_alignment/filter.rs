@@ -69,6 +69,10 @@ impl<T: Real> TaInitial<T> {
 /// The covariance is double-buffered: a step predicts from the current buffer into the other
 /// one, fuses there, and only then makes it current, so an error leaves the filter untouched
 /// without copying P. The `Debug` output shows the state (current buffer only).
+///
+/// The scratch buffer also carries a prediction run ahead of the next epoch
+/// ([`Self::predict_ahead`]): a tick without master data can do the first prediction of the
+/// next step, which then continues from it (bit-identical results).
 #[derive(Clone)]
 pub struct TransferAlignment<T: Real, const K: usize, const N: usize> {
     pub(super) cfg: TaConfig<T>,
@@ -97,6 +101,18 @@ pub struct TransferAlignment<T: Real, const K: usize, const N: usize> {
     /// Time stamp of the last accepted sample.
     pub(super) last: Option<Timestamp>,
     pub(super) monitor: Monitor,
+    /// Predictions run from the current epoch ahead of the next one, their covariance in the
+    /// scratch buffer ([`Self::predict_ahead`]); `None`: nothing prepared.
+    pub(super) ahead: Option<Ahead<T, N>>,
+}
+
+/// Predictions run ahead of the next epoch ([`TransferAlignment::predict_ahead`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Ahead<T: Real, const N: usize> {
+    /// The state after `steps` predictions from the current epoch.
+    pub(super) x: SVector<T, N>,
+    /// Predictions run (≥ 1).
+    pub(super) steps: u32,
 }
 
 impl<T: Real, const K: usize, const N: usize> core::fmt::Debug for TransferAlignment<T, K, N> {
@@ -186,6 +202,7 @@ impl<T: Real, const K: usize, const N: usize> Estimator for TransferAlignment<T,
             grid: None,
             last: None,
             monitor: Monitor::new(),
+            ahead: None,
         })
     }
 
@@ -204,6 +221,7 @@ impl<T: Real, const K: usize, const N: usize> Estimator for TransferAlignment<T,
         set_mount_only::<T, K, N>(&mut self.x, &[m.x, m.y, m.z]);
         let p = initial_covariance::<T, K, N>(&self.chains);
         self.p = [p, p];
+        self.ahead = None;
         let mon = &mut self.monitor;
         Health::bump(&mut mon.health.reinitialisations);
         for c in mon.channels.iter_mut() {
@@ -354,6 +372,33 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// Covariance of θ = θ_m + θ_f (rad², the filter's own θ block).
     pub fn theta_covariance(&self) -> Matrix3<T> {
         Matrix3::from_fn(|a, b| self.p_at(K * a, K * b))
+    }
+
+    /// Covariance of θ̇_f, (rad/s)² (the filter's own θ̇_f block; read in place).
+    pub fn theta_f_rate_covariance(&self) -> Matrix3<T> {
+        Matrix3::from_fn(|a, b| self.p_at(K * a + 2, K * b + 2))
+    }
+
+    /// Cross-covariance of θ's error (rows, rad) with the specific-force-difference bias's
+    /// (columns, m/s²), rad·m/s² (the filter's own block, read in place); zero for a
+    /// configuration without the bias state.
+    pub fn theta_bias_covariance(&self) -> Matrix3<T> {
+        if has_accel_bias::<K>() {
+            Matrix3::from_fn(|a, b| self.p_at(K * a, K * b + BIAS_STATE))
+        } else {
+            Matrix3::zeros()
+        }
+    }
+
+    /// Prior variance of each axis' specific-force-difference bias (`σ_b²` of the
+    /// configuration), (m/s²)²; zero for a configuration without the bias state.
+    pub fn accel_bias_prior_variance(&self) -> T {
+        if has_accel_bias::<K>() {
+            let s = self.config().accel_bias_sigma_m_s2;
+            s * s
+        } else {
+            T::zero()
+        }
     }
 
     /// Covariance of θ_m = θ − θ_f (rad²): `P_θθ − P_θf − P_fθ + P_ff`.

@@ -6,7 +6,7 @@ use super::covariance::{
     condition, fuse_bounded, initial_covariance, predict_cov, predict_state, reinit_flexure,
     set_mount_only,
 };
-use super::filter::TransferAlignment;
+use super::filter::{Ahead, TransferAlignment};
 use super::health::Channel;
 use super::history::SlaveHistory;
 use super::measurement::{
@@ -214,8 +214,11 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             q_d,
             p,
             second,
+            ahead,
             ..
         } = self;
+        // Whatever the plan, the prepared prediction is used up (or overwritten) here.
+        let ahead = ahead.take();
         let [a, b] = p;
         let (cur, scratch) = if *second { (&*b, a) } else { (&*a, b) };
         if plan.gap == GapOutcome::FlexureReinitialised {
@@ -227,11 +230,96 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             scratch.copy_from(cur);
             return;
         }
-        predict_state(phi, x);
-        predict_cov(phi, q_d, Some(cur), scratch);
-        for _ in 1..plan.predictions {
+        // The first predictions: done ahead (`predict_ahead`: their covariance is in the
+        // scratch buffer already) unless more than the plan has, or now.
+        let done = match ahead {
+            Some(a) if a.steps <= plan.predictions => {
+                *x = a.x;
+                a.steps
+            }
+            _ => {
+                predict_state(phi, x);
+                predict_cov(phi, q_d, Some(cur), scratch);
+                1
+            }
+        };
+        for _ in done..plan.predictions {
             predict_state(phi, x);
             predict_cov(phi, q_d, None, scratch);
+        }
+    }
+
+    /// Runs one more prediction of the next epoch now, into the scratch buffer, so that the
+    /// next [`Self::step`] or [`Self::propagate`] has one prediction less to do (ticks
+    /// without master data carry them, the tick of the master sample does not). The estimate
+    /// is unchanged: state, covariance, time, health and every accessor read the current
+    /// epoch. The next call whose time plan has at least as many predictions continues from
+    /// them with bit-identical results; a plan with fewer (a sample in the same step, a gap
+    /// reset), [`crate::contract::Estimator::reinitialise`] or a step undone by
+    /// [`Self::step_then`] discards them (the call then predicts from the current epoch, as
+    /// without them). Returns `false` (nothing done) before the first epoch or when
+    /// `max_gap_steps` predictions are prepared.
+    #[inline(never)]
+    pub fn predict_ahead(&mut self) -> bool {
+        let done = self.steps_ahead();
+        if self.grid.is_none() || done >= self.cfg.max_gap_steps {
+            return false;
+        }
+        let Self {
+            phi,
+            q_d,
+            p,
+            second,
+            x,
+            ahead,
+            ..
+        } = self;
+        let [a, b] = p;
+        let (cur, scratch) = if *second { (&*b, a) } else { (&*a, b) };
+        let (mut xa, src) = match ahead {
+            Some(a) => (a.x, None),
+            None => (*x, Some(cur)),
+        };
+        predict_state(phi, &mut xa);
+        predict_cov(phi, q_d, src, scratch);
+        *ahead = Some(Ahead {
+            x: xa,
+            steps: done + 1,
+        });
+        true
+    }
+
+    /// Predictions prepared by [`Self::predict_ahead`] for the next epoch (0: none).
+    pub fn steps_ahead(&self) -> u32 {
+        self.ahead.map_or(0, |a| a.steps)
+    }
+
+    /// [`Self::step`], then `then` on the stepped filter; when `then` fails the step is undone
+    /// (the estimate, its covariance, time and every counter as before the call — the step
+    /// wrote the other covariance buffer only, so nothing larger than the state is saved) and
+    /// its error returned. For a caller whose own commit depends on the updated estimate
+    /// (the navigator's hand-over), without a copy of the filter. Errors: those of
+    /// [`Self::step`] (nothing changed), then those of `then` (step undone).
+    pub fn step_then<R>(
+        &mut self,
+        master: &MasterSample<T>,
+        slave: &SlaveSample<T>,
+        then: impl FnOnce(&Self) -> Result<R, NavError>,
+    ) -> Result<(StepReport<T>, R), NavError> {
+        let (x, grid, last, monitor, second) =
+            (self.x, self.grid, self.last, self.monitor, self.second);
+        let report = self.step(master, slave)?;
+        match then(self) {
+            Ok(r) => Ok((report, r)),
+            Err(e) => {
+                self.x = x;
+                self.grid = grid;
+                self.last = last;
+                self.monitor = monitor;
+                self.second = second;
+                self.ahead = None;
+                Err(e)
+            }
         }
     }
 
@@ -497,6 +585,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         self.x = x;
         self.second = !self.second;
         self.grid = Some(plan.grid);
+        self.ahead = None;
     }
 
     /// Counts a bridged gap (more than one prediction) or a reset one.

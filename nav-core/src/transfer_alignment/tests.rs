@@ -169,6 +169,142 @@ fn step_and_errors<T: Real, const K: usize, const N: usize>() {
     assert_eq!(f.aid_counters(Channel::ForceY).rejected, 0);
 }
 
+/// Predictions run ahead ([`TransferAlignment::predict_ahead`]) change nothing of the
+/// estimate, and the steps and propagations after them are bit for bit those without them,
+/// whatever their time plan (as many predictions, more, fewer, none, a gap reset), across a
+/// refusal and a re-initialisation.
+fn predict_ahead_is_exact<T: Real, const K: usize, const N: usize>() {
+    let mut a = new::<T, K, N>(cfg()).unwrap();
+    let mut b = a.clone();
+    let same = |a: &TransferAlignment<T, K, N>, b: &TransferAlignment<T, K, N>| {
+        assert_eq!(format!("{a:?}"), format!("{b:?}"));
+        assert_eq!(a.covariance(), b.covariance());
+        assert_eq!(a.state(), b.state());
+    };
+    // Nothing to predict before the first epoch.
+    assert!(!a.predict_ahead());
+    let (m, s) = samples::<T>(0.0);
+    assert_eq!(a.step(&m, &s), b.step(&m, &s));
+    // `ahead` predictions prepared, then a sample at `t` whose plan has `predictions`.
+    let step_both = |a: &mut TransferAlignment<T, K, N>,
+                     b: &mut TransferAlignment<T, K, N>,
+                     ahead: u32,
+                     t: f64,
+                     predictions: u32| {
+        for k in 0..ahead {
+            assert!(a.predict_ahead());
+            assert_eq!(a.steps_ahead(), k + 1);
+        }
+        same(a, b);
+        let (m, s) = samples::<T>(t);
+        let ra = a.step(&m, &s).unwrap();
+        assert_eq!(ra.predictions, predictions);
+        assert_eq!(Ok(ra), b.step(&m, &s));
+        assert_eq!(a.steps_ahead(), 0);
+        same(a, b);
+    };
+    step_both(&mut a, &mut b, 2, 0.02, 2);
+    step_both(&mut a, &mut b, 1, 0.03, 1);
+    // Fewer than the plan: continued.
+    step_both(&mut a, &mut b, 1, 0.05, 2);
+    // More than the plan, or a sample in the same step: discarded.
+    step_both(&mut a, &mut b, 2, 0.06, 1);
+    step_both(&mut a, &mut b, 1, 0.064, 0);
+    // At most `max_gap_steps` (3 here).
+    for _ in 0..3 {
+        assert!(a.predict_ahead());
+    }
+    assert!(!a.predict_ahead());
+    assert_eq!(a.steps_ahead(), 3);
+    same(&a, &b);
+    // Propagation continues from them.
+    assert_eq!(
+        a.propagate(Timestamp::from_millis(90)),
+        b.propagate(Timestamp::from_millis(90))
+    );
+    same(&a, &b);
+    // A refused sample keeps them; the next step uses them.
+    assert!(a.predict_ahead());
+    let (m, s) = samples::<T>(0.09);
+    assert!(a.step(&m, &s).is_err());
+    assert!(b.step(&m, &s).is_err());
+    same(&a, &b);
+    assert_eq!(a.steps_ahead(), 1, "still prepared");
+    let (m, s) = samples::<T>(0.1);
+    assert_eq!(a.step(&m, &s), b.step(&m, &s));
+    same(&a, &b);
+    // A gap reset (5 steps, max 3) discards them.
+    step_both(&mut a, &mut b, 2, 0.15, 0);
+    assert_eq!(a.health().gaps_reset, 1);
+    // Re-initialisation discards them.
+    assert!(a.predict_ahead());
+    a.reinitialise(&TaInitial::default()).unwrap();
+    b.reinitialise(&TaInitial::default()).unwrap();
+    assert_eq!(a.steps_ahead(), 0);
+    same(&a, &b);
+    step_both(&mut a, &mut b, 1, 0.16, 1);
+}
+
+#[test]
+fn predict_ahead_is_exact_f32_f64() {
+    predict_ahead_is_exact::<f64, 3, 9>();
+    predict_ahead_is_exact::<f32, 4, 12>();
+    predict_ahead_is_exact::<f64, 5, 15>();
+    predict_ahead_is_exact::<f32, 5, 15>();
+}
+
+/// [`TransferAlignment::step_then`]: a failing continuation undoes the step (the filter as
+/// before, bit for bit, and it continues as a twin that never saw the sample); a refused
+/// sample does not call it; a successful one commits as [`TransferAlignment::step`].
+fn step_then_undoes<T: Real, const K: usize, const N: usize>() {
+    let mut f = new::<T, K, N>(cfg()).unwrap();
+    for t in [0.0, 0.01] {
+        let (m, s) = samples::<T>(t);
+        f.step(&m, &s).unwrap();
+    }
+    let mut twin = f.clone();
+    assert!(f.predict_ahead());
+    let before = format!("{f:?}");
+    let (m, s) = samples::<T>(0.02);
+    let undone = f.step_then(&m, &s, |g| {
+        assert_ne!(
+            format!("{g:?}"),
+            before,
+            "the continuation sees the stepped filter"
+        );
+        Err::<(), _>(NavError::InputOutOfRange { input: "test" })
+    });
+    assert_eq!(undone, Err(NavError::InputOutOfRange { input: "test" }));
+    assert_eq!(format!("{f:?}"), before);
+    assert_eq!(f.covariance(), twin.covariance());
+    let (report, theta) = f.step_then(&m, &s, |g| Ok(g.theta())).unwrap();
+    assert_eq!(Ok(report), twin.step(&m, &s));
+    assert_eq!(theta, twin.theta());
+    assert_eq!(format!("{f:?}"), format!("{twin:?}"));
+    // Refused (same time again): the continuation is not called.
+    let mut called = false;
+    let refused = f.step_then(&m, &s, |_| {
+        called = true;
+        Ok(())
+    });
+    assert_eq!(refused, Err(NavError::TimeNotIncreasing));
+    assert!(!called);
+    let (m, s) = samples::<T>(0.03);
+    assert_eq!(f.step(&m, &s), twin.step(&m, &s));
+    assert_eq!(
+        f.health().imu_refused,
+        twin.health().imu_refused + 1,
+        "the refusal counted, the undone step not"
+    );
+}
+
+#[test]
+fn step_then_undoes_f32_f64() {
+    step_then_undoes::<f64, 4, 12>();
+    step_then_undoes::<f32, 5, 15>();
+    step_then_undoes::<f64, 5, 15>();
+}
+
 #[test]
 fn step_reports_and_errors_leave_state_f32_f64() {
     step_and_errors::<f64, 4, 12>();
