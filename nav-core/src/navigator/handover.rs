@@ -622,6 +622,19 @@ mod tests {
             let mut huge = nav.blocks;
             huge.pos[(2, 2)] = T::lit(1e30);
             assert!(!huge.p0_passes_checks(&priors));
+            // An attitude–bias cross block too large for the two diagonal blocks (the Schur
+            // complement att − X Xᵀ/ab indefinite): not vouched for, and the dense check
+            // refuses the P0 too.
+            assert!(nav
+                .blocks
+                .att_bias(priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2)
+                .is_some());
+            let mut cross = nav.blocks;
+            cross.att_bias_unscaled *= T::lit(1e4);
+            assert!(!cross.p0_passes_checks(&priors));
+            let mut p = full.covariance;
+            cross.write_p0(&priors, &mut p);
+            assert!(!crate::math::kalman::is_psd(&p, T::lit(1e-6)));
         }
         check::<f64>();
         check::<f32>();
