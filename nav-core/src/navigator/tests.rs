@@ -1076,12 +1076,13 @@ fn chain_with_inertial_loop_f32() {
     chain_with_inertial_loop::<f32>();
 }
 
-fn flight_aids_refused<T: Real>() {
-    let cfg = config::<T>(BaroDamping::Ekf(baro_model()));
-    let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
-    let mut world = World::new();
-    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
-    let truth = world.missile_truth(&lever);
+/// Releases `nav` at the world's missile truth with a tenth of the paper's initial σ.
+fn release_at_truth<T: Real>(
+    nav: &mut FlightNavigator<T, 32>,
+    world: &World,
+    lever: &Vector3<f64>,
+) {
+    let truth = world.missile_truth(lever);
     let mut p0 = crate::seeker_ins::paper_initial_covariance::<T>();
     p0 *= T::lit(0.01);
     nav.release_with(&crate::seeker_ins::SeekerInsInitial {
@@ -1093,6 +1094,15 @@ fn flight_aids_refused<T: Real>() {
         covariance: p0,
     })
     .unwrap();
+}
+
+fn flight_aids_refused<T: Real>() {
+    let cfg = config::<T>(BaroDamping::Ekf(baro_model()));
+    let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
+    let mut world = World::new();
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    let truth = world.missile_truth(&lever);
+    release_at_truth(&mut nav, &world, &lever);
     // A second release is refused.
     assert!(nav
         .release_with(&crate::seeker_ins::SeekerInsInitial {
@@ -1101,7 +1111,7 @@ fn flight_aids_refused<T: Real>() {
                 vel_ned_m_s: Vector3::zeros(),
                 q_b_n: Quaternion::identity(),
             },
-            covariance: p0,
+            covariance: crate::seeker_ins::paper_initial_covariance::<T>(),
         })
         .is_err());
     // Coast to midcourse.
@@ -1528,18 +1538,7 @@ fn refused_los_keeps_the_pending_step<T: Real>() {
     let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
     let mut world = World::new();
     let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
-    let truth = world.missile_truth(&lever);
-    let mut p0 = crate::seeker_ins::paper_initial_covariance::<T>();
-    p0 *= T::lit(0.01);
-    nav.release_with(&crate::seeker_ins::SeekerInsInitial {
-        state: InsState {
-            position: truth.position,
-            vel_ned_m_s: truth.vel_ned_m_s.map(|x| T::lit(x)),
-            q_b_n: Quaternion::from(truth.q_b_n.coords.map(|x| T::lit(x))),
-        },
-        covariance: p0,
-    })
-    .unwrap();
+    release_at_truth(&mut nav, &world, &lever);
     for _ in 0..((COAST_S / DT) as u64 + 2) {
         let inc = world.step(&lever);
         nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
