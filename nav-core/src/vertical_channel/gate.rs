@@ -130,7 +130,7 @@ pub(crate) struct Verdict<T> {
 pub(crate) type Admitted<T> = (Option<AidChannel<T>>, T, Option<Verdict<T>>);
 
 #[inline(always)]
-fn saturate<T: Real>(s: T) -> T {
+pub(crate) fn saturate<T: Real>(s: T) -> T {
     // Also catches an overflow to +∞ (s cannot be NaN: every term is finite or +∞).
     let max_var = T::lit(MAX_GATE_VARIANCE);
     if s > max_var {
