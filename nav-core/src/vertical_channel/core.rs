@@ -464,7 +464,8 @@ impl<T: Real> LoopCore<T> {
         let mut v_rate = az + bias_sign * b;
         let half = T::lit(0.5);
         let now = sub.now;
-        let (baro_ch, baro_age, baro_verdict) = admit::<T, true>(
+        let (baro_ch, baro_age, baro_verdict) = admit(
+            true,
             &self.baro,
             self.baro.age(now),
             samples.baro,
@@ -479,7 +480,8 @@ impl<T: Real> LoopCore<T> {
             &self.gate,
             &self.gate.baro,
         );
-        let (vel_ch, vel_age, vel_verdict) = admit::<T, false>(
+        let (vel_ch, vel_age, vel_verdict) = admit(
+            false,
             &self.velocity,
             self.velocity.age(now),
             samples.velocity,
