@@ -186,9 +186,26 @@ impl<T: Real> LoopCore<T> {
 
     /// One IMU step with optional new aid samples, over the actual interval since the last
     /// accepted sample. On error nothing changes but the refused-input counter of the input
-    /// that was refused.
-    #[inline(always)]
+    /// that was refused. One out-of-line body shared by both loops: the nominal step inlined
+    /// (its reports written where the caller wants them), the general step called.
+    #[inline(never)]
     pub(crate) fn step(
+        &mut self,
+        imu: &ImuSample<T>,
+        baro: Option<&BaroSample<T>>,
+        velocity: Option<&VelocitySample<T>>,
+    ) -> Result<StepReports<T>, NavError> {
+        match self.step_nominal(imu, baro, velocity) {
+            Some(r) => Ok(r),
+            None => self.step_general(imu, baro, velocity),
+        }
+    }
+
+    /// [`Self::step`] for every step the nominal one ([`Self::step_nominal`]) leaves: checks
+    /// every input, then one sub-step or the gap bridge. One out-of-line body shared by both
+    /// loops.
+    #[inline(never)]
+    pub(crate) fn step_general(
         &mut self,
         imu: &ImuSample<T>,
         baro: Option<&BaroSample<T>>,
@@ -323,6 +340,8 @@ impl<T: Real> LoopCore<T> {
             Health::bump(&mut self.health.limits_hit);
             self.baro.reanchor = true;
             self.velocity.reanchor = true;
+            self.baro.tracking = false;
+            self.velocity.tracking = false;
         }
         self.x = x;
         self.h_ref_m = h_ref_new;
@@ -389,9 +408,11 @@ impl<T: Real> LoopCore<T> {
         // A channel changes only when a sample arrived.
         if let Some(c) = gated.baro {
             self.baro = c;
+            self.baro.refresh_tracking();
         }
         if let Some(c) = gated.velocity {
             self.velocity = c;
+            self.velocity.refresh_tracking();
         }
         self.settle(x_new, sub.h_ref);
         self.time = sub.now;
@@ -407,7 +428,7 @@ impl<T: Real> LoopCore<T> {
 
     /// Health after a committed step (the rules are in the module documentation).
     #[inline(always)]
-    fn health_state(&self, bridged: bool, use_baro: bool, use_vel: bool) -> HealthState {
+    pub(super) fn health_state(&self, bridged: bool, use_baro: bool, use_vel: bool) -> HealthState {
         if self.baro.reanchor {
             HealthState::NeedsReinitialisation
         } else if bridged
@@ -443,7 +464,8 @@ impl<T: Real> LoopCore<T> {
         let mut v_rate = az + bias_sign * b;
         let half = T::lit(0.5);
         let now = sub.now;
-        let (baro_ch, baro_age, baro_verdict) = admit::<T, true>(
+        let (baro_ch, baro_age, baro_verdict) = admit(
+            true,
             &self.baro,
             self.baro.age(now),
             samples.baro,
@@ -458,7 +480,8 @@ impl<T: Real> LoopCore<T> {
             &self.gate,
             &self.gate.baro,
         );
-        let (vel_ch, vel_age, vel_verdict) = admit::<T, false>(
+        let (vel_ch, vel_age, vel_verdict) = admit(
+            false,
             &self.velocity,
             self.velocity.age(now),
             samples.velocity,
@@ -625,7 +648,7 @@ struct Moved {
 }
 
 #[inline(always)]
-fn report<T: Real>(
+pub(super) fn report<T: Real>(
     status: super::AidStatus<T>,
     correction: Option<T>,
     verdict: Option<Verdict<T>>,

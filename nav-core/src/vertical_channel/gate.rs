@@ -130,7 +130,7 @@ pub(crate) struct Verdict<T> {
 pub(crate) type Admitted<T> = (Option<AidChannel<T>>, T, Option<Verdict<T>>);
 
 #[inline(always)]
-fn saturate<T: Real>(s: T) -> T {
+pub(crate) fn saturate<T: Real>(s: T) -> T {
     // Also catches an overflow to +∞ (s cannot be NaN: every term is finite or +∞).
     let max_var = T::lit(MAX_GATE_VARIANCE);
     if s > max_var {
@@ -184,12 +184,13 @@ fn reanchor<T: Real>(
     (cand, verdict)
 }
 
-/// Gate of one new sample (`SECOND_ORDER`: the baro's extrapolation). `old_age`: the held
+/// Gate of one new sample (`second_order`: the baro's extrapolation). `old_age`: the held
 /// sample's age now (the new sample's is its `age_s`, at the same time).
 /// Returns the channel to use (`None`: `old`, unchanged), its sample's age now and the
 /// verdict.
 #[inline(always)]
-pub(crate) fn admit<T: Real, const SECOND_ORDER: bool>(
+pub(crate) fn admit<T: Real>(
+    second_order: bool,
     old: &AidChannel<T>,
     old_age: T,
     sample: Option<ValidSample<T>>,
@@ -197,13 +198,28 @@ pub(crate) fn admit<T: Real, const SECOND_ORDER: bool>(
     params: &GateParams<T>,
     aid: &AidGate<T>,
 ) -> Admitted<T> {
-    let Some(sample) = sample else {
-        return (None, old_age, None);
-    };
+    match sample {
+        None => (None, old_age, None),
+        Some(sample) => admit_sample(second_order, old, old_age, sample, ex, params, aid),
+    }
+}
+
+/// [`admit`] of a sample that arrived: one out-of-line body for both aids (the general step's
+/// path; the common case takes the nominal step's own gate).
+#[inline(never)]
+fn admit_sample<T: Real>(
+    second_order: bool,
+    old: &AidChannel<T>,
+    old_age: T,
+    sample: ValidSample<T>,
+    ex: &Extrapolation<T>,
+    params: &GateParams<T>,
+    aid: &AidGate<T>,
+) -> Admitted<T> {
     let mut cand = old.with(sample);
     let cand_age = sample.age_s;
     let age = cand_age - ex.half_h;
-    let (value, r) = if SECOND_ORDER {
+    let (value, r) = if second_order {
         (cand.last_value - ex.offset, ex.rate - ex.rate_slope * age)
     } else {
         (cand.last_value, ex.rate)

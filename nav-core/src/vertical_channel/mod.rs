@@ -152,6 +152,7 @@ mod gains;
 mod gate;
 mod gravity;
 mod modes;
+mod nominal;
 mod riccati;
 mod samples;
 mod sigma;

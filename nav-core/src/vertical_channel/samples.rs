@@ -162,6 +162,10 @@ pub(crate) struct AidChannel<T> {
     pub(crate) rejected_since: Timestamp,
     /// The next sample is accepted outside the gate and re-anchors the measured state.
     pub(crate) reanchor: bool,
+    /// The channel tracks: a sample received, no re-anchoring pending, no rejection run, no
+    /// recovery gate held — the state in which the nominal step may take its next sample
+    /// (kept by [`Self::refresh_tracking`] after every change of the other fields).
+    pub(crate) tracking: bool,
 }
 
 /// What one aid's sample is checked against: its name, physical range and timeouts.
@@ -181,7 +185,16 @@ impl<T: Real> AidChannel<T> {
             recovery_clear_since: NEVER,
             rejected_since: NEVER,
             reanchor: false,
+            tracking: false,
         }
+    }
+
+    /// Sets [`Self::tracking`] from the other fields.
+    #[inline(always)]
+    pub(crate) fn refresh_tracking(&mut self) {
+        let recovering = self.recovery_var > T::zero();
+        self.tracking =
+            self.received && !self.reanchor && self.rejected_since == NEVER && !recovering;
     }
 
     /// The channel after a gap too long to bridge: empty, the next sample re-anchors.

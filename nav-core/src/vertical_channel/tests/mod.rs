@@ -10,6 +10,8 @@ use crate::design::DesignValues;
 use crate::{FusionOutcome, Gate, NavError, Real, Timestamp};
 use nalgebra::{Matrix3, Matrix3x2};
 
+mod nominal;
+
 fn ts(seconds: f64) -> Timestamp {
     Timestamp::from_secs_f64(seconds).unwrap()
 }

@@ -1,0 +1,230 @@
+//! The nominal step (`LoopCore::step_nominal`) against the general one: the same result and
+//! the same loop, bit for bit, on every step of long seeded runs that visit every path —
+//! nominal, jittered and bridged intervals, gaps too long to bridge, refused inputs of every
+//! kind, gate rejections and rejection runs, lost aids and their re-acquisition, recovery
+//! gates, starvation re-anchoring.
+
+use super::super::core::LoopCore;
+use super::*;
+use std::format;
+
+/// A small seeded generator (xorshift64*), reproducible across platforms.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+    /// Uniform in [0, 1).
+    fn unit(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// `true` with probability `p`.
+    fn chance(&mut self, p: f64) -> bool {
+        self.unit() < p
+    }
+    /// Uniform in [-a, a].
+    fn sym(&mut self, a: f64) -> f64 {
+        (2.0 * self.unit() - 1.0) * a
+    }
+}
+
+/// What the run visited.
+#[derive(Default, Debug)]
+struct Visits {
+    nominal: u32,
+    general: u32,
+    refused: u32,
+    rejected: u32,
+    reacquired: u32,
+}
+
+/// One hostile run of `steps` IMU samples through `a.step` and `b.step_general` (the same loop
+/// twice); every result and the whole loop compared after every step (Debug strings: distinct
+/// floats print differently, so this is bit-for-bit up to NaN payloads).
+fn compare_run<T: Real>(mut a: LoopCore<T>, velocity_aid: bool, seed: u64, steps: u32) -> Visits {
+    let mut b = a;
+    let mut rng = Rng(seed);
+    let mut visits = Visits::default();
+    let mut now_us: u64 = 0;
+    let mut last_baro_us: u64 = 0;
+    let mut last_vel_us: u64 = 0;
+    let mut alt = 500.0_f64;
+    let mut vz = 0.0_f64;
+    // Phases: outages of an aid, baro outliers, a large specific-force bias.
+    let mut baro_out = 0u32;
+    let mut vel_out = 0u32;
+    let mut outlier_run = 0u32;
+    let mut push = 0u32;
+    for k in 0..steps {
+        // The IMU interval: mostly nominal, some jitter, some gaps, rarely a long gap or a
+        // stamp not after the loop's clock.
+        let dt_us: i64 = match rng.unit() {
+            u if u < 0.80 => 10_000,
+            u if u < 0.90 => 10_000 + (rng.sym(4_000.0) as i64),
+            u if u < 0.95 => 10_000 * (2 + (rng.next() % 12) as i64),
+            u if u < 0.953 => 10_500_000 + (rng.next() % 2_000_000) as i64,
+            u if u < 0.96 => -((rng.next() % 20_000) as i64),
+            _ => 10_000,
+        };
+        let t_us = (now_us as i64 + dt_us).max(0) as u64;
+        if push == 0 && rng.chance(0.0005) {
+            push = 3_000;
+        }
+        let bias = if push > 0 {
+            push -= 1;
+            150.0
+        } else {
+            0.0
+        };
+        let f = match rng.unit() {
+            u if u < 0.003 => f64::NAN,
+            u if u < 0.006 => 250.0,
+            _ => 9.80 + bias + rng.sym(0.3),
+        };
+        let imu = ImuSample {
+            time: Timestamp::from_micros(t_us),
+            specific_force_up_m_s2: T::lit(f),
+        };
+        vz += rng.sym(0.05);
+        alt += vz * 0.01;
+        if baro_out == 0 && rng.chance(0.002) {
+            baro_out = (rng.next() % 300) as u32;
+        }
+        if vel_out == 0 && rng.chance(0.002) {
+            vel_out = (rng.next() % 300) as u32;
+        }
+        if outlier_run == 0 && rng.chance(0.003) {
+            outlier_run = (rng.next() % 40) as u32;
+        }
+        baro_out = baro_out.saturating_sub(1);
+        vel_out = vel_out.saturating_sub(1);
+        outlier_run = outlier_run.saturating_sub(1);
+        // A sample's stamp: mostly the IMU's or a little before; sometimes in the future, not
+        // after the previous one, or too old.
+        let stamp = |rng: &mut Rng, last: &mut u64| -> u64 {
+            let s = match rng.unit() {
+                u if u < 0.85 => t_us.saturating_sub(rng.next() % 8_000),
+                u if u < 0.90 => t_us + 1 + rng.next() % 5_000,
+                u if u < 0.95 => *last,
+                _ => t_us.saturating_sub(500_000 + rng.next() % 2_000_000),
+            };
+            *last = (*last).max(s);
+            s
+        };
+        let baro = (baro_out == 0 && rng.chance(0.3)).then(|| {
+            let value = match rng.unit() {
+                u if u < 0.01 => f64::NAN,
+                u if u < 0.02 => 70_000.0,
+                _ if outlier_run > 0 => alt + 300.0,
+                _ => alt + rng.sym(1.0),
+            };
+            BaroSample {
+                time: Timestamp::from_micros(stamp(&mut rng, &mut last_baro_us)),
+                altitude_m: T::lit(value),
+            }
+        });
+        let vel = (velocity_aid && vel_out == 0 && rng.chance(0.12)).then(|| {
+            let value = match rng.unit() {
+                u if u < 0.01 => f64::INFINITY,
+                u if u < 0.02 => 2_000.0,
+                _ if outlier_run > 0 => vz - 40.0,
+                _ => vz + rng.sym(0.1),
+            };
+            VelocitySample {
+                time: Timestamp::from_micros(stamp(&mut rng, &mut last_vel_us)),
+                vz_up_m_s: T::lit(value),
+            }
+        });
+        let fast = {
+            let mut c = a;
+            c.step_nominal(&imu, baro.as_ref(), vel.as_ref()).is_some()
+        };
+        let ra = a.step(&imu, baro.as_ref(), vel.as_ref());
+        let rb = b.step_general(&imu, baro.as_ref(), vel.as_ref());
+        assert_eq!(
+            format!("{ra:?}"),
+            format!("{rb:?}"),
+            "seed {seed} step {k}: reports differ"
+        );
+        assert_eq!(
+            format!("{a:?}"),
+            format!("{b:?}"),
+            "seed {seed} step {k}: loops differ"
+        );
+        if fast {
+            visits.nominal += 1;
+        } else {
+            visits.general += 1;
+        }
+        match &ra {
+            Err(_) => visits.refused += 1,
+            Ok(r) => {
+                for rep in [&r.baro, &r.velocity] {
+                    if let Some(s) = rep.sample {
+                        if s.outcome == FusionOutcome::Rejected {
+                            visits.rejected += 1;
+                        }
+                    }
+                    if !matches!(rep.reacquisition, Reacquisition::Tracking) {
+                        visits.reacquired += 1;
+                    }
+                }
+                now_us = t_us;
+            }
+        }
+    }
+    visits
+}
+
+fn gated<T: Real>(lp: &mut LoopCore<T>, gate: Gate<T>, starved_after_s: Option<f64>) {
+    lp.set_gate(gate).unwrap();
+    lp.set_recovery(RecoveryPolicy {
+        starved_after_s: starved_after_s.map(T::lit),
+        action: RecoveryAction::Reanchor,
+    })
+    .unwrap();
+}
+
+fn nominal_step_matches_general<T: Real>() {
+    let mut total = Visits::default();
+    for (seed, gate, starved) in [
+        (1_u64, Gate::Off, None),
+        (2, Gate::Nis(T::lit(10.83)), None),
+        (3, Gate::Nis(T::lit(10.83)), Some(2.0)),
+        (4, Gate::Nis(T::lit(3.84)), Some(0.5)),
+    ] {
+        let mut c = *ClassicalLoop::<T>::new(&classical_config(20.0, 0.2), &init(500.0))
+            .unwrap()
+            .core();
+        gated(&mut c, gate, starved);
+        let mut d = *AidedLoop::<T>::new(&aided_config(), &init(500.0))
+            .unwrap()
+            .core();
+        gated(&mut d, gate, starved);
+        for (lp, vel) in [(c, false), (d, true)] {
+            let v = compare_run(lp, vel, seed * 7 + u64::from(vel), 10_000);
+            total.nominal += v.nominal;
+            total.general += v.general;
+            total.refused += v.refused;
+            total.rejected += v.rejected;
+            total.reacquired += v.reacquired;
+        }
+    }
+    std::println!("{} {total:?}", ::core::any::type_name::<T>());
+    // The runs visited both paths and the rare events (so the comparison can fail).
+    assert!(total.nominal > 40_000, "{total:?}");
+    assert!(total.general > 20_000, "{total:?}");
+    assert!(total.refused > 2_000, "{total:?}");
+    assert!(total.rejected > 1_000, "{total:?}");
+    assert!(total.reacquired > 200, "{total:?}");
+}
+
+#[test]
+fn nominal_step_matches_general_step_bit_for_bit_f32_f64() {
+    nominal_step_matches_general::<f32>();
+    nominal_step_matches_general::<f64>();
+}
