@@ -15,7 +15,7 @@ use crate::scenarios::transfer_alignment::estimate::cast_config;
 use crate::truth::{dcm_from_quaternion, ecef_to_ned, geodetic_to_ecef, vector_from_rotation};
 use anyhow::{anyhow, Result};
 use nalgebra::{Matrix3, SMatrix, Vector3};
-use nav_core::contract::Gate;
+use nav_core::contract::{FusionOutcome, Gate};
 use nav_core::navigator::{
     AidState, AidTimeouts, Aids, BaroDamping, BaroErrorModel, HandoverPriors, ImuTick, LeverArm,
     MasterNav, NavSolution, Navigator, NavigatorConfig, NavigatorInitial, Phase, SeparationCheck,
@@ -372,13 +372,32 @@ fn count(out: &mut FlightRecord, rep: &TickReport<impl Real>, t_s: f64) {
         if tag != "fused" {
             tags.push(key.clone());
         }
-        match out.aid_counts.iter_mut().find(|(k, _)| *k == key) {
-            Some((_, n)) => *n += 1,
-            None => out.aid_counts.push((key, 1)),
-        }
+        bump(&mut out.aid_counts, key);
+    }
+    // The seeker's tick state is `Fused` when either LOS component was fused; its report
+    // (`last`, the component with the larger NIS) then says whether the other one was
+    // rejected by the gate: a false lock in one gimbal axis is rejected there and fused in the
+    // other, and without this tag it would not show at all.
+    if rep.seeker.state == AidState::Fused
+        && rep
+            .seeker
+            .last
+            .is_some_and(|l| l.outcome == FusionOutcome::Rejected)
+    {
+        let key = "seeker.component_rejected".to_string();
+        tags.push(key.clone());
+        bump(&mut out.aid_counts, key);
     }
     if !tags.is_empty() {
         out.events.push((t_s, phase_tag(rep.phase), tags));
+    }
+}
+
+/// Adds one to the count of `key`.
+fn bump(counts: &mut Vec<(String, u64)>, key: String) {
+    match counts.iter_mut().find(|(k, _)| *k == key) {
+        Some((_, n)) => *n += 1,
+        None => counts.push((key, 1)),
     }
 }
 
