@@ -154,3 +154,81 @@ fn release_adds_no_error() {
         }
     }
 }
+
+/// The fault mission's seeker false lock (2° in gimbal yaw for 3 s, shortly after a loss of
+/// lock), flown alone and with every other fault of `fault-mission`: the gate rejects the yaw
+/// component of every false-lock sample and the report counts it
+/// (`seeker.component_rejected`), no true sample is rejected, and the false lock alone leaves
+/// the final horizontal error where the same runs end without it.
+#[test]
+fn fault_mission_false_lock_is_rejected_and_counted() {
+    const FL_RUNS: usize = 3;
+    const FL_SEED: u64 = 7200;
+    let (mut sc, table) = nav_sim::scenarios::mission::fault::load("fault-mission").unwrap();
+    sc.variants = vec![Variant::Full];
+    assert_eq!(table.false_lock.len(), 1);
+    let fl = table.false_lock[0].clone();
+    // Samples of the false lock: the seeker's rate over its window.
+    let expected = (fl.duration_s * sc.mission.seeker.rate_hz).round() as u64;
+    assert!(expected > 0);
+    let rejected_in = |r: &nav_sim::scenarios::mission::report::FlightRecord, lo: f64, hi: f64| {
+        r.events
+            .iter()
+            .filter(|(t, _, _)| *t >= lo - 1e-9 && *t <= hi + 1e-9)
+            .filter(|(_, _, tags)| {
+                tags.iter()
+                    .any(|g| g == "seeker.component_rejected" || g == "seeker.rejected")
+            })
+            .count() as u64
+    };
+    let final_horizontal = |runs: &[nav_sim::scenarios::mission::run::MissionRun]| {
+        let ms = runs
+            .iter()
+            .map(|r| {
+                let e = r.records[0].err.last().unwrap();
+                e[0] * e[0] + e[1] * e[1]
+            })
+            .sum::<f64>()
+            / runs.len() as f64;
+        ms.sqrt()
+    };
+    let only_fl = MissionFaults {
+        imu_seeker: nav_sim::scenarios::seeker_ins::fault::Faults {
+            false_lock: table.false_lock.clone(),
+            ..Default::default()
+        },
+        ..MissionFaults::default()
+    };
+    let base =
+        monte_carlo_runs(&sc, &MissionFaults::default(), FL_RUNS, FL_SEED, false, "b").unwrap();
+    let alone = monte_carlo_runs(&sc, &only_fl, FL_RUNS, FL_SEED, false, "f").unwrap();
+    let all = monte_carlo_runs(&sc, &table.faults(), FL_RUNS, FL_SEED, false, "a").unwrap();
+    let end = fl.start_s + fl.duration_s;
+    for (name, runs) in [("false lock alone", &alone), ("all faults", &all)] {
+        for (i, r) in runs.iter().enumerate() {
+            let rec = &r.records[0];
+            assert_eq!(
+                rejected_in(rec, fl.start_s, end),
+                expected,
+                "{name}, run {i}: false-lock samples rejected"
+            );
+            assert_eq!(
+                rejected_in(rec, f64::NEG_INFINITY, f64::INFINITY),
+                expected,
+                "{name}, run {i}: a true LOS sample was rejected"
+            );
+        }
+    }
+    for (i, r) in base.iter().enumerate() {
+        assert_eq!(
+            rejected_in(&r.records[0], f64::NEG_INFINITY, f64::INFINITY),
+            0,
+            "baseline run {i}"
+        );
+    }
+    let (b, f) = (final_horizontal(&base), final_horizontal(&alone));
+    assert!(
+        (f - b).abs() < 0.05 * b,
+        "final horizontal RMS {f} m against {b} m without the false lock"
+    );
+}
