@@ -1,6 +1,7 @@
 //! The mission through the flight navigator on a short profile (20 s of carry with a turn,
 //! 40 s of free flight towards a landmark close enough for the seeker to lock): the phase
-//! sequence, the error against the navigator's σ, and reproducibility with the same seed.
+//! sequence, the error against the navigator's σ, and reproducibility with the same seed; and
+//! the whole `fault-mission`'s seeker false lock (rejected, counted, harmless).
 
 use nav_sim::scenarios::mission::report::{PhaseTag, COMPONENTS};
 use nav_sim::scenarios::mission::run::Variant;
