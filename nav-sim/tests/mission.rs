@@ -156,11 +156,12 @@ fn release_adds_no_error() {
     }
 }
 
-/// The fault mission's seeker false lock (2° in gimbal yaw for 3 s, shortly after a loss of
+/// The fault mission's seeker false lock (2° in gimbal yaw for 3 s, 25 s after a 5 s loss of
 /// lock), flown alone and with every other fault of `fault-mission`: the gate rejects the yaw
 /// component of every false-lock sample and the report counts it
-/// (`seeker.component_rejected`), no true sample is rejected, and the false lock alone leaves
-/// the final horizontal error where the same runs end without it.
+/// (`seeker.component_rejected`), true samples are rejected only at the gate's false-alarm
+/// rate, and the false lock alone leaves the final horizontal error where the same runs end
+/// without it.
 #[test]
 fn fault_mission_false_lock_is_rejected_and_counted() {
     const FL_RUNS: usize = 3;
@@ -213,19 +214,18 @@ fn fault_mission_false_lock_is_rejected_and_counted() {
                 expected,
                 "{name}, run {i}: false-lock samples rejected"
             );
-            assert_eq!(
-                rejected_in(rec, f64::NEG_INFINITY, f64::INFINITY),
-                expected,
-                "{name}, run {i}: a true LOS sample was rejected"
+            // True samples: the gate's false-alarm rate, 2 × P(χ²₁ > 16) ≈ 1.3·10⁻⁴ per sample
+            // of the ≈ 1000 of a run (0.13 per run; 12 in the 100 nominal runs of `mission`).
+            let outside = rejected_in(rec, f64::NEG_INFINITY, f64::INFINITY) - expected;
+            assert!(
+                outside <= 1,
+                "{name}, run {i}: {outside} true LOS samples rejected"
             );
         }
     }
     for (i, r) in base.iter().enumerate() {
-        assert_eq!(
-            rejected_in(&r.records[0], f64::NEG_INFINITY, f64::INFINITY),
-            0,
-            "baseline run {i}"
-        );
+        let n = rejected_in(&r.records[0], f64::NEG_INFINITY, f64::INFINITY);
+        assert!(n <= 1, "baseline run {i}: {n} true LOS samples rejected");
     }
     let (b, f) = (final_horizontal(&base), final_horizontal(&alone));
     assert!(
