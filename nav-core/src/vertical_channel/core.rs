@@ -105,7 +105,7 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) velocity: AidChannel<T>,
     pub(crate) baro_timeouts: AidTimeouts<T>,
     pub(crate) velocity_timeouts: AidTimeouts<T>,
-    /// The timeouts as whole-µs ages, for the nominal step.
+    /// The baro loss timeout as a whole-µs age, for the nominal step.
     pub(crate) baro_limits: AgeLimits,
     /// The same for the velocity aid.
     pub(crate) velocity_limits: AgeLimits,

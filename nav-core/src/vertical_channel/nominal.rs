@@ -27,27 +27,23 @@ struct Fresh<T> {
     time: Timestamp,
     value: T,
     age_s: T,
-    age_us: u32,
     old_age_s: T,
 }
 
-/// One channel's timeouts as the nominal step tests them: the longest sample ages in µs
-/// (below 2³² µs) whose [`short_seconds`] is not above `lost_after_s`, and not above
-/// `stale_after_s`. A whole-µs age is then lost (stale) exactly when it exceeds these — the
-/// same verdict as the comparison of its age in seconds with the timeout, with one integer
-/// comparison instead of a conversion and a float comparison.
+/// One channel's loss timeout as the nominal step tests it: the longest sample age in µs
+/// (below 2³² µs) whose [`short_seconds`] is not above `lost_after_s`. A whole-µs age is
+/// then lost exactly when it exceeds this — the same verdict as the comparison of its age in
+/// seconds with the timeout, with one integer comparison instead of a float one.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct AgeLimits {
     lost_us: u32,
-    stale_us: u32,
 }
 
 impl AgeLimits {
-    /// The limits of `timeouts` (validated: both positive, so an age of 0 is within both).
+    /// The limit of `timeouts` (validated: positive, so an age of 0 is within it).
     pub(crate) fn new<T: Real>(timeouts: &AidTimeouts<T>) -> Self {
         Self {
             lost_us: last_micros_within(timeouts.lost_after_s),
-            stale_us: last_micros_within(timeouts.stale_after_s),
         }
     }
 }
@@ -119,7 +115,6 @@ fn fresh<T: Real>(
         time,
         value,
         age_s: short_seconds::<T>(age_us),
-        age_us,
         old_age_s: short_seconds::<T>(old_age_us),
     })
 }
@@ -171,20 +166,16 @@ fn held<T: Real>(ch: &AidChannel<T>, now: Timestamp, to: &AidTimeouts<T>) -> (T,
     (age, ch.received && !lost)
 }
 
-/// The freshness of a channel whose sample is `age_s` old: the held sample's, or a new
-/// sample's (`Some`: it just entered, received and not lost; stale past `limits`).
+/// The freshness of a channel whose sample is `age_s` old (`new`: a sample that just entered,
+/// received and not lost).
 #[inline(always)]
-fn status<T: Real>(
-    ch: &AidChannel<T>,
-    new: Option<&Fresh<T>>,
-    age_s: T,
-    to: &AidTimeouts<T>,
-    limits: &AgeLimits,
-) -> AidStatus<T> {
-    match new {
-        None => ch.status(age_s, to),
-        Some(s) if s.age_us > limits.stale_us => AidStatus::Stale { age_s },
-        Some(_) => AidStatus::Fresh { age_s },
+fn status<T: Real>(ch: &AidChannel<T>, new: bool, age_s: T, to: &AidTimeouts<T>) -> AidStatus<T> {
+    if !new {
+        ch.status(age_s, to)
+    } else if age_s > to.stale_after_s {
+        AidStatus::Stale { age_s }
+    } else {
+        AidStatus::Fresh { age_s }
     }
 }
 
@@ -302,10 +293,9 @@ impl<T: Real> LoopCore<T> {
             baro: report(
                 status(
                     &self.baro,
-                    new_baro.as_ref(),
+                    new_baro.is_some(),
                     baro_age,
                     &self.baro_timeouts,
-                    &self.baro_limits,
                 ),
                 nu_h,
                 baro_verdict,
@@ -313,10 +303,9 @@ impl<T: Real> LoopCore<T> {
             velocity: report(
                 status(
                     &self.velocity,
-                    new_velocity.as_ref(),
+                    new_velocity.is_some(),
                     vel_age,
                     &self.velocity_timeouts,
-                    &self.velocity_limits,
                 ),
                 nu_v,
                 vel_verdict,
