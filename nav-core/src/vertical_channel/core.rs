@@ -8,6 +8,7 @@ use super::gate::{
 };
 use super::gravity::GravityModel;
 use super::modes::{off_nominal_increment, AidMask, Feedback, Modes};
+use super::nominal::AgeLimits;
 use super::samples::{
     check_imu_values, check_initial, Aid, AidChannel, AidTimeouts, BaroSample, ImuSample,
     InitialState, SampleRule, ValidSample, VelocitySample, NEVER,
@@ -104,6 +105,10 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) velocity: AidChannel<T>,
     pub(crate) baro_timeouts: AidTimeouts<T>,
     pub(crate) velocity_timeouts: AidTimeouts<T>,
+    /// The baro loss timeout as a whole-µs age, for the nominal step.
+    pub(crate) baro_limits: AgeLimits,
+    /// The same for the velocity aid.
+    pub(crate) velocity_limits: AgeLimits,
     /// The aid model, gate and recovery as configured.
     pub(crate) run_time: RunTime<T>,
     /// The same, compiled.
@@ -175,6 +180,8 @@ impl<T: Real> LoopCore<T> {
             velocity: AidChannel::new(),
             baro_timeouts: parts.baro_timeouts,
             velocity_timeouts: parts.velocity_timeouts,
+            baro_limits: AgeLimits::new(&parts.baro_timeouts),
+            velocity_limits: AgeLimits::new(&parts.velocity_timeouts),
             run_time: parts.run_time,
             gate: parts.gate,
             baro_tally: AidTally::default(),

@@ -20,8 +20,8 @@ use crate::time::Timestamp;
 use crate::{HealthState, Real};
 use nalgebra::Vector2;
 
-/// A new sample that the nominal step can fuse: its value and age now (s), and the held
-/// sample's age now (s).
+/// A new sample that the nominal step can fuse: its value and age now (s and µs), and the
+/// held sample's age now (s).
 #[derive(Clone, Copy)]
 struct Fresh<T> {
     time: Timestamp,
@@ -30,10 +30,51 @@ struct Fresh<T> {
     old_age_s: T,
 }
 
+/// One channel's loss timeout as the nominal step tests it: the longest sample age in µs
+/// (below 2³² µs) whose [`short_seconds`] is not above `lost_after_s`. A whole-µs age is
+/// then lost exactly when it exceeds this — the same verdict as the comparison of its age in
+/// seconds with the timeout, with one integer comparison instead of a float one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct AgeLimits {
+    lost_us: u32,
+}
+
+impl AgeLimits {
+    /// The limit of `timeouts` (validated: positive, so an age of 0 is within it).
+    pub(crate) fn new<T: Real>(timeouts: &AidTimeouts<T>) -> Self {
+        Self {
+            lost_us: last_micros_within(timeouts.lost_after_s),
+        }
+    }
+}
+
+/// The largest `u` (µs) with `short_seconds(u) ≤ limit_s` (0 if there is none), by bisection
+/// over `u32` (`short_seconds` does not decrease with `u`: a conversion and a multiplication
+/// by a positive constant, each monotonic). 32 halvings at most; run at construction only, so
+/// one out-of-line copy.
+#[inline(never)]
+pub(super) fn last_micros_within<T: Real>(limit_s: T) -> u32 {
+    let within = |u: u32| short_seconds::<T>(u) <= limit_s;
+    if within(u32::MAX) {
+        return u32::MAX;
+    }
+    // Invariant: `within(lo)` or `lo == 0`, and not `within(hi)`.
+    let (mut lo, mut hi) = (0_u32, u32::MAX);
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if within(mid) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
+}
+
 /// [`crate::time::micros_to_seconds`] of an interval shorter than 2³² µs (71 min), where it
 /// is one conversion and one multiplication.
 #[inline(always)]
-fn short_seconds<T: Real>(micros: u32) -> T {
+pub(super) fn short_seconds<T: Real>(micros: u32) -> T {
     T::from_count(micros) * T::lit(1.0e-6)
 }
 
@@ -48,32 +89,33 @@ fn fresh<T: Real>(
     value: T,
     now: Timestamp,
     range: (f64, f64),
-    lost_after_s: T,
+    limits: &AgeLimits,
 ) -> Option<Fresh<T>> {
-    // In range (false for NaN).
-    let valid = value >= T::lit(range.0) && value <= T::lit(range.1);
+    // In range (false for NaN); one test of the magnitude for a range symmetric about 0.
+    let valid = if range.0 == -range.1 {
+        value.abs() <= T::lit(range.1)
+    } else {
+        value >= T::lit(range.0) && value <= T::lit(range.1)
+    };
     if !(ch.tracking && valid) {
         return None;
     }
-    // The ages in µs, both below 2³² µs (longer ones are left to the general step). The held
-    // sample was taken at or before the loop's clock, so before `now`: its age does not wrap,
-    // and the new sample is after it exactly when it is younger.
-    let age_us = u32::try_from(now.micros_since(time)?).ok()?;
+    // The ages in µs, both below 2³² µs (longer ones are left to the general step): one
+    // 64-bit difference each, its borrow and high word tested. The held sample was taken at
+    // or before the loop's clock, so before `now`: its age does not wrap, and the new sample
+    // is after it exactly when it is younger.
+    let (age, late) = now.as_micros().overflowing_sub(time.as_micros());
+    let age_us = u32::try_from(age).ok()?;
     let old_age_us = u32::try_from(now.as_micros().wrapping_sub(ch.last_time.as_micros())).ok()?;
-    if age_us >= old_age_us {
-        return None;
-    }
-    let age_s = short_seconds::<T>(age_us);
-    let old_age_s = short_seconds::<T>(old_age_us);
-    let in_window = age_s <= lost_after_s;
-    if !in_window || old_age_s > lost_after_s {
+    // Within `lost_after_s` (`AgeLimits`): the held sample, and so the younger new one.
+    if late || age_us >= old_age_us || old_age_us > limits.lost_us {
         return None;
     }
     Some(Fresh {
         time,
         value,
-        age_s,
-        old_age_s,
+        age_s: short_seconds::<T>(age_us),
+        old_age_s: short_seconds::<T>(old_age_us),
     })
 }
 
@@ -162,7 +204,7 @@ impl<T: Real> LoopCore<T> {
                 s.altitude_m,
                 now,
                 ALTITUDE_RANGE_M,
-                self.baro_timeouts.lost_after_s,
+                &self.baro_limits,
             )?),
             None => None,
         };
@@ -173,7 +215,7 @@ impl<T: Real> LoopCore<T> {
                 s.vz_up_m_s,
                 now,
                 (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
-                self.velocity_timeouts.lost_after_s,
+                &self.velocity_limits,
             )?),
             None => None,
         };

@@ -228,3 +228,40 @@ fn nominal_step_matches_general_step_bit_for_bit_f32_f64() {
     nominal_step_matches_general::<f32>();
     nominal_step_matches_general::<f64>();
 }
+
+/// The whole-µs timeouts of the nominal step: for limits across the configurable range
+/// (including values at and just beside whole µs), the age in µs found is the last one whose
+/// age in seconds is within the limit — the next one is not — in f32 and f64.
+#[test]
+fn age_limits_agree_with_the_comparison_in_seconds() {
+    use super::super::nominal::{last_micros_within, short_seconds};
+    fn check<T: crate::Real + std::fmt::Debug>(limit_s: T) {
+        let u = last_micros_within(limit_s);
+        assert!(
+            short_seconds::<T>(u) <= limit_s,
+            "{limit_s:?}: {u} µs beyond"
+        );
+        if u < u32::MAX {
+            assert!(
+                short_seconds::<T>(u + 1) > limit_s,
+                "{limit_s:?}: {} µs within",
+                u + 1
+            );
+        }
+    }
+    let mut rng = Rng(0x5EED_0A6E);
+    let mut limits = std::vec![1.0e-6, 0.02, 0.1, 0.25, 0.5, 1.0, 2.0, 3.0, 60.0, 3600.0];
+    for _ in 0..2000 {
+        limits.push(10f64.powf(rng.sym(4.0)));
+    }
+    for &l in &limits {
+        for l in [l, l * (1.0 + 1e-7), l * (1.0 - 1e-7)] {
+            check::<f32>(l as f32);
+            check::<f64>(l);
+        }
+    }
+    // Nothing is within a negative limit but an age of 0 is reported as the last (validated
+    // timeouts are positive); every age is within one past 2³² µs.
+    assert_eq!(last_micros_within(-1.0_f32), 0);
+    assert_eq!(last_micros_within(1.0e4_f32), u32::MAX);
+}
