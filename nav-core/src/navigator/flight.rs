@@ -16,7 +16,8 @@ use crate::math::rotation::{
     exp_so3, log_so3, quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm,
 };
 use crate::seeker_ins::{
-    CrossColumn, Ins, InsState, LosSample, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES,
+    ClipFlags, CrossColumn, ImuIncrement, Ins, InsState, LosSample, SeekerIns, SeekerInsDesign,
+    SeekerInsInitial, STATES,
 };
 use crate::time::Timestamp;
 use crate::transfer_alignment::{
@@ -881,10 +882,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     ) -> Result<AidReports<T>, NavError> {
         let inc = &imu.increment;
         let clip = (imu.clipped.accel || imu.clipped.gyro).then_some(imu.clipped);
-        let model = self.baro_model();
         if self.vloop.is_some() {
-            return self.tick_flight_loop(imu, aids, transition);
+            return self.tick_flight_loop(inc, clip, aids, transition);
         }
+        let model = self.baro_model();
         let Some(ekf) = self.ekf.as_mut() else {
             return Err(NavError::InputOutOfRange {
                 input: "navigator state",
@@ -913,7 +914,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     #[inline(never)]
     fn tick_flight_loop(
         &mut self,
-        imu: &ImuTick<T>,
+        inc: &ImuIncrement<T>,
+        clip: Option<ClipFlags>,
         aids: &Aids<'_, T>,
         transition: &mut Option<Transition>,
     ) -> Result<AidReports<T>, NavError> {
@@ -922,11 +924,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 input: "navigator state",
             });
         };
-        let inc = &imu.increment;
-        match (imu.clipped.accel || imu.clipped.gyro).then_some(imu.clipped) {
-            Some(flags) => ekf.propagate_clipped(inc, flags)?,
-            None => ekf.propagate(inc)?,
-        }
+        // On the copy: a refusal is dropped with it, as on the in-place path.
+        ekf.propagate_uncounted(inc, clip)?;
         let outcome = Self::loop_step(&mut lp, &mut ekf, inc.time, aids.baro)?;
         self.ekf = Some(ekf);
         self.vloop = Some(lp);
