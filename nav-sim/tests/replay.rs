@@ -148,6 +148,13 @@ fn derived_log(name: &str, edit: impl Fn(&str, usize, &str) -> Option<String>) -
     dir
 }
 
+/// [`replay_err`], then the derived log directory removed.
+fn replay_err_and_remove(log: &Path) -> String {
+    let e = replay_err(log);
+    let _ = std::fs::remove_dir_all(log);
+    e
+}
+
 fn replay_err(log: &Path) -> String {
     let out = out_dir("err");
     let e = replay(log, &ReplayConfig::default(), &out).expect_err("bad log accepted");
@@ -571,8 +578,7 @@ fn bad_gyro_columns_are_named() {
             _ => l.to_string(),
         })
     });
-    let e = replay_err(&log);
-    let _ = std::fs::remove_dir_all(&log);
+    let e = replay_err_and_remove(&log);
     assert!(
         e.contains("imu.csv") && e.contains("missing column `gyro_y_rad_s`"),
         "{e}"
@@ -586,8 +592,7 @@ fn bad_gyro_columns_are_named() {
             _ => l.to_string(),
         })
     });
-    let e = replay_err(&log);
-    let _ = std::fs::remove_dir_all(&log);
+    let e = replay_err_and_remove(&log);
     assert!(
         e.contains("imu.csv")
             && e.contains("line 51")
@@ -605,8 +610,7 @@ fn bad_gyro_columns_are_named() {
             l.to_string()
         })
     });
-    let e = replay_err(&log);
-    let _ = std::fs::remove_dir_all(&log);
+    let e = replay_err_and_remove(&log);
     assert!(
         e.contains("imu.csv") && e.contains("line 21") && e.contains("unit quaternion"),
         "{e}"
@@ -727,8 +731,7 @@ fn baro_in_hpa_or_feet_is_a_wrong_unit_named_with_its_file() {
     let log = edited_column("hpa", "baro.csv", 1, |p| {
         format!("{}", p[2].parse::<f64>().unwrap() / 100.0)
     });
-    let e = replay_err(&log);
-    let _ = std::fs::remove_dir_all(&log);
+    let e = replay_err_and_remove(&log);
     assert!(
         e.contains("baro.csv") && e.contains("`baro_alt_m`") && e.contains("hPa"),
         "{e}"
@@ -736,8 +739,7 @@ fn baro_in_hpa_or_feet_is_a_wrong_unit_named_with_its_file() {
     let log = edited_column("feet", "baro.csv", 1, |p| {
         format!("{}", p[1].parse::<f64>().unwrap() / 0.3048)
     });
-    let e = replay_err(&log);
-    let _ = std::fs::remove_dir_all(&log);
+    let e = replay_err_and_remove(&log);
     assert!(
         e.contains("baro.csv") && e.contains("`baro_alt_m`") && e.contains("feet"),
         "{e}"
@@ -767,16 +769,14 @@ fn time_not_in_seconds_is_a_wrong_unit_named_with_its_file() {
     };
     // Every file in µs.
     let log = scaled("us", "all", 1.0e6);
-    let e = replay_err(&log);
-    let _ = std::fs::remove_dir_all(&log);
+    let e = replay_err_and_remove(&log);
     assert!(
         e.contains("imu.csv") && e.contains("`t_s`") && e.contains("microseconds"),
         "{e}"
     );
     // Only the baro in ms.
     let log = scaled("ms", "baro.csv", 1.0e3);
-    let e = replay_err(&log);
-    let _ = std::fs::remove_dir_all(&log);
+    let e = replay_err_and_remove(&log);
     assert!(
         e.contains("baro.csv") && e.contains("`t_s`") && e.contains("milliseconds"),
         "{e}"
@@ -842,8 +842,7 @@ fn nan_values_are_refused_by_name_and_listed_nan_time_is_an_error() {
             l.to_string()
         })
     });
-    let e = replay_err(&log);
-    let _ = std::fs::remove_dir_all(&log);
+    let e = replay_err_and_remove(&log);
     assert!(
         e.contains("gnss.csv") && e.contains("line 10") && e.contains("`t_s`"),
         "{e}"
