@@ -38,7 +38,7 @@
 
 use super::error_model::{ATT, GIMBAL, POS, STATES};
 use super::mechanization::{Kinematics, Position};
-use crate::earth::{transverse_radius_m, ECCENTRICITY_SQ};
+use crate::earth::{ECCENTRICITY_SQ, SEMI_MAJOR_AXIS_M};
 use crate::math::rotation::skew;
 use crate::math::trig;
 use crate::{NavError, Real};
@@ -106,16 +106,21 @@ impl<T: Real> Landmark<T> {
                 issue: crate::error::ConfigIssue::OutOfRange,
             });
         }
-        let l = position.lat_rad;
-        let rn: f64 = transverse_radius_m(l);
-        let (s, c) = (libm::sin(l), libm::cos(l));
+        // In T, as the vehicle's side of [`landmark_vector_ned`] is: these enter it only
+        // through products with small differences, where a few ε of relative error is
+        // micrometres. (In f64 on the target this linked the soft-float sine with its
+        // large-argument reduction, ≈ 7 kB of flash, for a constructor that runs once.)
+        let (lat, alt) = super::mechanization::model_lat_alt::<T>(&position);
+        let (s, c) = trig::sin_cos(lat);
+        let sqrt_d = (T::one() - T::lit(ECCENTRICITY_SQ) * s * s).sqrt();
+        let rn = T::lit(SEMI_MAJOR_AXIS_M) / sqrt_d;
         Ok(Self {
             position,
-            axis_distance_m: T::lit((rn + position.alt_m) * c),
-            sin_lat: T::lit(s),
-            cos_lat: T::lit(c),
-            rn_m: T::lit(rn),
-            sqrt_d: T::lit(libm::sqrt(1.0 - ECCENTRICITY_SQ * s * s)),
+            axis_distance_m: (rn + alt) * c,
+            sin_lat: s,
+            cos_lat: c,
+            rn_m: rn,
+            sqrt_d,
         })
     }
 
