@@ -32,6 +32,40 @@ pub fn instructions(f: &mut dyn FnMut()) -> u32 {
     ((u64::from(t) * 5 + 64) / 128) as u32
 }
 
+/// [`instructions`] and [`stack_bytes_within`] of one run of `f`, so that a step need not be
+/// run twice (once on a copy of the filter for its stack). The stack is painted before the
+/// count starts; `f` is inlined here (generic, called once), so its frame — the slot of the
+/// step's returned report included — lies above the painted region, as in
+/// [`stack_bytes_within`]. The count is of the instructions between two counter reads around
+/// `f`, less those of two adjacent reads: [`instructions`] less the few of its indirect call.
+#[inline(never)]
+pub fn instructions_and_stack<F: FnMut()>(mut f: F, paint_bytes: usize) -> (u32, u32) {
+    let e0 = ticks();
+    let e1 = ticks();
+    let sp = cortex_m::register::msp::read() as usize;
+    let top = sp & !3;
+    let bottom = top - paint_bytes;
+    let mut a = bottom;
+    while a < top - 16 {
+        // SAFETY: as in `stack_bytes_within`.
+        unsafe { write_volatile(a as *mut u32, PAINT) };
+        a += 4;
+    }
+    let t0 = ticks();
+    f();
+    let t1 = ticks();
+    let mut a = bottom;
+    while a < top {
+        // SAFETY: same region as painted above.
+        if unsafe { read_volatile(a as *const u32) } != PAINT {
+            break;
+        }
+        a += 4;
+    }
+    let t = t1.wrapping_sub(t0).wrapping_sub(e1.wrapping_sub(e0));
+    (((u64::from(t) * 5 + 64) / 128) as u32, (top - a) as u32)
+}
+
 /// Peak stack used by `f`, bytes: paints [SP − PAINT_BYTES, SP) and finds the lowest word `f`
 /// changed. Includes the call into `f` itself (a few words).
 pub fn stack_bytes(f: &mut dyn FnMut()) -> u32 {
