@@ -466,8 +466,12 @@ impl VcLoop for AidedLoop<f32> {
     #[inline(always)]
     fn bench_step(&mut self, k: u32, samples: bool) -> bool {
         let (imu, baro, vel) = vc_imu(k);
-        self.step(&imu, samples.then_some(&baro), samples.then_some(&vel))
-            .is_ok()
+        self.step(
+            &imu,
+            samples.then_some(&baro),
+            samples.then_some(&vel),
+        )
+        .is_ok()
     }
     fn sigma(&self) -> VerticalSigma<f32> {
         AidedLoop::sigma(self)
