@@ -142,13 +142,13 @@ fn elapsed<T: Real>(now: Timestamp, since: Timestamp) -> T {
 pub(crate) fn nav_block_to_ned<T: Real>(
     p: &SMatrix<T, STATES, STATES>,
     state: &InsState<T>,
-) -> SMatrix<T, 9, 9> {
+    out: &mut SMatrix<T, 9, 9>,
+) {
     let d = ned_factors(state);
     // Element (r, c) times the scale of each position index among r, c, the smaller first
     // (as [`nav9_to_ned`] scales row i then column i for i = 0, 1, 2): P's column slices,
-    // no strided view copied.
+    // no strided view copied, written straight into `out` (no 9 × 9 temporary).
     let scale = |i: usize| d.get(i).copied();
-    let mut out = SMatrix::<T, 9, 9>::zeros();
     for (c, (dst, src)) in out
         .as_mut_slice()
         .chunks_exact_mut(9)
@@ -166,7 +166,6 @@ pub(crate) fn nav_block_to_ned<T: Real>(
             *o = x;
         }
     }
-    out
 }
 
 /// `(R_M + h, (R_N + h) cos L, −1)` at `state`: δL, δl, δh → NED metres.
@@ -458,17 +457,28 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
 
     /// The navigation solution and its covariance.
     pub fn solution(&self) -> NavSolution<T> {
+        let mut out = NavSolution {
+            time: self.time,
+            state: *self.ins.state(),
+            nav_covariance: SMatrix::zeros(),
+        };
+        self.solution_into(&mut out);
+        out
+    }
+
+    /// [`Self::solution`] written into `out` (no copy of the 9 × 9 covariance through the
+    /// stack).
+    fn solution_into(&self, out: &mut NavSolution<T>) {
+        out.time = self.time;
         match &self.ekf {
-            Some(e) => NavSolution {
-                time: self.time,
-                state: *e.state(),
-                nav_covariance: nav_block_to_ned(e.covariance(), e.state()),
-            },
-            None => NavSolution {
-                time: self.time,
-                state: *self.ins.state(),
-                nav_covariance: self.carry_cov,
-            },
+            Some(e) => {
+                out.state = *e.state();
+                nav_block_to_ned(e.covariance(), e.state(), &mut out.nav_covariance);
+            }
+            None => {
+                out.state = *self.ins.state();
+                out.nav_covariance = self.carry_cov;
+            }
         }
     }
 
@@ -511,50 +521,80 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// One IMU sample plus the aids that arrived since the last one (module doc). A bad IMU
     /// sample (non-finite, beyond range, not later than the last tick, interval too long):
     /// `Err`, nothing changed. A bad aid: refused (its state `Refused`, counted), nothing of
-    /// it applied, the tick still runs.
+    /// it applied, the tick still runs. The report is returned by value: a flight loop that
+    /// keeps one report slot of its own uses [`Self::tick_into`] (less stack, no copy).
     pub fn tick(
         &mut self,
         imu: &ImuTick<T>,
         aids: &Aids<'_, T>,
     ) -> Result<TickReport<T>, NavError> {
+        let mut out = self.blank_report();
+        self.tick_into(imu, aids, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Self::tick`] with the report written into the caller's `out` (the 9 × 9 covariance
+    /// and the aid reports are not returned through the stack). On `Err` nothing changed,
+    /// `out` included.
+    pub fn tick_into(
+        &mut self,
+        imu: &ImuTick<T>,
+        aids: &Aids<'_, T>,
+        out: &mut TickReport<T>,
+    ) -> Result<(), NavError> {
         if self.ticked && imu.increment.time <= self.time || imu.increment.time <= self.start {
             return Err(NavError::TimeNotIncreasing);
         }
         let mut transition = self.pending.take();
-        let mut degr = Degradation {
-            separation: self.separation,
-            ..Degradation::default()
+        let r = if self.phase == Phase::Carry {
+            self.tick_carry_apart(imu, aids, &mut transition)
+        } else {
+            self.tick_flight(imu, aids, &mut transition)
         };
-        let [master, baro, seeker] = if self.phase == Phase::Carry {
-            let r = self.tick_carry_apart(imu, aids, &mut transition);
-            if r.is_err() {
+        let [master, baro, seeker] = match r {
+            Ok(reports) => reports,
+            Err(e) => {
                 // Nothing committed: restore the pending transition.
                 self.pending = transition;
+                return Err(e);
             }
-            r?
-        } else {
-            let r = self.tick_flight(imu, aids, &mut transition);
-            if r.is_err() {
-                self.pending = transition;
-            }
-            r?
         };
         self.ticked = true;
-        degr.separation = self.separation;
-        degr.master = self.master_availability();
-        degr.baro = self.baro_availability();
-        degr.seeker = self.seeker_availability();
-        let health = self.health(&degr);
-        Ok(TickReport {
-            solution: self.solution(),
+        let degr = Degradation {
+            separation: self.separation,
+            master: self.master_availability(),
+            baro: self.baro_availability(),
+            seeker: self.seeker_availability(),
+        };
+        out.health = self.health(&degr);
+        out.degradation = degr;
+        out.phase = self.phase;
+        out.transition = transition;
+        out.master = master;
+        out.baro = baro;
+        out.seeker = seeker;
+        self.solution_into(&mut out.solution);
+        Ok(())
+    }
+
+    /// A report slot for [`Self::tick_into`] to overwrite: the current solution without its
+    /// covariance (zero), the aids `NotUsedInPhase`, health `Initialising`.
+    pub fn blank_report(&self) -> TickReport<T> {
+        let none = |t: &AidTrack<T>| t.status(AidState::NotUsedInPhase);
+        TickReport {
+            solution: NavSolution {
+                time: self.time,
+                state: *self.ins.state(),
+                nav_covariance: SMatrix::zeros(),
+            },
             phase: self.phase,
-            transition,
-            master,
-            baro,
-            seeker,
-            health,
-            degradation: degr,
-        })
+            transition: None,
+            master: none(&self.master),
+            baro: none(&self.baro),
+            seeker: none(&self.seeker),
+            health: HealthState::Initialising,
+            degradation: Degradation::default(),
+        }
     }
 
     fn health(&self, d: &Degradation) -> HealthState {
@@ -970,6 +1010,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// Midcourse start with [`BaroDamping::InertialLoop`]: the loop from the INS's vertical
     /// state. A loop the design refuses to start (an INS altitude outside its range) leaves the
     /// vertical channel free (the baro then reports `NotUsedInPhase`).
+    #[cold]
+    #[inline(never)]
     fn start_loop(&mut self) {
         let (BaroDamping::InertialLoop(cfg), Some(design), Some(ekf)) =
             (&self.config.baro, &self.loop_design, &self.ekf)
@@ -1079,10 +1121,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
 
     /// The baro's joint update (module `baro`), in place: the sample is checked (finite, time,
     /// age) before anything changes; the pending covariance step runs (atomic), then the
-    /// update is checked on the gain and P's result before it is applied
-    /// (`SeekerIns::update_rank_one`). A result that is not a covariance, or a correction the
-    /// INS refuses, is not applied (`Skipped`): the covariance step stays, as for every
-    /// outcome.
+    /// update ([`Self::baro_update`]). The covariance step's kernel runs under this small frame,
+    /// not under the update's.
     #[inline(never)]
     fn fuse_baro(
         &mut self,
@@ -1102,39 +1142,59 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
             bs.decay(model, dt);
         }
-        let tau = model.lag_s + age;
-        let y = bs.predicted_m(ekf, tau) - b.altitude_m;
-        let r = model.white_sigma_m * model.white_sigma_m;
-        let gate = self.config.ins.gate;
-        let outcome = match baro_gain(ekf.covariance(), bs, tau, y, r, gate) {
+        Ok(self.baro_update(model, b, age))
+    }
+
+    /// The baro update after [`Self::fuse_baro`]'s checks and covariance step: checked on the
+    /// gain and on P's result before it is applied (`SeekerIns::update_rank_one`). A result
+    /// that is not a covariance, or a correction the INS refuses, is not applied (`Skipped`):
+    /// the covariance step stays, as for every outcome.
+    #[inline(never)]
+    fn baro_update(
+        &mut self,
+        model: &super::types::BaroErrorModel<T>,
+        b: &BaroSample<T>,
+        age: T,
+    ) -> AidState {
+        let bs = &mut self.baro_state;
+        let outcome = match self.ekf.as_mut() {
             None => FusionOutcome::Skipped,
-            Some(Err(report)) => {
-                self.baro.last = Some(report);
-                report.outcome
-            }
-            Some(Ok(g)) => {
-                if ekf
-                    .update_rank_one(&g.dx, &g.u, &g.k, g.delta)
-                    .unwrap_or(false)
-                {
-                    bs.cross = g.cross;
-                    bs.variance_m2 = g.variance_m2;
-                    bs.bias_m -= g.db_m;
-                    self.baro.last = Some(g.report);
-                    g.report.outcome
-                } else {
-                    FusionOutcome::Skipped
+            Some(ekf) => {
+                let tau = model.lag_s + age;
+                let y = bs.predicted_m(ekf, tau) - b.altitude_m;
+                let r = model.white_sigma_m * model.white_sigma_m;
+                let gate = self.config.ins.gate;
+                match baro_gain(ekf.covariance(), bs, tau, y, r, gate) {
+                    None => FusionOutcome::Skipped,
+                    Some(Err(report)) => {
+                        self.baro.last = Some(report);
+                        report.outcome
+                    }
+                    Some(Ok(g)) => {
+                        if ekf
+                            .update_rank_one(&g.dx, &g.u, &g.k, g.delta)
+                            .unwrap_or(false)
+                        {
+                            bs.cross = g.cross;
+                            bs.variance_m2 = g.variance_m2;
+                            bs.bias_m -= g.db_m;
+                            self.baro.last = Some(g.report);
+                            g.report.outcome
+                        } else {
+                            FusionOutcome::Skipped
+                        }
+                    }
                 }
             }
         };
         self.last_baro_time = Some(b.time);
         self.baro.counters.record(outcome);
         self.baro.last_ok = Some(self.time);
-        Ok(match outcome {
+        match outcome {
             FusionOutcome::Fused => AidState::Fused,
             FusionOutcome::Rejected => AidState::Rejected,
             FusionOutcome::Skipped => AidState::Waiting,
-        })
+        }
     }
 
     fn seeker_aid(
