@@ -54,9 +54,6 @@ enum LoopBaro<T> {
     Refused(NavError),
 }
 
-/// The three aids' reports of a tick.
-type AidReports<T> = [AidStatus<T>; 3];
-
 /// One aid's running record.
 #[derive(Debug, Clone, Copy, Default)]
 struct AidTrack<T> {
@@ -546,19 +543,17 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             return Err(NavError::TimeNotIncreasing);
         }
         let mut transition = self.pending.take();
+        // The phase's tick writes the aid reports into `out` only when it succeeds.
         let r = if self.phase == Phase::Carry {
-            self.tick_carry_apart(imu, aids, &mut transition)
+            self.tick_carry_apart(imu, aids, &mut transition, out)
         } else {
-            self.tick_flight(imu, aids, &mut transition)
+            self.tick_flight(imu, aids, &mut transition, out)
         };
-        let [master, baro, seeker] = match r {
-            Ok(reports) => reports,
-            Err(e) => {
-                // Nothing committed: restore the pending transition.
-                self.pending = transition;
-                return Err(e);
-            }
-        };
+        if let Err(e) = r {
+            // Nothing committed: restore the pending transition.
+            self.pending = transition;
+            return Err(e);
+        }
         self.ticked = true;
         let degr = Degradation {
             separation: self.separation,
@@ -570,9 +565,6 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         out.degradation = degr;
         out.phase = self.phase;
         out.transition = transition;
-        out.master = master;
-        out.baro = baro;
-        out.seeker = seeker;
         self.solution_into(&mut out.solution);
         Ok(())
     }
@@ -626,8 +618,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         imu: &ImuTick<T>,
         aids: &Aids<'_, T>,
         transition: &mut Option<Transition>,
-    ) -> Result<AidReports<T>, NavError> {
-        self.tick_carry(imu, aids, transition)
+        out: &mut TickReport<T>,
+    ) -> Result<(), NavError> {
+        self.tick_carry(imu, aids, transition, out)
     }
 
     fn tick_carry(
@@ -635,7 +628,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         imu: &ImuTick<T>,
         aids: &Aids<'_, T>,
         transition: &mut Option<Transition>,
-    ) -> Result<AidReports<T>, NavError> {
+        out: &mut TickReport<T>,
+    ) -> Result<(), NavError> {
         let inc = &imu.increment;
         let mut ins = self.ins;
         ins.step(inc)?;
@@ -736,12 +730,11 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 *transition = self.pending.take();
             }
         }
-        let not_used = |t: &AidTrack<T>| t.status(AidState::NotUsedInPhase);
-        Ok([
-            self.master.status(master_state),
-            not_used(&self.baro),
-            not_used(&self.seeker),
-        ])
+        // The aid reports, written into the caller's report (nothing above failed).
+        out.master = self.master.status(master_state);
+        out.baro = self.baro.status(AidState::NotUsedInPhase);
+        out.seeker = self.seeker.status(AidState::NotUsedInPhase);
+        Ok(())
     }
 
     /// Starts the EKF (`self.ekf`) at this tick from the last master and the alignment;
@@ -912,18 +905,20 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// The flight phases' tick, in place: everything that can refuse the IMU sample is
     /// checked before the filter changes (the EKF's propagation is atomic without a copy of
     /// the filter, `SeekerIns::propagate_cross`), then each aid is validated before it
-    /// touches anything. Not inlined: the carry phase's frame is not on this path's stack.
-    #[inline(never)]
+    /// touches anything. Inlined into [`Self::tick_into`] (one frame, one register save, on
+    /// the path under which the kernels run); the carry phase has its own frame.
+    #[inline(always)]
     fn tick_flight(
         &mut self,
         imu: &ImuTick<T>,
         aids: &Aids<'_, T>,
         transition: &mut Option<Transition>,
-    ) -> Result<AidReports<T>, NavError> {
+        out: &mut TickReport<T>,
+    ) -> Result<(), NavError> {
         let inc = &imu.increment;
         let clip = (imu.clipped.accel || imu.clipped.gyro).then_some(imu.clipped);
         if self.vloop.is_some() {
-            return self.tick_flight_loop(inc, clip, aids, transition);
+            return self.tick_flight_loop(inc, clip, aids, transition, out);
         }
         let model = self.baro_model();
         let Some(ekf) = self.ekf.as_mut() else {
@@ -933,19 +928,18 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         };
         if let Some(model) = model {
             let bs = &mut self.baro_state;
-            let before = ekf.health();
+            let before = (ekf.health().limits_hit, ekf.health().gaps_reset);
             if let Some(dt) = ekf.propagate_cross(inc, clip, &mut bs.cross)? {
                 bs.decay(&model, dt);
             }
-            let after = ekf.health();
-            if after.limits_hit != before.limits_hit || after.gaps_reset != before.gaps_reset {
+            if (ekf.health().limits_hit, ekf.health().gaps_reset) != before {
                 bs.cross = nalgebra::SVector::zeros();
             }
         } else {
             ekf.propagate_uncounted(inc, clip)?;
         }
         self.time = inc.time;
-        self.after_imu(aids, transition, None)
+        self.after_imu(aids, transition, None, out)
     }
 
     /// [`Self::tick_flight`] with the baro-inertial loop: the loop can refuse the IMU part
@@ -958,7 +952,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         clip: Option<ClipFlags>,
         aids: &Aids<'_, T>,
         transition: &mut Option<Transition>,
-    ) -> Result<AidReports<T>, NavError> {
+        out: &mut TickReport<T>,
+    ) -> Result<(), NavError> {
         let (Some(mut ekf), Some(mut lp)) = (self.ekf, self.vloop) else {
             return Err(NavError::InputOutOfRange {
                 input: "navigator state",
@@ -970,16 +965,19 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         self.ekf = Some(ekf);
         self.vloop = Some(lp);
         self.time = inc.time;
-        self.after_imu(aids, transition, Some(outcome))
+        self.after_imu(aids, transition, Some(outcome), out)
     }
 
-    /// After the committed IMU part: the phase by time, then the aids.
+    /// After the committed IMU part: the phase by time, then the aids (inlined: no frame of
+    /// its own under the aids' kernels).
+    #[inline(always)]
     fn after_imu(
         &mut self,
         aids: &Aids<'_, T>,
         transition: &mut Option<Transition>,
         loop_baro: Option<LoopBaro<T>>,
-    ) -> Result<AidReports<T>, NavError> {
+        out: &mut TickReport<T>,
+    ) -> Result<(), NavError> {
         // Phase by time.
         if self.phase == Phase::Released
             && self
@@ -999,12 +997,14 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 time: self.time,
             });
         }
-        let baro = match loop_baro {
+        // The aid reports, written into the caller's report (nothing here fails).
+        out.baro = match loop_baro {
             Some(outcome) => self.loop_baro_status(outcome),
             None => self.baro_aid(aids.baro),
         };
-        let seeker = self.seeker_aid(aids.seeker, transition);
-        Ok([self.master.status(AidState::NotUsedInPhase), baro, seeker])
+        out.seeker = self.seeker_aid(aids.seeker, transition);
+        out.master = self.master.status(AidState::NotUsedInPhase);
+        Ok(())
     }
 
     /// Midcourse start with [`BaroDamping::InertialLoop`]: the loop from the INS's vertical
@@ -1232,7 +1232,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
 
     /// One LOS sample through the EKF, in place: a sample the EKF would refuse is refused
     /// before the pending covariance step runs (nothing of it changes the filter), then the
-    /// step (atomic) and the update, with the baro column when the baro is in the EKF.
+    /// step (atomic) and the update ([`Self::los_update`]), with the baro column when the baro
+    /// is in the EKF. The covariance step's kernel runs under this small frame, not under the
+    /// update's.
     #[inline(never)]
     fn fuse_los(&mut self, s: &LosSample<T>) -> Result<AidState, NavError> {
         let model = self.baro_model();
@@ -1242,14 +1244,31 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             });
         };
         ekf.check_los(s)?;
-        let bs = &mut self.baro_state;
         // The pending covariance step first (in place, atomic; the update then needs no copy
         // of the filter), the baro column in step with it.
-        let report = if let Some(model) = model {
+        if let Some(model) = model {
+            let bs = &mut self.baro_state;
             if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
                 bs.decay(&model, dt);
             }
-            // The baro column follows the LOS update (module `baro`).
+        } else if ekf.los_at_ins_time(s) {
+            // As `update_los` would on a copy of the filter.
+            ekf.predict_covariance()?;
+        }
+        self.los_update(s, model.is_some())
+    }
+
+    /// The LOS update after [`Self::fuse_los`]'s check and covariance step; with `baro_column`
+    /// the baro column follows the components the update fused (module `baro`).
+    #[inline(never)]
+    fn los_update(&mut self, s: &LosSample<T>, baro_column: bool) -> Result<AidState, NavError> {
+        let Some(ekf) = self.ekf.as_mut() else {
+            return Err(NavError::InputOutOfRange {
+                input: "navigator state",
+            });
+        };
+        let report = if baro_column {
+            let bs = &mut self.baro_state;
             let mut col = CrossColumn {
                 cross: bs.cross,
                 variance: bs.variance_m2,
@@ -1261,32 +1280,18 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             bs.bias_m -= col.correction;
             r
         } else {
-            if ekf.los_at_ins_time(s) {
-                // As `update_los` would on a copy of the filter.
-                ekf.predict_covariance()?;
-            }
             ekf.update_los(s)?
         };
-        let fused = [report.pitch.outcome, report.yaw.outcome]
-            .iter()
-            .filter(|o| **o == FusionOutcome::Fused)
-            .count();
-        for r in [report.pitch, report.yaw] {
-            self.seeker.counters.record(r.outcome);
-        }
-        let worst = if report.pitch.nis >= report.yaw.nis {
-            report.pitch
-        } else {
-            report.yaw
-        };
-        self.seeker.last = Some(worst);
-        if fused > 0 {
+        let (pitch, yaw) = (&report.pitch, &report.yaw);
+        self.seeker.counters.record(pitch.outcome);
+        self.seeker.counters.record(yaw.outcome);
+        self.seeker.last = Some(if pitch.nis >= yaw.nis { *pitch } else { *yaw });
+        let any = |o: FusionOutcome| pitch.outcome == o || yaw.outcome == o;
+        if any(FusionOutcome::Fused) {
             self.seeker.last_ok = Some(self.time);
             return Ok(AidState::Fused);
         }
-        let rejected =
-            [report.pitch.outcome, report.yaw.outcome].contains(&FusionOutcome::Rejected);
-        Ok(if rejected {
+        Ok(if any(FusionOutcome::Rejected) {
             AidState::Rejected
         } else {
             AidState::Waiting
