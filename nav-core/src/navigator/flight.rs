@@ -665,23 +665,37 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 }
             };
         } else {
-            // A tick without master data carries the alignment's next predictions, as many as
-            // the last master sample needed (at most two a tick): the master tick then has
-            // those less to do.
-            let mut run = 0;
-            while run < MAX_AHEAD_PER_TICK
-                && self.ta.steps_ahead() < self.master_steps
-                && self.ta.predict_ahead()
-            {
-                run += 1;
-            }
+            self.run_ahead();
         }
         let master_lost = self.master_availability() == AidAvailability::TimedOut;
         if master_lost && master_state == AidState::Waiting {
             master_state = AidState::TimedOut;
         }
-        // Separation.
-        if let Some(sig) = aids.separation {
+        self.separation_check(
+            aids.separation,
+            &slave.specific_force_m_s2,
+            master_lost,
+            transition,
+        );
+        // The aid reports, written into the caller's report (nothing above failed).
+        out.master = self.master.status(master_state);
+        out.baro = self.baro.status(AidState::NotUsedInPhase);
+        out.seeker = self.seeker.status(AidState::NotUsedInPhase);
+        Ok(())
+    }
+
+    /// The carry tick's separation logic: a release `signal` (its time) recorded, then the
+    /// IMU's confirmation (the slave's specific force `f_s_m_s2`, m/s², against the last
+    /// master's) within the window, or an unsignalled release (the master lost and the IMU
+    /// falling); a release confirmed starts the EKF and reports the transition.
+    fn separation_check(
+        &mut self,
+        signal: Option<Timestamp>,
+        f_s_m_s2: &Vector3<T>,
+        master_lost: bool,
+        transition: &mut Option<Transition>,
+    ) {
+        if let Some(sig) = signal {
             if matches!(
                 self.separation,
                 SeparationStatus::NotSignalled
@@ -694,12 +708,11 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             }
         }
         let imu_sees = self.last_master.is_some_and(|lm| {
-            (slave.specific_force_m_s2 - lm.f_slave_m_s2).norm()
-                > self.config.separation.specific_force_jump_m_s2
+            (f_s_m_s2 - lm.f_slave_m_s2).norm() > self.config.separation.specific_force_jump_m_s2
         });
         let falling_s = self.free_fall.update(
             self.time,
-            &slave.specific_force_m_s2,
+            f_s_m_s2,
             self.config.separation.specific_force_jump_m_s2,
         );
         let mut release = None;
@@ -730,11 +743,19 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 *transition = self.pending.take();
             }
         }
-        // The aid reports, written into the caller's report (nothing above failed).
-        out.master = self.master.status(master_state);
-        out.baro = self.baro.status(AidState::NotUsedInPhase);
-        out.seeker = self.seeker.status(AidState::NotUsedInPhase);
-        Ok(())
+    }
+
+    /// A tick without master data carries the alignment's next predictions, as many as the
+    /// last master sample needed (at most [`MAX_AHEAD_PER_TICK`] a tick): the master tick then
+    /// has those less to do.
+    fn run_ahead(&mut self) {
+        let mut run = 0;
+        while run < MAX_AHEAD_PER_TICK
+            && self.ta.steps_ahead() < self.master_steps
+            && self.ta.predict_ahead()
+        {
+            run += 1;
+        }
     }
 
     /// Starts the EKF (`self.ekf`) at this tick from the last master and the alignment;
@@ -869,9 +890,15 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         self.last_master = Some(MasterRecord {
             f_slave_m_s2: c_m_s * f_m,
         });
+        Ok(self.record_master(&report.updates))
+    }
+
+    /// The master track after a fused sample's `updates`: counters, the component with the
+    /// largest NIS, the time of the last fusion; `Fused` when one component was.
+    fn record_master(&mut self, updates: &[FusionReport<T>]) -> AidState {
         let mut worst: Option<FusionReport<T>> = None;
         let mut any_fused = false;
-        for u in &report.updates {
+        for u in updates {
             self.master.counters.record(u.outcome);
             any_fused |= u.outcome == FusionOutcome::Fused;
             if worst.is_none_or(|w| u.nis > w.nis) {
@@ -881,9 +908,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         self.master.last = worst;
         if any_fused {
             self.master.last_ok = Some(self.time);
-            Ok(AidState::Fused)
+            AidState::Fused
         } else {
-            Ok(AidState::Rejected)
+            AidState::Rejected
         }
     }
 
@@ -917,9 +944,19 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     ) -> Result<(), NavError> {
         let inc = &imu.increment;
         let clip = (imu.clipped.accel || imu.clipped.gyro).then_some(imu.clipped);
-        if self.vloop.is_some() {
-            return self.tick_flight_loop(inc, clip, aids, transition, out);
-        }
+        let loop_baro = if self.vloop.is_some() {
+            Some(self.loop_imu(inc, clip, aids.baro)?)
+        } else {
+            self.ekf_imu(inc, clip)?;
+            None
+        };
+        self.time = inc.time;
+        self.after_imu(aids, transition, loop_baro, out)
+    }
+
+    /// The EKF's IMU part in place (atomic), the baro column in step with its covariance step.
+    #[inline(always)]
+    fn ekf_imu(&mut self, inc: &ImuIncrement<T>, clip: Option<ClipFlags>) -> Result<(), NavError> {
         let model = self.baro_model();
         let Some(ekf) = self.ekf.as_mut() else {
             return Err(NavError::InputOutOfRange {
@@ -938,22 +975,19 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         } else {
             ekf.propagate_uncounted(inc, clip)?;
         }
-        self.time = inc.time;
-        self.after_imu(aids, transition, None, out)
+        Ok(())
     }
 
-    /// [`Self::tick_flight`] with the baro-inertial loop: the loop can refuse the IMU part
-    /// after the EKF has integrated it, so the EKF and the loop step on copies committed
-    /// together (more stack; the loop configuration only).
+    /// The IMU part with the baro-inertial loop: the loop can refuse the IMU part after the
+    /// EKF has integrated it, so the EKF and the loop step on copies committed together (more
+    /// stack; the loop configuration only). Returns the baro sample's outcome in the loop.
     #[inline(never)]
-    fn tick_flight_loop(
+    fn loop_imu(
         &mut self,
         inc: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
-        aids: &Aids<'_, T>,
-        transition: &mut Option<Transition>,
-        out: &mut TickReport<T>,
-    ) -> Result<(), NavError> {
+        baro: Option<&BaroSample<T>>,
+    ) -> Result<LoopBaro<T>, NavError> {
         let (Some(mut ekf), Some(mut lp)) = (self.ekf, self.vloop) else {
             return Err(NavError::InputOutOfRange {
                 input: "navigator state",
@@ -961,11 +995,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         };
         // On the copy: a refusal is dropped with it, as on the in-place path.
         ekf.propagate_uncounted(inc, clip)?;
-        let outcome = Self::loop_step(&mut lp, &mut ekf, inc.time, aids.baro)?;
+        let outcome = Self::loop_step(&mut lp, &mut ekf, inc.time, baro)?;
         self.ekf = Some(ekf);
         self.vloop = Some(lp);
-        self.time = inc.time;
-        self.after_imu(aids, transition, Some(outcome), out)
+        Ok(outcome)
     }
 
     /// After the committed IMU part: the phase by time, then the aids (inlined: no frame of
