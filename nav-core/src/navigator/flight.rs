@@ -71,6 +71,13 @@ impl<T: Real> AidTrack<T> {
             counters: self.counters,
         }
     }
+
+    /// [`Self::status`] written field by field into the report's `dst` (no temporary).
+    fn write(&self, state: AidState, dst: &mut AidStatus<T>) {
+        dst.state = state;
+        dst.last = self.last;
+        dst.counters = self.counters;
+    }
 }
 
 /// The flight navigator (module doc of [`super`]): generic over the float `T`, the
@@ -678,9 +685,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             transition,
         );
         // The aid reports, written into the caller's report (nothing above failed).
-        out.master = self.master.status(master_state);
-        out.baro = self.baro.status(AidState::NotUsedInPhase);
-        out.seeker = self.seeker.status(AidState::NotUsedInPhase);
+        self.master.write(master_state, &mut out.master);
+        self.baro.write(AidState::NotUsedInPhase, &mut out.baro);
+        self.seeker.write(AidState::NotUsedInPhase, &mut out.seeker);
         Ok(())
     }
 
@@ -1031,12 +1038,14 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             });
         }
         // The aid reports, written into the caller's report (nothing here fails).
-        out.baro = match loop_baro {
+        let baro = match loop_baro {
             Some(outcome) => self.loop_baro_status(outcome),
             None => self.baro_aid(aids.baro),
         };
-        out.seeker = self.seeker_aid(aids.seeker, transition);
-        out.master = self.master.status(AidState::NotUsedInPhase);
+        self.baro.write(baro, &mut out.baro);
+        let seeker = self.seeker_aid(aids.seeker, transition);
+        self.seeker.write(seeker, &mut out.seeker);
+        self.master.write(AidState::NotUsedInPhase, &mut out.master);
         Ok(())
     }
 
@@ -1104,7 +1113,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         Ok(outcome)
     }
 
-    fn loop_baro_status(&mut self, outcome: LoopBaro<T>) -> AidStatus<T> {
+    fn loop_baro_status(&mut self, outcome: LoopBaro<T>) -> AidState {
         let state = match outcome {
             LoopBaro::Refused(e) => {
                 self.baro.counters.record_refused();
@@ -1122,19 +1131,16 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 }
             }
         };
-        let state = if state == AidState::Waiting
-            && self.baro_availability() == AidAvailability::TimedOut
-        {
+        if state == AidState::Waiting && self.baro_availability() == AidAvailability::TimedOut {
             AidState::TimedOut
         } else {
             state
-        };
-        self.baro.status(state)
+        }
     }
 
-    fn baro_aid(&mut self, sample: Option<&BaroSample<T>>) -> AidStatus<T> {
+    fn baro_aid(&mut self, sample: Option<&BaroSample<T>>) -> AidState {
         let Some(model) = self.baro_model() else {
-            return self.baro.status(AidState::NotUsedInPhase);
+            return AidState::NotUsedInPhase;
         };
         let mut state = AidState::Waiting;
         if let Some(b) = sample {
@@ -1149,7 +1155,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         if state == AidState::Waiting && self.baro_availability() == AidAvailability::TimedOut {
             state = AidState::TimedOut;
         }
-        self.baro.status(state)
+        state
     }
 
     /// The baro's joint update (module `baro`), in place: the sample is checked (finite, time,
@@ -1234,9 +1240,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         &mut self,
         sample: Option<&LosSample<T>>,
         transition: &mut Option<Transition>,
-    ) -> AidStatus<T> {
+    ) -> AidState {
         if self.phase == Phase::Released {
-            return self.seeker.status(AidState::NotUsedInPhase);
+            return AidState::NotUsedInPhase;
         }
         let mut state = AidState::Waiting;
         if let Some(s) = sample {
@@ -1260,7 +1266,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         if state == AidState::Waiting && self.seeker_availability() == AidAvailability::TimedOut {
             state = AidState::TimedOut;
         }
-        self.seeker.status(state)
+        state
     }
 
     /// One LOS sample through the EKF, in place: a sample the EKF would refuse is refused
