@@ -317,6 +317,9 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
     let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
     let mut world = World::new();
     let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    // A twin flown through `tick_into` with one report slot reused for the whole run.
+    let mut twin = nav.clone();
+    let mut slot = twin.blank_report();
     let mut run = Run {
         phases: Vec::new(),
         transitions: Vec::new(),
@@ -371,6 +374,8 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
             separation,
         };
         let report = nav.tick(&tick_of(&inc), &aids).unwrap();
+        twin.tick_into(&tick_of(&inc), &aids, &mut slot).unwrap();
+        assert_eq!(slot, report, "tick_into writes the report tick returns");
         if let Some(tr) = report.transition {
             run.transitions.push(tr);
         }
@@ -561,6 +566,16 @@ fn refused_inputs_change_nothing<T: Real>() {
         Err(NavError::NonFiniteInput { .. })
     ));
     assert_eq!(dump(&nav), before);
+    // Through `tick_into`: the caller's report slot is left as it was too.
+    let mut slot = nav.blank_report();
+    slot.phase = Phase::Terminal;
+    let slot_before = format!("{slot:?}");
+    assert!(matches!(
+        nav.tick_into(&bad, &Aids::NONE, &mut slot),
+        Err(NavError::NonFiniteInput { .. })
+    ));
+    assert_eq!(dump(&nav), before);
+    assert_eq!(format!("{slot:?}"), slot_before);
     let mut late = tick_of::<T>(&inc);
     late.increment.time = Timestamp::from_micros(inc.time.as_micros() - DT_US);
     assert_eq!(

@@ -239,26 +239,82 @@ pub(crate) fn transition_times<T: Real>(
     dt_s: T,
     c: &nalgebra::SVector<T, STATES>,
 ) -> nalgebra::SVector<T, STATES> {
-    let g = f.scaled(dt_s);
-    let w: nalgebra::SVector<T, 9> = g.to_block() * c.fixed_rows::<15>(0);
+    let w = sparse_times(f, dt_s, c);
     let half = T::lit(0.5);
-    let w_vel: Vector3<T> = w.fixed_rows::<3>(3).into_owned();
-    let w_att: Vector3<T> = w.fixed_rows::<3>(6).into_owned();
-    let mut hw = nalgebra::SVector::<T, 9>::zeros();
-    hw.fixed_rows_mut::<3>(0).copy_from(&Vector3::new(
-        half * g.f03 * w_vel.x,
-        half * g.f14 * w_vel.y,
-        half * g.f25 * w_vel.z,
-    ));
-    hw.fixed_rows_mut::<3>(3)
-        .copy_from(&(g.f_ned * half).cross(&w_att));
+    let w_att = Vector3::new(w[6], w[7], w[8]);
+    let h_att = ((f.f_ned * dt_s) * half).cross(&w_att);
+    let hw = [
+        half * (f.f03 * dt_s) * w[3],
+        half * (f.f14 * dt_s) * w[4],
+        half * (f.f25 * dt_s) * w[5],
+        h_att.x,
+        h_att.y,
+        h_att.z,
+        T::zero(),
+        T::zero(),
+        T::zero(),
+    ];
     let mut out = *c;
-    let add = w + hw;
-    out.fixed_rows_mut::<9>(0)
-        .iter_mut()
-        .zip(add.iter())
-        .for_each(|(o, a)| *o += *a);
+    for ((o, wi), hi) in out.iter_mut().zip(w.iter()).zip(hw.iter()) {
+        *o += *wi + *hi;
+    }
     out
+}
+
+/// `G c` over rows 0..9 for `G = F Δt` (the 9 × 15 block of [`SparseF::to_block`] of
+/// `f.scaled(dt_s)`) from its non-zero entries only, each entry `f_ij Δt` formed as `scaled`
+/// forms it and each row summed over its columns in ascending order: the numbers of the
+/// dense product (whose other terms are zero), without the 9 × 15 block or a scaled copy of
+/// F on the stack.
+fn sparse_times<T: Real>(f: &SparseF<T>, dt: T, c: &nalgebra::SVector<T, STATES>) -> [T; 9] {
+    let x = |i: usize| c.get(i).copied().unwrap_or_else(T::zero);
+    let (vv, cb, fv, wv) = (&f.vel_vel, &f.c_b_n, &f.f_ned, &f.w_in);
+    let (vl, vh, al, ah, av) = (&f.vel_lat, &f.vel_h, &f.att_lat, &f.att_h, &f.att_v);
+    let (x0, x2, x3, x4, x5) = (x(0), x(2), x(3), x(4), x(5));
+    let (x6, x7, x8) = (x(6), x(7), x(8));
+    let (x9, x10, x11, x12, x13, x14) = (x(9), x(10), x(11), x(12), x(13), x(14));
+    let g = |v: T| v * dt;
+    [
+        g(f.f00) * x0 + g(f.f02) * x2 + g(f.f03) * x3,
+        g(f.f10) * x0 + g(f.f12) * x2 + g(f.f14) * x4,
+        g(f.f25) * x5,
+        g(vl.x) * x0 + g(vh.x) * x2 + g(vv.m11) * x3 + g(vv.m12) * x4 + g(vv.m13) * x5
+            - g(fv.z) * x7
+            + g(fv.y) * x8
+            + g(cb.m11) * x9
+            + g(cb.m12) * x10
+            + g(cb.m13) * x11,
+        g(vl.y) * x0
+            + g(vh.y) * x2
+            + g(vv.m21) * x3
+            + g(vv.m22) * x4
+            + g(vv.m23) * x5
+            + g(fv.z) * x6
+            - g(fv.x) * x8
+            + g(cb.m21) * x9
+            + g(cb.m22) * x10
+            + g(cb.m23) * x11,
+        g(vl.z) * x0 + g(vh.z) * x2 + g(vv.m31) * x3 + g(vv.m32) * x4 + g(vv.m33) * x5
+            - g(fv.y) * x6
+            + g(fv.x) * x7
+            + g(cb.m31) * x9
+            + g(cb.m32) * x10
+            + g(cb.m33) * x11,
+        g(al.x) * x0 + g(ah.x) * x2 + g(av.x) * x4 + g(wv.z) * x7
+            - g(wv.y) * x8
+            - g(cb.m11) * x12
+            - g(cb.m12) * x13
+            - g(cb.m13) * x14,
+        g(al.y) * x0 + g(ah.y) * x2 + g(av.y) * x3 - g(wv.z) * x6 + g(wv.x) * x8
+            - g(cb.m21) * x12
+            - g(cb.m22) * x13
+            - g(cb.m23) * x14,
+        g(al.z) * x0 + g(ah.z) * x2 + g(av.z) * x4 + g(wv.y) * x6
+            - g(wv.x) * x7
+            - g(cb.m31) * x12
+            - g(cb.m32) * x13
+            - g(cb.m33) * x14,
+    ]
 }
 
 /// A variance of the navigation block that would round below zero is set to zero with its row
@@ -563,6 +619,60 @@ mod tests {
     /// The generated step writes both triangles of rows and columns 0..9 with the same bits
     /// (P stays exactly symmetric) and leaves the bias and gimbal block untouched; a non-finite
     /// result leaves P unchanged.
+    /// `Φ c` from the non-zero entries of G only gives the bits of the dense 9 × 15 product
+    /// it replaced (f32 and f64, several intervals and columns).
+    #[test]
+    fn transition_times_equals_the_dense_product_bit_for_bit() {
+        fn dense<T: Real>(
+            f: &SparseF<T>,
+            dt: T,
+            c: &nalgebra::SVector<T, STATES>,
+        ) -> nalgebra::SVector<T, STATES> {
+            let g = f.scaled(dt);
+            let w: nalgebra::SVector<T, 9> = g.to_block() * c.fixed_rows::<15>(0);
+            let half = T::lit(0.5);
+            let w_vel: Vector3<T> = w.fixed_rows::<3>(3).into_owned();
+            let w_att: Vector3<T> = w.fixed_rows::<3>(6).into_owned();
+            let mut hw = nalgebra::SVector::<T, 9>::zeros();
+            hw.fixed_rows_mut::<3>(0).copy_from(&Vector3::new(
+                half * g.f03 * w_vel.x,
+                half * g.f14 * w_vel.y,
+                half * g.f25 * w_vel.z,
+            ));
+            hw.fixed_rows_mut::<3>(3)
+                .copy_from(&(g.f_ned * half).cross(&w_att));
+            let mut out = *c;
+            let add = w + hw;
+            out.fixed_rows_mut::<9>(0)
+                .iter_mut()
+                .zip(add.iter())
+                .for_each(|(o, a)| *o += *a);
+            out
+        }
+        fn check<T: Real + core::fmt::Debug>() {
+            let pos = Position {
+                lat_rad: 0.65,
+                lon_rad: 2.2,
+                alt_m: 1000.0,
+            };
+            let v = Vector3::new(T::lit(30.0), T::lit(200.0), T::lit(-3.0));
+            let c = crate::math::rotation::euler_to_dcm(T::lit(0.3), T::lit(0.05), T::lit(1.4));
+            let f_n = Vector3::new(T::lit(0.5), T::lit(2.0), T::lit(-9.8));
+            let sf = SparseF::new(&pos, &v, &c, &f_n);
+            for (k, dt) in [0.01, 0.02, 0.1].into_iter().enumerate() {
+                let col = nalgebra::SVector::<T, STATES>::from_fn(|i, _| {
+                    T::lit(((i * 7 + k * 3) % 11) as f64 - 5.0)
+                        * T::lit(0.37_f64.powi(i as i32 % 5))
+                });
+                let a = transition_times(&sf, T::lit(dt), &col);
+                let b = dense(&sf, T::lit(dt), &col);
+                assert_eq!(a, b, "dt {dt}");
+            }
+        }
+        check::<f32>();
+        check::<f64>();
+    }
+
     #[test]
     fn generated_step_is_exactly_symmetric_and_touches_the_navigation_rows_only() {
         let p0 = physical_p();

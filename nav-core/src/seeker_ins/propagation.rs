@@ -179,8 +179,9 @@ impl<T: Real> SeekerIns<T> {
     /// column `E[δx δb]` of an external state b kept beside the 17. Returns the interval
     /// covered, s (`None`: nothing was pending). When the step changed P other than by
     /// `Φ P Φᵀ + Q` (a variance repaired or held at its ceiling: a congruence the column
-    /// does not follow) `cross` is set to zero (the joint covariance stays PSD; that
-    /// correlation is forgotten). Errors leave the filter and `cross` unchanged.
+    /// does not follow), or when `Φ c` is not finite, `cross` is set to zero (the joint
+    /// covariance stays PSD; that correlation is forgotten). Errors leave the filter and
+    /// `cross` unchanged.
     pub(crate) fn predict_covariance_cross(
         &mut self,
         cross: &mut nalgebra::SVector<T, STATES>,
@@ -233,6 +234,23 @@ impl<T: Real> SeekerIns<T> {
         if us.saturating_mul(2) <= dt_us.saturating_mul(3) {
             return self.step_sample(sample, clip, schedule, None).map(|_| ());
         }
+        self.propagate_after_gap(sample, clip, schedule, prev, us)
+    }
+
+    /// [`Self::propagate_sample`] after a gap of `us` µs since the sample at `prev`: bridged
+    /// or reset on a copy of the filter, committed with the sample. Out of line: the copy's
+    /// frame is not on the regular path's stack.
+    #[cold]
+    #[inline(never)]
+    fn propagate_after_gap(
+        &mut self,
+        sample: &ImuIncrement<T>,
+        clip: Option<ClipFlags>,
+        schedule: CovarianceSchedule,
+        prev: Timestamp,
+        us: u64,
+    ) -> Result<(), NavError> {
+        let dt_us = self.ins.dt_us();
         // round(us / dt_us) − 1 ≥ 1 (dt_us > 0 by construction: no division by zero).
         let missing = us
             .saturating_add(dt_us / 2)
@@ -496,19 +514,15 @@ impl<T: Real> SeekerIns<T> {
         let at = ins.unwrap_or(&self.ins);
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
-        let next_cross = transition_times(&f, dt_total_s, cross);
-        if !next_cross.iter().all(|v| v.is_finite()) {
-            return Err(NavError::NonFiniteInput {
-                input: "propagated cross-covariance",
-            });
-        }
         let limits_before = self.health.limits_hit;
         self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s)?;
-        *cross = if self.health.limits_hit == limits_before {
-            next_cross
+        // Φ c after the step (Φ is finite: the step succeeded), in a frame of its own beside
+        // the kernel's; a column that overflows is forgotten as after a repair.
+        if self.health.limits_hit == limits_before {
+            transition_column(&f, dt_total_s, cross);
         } else {
-            nalgebra::SVector::zeros()
-        };
+            *cross = nalgebra::SVector::zeros();
+        }
         Ok(())
     }
 
@@ -549,4 +563,17 @@ impl<T: Real> SeekerIns<T> {
         self.dv_ned_pending_m_s = Vector3::zeros();
         Ok(())
     }
+}
+
+/// `cross ← Φ cross` for the transition of F = `f` over `dt_s` ([`transition_times`]); zero
+/// (the correlation forgotten) when the result is not finite. Not inlined: its temporaries
+/// are not in the covariance step's frame, under which the kernel runs.
+#[inline(never)]
+fn transition_column<T: Real>(f: &SparseF<T>, dt_s: T, cross: &mut nalgebra::SVector<T, STATES>) {
+    let next = transition_times(f, dt_s, cross);
+    *cross = if next.iter().all(|v| v.is_finite()) {
+        next
+    } else {
+        nalgebra::SVector::zeros()
+    };
 }

@@ -123,7 +123,9 @@ impl<T: Real> SeekerIns<T> {
     }
 
     /// [`Self::update_los`], with `col` (when given, and P up to date with the 2-D residual)
-    /// updated from the very components fused (`update_los_cross`).
+    /// updated from the very components fused (`update_los_cross`). Inlined: no frame of its
+    /// own between the caller's and the update's (the flight navigator's LOS path).
+    #[inline(always)]
     fn update_los_col(
         &mut self,
         sample: &LosSample<T>,

@@ -1,0 +1,421 @@
+//! The carry phase's tick (module doc of [`super::super`]): the INS on the slave IMU slaved
+//! to the late master through the transfer alignment's hand-over, the alignment's predictions
+//! run ahead, the IMU-confirmed separation and the EKF's start.
+
+use super::super::handover::{
+    hand_over_checked_master, validate_master, AlignmentAtRelease, MasterAtRelease, NavBlocks,
+};
+use super::super::types::{
+    AidAvailability, AidState, Aids, ImuTick, MasterNav, NavigatorConfig, SeparationStatus,
+    TickReport, Transition, TransitionCause,
+};
+use super::{
+    elapsed, ned_factors, Correction, MasterRecord, Navigator, Snapshot, SnapshotFix,
+    MAX_AHEAD_PER_TICK,
+};
+use crate::contract::{Estimator, FusionOutcome, FusionReport};
+use crate::earth::{earth_rate_ned, transport_rate_ned};
+use crate::math::rotation::exp_so3;
+use crate::seeker_ins::{Ins, SeekerIns, SeekerInsInitial};
+use crate::time::Timestamp;
+use crate::transfer_alignment::{
+    compensate_lever_arm, MasterSample, SlaveSample, TransferAlignment,
+};
+use crate::{NavError, Real};
+use nalgebra::{Matrix3, SMatrix, Vector3};
+
+/// The scaling of [`super::nav_block_to_ned`] on a 9 × 9 navigation block, rows then columns by
+/// the factors `d` of the position states.
+fn nav9_to_ned<T: Real>(mut out: SMatrix<T, 9, 9>, d: [T; 3]) -> SMatrix<T, 9, 9> {
+    for (i, di) in d.iter().enumerate() {
+        for v in out.row_mut(i).iter_mut() {
+            *v *= *di;
+        }
+        for v in out.column_mut(i).iter_mut() {
+            *v *= *di;
+        }
+    }
+    out
+}
+
+/// The master's quality and motion in the hand-over's shape. Its body-rate 1σ is not on the
+/// bus: the alignment's rate-difference noise (master and slave gyro noise per sample) bounds
+/// it.
+fn at_release<T: Real>(m: &MasterNav<T>, rate_sigma_rad_s: T) -> MasterAtRelease<T> {
+    let lat = T::lit(m.position.lat_rad);
+    let alt = T::lit(m.position.alt_m);
+    let w_in = earth_rate_ned(lat) + transport_rate_ned(lat, alt, &m.vel_ned_m_s);
+    MasterAtRelease {
+        c_m_n: m.c_m_n,
+        vel_ned_m_s: m.vel_ned_m_s,
+        position: m.position,
+        rate_nm_rad_s: m.angular_rate_rad_s - m.c_m_n.transpose() * w_in,
+        attitude_sigma_rad: m.attitude_sigma_rad,
+        velocity_sigma_m_s: m.velocity_sigma_m_s,
+        position_sigma_m: m.position_sigma_m,
+        rate_sigma_rad_s,
+    }
+}
+
+/// Where a master sample's hand-over is committed: the navigator's carry fields.
+struct CarryTargets<'a, T: Real> {
+    ins: &'a mut Ins<T>,
+    carry_cov: &'a mut SMatrix<T, 9, 9>,
+    handover: &'a mut Option<NavBlocks<T>>,
+    snapshot_fix: &'a mut Option<SnapshotFix<T>>,
+}
+
+/// The hand-over at the master's epoch with the (updated) alignment `ta`, and the INS slaved
+/// to it, committed into `out` only when nothing failed: the carry covariance (the
+/// hand-over's 9×9 navigation block, NED convention, and its blocks in the EKF's), the INS
+/// corrected in place (`Ins::correct` is atomic and the last fallible step), and the
+/// correction its snapshots since `snap` take (checked finite, applied on the next tick).
+/// Nothing is returned by value.
+fn slave_to<T: Real, const K: usize, const N: usize>(
+    config: &NavigatorConfig<T>,
+    ta: &TransferAlignment<T, K, N>,
+    master: &MasterAtRelease<T>,
+    snap: &Snapshot<T>,
+    now: Timestamp,
+    out: CarryTargets<'_, T>,
+) -> Result<(), NavError> {
+    let nav = hand_over_checked_master(
+        master,
+        &AlignmentAtRelease::from_filter(ta),
+        &config.lever_arm,
+    )?;
+    let corr = Correction::between(&snap.state, &nav.state);
+    // A finite correction applies to every stored state (finite, unit quaternion): checked
+    // once here instead of on each snapshot.
+    if !corr.is_finite() {
+        return Err(NavError::NonFiniteInput {
+            input: "master correction",
+        });
+    }
+    out.ins.correct(
+        corr.d_lat_rad,
+        corr.d_lon_rad,
+        corr.d_alt_m,
+        &corr.d_vel_m_s,
+        &corr.phi_rad,
+    )?;
+    // Commit (nothing below fails).
+    *out.carry_cov = nav9_to_ned(nav.blocks.nav9(), ned_factors(&nav.state));
+    *out.handover = Some(nav.blocks);
+    *out.snapshot_fix = Some(SnapshotFix {
+        correction: corr,
+        from: snap.time,
+        until: now,
+    });
+    Ok(())
+}
+
+impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
+    /// [`Self::tick_carry`] in a frame of its own (not inlined): the carry phase's stack is
+    /// not on the flight phases' path.
+    #[inline(never)]
+    pub(super) fn tick_carry_apart(
+        &mut self,
+        imu: &ImuTick<T>,
+        aids: &Aids<'_, T>,
+        transition: &mut Option<Transition>,
+        out: &mut TickReport<T>,
+    ) -> Result<(), NavError> {
+        self.tick_carry(imu, aids, transition, out)
+    }
+
+    fn tick_carry(
+        &mut self,
+        imu: &ImuTick<T>,
+        aids: &Aids<'_, T>,
+        transition: &mut Option<Transition>,
+        out: &mut TickReport<T>,
+    ) -> Result<(), NavError> {
+        let inc = &imu.increment;
+        let mut ins = self.ins;
+        ins.step(inc)?;
+        let dt = ins.last_interval_s();
+        let slave = SlaveSample {
+            time: inc.time,
+            angular_rate_rad_s: inc.delta_theta_rad / dt,
+            specific_force_m_s2: inc.delta_v_m_s / dt,
+        };
+        slave.validate()?;
+        if self.history.newest().is_some_and(|s| s.time >= inc.time) {
+            return Err(NavError::TimeNotIncreasing);
+        }
+        // Commit the IMU part (nothing below fails the tick).
+        self.history.push(&slave)?;
+        self.ins = ins;
+        self.time = inc.time;
+        self.apply_snapshot_fix();
+        if self.snapshots.is_full() {
+            let _ = self.snapshots.pop_front();
+        }
+        let _ = self.snapshots.push_back(Snapshot {
+            time: inc.time,
+            state: *ins.state(),
+        });
+        let mut master_state = AidState::Waiting;
+        if let Some(m) = aids.master {
+            master_state = match self.fuse_master(m) {
+                Ok(s) => s,
+                Err(e) => {
+                    self.master.counters.record_refused();
+                    AidState::Refused(e)
+                }
+            };
+        } else {
+            self.run_ahead();
+        }
+        let master_lost = self.master_availability() == AidAvailability::TimedOut;
+        if master_lost && master_state == AidState::Waiting {
+            master_state = AidState::TimedOut;
+        }
+        self.separation_check(
+            aids.separation,
+            &slave.specific_force_m_s2,
+            master_lost,
+            transition,
+        );
+        // The aid reports, written into the caller's report (nothing above failed).
+        self.master.write(master_state, &mut out.master);
+        self.baro.write(AidState::NotUsedInPhase, &mut out.baro);
+        self.seeker.write(AidState::NotUsedInPhase, &mut out.seeker);
+        Ok(())
+    }
+
+    /// The carry tick's separation logic: a release `signal` (its time) recorded, then the
+    /// IMU's confirmation (the slave's specific force `f_s_m_s2`, m/s², against the last
+    /// master's) within the window, or an unsignalled release (the master lost and the IMU
+    /// falling); a release confirmed starts the EKF and reports the transition.
+    fn separation_check(
+        &mut self,
+        signal: Option<Timestamp>,
+        f_s_m_s2: &Vector3<T>,
+        master_lost: bool,
+        transition: &mut Option<Transition>,
+    ) {
+        if let Some(sig) = signal {
+            if matches!(
+                self.separation,
+                SeparationStatus::NotSignalled
+                    | SeparationStatus::SeparationUnconfirmed
+                    | SeparationStatus::AwaitingConfirmation
+            ) && self.signal.is_none_or(|s| sig > s)
+            {
+                self.signal = Some(sig);
+                self.separation = SeparationStatus::AwaitingConfirmation;
+            }
+        }
+        let imu_sees = self.last_master.is_some_and(|lm| {
+            (f_s_m_s2 - lm.f_slave_m_s2).norm() > self.config.separation.specific_force_jump_m_s2
+        });
+        let falling_s = self.free_fall.update(
+            self.time,
+            f_s_m_s2,
+            self.config.separation.specific_force_jump_m_s2,
+        );
+        let mut release = None;
+        match (self.separation, self.signal) {
+            (SeparationStatus::AwaitingConfirmation, Some(sig)) => {
+                let age = elapsed::<T>(self.time, sig);
+                if imu_sees {
+                    release = Some((
+                        SeparationStatus::Confirmed,
+                        TransitionCause::SeparationConfirmed,
+                    ));
+                } else if age > self.config.separation.confirm_window_s {
+                    self.separation = SeparationStatus::SeparationUnconfirmed;
+                }
+            }
+            _ => {
+                if master_lost && falling_s >= self.config.separation.confirm_window_s {
+                    release = Some((
+                        SeparationStatus::UnsignalledRelease,
+                        TransitionCause::UnsignalledSeparation,
+                    ));
+                }
+            }
+        }
+        if let Some((status, cause)) = release {
+            if self.hand_over_now() {
+                self.enter_released(status, cause);
+                *transition = self.pending.take();
+            }
+        }
+    }
+
+    /// A tick without master data carries the alignment's next predictions, as many as the
+    /// last master sample needed (at most [`MAX_AHEAD_PER_TICK`] a tick): the master tick then
+    /// has those less to do.
+    fn run_ahead(&mut self) {
+        let mut run = 0;
+        while run < MAX_AHEAD_PER_TICK
+            && self.ta.steps_ahead() < self.master_steps
+            && self.ta.predict_ahead()
+        {
+            run += 1;
+        }
+    }
+
+    /// Starts the EKF (`self.ekf`) at this tick from the last master and the alignment;
+    /// `false` (nothing changed) without a master or when the EKF refuses the state: the
+    /// current INS state with the hand-over P0 of the last fused master sample (its
+    /// navigation blocks kept from that tick: the alignment has not changed since, so the
+    /// hand-over would give them again bit for bit), written in place into the new EKF.
+    #[inline(never)]
+    fn hand_over_now(&mut self) -> bool {
+        let (Some(_), Some(blocks)) = (self.last_master, self.handover) else {
+            return false;
+        };
+        let priors = self.config.priors;
+        if blocks.p0_passes_checks(&priors) {
+            return SeekerIns::start_in(
+                &mut self.ekf,
+                &self.config.ins,
+                &self.design,
+                self.ins.state(),
+                |p0| blocks.write_p0(&priors, p0),
+            )
+            .is_ok();
+        }
+        // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
+        self.hand_over_dense(&blocks)
+    }
+
+    /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.
+    #[cold]
+    #[inline(never)]
+    fn hand_over_dense(&mut self, blocks: &NavBlocks<T>) -> bool {
+        let mut initial = SeekerInsInitial {
+            state: *self.ins.state(),
+            covariance: SMatrix::zeros(),
+        };
+        blocks.write_p0(&self.config.priors, &mut initial.covariance);
+        match SeekerIns::from_design(&self.config.ins, &self.design, &initial) {
+            Ok(ekf) => {
+                self.ekf = Some(ekf);
+                true
+            }
+            Err(_) => false,
+        }
+    }
+
+    /// The last master sample's correction into the snapshots it covers (the same
+    /// operations, in the same order, as when applied at that master's tick: the snapshots
+    /// are read at the next master sample only).
+    fn apply_snapshot_fix(&mut self) {
+        let Some(fix) = self.snapshot_fix.take() else {
+            return;
+        };
+        for s in self
+            .snapshots
+            .iter_mut()
+            .filter(|s| s.time >= fix.from && s.time <= fix.until)
+        {
+            if let Some(corrected) = fix.correction.apply(&s.state) {
+                s.state = corrected;
+            }
+        }
+    }
+
+    /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic: the
+    /// cheap checks first, then the alignment steps in place and is undone
+    /// ([`TransferAlignment::step_then`]) when the hand-over or the slaving fails (no copy of
+    /// the filter).
+    #[inline(never)]
+    fn fuse_master(&mut self, m: &MasterNav<T>) -> Result<AidState, NavError> {
+        // A separation signalled at `s` and awaiting the IMU's confirmation: a master sample
+        // whose slave interpolation reaches past `s` (epoch later than one IMU interval before
+        // it) would pair the aircraft on the lever arm with the missile already dropping (the
+        // flexure's motion gone from its IMU); it is not fused (nothing changes, nothing
+        // counted) and the hand-over uses the samples before. Fused again if the IMU does not
+        // confirm the separation.
+        let imu_dt_us = crate::time::seconds_to_micros(self.config.imu_dt_s).unwrap_or(0);
+        if self.separation == SeparationStatus::AwaitingConfirmation
+            && self
+                .signal
+                .is_some_and(|s| m.time.as_micros().saturating_add(imu_dt_us) > s.as_micros())
+        {
+            return Ok(AidState::NotUsedInPhase);
+        }
+        let tol = self.ta_tolerance_us();
+        let snap = self
+            .snapshots
+            .iter()
+            .rev()
+            .find(|s| s.time.as_micros().abs_diff(m.time.as_micros()) <= tol)
+            .copied()
+            .ok_or(NavError::MeasurementTimeOutOfWindow)?;
+        let ms = MasterSample {
+            time: m.time,
+            angular_rate_rad_s: m.angular_rate_rad_s,
+            angular_accel_rad_s2: m.angular_accel_rad_s2,
+            specific_force_m_s2: m.specific_force_m_s2,
+        };
+        ms.validate()?;
+        // The hand-over's checks of the master before the alignment steps: a bad master
+        // sample does not touch the alignment.
+        let at = at_release(m, self.config.alignment.rate_noise_sigma_rad_s);
+        validate_master(&at, &self.config.lever_arm, &self.config.priors)?;
+        // The slave's interval means interpolated at the master's (instantaneous) epoch; the
+        // end-stamped sample of that epoch when they cannot be (the first tick).
+        let slave = self
+            .history
+            .at_time(m.time)
+            .or_else(|_| self.history.find(m.time, tol))?;
+        let now = self.time;
+        let Self {
+            ta,
+            config,
+            ins,
+            carry_cov,
+            handover,
+            snapshot_fix,
+            ..
+        } = self;
+        let (report, ()) = ta.step_then(&ms, &slave, |ta| {
+            let out = CarryTargets {
+                ins,
+                carry_cov,
+                handover,
+                snapshot_fix,
+            };
+            slave_to(config, ta, &at, &snap, now, out)
+        })?;
+        // After the first epoch (nothing predicted) the next sample needs at least one.
+        self.master_steps = report.predictions.max(1);
+        let f_m = compensate_lever_arm(&ms, &self.config.lever_arm.nominal_m);
+        let c_m_s: Matrix3<T> = exp_so3(&(-self.ta.theta()));
+        self.last_master = Some(MasterRecord {
+            f_slave_m_s2: c_m_s * f_m,
+        });
+        Ok(self.record_master(&report.updates))
+    }
+
+    /// The master track after a fused sample's `updates`: counters, the component with the
+    /// largest NIS, the time of the last fusion; `Fused` when one component was.
+    fn record_master(&mut self, updates: &[FusionReport<T>]) -> AidState {
+        let mut worst: Option<FusionReport<T>> = None;
+        let mut any_fused = false;
+        for u in updates {
+            self.master.counters.record(u.outcome);
+            any_fused |= u.outcome == FusionOutcome::Fused;
+            if worst.is_none_or(|w| u.nis > w.nis) {
+                worst = Some(*u);
+            }
+        }
+        self.master.last = worst;
+        if any_fused {
+            self.master.last_ok = Some(self.time);
+            AidState::Fused
+        } else {
+            AidState::Rejected
+        }
+    }
+
+    fn ta_tolerance_us(&self) -> u64 {
+        crate::time::seconds_to_micros(self.config.alignment.time_tolerance_s).unwrap_or(0)
+    }
+}
