@@ -26,6 +26,13 @@
 //!   the bias as independent and its horizontal velocity σ grows as if their effects added,
 //!   where in truth they largely cancel (`g φ ≈ −∇` along the level axes).
 //!
+//! * the specific force the accelerometer-bias states refer to: the carry's (the last master
+//!   epoch's, in slave axes), set on the new EKF at the hand-over ([`refer_to_carry`]). The
+//!   alignment levelled the slave against its own accelerometers at that force, so the
+//!   scale-factor and misalignment share of the bias, `(S + M) f_carry`, is part of the error
+//!   the tilt and the difference bias absorbed; the drop (≈ 0 g) and the pull-up after it are
+//!   departures from it, charged to the velocity (`seeker_ins` flight noise), not new biases.
+//!
 //! The other cross-covariances between the blocks are neglected (master and alignment errors
 //! are independent; the attitude–velocity coupling through the lever arm is `|ω × l| σ_φm`,
 //! below 10⁻³ m/s for any pylon).
@@ -397,6 +404,25 @@ pub(crate) fn hand_over_checked_master<T: Real>(
             bias_prior_variance_m2_s4: alignment.bias_prior_variance_m2_s4,
         },
     })
+}
+
+/// The carry's specific force as the reference of the new EKF's accelerometer-bias states
+/// (`SeekerIns::set_specific_force_reference`): the alignment levelled the slave against its
+/// own accelerometers at the carry's specific force, so the equivalent bias `b + (S + M) f`
+/// the EKF starts from is the one of that force, not of the drop's first covariance step.
+/// `f_slave_m_s2`: the last fused master epoch's lever-arm-compensated specific force in slave
+/// axes, m/s². Always `true` (the hand-over stands: a force the EKF refuses leaves its first
+/// step's specific force as the reference).
+pub(crate) fn refer_to_carry<T: Real>(
+    ekf: &mut Option<crate::seeker_ins::SeekerIns<T>>,
+    f_slave_m_s2: &Vector3<T>,
+) -> bool {
+    if let Some(e) = ekf.as_mut() {
+        // Refused only for a non-finite force (the master's samples are checked finite) or a
+        // reference already set (a new EKF has none): nothing to undo either way.
+        let _ = e.set_specific_force_reference(f_slave_m_s2);
+    }
+    true
 }
 
 /// The checks of [`hand_over`] on what does not come from the alignment: the master, the

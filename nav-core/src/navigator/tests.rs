@@ -886,7 +886,7 @@ use super::baro::{baro_update, BaroState};
 use crate::contract::FusionOutcome;
 use crate::math::kalman::fuse_scalar;
 use crate::seeker_ins::{
-    propagate_covariance_sparse, SeekerIns, SeekerInsInitial, SparseF, POS, STATES, VEL,
+    propagate_covariance_sparse, SeekerIns, SeekerInsInitial, SparseF, ACC_BIAS, POS, STATES, VEL,
 };
 use nalgebra::SVector;
 
@@ -1623,4 +1623,58 @@ fn refused_los_keeps_the_pending_step_f64() {
 #[test]
 fn refused_los_keeps_the_pending_step_f32() {
     refused_los_keeps_the_pending_step::<f32>();
+}
+
+/// At the hand-over the EKF's accelerometer-bias states are the equivalent bias at the
+/// carry's specific force: their variance is the prior's plus that of the scale factor and
+/// misalignment at the last master epoch's specific force (≈ 1 g down), charged at once, not
+/// at the drop's first covariance step (where the missile falls at ≈ 0 g).
+fn handover_refers_the_bias_to_the_carry<T: Real>() {
+    let cfg = config::<T>(BaroDamping::Off);
+    let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
+    let mut world = World::new();
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    let e = cfg.ins.instrument_errors;
+    let (sf, mis) = (
+        e.accel_scale_factor.to_f64(),
+        e.accel_misalignment_rad.to_f64(),
+    );
+    assert!(sf > 0.0 && mis > 0.0);
+    let prior = cfg.priors.accel_bias_sigma_m_s2.to_f64().powi(2);
+    for _ in 0..((SEPARATION_S + 1.0) / DT).round() as u64 {
+        let inc = world.step(&lever);
+        let t = inc.time.as_secs_f64();
+        let master = if t <= SEPARATION_S {
+            world.master_sample::<T>()
+        } else {
+            None
+        };
+        let aids = Aids {
+            master: master.as_ref(),
+            separation: ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(inc.time),
+            ..Aids::NONE
+        };
+        let r = nav.tick(&tick_of(&inc), &aids).unwrap();
+        if r.phase == Phase::Released {
+            let p = nav.ekf().unwrap().covariance();
+            let g = 9.8;
+            let want = [(mis * g).powi(2), (mis * g).powi(2), (sf * g).powi(2)];
+            for (i, w) in want.iter().enumerate() {
+                let added = p[(ACC_BIAS + i, ACC_BIAS + i)].to_f64() - prior;
+                assert!((added - w).abs() < 0.03 * w, "axis {i}: {added:e} vs {w:e}");
+            }
+            return;
+        }
+    }
+    panic!("not released");
+}
+
+#[test]
+fn handover_refers_the_bias_to_the_carry_f64() {
+    handover_refers_the_bias_to_the_carry::<f64>();
+}
+
+#[test]
+fn handover_refers_the_bias_to_the_carry_f32() {
+    handover_refers_the_bias_to_the_carry::<f32>();
 }

@@ -79,7 +79,8 @@ pub struct SeekerInsConfig<T> {
     pub residual: LosResidual,
     /// 1σ of the scale-factor and misalignment errors of the IMU, which the 17 states do not
     /// model (module `flight_noise`: the accelerometer-bias states become the equivalent bias
-    /// `b + (S + M) f`, the gyro errors add attitude noise). All zero (the paper's filter,
+    /// `b + (S + M) f_ref` at a reference specific force, departures from it add velocity
+    /// noise, the gyro errors attitude noise). All zero (the paper's filter,
     /// [`SeekerInsConfig::paper`]) adds nothing; [`SeekerInsConfig::flight`] sets them.
     pub instrument_errors: InstrumentErrors<T>,
 }

@@ -250,6 +250,47 @@ impl<T: Real> SeekerIns<T> {
         &self.p
     }
 
+    /// Sets the specific force the accelerometer-bias states refer to (body axes, m/s²;
+    /// flight configuration, module `flight_noise`): their variance gains that of the scale
+    /// factor and misalignment at it, and later departures from it are charged to the
+    /// velocity as the errors they make. For a filter started from an estimate made at that
+    /// specific force (the flight navigator's hand-over: the carry's); without it the
+    /// reference is unaccelerated level flight at the first covariance step's attitude. Before the first covariance
+    /// step only. Errors (filter unchanged): `NonFiniteInput` for a non-finite force,
+    /// `InputOutOfRange` when the reference is already set.
+    pub fn set_specific_force_reference(
+        &mut self,
+        f_ref_b_m_s2: &Vector3<T>,
+    ) -> Result<(), NavError> {
+        if !crate::math::checks::all_finite(f_ref_b_m_s2.as_slice()) {
+            return Err(NavError::NonFiniteInput {
+                input: "specific_force_reference",
+            });
+        }
+        if self.config.instrument_errors.is_zero() {
+            return Ok(());
+        }
+        let next = super::flight_noise::set_reference(
+            &mut self.p,
+            &self.bias_charge,
+            &self.config.instrument_errors,
+            f_ref_b_m_s2,
+        )
+        .ok_or(NavError::InputOutOfRange {
+            input: "specific_force_reference",
+        })?;
+        self.bias_charge = next;
+        Ok(())
+    }
+
+    /// The specific force the accelerometer-bias states refer to (body axes, m/s²): the
+    /// equivalent bias they estimate is `b + (S + M) f_ref` ([`Self::set_specific_force_reference`]);
+    /// `None` before it is set or the first covariance step, and always for a configuration
+    /// without instrument errors (the states are then the bias `b`).
+    pub fn specific_force_reference(&self) -> Option<Vector3<T>> {
+        self.bias_charge.reference_f_b_m_s2
+    }
+
     /// Estimated accelerometer bias (body), m/s².
     pub fn accel_bias_m_s2(&self) -> Vector3<T> {
         self.accel_bias_m_s2

@@ -11,23 +11,37 @@
 //! through them about velocity, position and attitude.
 //!
 //! The flight configuration keeps the 17 states and makes the accelerometer-bias states the
-//! equivalent bias (`∇ = ∇_eq`): with `σ_S`, `σ_M` the configured scale-factor and
-//! misalignment σ ([`InstrumentErrors`]), the variance of `(S + M) u` on axis `i` for a
-//! motion `u` is
+//! equivalent bias at a **reference specific force** `f_ref` (`∇ = b + (S + M) f_ref`): with
+//! `σ_S`, `σ_M` the configured scale-factor and misalignment σ ([`InstrumentErrors`]), the
+//! variance of `(S + M) u` on axis `i` for a motion `u` is
 //!
 //! ```text
 //! v_i(u) = σ_S² u_i² + σ_M² (|u|² − u_i²)
 //! ```
 //!
-//! (independent elements of S and M). At the first covariance step the filter adds `v(f_b)`
-//! to the accelerometer-bias variances (the P0 the user gives is that of `b` alone) and keeps
-//! that first specific force as its reference `f_0`. Later steps add the part of
-//! `v(f_b − f_0)` (the variance of the change of the equivalent bias since then) not added
-//! before: `q_i = max(0, v_i(f_b − f_0) − c_i)`, `c_i ← max(c_i, v_i(f_b − f_0))`. A change of
-//! the specific force is charged once, at its full size, however slowly it builds up (a white
-//! random walk driven by the increments would charge only the sum of their squares, far too
-//! little for a ramp); returning towards `f_0` charges nothing. Adding a non-negative diagonal
+//! (independent elements of S and M). `v(f_ref)` is added to the accelerometer-bias variances
+//! once (the P0 the user gives is that of `b` alone). The reference is the specific force
+//! the vehicle flies with: the carry's (the flight navigator sets it at the hand-over,
+//! [`super::SeekerIns::set_specific_force_reference`]: the slave's specific force of the last
+//! master epoch, the one its alignment saw), or else unaccelerated level flight at the
+//! attitude of the first covariance step, `C_n^b (−g)` (a vehicle started in a transient — a
+//! drop at ≈ 0 g — would otherwise refer its bias to that transient).
+//!
+//! Away from the reference the instruments add `(S + M)(f − f_ref)`, a *known function of the
+//! specific force* with constant unknown coefficients, not a new bias: it vanishes when the
+//! specific force returns to `f_ref` (a drop, a pull-up, a boost are transients of a few
+//! seconds). Its effect on the velocity is `C_b^n (S + M) D`, `D = Σ (f − f_ref) Δt` the
+//! body-axis velocity increment in excess of the reference since then, and the filter charges
+//! exactly that to the velocity states: per NED axis, the part of the largest diagonal of
+//! `C_b^n diag(v(D)) C_n^b` so far not added before (as the gyro errors below). A change of the
+//! specific force is charged once, at the size of the velocity error it makes, however slowly
+//! it builds up; the position follows through the propagation. Adding a non-negative diagonal
 //! keeps P symmetric PSD.
+//!
+//! (The model this replaces charged `v(f − f_ref)` to the bias states, with `f_ref` the first
+//! step's specific force: a 1 s drop or a 2 g pull-up at release then counted as a permanent
+//! change of the bias, and the horizontal bias σ through the whole flight became 1.5 × the
+//! truth's — velocity and position e²/σ² 0.6-0.9 in midcourse.)
 //!
 //! The gyro errors `(S + M) ω` are different: body rates average out over a manoeuvre, so
 //! their effect is the bounded attitude error `(S + M) θ`, `θ = Σ Δθ` the body rotation since
@@ -38,16 +52,19 @@
 //! (10″ × 0.7 rad ≈ 3e-5 rad in an S-turn), it is of the size of the attitude-and-gimbal
 //! combination the LOS determines best, so the filter is overconfident without it.
 //!
-//! Limits of the model: the charge is a bound built for manoeuvres of a few radians and minutes
-//! (the seeker's engagement). `θ` is the body-axis sum of the increments, so a vehicle that
+//! Limits of the model: the charges are bounds built for manoeuvres of a few radians and
+//! minutes (the seeker's engagement). A specific force held away from the reference for long
+//! makes `D` grow linearly: the velocity charge is then exact, the position's share of it
+//! (through the propagation) `t⁴/6` instead of the `t⁴/4` of a constant bias change, 0.8 of
+//! its σ (a 1.4 m/s² change held for 70 s, a descent at 8°: 0.7 m against 200 ppm). `θ` is the body-axis sum of the increments, so a vehicle that
 //! circles for hours is charged the misalignment part of many turns in full, although in NED
 //! it partly cancels: the attitude σ then grows more than the truth. Schmidt consider states
 //! for S and M would follow it exactly, at about 4 × the covariance work.
 //!
-//! Cost: one 3-vector rotation, two `v(·)` and a few compares per covariance step (10 Hz);
+//! Cost: two 3-vector rotations, two `v(·)` and a few compares per covariance step (10 Hz);
 //! nothing when all σ are zero (the paper's filter, bit for bit).
 
-use super::error_model::{ACC_BIAS, ATT, STATES};
+use super::error_model::{ACC_BIAS, ATT, STATES, VEL};
 use super::mechanization::Ins;
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, Vector3};
@@ -88,10 +105,14 @@ impl<T: Real> InstrumentErrors<T> {
 /// What the accelerometer part remembers between covariance steps.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct EquivalentBiasCharge<T> {
-    /// Mean body specific force of the first covariance step, m/s² (`None` before it).
+    /// Reference specific force `f_ref` of the bias states, body, m/s² (`None` before it is
+    /// set or the first covariance step).
     pub(crate) reference_f_b_m_s2: Option<Vector3<T>>,
-    /// Variance of the change of the equivalent bias already added per axis, (m/s²)².
-    pub(crate) charged_m2_s4: Vector3<T>,
+    /// Body velocity increment in excess of the reference since it was set, `Σ (f − f_ref)
+    /// Δt`, m/s.
+    pub(crate) excess_dv_b_m_s: Vector3<T>,
+    /// Velocity variance of the excess already added per NED axis, (m/s)².
+    pub(crate) charged_vel_m2_s2: Vector3<T>,
     /// Body rotation integrated since the first covariance step, rad (`Σ Δθ`).
     pub(crate) rotation_b_rad: Vector3<T>,
     /// Attitude variance of the gyro errors already added per NED axis, rad².
@@ -102,7 +123,8 @@ impl<T: Real> Default for EquivalentBiasCharge<T> {
     fn default() -> Self {
         Self {
             reference_f_b_m_s2: None,
-            charged_m2_s4: Vector3::zeros(),
+            excess_dv_b_m_s: Vector3::zeros(),
+            charged_vel_m2_s2: Vector3::zeros(),
             rotation_b_rad: Vector3::zeros(),
             charged_att_rad2: Vector3::zeros(),
         }
@@ -148,11 +170,55 @@ pub(crate) fn validate<T: Real>(e: &InstrumentErrors<T>) -> Result<(), NavError>
     )
 }
 
-/// The hook of the covariance step: after `P ← Φ P Φᵀ + Q_d` over an interval with mean body
-/// specific force `f_b_m_s2` and body rotation `dtheta_b_rad`, attitude `c_b_n` at its end, adds the equivalent-bias
-/// variance to the accelerometer-bias states and the gyro-error variance to the attitude
-/// states (module doc). Returns the new charge; P and the charge are the caller's to commit.
-/// Non-finite inputs add nothing.
+/// Sets the reference specific force `f_ref` (body, m/s²) of a filter whose charge has none
+/// yet, adding `v(f_ref)` to the accelerometer-bias variances (module doc). Returns the new
+/// charge (`None`: a reference is already set, or `f_ref` is not finite; nothing to change).
+/// P and the charge are the caller's to commit.
+pub(crate) fn set_reference<T: Real>(
+    p: &mut SMatrix<T, STATES, STATES>,
+    charge: &EquivalentBiasCharge<T>,
+    errors: &InstrumentErrors<T>,
+    f_ref_b_m_s2: &Vector3<T>,
+) -> Option<EquivalentBiasCharge<T>> {
+    if charge.reference_f_b_m_s2.is_some() || !f_ref_b_m_s2.sum().is_finite() {
+        return None;
+    }
+    let add = equivalent_variance(
+        f_ref_b_m_s2,
+        errors.accel_scale_factor,
+        errors.accel_misalignment_rad,
+    );
+    for i in 0..3 {
+        if let Some(v) = p.get_mut((ACC_BIAS + i, ACC_BIAS + i)) {
+            *v += add.get(i).copied().unwrap_or(T::zero());
+        }
+    }
+    Some(EquivalentBiasCharge {
+        reference_f_b_m_s2: Some(*f_ref_b_m_s2),
+        ..*charge
+    })
+}
+
+/// The part of the largest per-NED-axis variance `C diag(v(u)) Cᵀ` (its diagonal) not yet
+/// charged: `(added, new charged)`.
+fn charge_ned<T: Real>(
+    c_b_n: &Matrix3<T>,
+    u_b: &Vector3<T>,
+    sf: T,
+    mis: T,
+    charged: &Vector3<T>,
+) -> (Vector3<T>, Vector3<T>) {
+    let w = c_b_n.component_mul(c_b_n) * equivalent_variance(u_b, sf, mis);
+    let add = (w - charged).map(|x| x.max(T::zero()));
+    (add, charged.sup(&w))
+}
+
+/// The hook of the covariance step: after `P ← Φ P Φᵀ + Q_d` over an interval `dt_s` with
+/// mean body specific force `f_b_m_s2` and body rotation `dtheta_b_rad`, attitude `c_b_n` at
+/// its end, charges the accelerometer errors (the reference's variance to the bias states at
+/// the first step without a reference, the excess's to the velocity states) and the gyro
+/// errors' to the attitude states (module doc). Returns the new charge; P and the charge are
+/// the caller's to commit. Non-finite inputs add nothing.
 pub(crate) fn add_instrument_noise<T: Real>(
     p: &mut SMatrix<T, STATES, STATES>,
     charge: &EquivalentBiasCharge<T>,
@@ -160,38 +226,47 @@ pub(crate) fn add_instrument_noise<T: Real>(
     c_b_n: &Matrix3<T>,
     f_b_m_s2: &Vector3<T>,
     dtheta_b_rad: &Vector3<T>,
+    dt_s: T,
 ) -> EquivalentBiasCharge<T> {
-    let finite = (f_b_m_s2.sum() + dtheta_b_rad.sum()).is_finite();
+    let finite = (f_b_m_s2.sum() + dtheta_b_rad.sum() + dt_s).is_finite();
     if errors.is_zero() || !finite {
         return *charge;
     }
     let (sa, ma) = (errors.accel_scale_factor, errors.accel_misalignment_rad);
     let mut next = *charge;
-    let add_acc = match charge.reference_f_b_m_s2 {
+    let mut add_vel = Vector3::zeros();
+    match charge.reference_f_b_m_s2 {
         None => {
-            next.reference_f_b_m_s2 = Some(*f_b_m_s2);
-            equivalent_variance(f_b_m_s2, sa, ma)
+            if let Some(first) = set_reference(p, charge, errors, f_b_m_s2) {
+                next = first;
+            }
         }
         Some(f0) => {
-            let w = equivalent_variance(&(f_b_m_s2 - f0), sa, ma);
-            next.charged_m2_s4 = charge.charged_m2_s4.sup(&w);
-            (w - charge.charged_m2_s4).map(|x| x.max(T::zero()))
+            next.excess_dv_b_m_s = charge.excess_dv_b_m_s + (f_b_m_s2 - f0) * dt_s;
+            let (add, charged) = charge_ned(
+                c_b_n,
+                &next.excess_dv_b_m_s,
+                sa,
+                ma,
+                &charge.charged_vel_m2_s2,
+            );
+            add_vel = add;
+            next.charged_vel_m2_s2 = charged;
         }
-    };
-    // The gyro errors' attitude error `C_b^n (S + M) Σ Δθ`, charged like the accelerometer's
-    // (largest variance so far, per NED axis: the diagonal of C diag(v) Cᵀ).
+    }
+    // The gyro errors' attitude error `C_b^n (S + M) Σ Δθ`, charged the same way.
     next.rotation_b_rad = charge.rotation_b_rad + dtheta_b_rad;
-    let v_b = equivalent_variance(
+    let (add_att, charged_att) = charge_ned(
+        c_b_n,
         &next.rotation_b_rad,
         errors.gyro_scale_factor,
         errors.gyro_misalignment_rad,
+        &charge.charged_att_rad2,
     );
-    let w_att = c_b_n.component_mul(c_b_n) * v_b;
-    let add_att = (w_att - charge.charged_att_rad2).map(|x| x.max(T::zero()));
-    next.charged_att_rad2 = charge.charged_att_rad2.sup(&w_att);
+    next.charged_att_rad2 = charged_att;
     for i in 0..3 {
-        if let Some(v) = p.get_mut((ACC_BIAS + i, ACC_BIAS + i)) {
-            *v += add_acc.get(i).copied().unwrap_or(T::zero());
+        if let Some(v) = p.get_mut((VEL + i, VEL + i)) {
+            *v += add_vel.get(i).copied().unwrap_or(T::zero());
         }
         if let Some(v) = p.get_mut((ATT + i, ATT + i)) {
             *v += add_att.get(i).copied().unwrap_or(T::zero());
@@ -203,7 +278,8 @@ pub(crate) fn add_instrument_noise<T: Real>(
 /// The hook the covariance steps call after `P ← Φ P Φᵀ + Q_d` over `dt_total_s`, with
 /// `dv_ned_m_s` the NED velocity increment of the interval's samples and `ins` the INS at its
 /// end: the mean body specific force is `C_n^b dv / Δt` (attitude at the end of the
-/// interval), the body rotation the last IMU increment scaled to the interval. Nothing (not
+/// interval), the body rotation the last IMU increment scaled to the interval. Without a
+/// reference yet, level flight's `C_n^b (−g)` becomes it (module doc). Nothing (not
 /// even a multiplication) when every σ is zero.
 #[inline(never)]
 pub(super) fn flight_noise_step<T: Real>(
@@ -218,13 +294,21 @@ pub(super) fn flight_noise_step<T: Real>(
         return;
     }
     let c_b_n = ins.c_b_n();
+    if charge.reference_f_b_m_s2.is_none() {
+        // No reference set: unaccelerated level flight at this attitude, `C_n^b (−g)`.
+        let s = ins.state();
+        let g = crate::earth::gravity_ned(T::lit(s.position.lat_rad), T::lit(s.position.alt_m));
+        if let Some(first) = set_reference(p, charge, errors, &(c_b_n.transpose() * (-g))) {
+            *charge = first;
+        }
+    }
     let f_b = c_b_n.transpose() * (dv_ned_m_s / dt_total_s);
     let last_s = ins.last_interval_s();
     let dtheta = match ins.last_increment() {
         Some(inc) if last_s > T::zero() => inc.delta_theta_rad * (dt_total_s / last_s),
         _ => Vector3::zeros(),
     };
-    *charge = add_instrument_noise(p, charge, errors, &c_b_n, &f_b, &dtheta);
+    *charge = add_instrument_noise(p, charge, errors, &c_b_n, &f_b, &dtheta, dt_total_s);
 }
 
 #[cfg(test)]
@@ -274,46 +358,111 @@ mod tests {
         assert!((lv.x.sqrt() / ug - 48.5).abs() < 0.1);
     }
 
-    /// The first step adds the whole `v(f)`; a slow ramp is charged at its full size once; a
-    /// return towards the reference charges nothing; zero σ adds nothing.
+    /// The first step without a reference adds the whole `v(f)` to the bias states and takes
+    /// `f` as the reference; an excursion of the specific force is charged to the velocity as
+    /// the error it makes, `v(Σ (f − f_ref) Δt)`, once however slowly it builds up, and
+    /// nothing to the bias; a return to the reference charges nothing more; zero σ adds
+    /// nothing.
     #[test]
-    fn charge_covers_ramps_once_and_zero_sigma_is_the_paper_filter() {
+    fn charge_covers_excursions_once_and_zero_sigma_is_the_paper_filter() {
         let e = errors();
         let mut p = SMatrix::<f64, STATES, STATES>::identity() * 1e-8;
         let p_start = p;
         let f_level = Vector3::new(0.0, 0.0, -9.8);
         let dth = Vector3::zeros();
         let i3 = Matrix3::identity();
-        let c = add_instrument_noise(&mut p, &Default::default(), &e, &i3, &f_level, &dth);
+        let dt = 0.1;
+        let c = add_instrument_noise(&mut p, &Default::default(), &e, &i3, &f_level, &dth, dt);
         let v0 = equivalent_variance(&f_level, e.accel_scale_factor, e.accel_misalignment_rad);
         assert!((p[(ACC_BIAS + 2, ACC_BIAS + 2)] - 1e-8 - v0.z).abs() < 1e-20);
-        // A ramp of the x specific force to 2 m/s² in 100 steps.
+        assert_eq!(c.reference_f_b_m_s2, Some(f_level));
+        let bias_block = |p: &SMatrix<f64, STATES, STATES>| {
+            p.fixed_view::<3, 3>(ACC_BIAS, ACC_BIAS).into_owned()
+        };
+        let bias_after_first = bias_block(&p);
+        // A ramp of the x specific force to 2 m/s² in 100 steps, held for 50 more: the
+        // excess velocity increment is Σ 0.02 k Δt + 50 · 2 Δt.
         let mut ch = c;
-        for k in 1..=100 {
-            let f = f_level + Vector3::new(0.02 * f64::from(k), 0.0, 0.0);
-            ch = add_instrument_noise(&mut p, &ch, &e, &i3, &f, &dth);
+        let mut excess = 0.0;
+        for k in 1..=150 {
+            let fx = 0.02 * f64::from(k.min(100));
+            excess += fx * dt;
+            let f = f_level + Vector3::new(fx, 0.0, 0.0);
+            ch = add_instrument_noise(&mut p, &ch, &e, &i3, &f, &dth, dt);
         }
+        assert_eq!(
+            bias_block(&p),
+            bias_after_first,
+            "the bias states are not charged"
+        );
         let want = equivalent_variance(
-            &Vector3::new(2.0, 0.0, 0.0),
+            &Vector3::new(excess, 0.0, 0.0),
             e.accel_scale_factor,
             e.accel_misalignment_rad,
         );
-        let added_x = p[(ACC_BIAS, ACC_BIAS)] - 1e-8 - v0.x;
-        assert!(
-            (added_x - want.x).abs() < 1e-6 * want.x,
-            "{added_x} {}",
-            want.x
-        );
+        for i in 0..3 {
+            let added = p[(VEL + i, VEL + i)] - 1e-8;
+            assert!(
+                (added - want[i]).abs() < 1e-9 * want[i],
+                "axis {i}: {added} {}",
+                want[i]
+            );
+        }
         // Back to level: nothing more.
         let before = p;
-        let _ = add_instrument_noise(&mut p, &ch, &e, &i3, &f_level, &dth);
+        let _ = add_instrument_noise(&mut p, &ch, &e, &i3, &f_level, &dth, dt);
         assert_eq!(p, before);
         // Zero σ: P untouched, charge unchanged.
         let mut q = p_start;
         let none = InstrumentErrors::<f64>::default();
-        let c0 = add_instrument_noise(&mut q, &Default::default(), &none, &i3, &f_level, &dth);
+        let c0 = add_instrument_noise(&mut q, &Default::default(), &none, &i3, &f_level, &dth, dt);
         assert_eq!(q, p_start);
         assert_eq!(c0, EquivalentBiasCharge::default());
+    }
+
+    /// A reference set before the first step is the bias states' (their variance gains
+    /// `v(f_ref)`, the first step adds nothing to them) and a specific force away from it is
+    /// the velocity's charge from the first step on; a second reference, or a non-finite one,
+    /// is refused with P unchanged.
+    #[test]
+    fn a_set_reference_is_the_bias_states_and_only_once() {
+        let e = errors();
+        let mut p = SMatrix::<f64, STATES, STATES>::identity() * 1e-8;
+        let f_carry = Vector3::new(0.3, -0.2, -9.9);
+        let c = set_reference(&mut p, &Default::default(), &e, &f_carry).unwrap();
+        let v = equivalent_variance(&f_carry, e.accel_scale_factor, e.accel_misalignment_rad);
+        for i in 0..3 {
+            assert!((p[(ACC_BIAS + i, ACC_BIAS + i)] - 1e-8 - v[i]).abs() < 1e-20);
+        }
+        let before = p;
+        assert!(set_reference(&mut p, &c, &e, &f_carry).is_none());
+        assert!(set_reference(
+            &mut p,
+            &Default::default(),
+            &e,
+            &Vector3::new(f64::NAN, 0.0, 0.0)
+        )
+        .is_none());
+        assert_eq!(p, before);
+        // One step of free fall (f = 0) for 1 s: velocity charged v(−f_carry · 1 s), bias not.
+        let i3 = Matrix3::identity();
+        let c1 = add_instrument_noise(
+            &mut p,
+            &c,
+            &e,
+            &i3,
+            &Vector3::zeros(),
+            &Vector3::zeros(),
+            1.0,
+        );
+        assert_eq!(
+            p.fixed_view::<3, 3>(ACC_BIAS, ACC_BIAS),
+            before.fixed_view::<3, 3>(ACC_BIAS, ACC_BIAS)
+        );
+        for i in 0..3 {
+            assert!((p[(VEL + i, VEL + i)] - 1e-8 - v[i]).abs() < 1e-12 * v[i]);
+        }
+        assert_eq!(c1.excess_dv_b_m_s, -f_carry);
     }
 
     /// Each σ outside [0, its maximum] or non-finite is refused naming its field, by the

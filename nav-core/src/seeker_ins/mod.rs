@@ -25,7 +25,8 @@
 //! * the flight configuration ([`SeekerInsConfig::flight`], [`InstrumentErrors`]): the same
 //!   17 states, with the IMU's scale-factor and misalignment σ accounted for after each
 //!   covariance step (module `flight_noise`): the accelerometer-bias states are the
-//!   equivalent bias `b + (S + M) f`, whose variance is charged from the specific force; the
+//!   equivalent bias `b + (S + M) f_ref` at a reference specific force, a departure from it
+//!   charged to the velocity as the error `(S + M) ∫(f − f_ref) dt` it makes; the
 //!   gyro errors' bounded attitude error `(S + M) ∫ω dt` is charged to the attitude states.
 //!   With every σ zero ([`SeekerInsConfig::paper`]) nothing is added.
 //!

@@ -3,7 +3,8 @@
 //! run ahead, the IMU-confirmed separation and the EKF's start.
 
 use super::super::handover::{
-    hand_over_checked_master, validate_master, AlignmentAtRelease, MasterAtRelease, NavBlocks,
+    hand_over_checked_master, refer_to_carry, validate_master, AlignmentAtRelease, MasterAtRelease,
+    NavBlocks,
 };
 use super::super::types::{
     AidAvailability, AidState, Aids, ImuTick, MasterNav, NavigatorConfig, SeparationStatus,
@@ -263,25 +264,28 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// `false` (nothing changed) without a master or when the EKF refuses the state: the
     /// current INS state with the hand-over P0 of the last fused master sample (its
     /// navigation blocks kept from that tick: the alignment has not changed since, so the
-    /// hand-over would give them again bit for bit), written in place into the new EKF.
+    /// hand-over would give them again bit for bit), written in place into the new EKF, its
+    /// accelerometer-bias states referred to the carry's specific force ([`refer_to_carry`]).
     #[inline(never)]
     fn hand_over_now(&mut self) -> bool {
-        let (Some(_), Some(blocks)) = (self.last_master, self.handover) else {
+        let (Some(lm), Some(blocks)) = (self.last_master, self.handover) else {
             return false;
         };
         let priors = self.config.priors;
-        if blocks.p0_passes_checks(&priors) {
-            return SeekerIns::start_in(
+        let started = if blocks.p0_passes_checks(&priors) {
+            SeekerIns::start_in(
                 &mut self.ekf,
                 &self.config.ins,
                 &self.design,
                 self.ins.state(),
                 |p0| blocks.write_p0(&priors, p0),
             )
-            .is_ok();
-        }
-        // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
-        self.hand_over_dense(&blocks)
+            .is_ok()
+        } else {
+            // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
+            self.hand_over_dense(&blocks)
+        };
+        started && refer_to_carry(&mut self.ekf, &lm.f_slave_m_s2)
     }
 
     /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.

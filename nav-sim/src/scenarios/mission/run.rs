@@ -254,7 +254,13 @@ fn baro_loop<T: Real>(cfg: &MissionConfig, set: &NavigatorSettings) -> Classical
         },
         error_model: ErrorModel {
             accel_noise_m_s2_rt_hz: T::lit(cfg.sensors.accel_noise_ug_rt_hz * 1e-6 * g0),
-            accel_bias_sigma_m_s2: T::lit(cfg.sensors.accel_bias_ug * 1e-6 * g0),
+            // The loop's input is the vertical specific force: its accelerometer error is the
+            // vertical equivalent bias of flight at ≈ 1 g, the bias and the scale factor's
+            // share `S g` (the misalignment's, `M f_horizontal`, is ≈ 0 in level flight).
+            accel_bias_sigma_m_s2: T::lit(
+                (cfg.sensors.accel_bias_ug * 1e-6 * g0)
+                    .hypot(cfg.sensors.accel_scale_factor_ppm * 1e-6 * g0),
+            ),
             accel_bias_rw_m_s2_rt_s: T::zero(),
             baro_noise_m: T::lit(b.noise_m),
             baro_markov_sigma_m: T::lit(b.markov_sigma_m),

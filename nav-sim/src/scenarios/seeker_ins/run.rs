@@ -453,19 +453,27 @@ pub const GROUPS: [(&str, usize, usize); 6] = [
 
 /// The true value of the accelerometer and gyro error states at IMU epoch `k`.
 ///
-/// Accelerometer: the **equivalent bias** `b + (S + M) f_b`, `f_b` the true mean specific
-/// force of the interval ending there: the whole non-white error of the instrument, which
-/// enters the INS error equations through `C_b^n ∇` and does not average out (gravity).
+/// Accelerometer: the **equivalent bias** `b + (S + M) f`, the whole non-white error of the
+/// instrument, which enters the INS error equations through `C_b^n ∇` and does not average
+/// out (gravity), at the specific force the filter's states refer to (`f_ref`, the flight
+/// configuration: a departure from it is the velocity's error, not the bias's), or else
+/// (`None`: the paper's filter, whose states are the bias) at `f_b`, the true mean specific
+/// force of the interval ending there.
 /// Gyro: the bias `b` alone: `(S + M) ω` averages out over a manoeuvre and shows as the
 /// bounded attitude error `(S + M) ∫ω dt`, which the attitude states carry.
-fn equivalent_biases(truth: &Truth, k: usize, b: &TrueBiases<'_>) -> (Vector3<f64>, Vector3<f64>) {
+fn equivalent_biases(
+    truth: &Truth,
+    k: usize,
+    b: &TrueBiases<'_>,
+    f_ref_b_m_s2: Option<Vector3<f64>>,
+) -> (Vector3<f64>, Vector3<f64>) {
     let k = k.max(1).min(truth.imu.len().saturating_sub(1));
     let inc = &truth.imu[k];
     let h = inc
         .time
         .micros_since(truth.imu[k - 1].time)
         .map_or(truth.dt_s, |us| us as f64 * 1e-6);
-    let f_b = inc.delta_v_m_s / h;
+    let f_b = f_ref_b_m_s2.unwrap_or(inc.delta_v_m_s / h);
     (
         b.accel_m_s2 + (b.accel_matrix - Matrix3::identity()) * f_b,
         *b.gyro_rad_s,
@@ -481,7 +489,10 @@ fn record<T: Real>(
     biases: &TrueBiases<'_>,
 ) {
     let seeker_b = biases.gimbal_rad;
-    let (acc_b, gyr_b) = equivalent_biases(truth, k, biases);
+    let f_ref = filter
+        .specific_force_reference()
+        .map(|f| f.map(|x| x.to_f64()));
+    let (acc_b, gyr_b) = equivalent_biases(truth, k, biases, f_ref);
     let st = filter.state();
     let p_true = truth.position[k];
     let (rm, rn) = radii_m(p_true.lat_rad);
