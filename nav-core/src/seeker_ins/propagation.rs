@@ -376,6 +376,11 @@ impl<T: Real> SeekerIns<T> {
         // per state in the loop is a soft-float call on the M4F).
         let [c0, c1, c2, c3, c4, c5, c6, c7, c8, ..] = VARIANCE_CEILING;
         let caps = [c0, c1, c2, c3, c4, c5, c6, c7, c8].map(T::lit);
+        // Nine compares on the common path (nothing at its ceiling), no loop state kept.
+        let over = |(i, cap): (usize, &T)| self.p.get((i, i)).is_some_and(|d| *d > *cap);
+        if !caps.iter().enumerate().any(over) {
+            return;
+        }
         for (i, cap) in caps.into_iter().enumerate() {
             let Some(d) = self.p.get((i, i)).copied() else {
                 continue;
