@@ -423,53 +423,50 @@ fn two_components<T: Real>(
     let p = &p.data.0;
     let [h1] = &model.h_pitch.data.0;
     let [h2] = &model.h_yaw.data.0;
-    // Every vector is computed where it is returned (no copy of five 17-vectors into the
-    // result at the end).
-    let mut c = TwoComponents {
-        rep1: skipped_report(zero),
-        rep2: skipped_report(zero),
-        cond1: false,
-        cond2: false,
-        k1: p_h_pitch(p, h1),
-        kk1: [zero; STATES],
-        k2: p_h_yaw(p, h2),
-        kk2: [zero; STATES],
-        x: [zero; STATES],
-        info_ratio: zero,
-    };
-    let hph1 = dot_pitch(&c.k1, h1);
+    let k1 = p_h_pitch(p, h1);
+    let hph1 = dot_pitch(&k1, h1);
     let (r1, cond1) = conditioned_noise(hph1, model.variance_rad2.x, kappa);
     let (rep1, inv_s1) = scalar_report(hph1, r1, model.residual_rad.x, gate);
+    let mut k2 = p_h_yaw(p, h2);
+    let mut x = [zero; STATES];
+    let mut kk1 = [zero; STATES];
     if rep1.outcome == FusionOutcome::Fused {
-        let k12 = dot_yaw(&c.k1, h2) * inv_s1;
-        let it =
-            c.k2.iter_mut()
-                .zip(c.k1.iter())
-                .zip(c.x.iter_mut())
-                .zip(c.kk1.iter_mut());
+        let c = dot_yaw(&k1, h2) * inv_s1;
+        let it = k2
+            .iter_mut()
+            .zip(k1.iter())
+            .zip(x.iter_mut())
+            .zip(kk1.iter_mut());
         for (((k2i, k1i), xi), kk) in it {
-            *k2i -= *k1i * k12;
+            *k2i -= *k1i * c;
             *kk = *k1i * inv_s1;
             *xi = *kk * rep1.innovation;
         }
     }
-    let nu2 = model.residual_rad.y - dot_yaw(&c.x, h2);
-    let hph2 = dot_yaw(&c.k2, h2);
+    let nu2 = model.residual_rad.y - dot_yaw(&x, h2);
+    let hph2 = dot_yaw(&k2, h2);
     let (r2, cond2) = conditioned_noise(hph2, model.variance_rad2.y, kappa);
     let (rep2, inv_s2) = scalar_report(hph2, r2, nu2, gate);
+    let mut kk2 = [zero; STATES];
     if rep2.outcome == FusionOutcome::Fused {
-        let it = c.kk2.iter_mut().zip(c.k2.iter()).zip(c.x.iter_mut());
-        for ((kk, k2i), xi) in it {
+        for ((kk, k2i), xi) in kk2.iter_mut().zip(k2.iter()).zip(x.iter_mut()) {
             *kk = *k2i * inv_s2;
             *xi += *kk * rep2.innovation;
         }
     }
-    c.info_ratio = information_ratio(&rep1, hph1, r1).max(information_ratio(&rep2, hph2, r2));
-    c.rep1 = rep1;
-    c.rep2 = rep2;
-    c.cond1 = cond1;
-    c.cond2 = cond2;
-    c
+    let info_ratio = information_ratio(&rep1, hph1, r1).max(information_ratio(&rep2, hph2, r2));
+    TwoComponents {
+        info_ratio,
+        rep1,
+        rep2,
+        cond1,
+        cond2,
+        k1,
+        kk1,
+        k2,
+        kk2,
+        x,
+    }
 }
 
 /// Stabilising noise `P ← P + δ diag(P)` after an update of information ratio `ρ`
