@@ -251,7 +251,9 @@ fn predict_source() -> String {
         if j == LOOP_FROM {
             let _ = writeln!(
                 s,
-                "    // Columns {LOOP_FROM}..{N}: one body, looped (P exactly symmetric: whole columns).\n\
+                "    // Columns {LOOP_FROM}..{N}: one body, looped (P exactly symmetric: whole columns);\n\
+                 \x20   // the columns from {NAV} on are results, probed as they are made.\n\
+                 \x20   let mut probe = z;\n\
                  \x20   let ul: [[T; 9]; {}] = core::array::from_fn(|k| {{\n\
                  \x20       let Some(col) = p.get(k + {LOOP_FROM}) else {{\n\
                  \x20           return [z; 9];\n\
@@ -319,6 +321,12 @@ fn predict_source() -> String {
             );
         }
         if looped {
+            let probes: Vec<String> = (0..NAV).map(|i| format!(" + u{i} * z")).collect();
+            let _ = writeln!(
+                s,
+                "        if k + {LOOP_FROM} >= {NAV} {{\n            probe = probe{};\n        }}",
+                probes.concat()
+            );
             let all: Vec<String> = (0..NAV).map(|i| format!("u{i}")).collect();
             let _ = writeln!(s, "        [{}]\n    }});", all.join(", "));
         }
@@ -326,7 +334,7 @@ fn predict_source() -> String {
     // Row by row of U (rows 0..9): Y[i][m] = Σ_k U[i][k] G[m][k] for m ≥ i, then the corner's
     // row i, P'[i][j] (j ≥ i), which needs U and Y of row i only: each row of U is read while
     // its values are at hand, and every result is probed as it is made.
-    s.push_str("    // Y = U Gᵀ and the corner P'[i][j], j ≥ i, row by row of U.\n    let mut probe = z;\n");
+    s.push_str("    // Y = U Gᵀ and the corner P'[i][j], j ≥ i, row by row of U.\n");
     for i in 0..NAV {
         for m in i..NAV {
             let terms: Vec<(String, bool)> = g_row(m)
@@ -370,11 +378,6 @@ fn predict_source() -> String {
         }
     }
     // Every result finite (a non-finite entry times zero is NaN), else nothing is written.
-    for j in NAV..N {
-        for i in 0..NAV {
-            let _ = writeln!(s, "    probe += {} * z;", uref(j, i));
-        }
-    }
     s.push_str("    if probe != z {\n        return false;\n    }\n");
     for j in 0..NAV {
         for i in 0..=j {

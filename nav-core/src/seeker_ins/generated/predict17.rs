@@ -182,7 +182,9 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
         + g4_11 * x11;
     let u1_0 = p[1][0] + (w0 + h0_3 * w3);
     let u1_1 = p[1][1] + (w1 + h1_4 * w4);
-    // Columns 2..17: one body, looped (P exactly symmetric: whole columns).
+    // Columns 2..17: one body, looped (P exactly symmetric: whole columns);
+    // the columns from 9 on are results, probed as they are made.
+    let mut probe = z;
     let ul: [[T; 9]; 15] = core::array::from_fn(|k| {
         let Some(col) = p.get(k + 2) else {
             return [z; 9];
@@ -241,10 +243,21 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
         let u6 = col[6] + w6;
         let u7 = col[7] + w7;
         let u8 = col[8] + w8;
+        if k + 2 >= 9 {
+            probe = probe
+                + u0 * z
+                + u1 * z
+                + u2 * z
+                + u3 * z
+                + u4 * z
+                + u5 * z
+                + u6 * z
+                + u7 * z
+                + u8 * z;
+        }
         [u0, u1, u2, u3, u4, u5, u6, u7, u8]
     });
     // Y = U Gᵀ and the corner P'[i][j], j ≥ i, row by row of U.
-    let mut probe = z;
     let y0_0 = u0_0 * g0_0 + ul[0][0] * g0_2 + ul[1][0] * g0_3;
     let y0_1 = u0_0 * g1_0 + ul[0][0] * g1_2 + ul[2][0] * g1_4;
     let y0_2 = ul[3][0] * g2_5;
@@ -563,78 +576,6 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
         - ul[12][8] * g8_14;
     let c8_8 = ul[6][8] + y8_8 + qg2;
     probe += c8_8 * z;
-    probe += ul[7][0] * z;
-    probe += ul[7][1] * z;
-    probe += ul[7][2] * z;
-    probe += ul[7][3] * z;
-    probe += ul[7][4] * z;
-    probe += ul[7][5] * z;
-    probe += ul[7][6] * z;
-    probe += ul[7][7] * z;
-    probe += ul[7][8] * z;
-    probe += ul[8][0] * z;
-    probe += ul[8][1] * z;
-    probe += ul[8][2] * z;
-    probe += ul[8][3] * z;
-    probe += ul[8][4] * z;
-    probe += ul[8][5] * z;
-    probe += ul[8][6] * z;
-    probe += ul[8][7] * z;
-    probe += ul[8][8] * z;
-    probe += ul[9][0] * z;
-    probe += ul[9][1] * z;
-    probe += ul[9][2] * z;
-    probe += ul[9][3] * z;
-    probe += ul[9][4] * z;
-    probe += ul[9][5] * z;
-    probe += ul[9][6] * z;
-    probe += ul[9][7] * z;
-    probe += ul[9][8] * z;
-    probe += ul[10][0] * z;
-    probe += ul[10][1] * z;
-    probe += ul[10][2] * z;
-    probe += ul[10][3] * z;
-    probe += ul[10][4] * z;
-    probe += ul[10][5] * z;
-    probe += ul[10][6] * z;
-    probe += ul[10][7] * z;
-    probe += ul[10][8] * z;
-    probe += ul[11][0] * z;
-    probe += ul[11][1] * z;
-    probe += ul[11][2] * z;
-    probe += ul[11][3] * z;
-    probe += ul[11][4] * z;
-    probe += ul[11][5] * z;
-    probe += ul[11][6] * z;
-    probe += ul[11][7] * z;
-    probe += ul[11][8] * z;
-    probe += ul[12][0] * z;
-    probe += ul[12][1] * z;
-    probe += ul[12][2] * z;
-    probe += ul[12][3] * z;
-    probe += ul[12][4] * z;
-    probe += ul[12][5] * z;
-    probe += ul[12][6] * z;
-    probe += ul[12][7] * z;
-    probe += ul[12][8] * z;
-    probe += ul[13][0] * z;
-    probe += ul[13][1] * z;
-    probe += ul[13][2] * z;
-    probe += ul[13][3] * z;
-    probe += ul[13][4] * z;
-    probe += ul[13][5] * z;
-    probe += ul[13][6] * z;
-    probe += ul[13][7] * z;
-    probe += ul[13][8] * z;
-    probe += ul[14][0] * z;
-    probe += ul[14][1] * z;
-    probe += ul[14][2] * z;
-    probe += ul[14][3] * z;
-    probe += ul[14][4] * z;
-    probe += ul[14][5] * z;
-    probe += ul[14][6] * z;
-    probe += ul[14][7] * z;
-    probe += ul[14][8] * z;
     if probe != z {
         return false;
     }
