@@ -251,7 +251,9 @@ fn predict_source() -> String {
         if j == LOOP_FROM {
             let _ = writeln!(
                 s,
-                "    // Columns {LOOP_FROM}..{N}: one body, looped (P exactly symmetric: whole columns).\n\
+                "    // Columns {LOOP_FROM}..{N}: one body, looped (P exactly symmetric: whole columns);\n\
+                 \x20   // the columns from {NAV} on are results, probed as they are made.\n\
+                 \x20   let mut probe = z;\n\
                  \x20   let ul: [[T; 9]; {}] = core::array::from_fn(|k| {{\n\
                  \x20       let Some(col) = p.get(k + {LOOP_FROM}) else {{\n\
                  \x20           return [z; 9];\n\
@@ -319,14 +321,22 @@ fn predict_source() -> String {
             );
         }
         if looped {
+            let probes: Vec<String> = (0..NAV).map(|i| format!(" + u{i} * z")).collect();
+            let _ = writeln!(
+                s,
+                "        if k + {LOOP_FROM} >= {NAV} {{\n            probe = probe{};\n        }}",
+                probes.concat()
+            );
             let all: Vec<String> = (0..NAV).map(|i| format!("u{i}")).collect();
             let _ = writeln!(s, "        [{}]\n    }});", all.join(", "));
         }
     }
-    // Y = U Gᵀ, upper triangle (Y[i][m], i ≤ m).
-    s.push_str("    // Y = U Gᵀ (upper triangle), then the corner.\n");
-    for m in 0..NAV {
-        for i in 0..=m {
+    // Row by row of U (rows 0..9): Y[i][m] = Σ_k U[i][k] G[m][k] for m ≥ i, then the corner's
+    // row i, P'[i][j] (j ≥ i), which needs U and Y of row i only: each row of U is read while
+    // its values are at hand, and every result is probed as it is made.
+    s.push_str("    // Y = U Gᵀ and the corner P'[i][j], j ≥ i, row by row of U.\n");
+    for i in 0..NAV {
+        for m in i..NAV {
             let terms: Vec<(String, bool)> = g_row(m)
                 .map(|x| {
                     (
@@ -337,10 +347,7 @@ fn predict_source() -> String {
                 .collect();
             let _ = writeln!(s, "    let y{i}_{m} = {};", sum(&terms));
         }
-    }
-    s.push_str("    let mut corner = [[z; 9]; 9];\n");
-    for j in 0..NAV {
-        for i in 0..=j {
+        for j in i..NAV {
             let mut ay = vec![(format!("y{i}_{j}"), false)];
             for &(r, m, name, neg) in &h {
                 if r == j {
@@ -367,27 +374,16 @@ fn predict_source() -> String {
             if i == j && i >= 3 {
                 let _ = write!(expr, " + {}2", q_of(i));
             }
-            let _ = writeln!(s, "    corner[{j}][{i}] = {expr};");
+            let _ = writeln!(s, "    let c{i}_{j} = {expr};\n    probe += c{i}_{j} * z;");
         }
     }
     // Every result finite (a non-finite entry times zero is NaN), else nothing is written.
-    s.push_str("    let probe = z");
+    s.push_str("    if probe != z {\n        return false;\n    }\n");
     for j in 0..NAV {
         for i in 0..=j {
-            let _ = write!(s, " + corner[{j}][{i}] * z");
-        }
-    }
-    for j in NAV..N {
-        for i in 0..NAV {
-            let _ = write!(s, " + {} * z", uref(j, i));
-        }
-    }
-    s.push_str(";\n    if probe != z {\n        return false;\n    }\n");
-    for j in 0..NAV {
-        for i in 0..=j {
-            let _ = writeln!(s, "    p[{j}][{i}] = corner[{j}][{i}];");
+            let _ = writeln!(s, "    p[{j}][{i}] = c{i}_{j};");
             if i != j {
-                let _ = writeln!(s, "    p[{i}][{j}] = corner[{j}][{i}];");
+                let _ = writeln!(s, "    p[{i}][{j}] = c{i}_{j};");
             }
         }
     }
@@ -458,7 +454,8 @@ fn los_source() -> String {
          fn updated<T: Real>(pij: T, k1i: T, kk1j: T, k2i: T, kk2j: T) -> T {\n\
          \x20   pij - k1i * kk1j - k2i * kk2j\n\
          }\n\n\
-         /// `true` when every variance of the rank-two update is finite and ≥ 0 (`p` unchanged).\n\
+         /// `true` when every variance of the rank-two update is finite and ≥ 0 (`p` unchanged):\n\
+         /// each `≥ 0` (false for NaN), and `Σ 0 · dᵢ = 0` (NaN when one is infinite or NaN).\n\
          #[inline(always)]\n\
          pub(in crate::seeker_ins) fn rank_two_variances_ok<T: Real>(\n\
          \x20   p: &[[T; 17]; 17],\n\
@@ -467,23 +464,28 @@ fn los_source() -> String {
          \x20   k2: &[T; 17],\n\
          \x20   kk2: &[T; 17],\n\
          ) -> bool {\n\
-         \x20   let z = T::zero();\n\
-         \x20   let ok = |d: T| d.is_finite() && d >= z;\n",
+         \x20   let z = T::zero();\n",
     );
-    // A loop over the diagonal: the same tests in the same order, one body (a check of 17
-    // variances needs no unrolled copy per variance).
-    s.push_str(
-        "    let k = k1.iter().zip(kk1).zip(k2.iter().zip(kk2));\n\
-         \x20   p.iter()\n\
-         \x20       .enumerate()\n\
-         \x20       .zip(k)\n\
-         \x20       .all(|((i, row), ((&a, &b), (&c, &d)))| {\n\
-         \x20           row.get(i).is_some_and(|&pii| ok(updated(pii, a, b, c, d)))\n\
-         \x20       })\n\
-         }\n\n",
+    // Straight line: the 17 variances, one sign test each and one finiteness probe for all
+    // (a classification of each variance costs about 30 instructions on the M4F).
+    for i in 0..N {
+        let _ = writeln!(
+            s,
+            "    let d{i} = updated(p[{i}][{i}], k1[{i}], kk1[{i}], k2[{i}], kk2[{i}]);"
+        );
+    }
+    let signs: Vec<String> = (0..N).map(|i| format!("d{i} >= z")).collect();
+    let probe: Vec<String> = (0..N).map(|i| format!(" + d{i} * z")).collect();
+    let _ = writeln!(
+        s,
+        "    {} && z{} == z\n}}\n",
+        signs.join(" && "),
+        probe.concat()
     );
     s.push_str(
-        "/// `P ← P − k₁K₁ᵀ − k₂K₂ᵀ` on the upper triangle, mirrored (exactly symmetric).\n\
+        "/// `P ← P − k₁K₁ᵀ − k₂K₂ᵀ` on the upper triangle, mirrored (exactly symmetric), and the\n\
+         /// stabilising noise in the same pass: each variance `v` becomes `v + v · delta`\n\
+         /// (dimensionless `delta`; 0 adds nothing).\n\
          #[allow(clippy::too_many_lines)]\n\
          #[inline(never)]\n\
          pub(in crate::seeker_ins) fn rank_two_update<T: Real>(\n\
@@ -492,6 +494,7 @@ fn los_source() -> String {
          \x20   kk1: &[T; 17],\n\
          \x20   k2: &[T; 17],\n\
          \x20   kk2: &[T; 17],\n\
+         \x20   delta: T,\n\
          ) {\n",
     );
     // Blocks of four columns, rows outermost within a block: each k1[i], k2[i] read serves
@@ -502,10 +505,12 @@ fn los_source() -> String {
             for j in block.clone().filter(|&j| i <= j) {
                 let _ = writeln!(
                     s,
-                    "    let v = updated(p[{j}][{i}], k1[{i}], kk1[{j}], k2[{i}], kk2[{j}]);\n    p[{j}][{i}] = v;"
+                    "    let v = updated(p[{j}][{i}], k1[{i}], kk1[{j}], k2[{i}], kk2[{j}]);"
                 );
-                if i != j {
-                    let _ = writeln!(s, "    p[{i}][{j}] = v;");
+                if i == j {
+                    let _ = writeln!(s, "    p[{j}][{i}] = v + v * delta;");
+                } else {
+                    let _ = writeln!(s, "    p[{j}][{i}] = v;\n    p[{i}][{j}] = v;");
                 }
             }
         }

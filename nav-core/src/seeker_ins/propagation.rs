@@ -390,8 +390,16 @@ impl<T: Real> SeekerIns<T> {
     /// nothing is limited.
     #[inline(never)]
     pub(super) fn limit_variances(&mut self) {
-        for (i, m) in VARIANCE_CEILING.iter().take(9).enumerate() {
-            let cap = T::lit(*m);
+        // The ceilings as literals of T: converted at compile time (an f64 → f32 conversion
+        // per state in the loop is a soft-float call on the M4F).
+        let [c0, c1, c2, c3, c4, c5, c6, c7, c8, ..] = VARIANCE_CEILING;
+        let caps = [c0, c1, c2, c3, c4, c5, c6, c7, c8].map(T::lit);
+        // Nine compares on the common path (nothing at its ceiling), no loop state kept.
+        let over = |(i, cap): (usize, &T)| self.p.get((i, i)).is_some_and(|d| *d > *cap);
+        if !caps.iter().enumerate().any(over) {
+            return;
+        }
+        for (i, cap) in caps.into_iter().enumerate() {
             let Some(d) = self.p.get((i, i)).copied() else {
                 continue;
             };

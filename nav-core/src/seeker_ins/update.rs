@@ -266,8 +266,15 @@ impl<T: Real> SeekerIns<T> {
             return self.skip_attempt(sample, report, LosSkipReason::CorrectionNotFinite);
         }
         // P: upper triangle, mirrored (exactly symmetric).
-        rank_two_update(&mut self.p.data.0, &c.k1, &c.kk1, &c.k2, &c.kk2);
-        stabilise(&mut self.p, c.info_ratio);
+        // The stabilising noise ([`stabilise`]) in the same pass.
+        rank_two_update(
+            &mut self.p.data.0,
+            &c.k1,
+            &c.kk1,
+            &c.k2,
+            &c.kk2,
+            stabilising_delta(c.info_ratio),
+        );
         let conditioned = u32::from(fused1 && c.cond1) + u32::from(fused2 && c.cond2);
         self.note_fusion(sample, &[c.rep1.outcome, c.rep2.outcome], conditioned);
         report
@@ -478,14 +485,23 @@ fn two_components<T: Real>(
 /// f32 flight configuration's final σ lat was 19.7 m for an RMS error of 13.3 m
 /// (seeker-straight; f64 12.4 m, 12.2 m; with the ρ-scaled noise 12.5 m, 12.2 m).
 #[inline(never)]
+#[cfg_attr(not(feature = "los-residual-3d"), allow(dead_code))]
 pub(super) fn stabilise<T: Real, const N: usize>(p: &mut SMatrix<T, N, N>, info_ratio: T) {
-    let cap = T::lit(STABILISING_EPS);
-    let delta = if info_ratio < cap { info_ratio } else { cap } * T::EPS;
+    let delta = stabilising_delta(info_ratio);
     for i in 0..N {
         if let Some(v) = p.get_mut((i, i)) {
             *v += *v * delta;
         }
     }
+}
+
+/// The relative stabilising noise `δ = min(ρ, STABILISING_EPS) · ε` of [`stabilise`]
+/// (dimensionless) after an update of information ratio `ρ`.
+#[inline(always)]
+pub(super) fn stabilising_delta<T: Real>(info_ratio: T) -> T {
+    let cap = T::lit(STABILISING_EPS);
+    let rho = if info_ratio < cap { info_ratio } else { cap };
+    rho * T::EPS
 }
 
 /// Information ratio `hᵀPh / r` of a fused component (dimensionless), 0 when it was not
@@ -626,7 +642,7 @@ mod tests {
         let kk2: [f64; STATES] = core::array::from_fn(|i| 0.002 * k2[i]);
         let mut updated = p;
         assert!(rank_two_variances_ok(&p.data.0, &k, &kk, &k2, &kk2));
-        rank_two_update(&mut updated.data.0, &k, &kk, &k2, &kk2);
+        rank_two_update(&mut updated.data.0, &k, &kk, &k2, &kk2, 0.0);
         for i in 0..STATES {
             for j in 0..STATES {
                 let (r, c) = (i.min(j), i.max(j));
@@ -636,6 +652,28 @@ mod tests {
         }
         let huge: [f64; STATES] = [1e3; STATES];
         assert!(!rank_two_variances_ok(&p.data.0, &huge, &huge, &k2, &kk2));
+        // A variance that would become +∞ (passes the sign test, not the finiteness probe)
+        // or NaN in one state only.
+        for bad in [f64::NEG_INFINITY, f64::NAN] {
+            let mut kk_bad = kk;
+            kk_bad[5] = bad;
+            let mut k_pos = k;
+            k_pos[5] = 1.0;
+            assert!(!rank_two_variances_ok(
+                &p.data.0, &k_pos, &kk_bad, &k2, &kk2
+            ));
+        }
+        // The stabilising noise of the same pass: each variance v + v·δ, nothing else.
+        let delta = 1e-6;
+        let mut stabilised = p;
+        rank_two_update(&mut stabilised.data.0, &k, &kk, &k2, &kk2, delta);
+        for i in 0..STATES {
+            for j in 0..STATES {
+                let v = updated[(i, j)];
+                let expect = if i == j { v + v * delta } else { v };
+                assert_eq!(stabilised[(i, j)].to_bits(), expect.to_bits(), "P[{i},{j}]");
+            }
+        }
     }
 }
 

@@ -293,7 +293,8 @@ fn updated<T: Real>(pij: T, k1i: T, kk1j: T, k2i: T, kk2j: T) -> T {
     pij - k1i * kk1j - k2i * kk2j
 }
 
-/// `true` when every variance of the rank-two update is finite and ≥ 0 (`p` unchanged).
+/// `true` when every variance of the rank-two update is finite and ≥ 0 (`p` unchanged):
+/// each `≥ 0` (false for NaN), and `Σ 0 · dᵢ = 0` (NaN when one is infinite or NaN).
 #[inline(always)]
 pub(in crate::seeker_ins) fn rank_two_variances_ok<T: Real>(
     p: &[[T; 17]; 17],
@@ -303,17 +304,63 @@ pub(in crate::seeker_ins) fn rank_two_variances_ok<T: Real>(
     kk2: &[T; 17],
 ) -> bool {
     let z = T::zero();
-    let ok = |d: T| d.is_finite() && d >= z;
-    let k = k1.iter().zip(kk1).zip(k2.iter().zip(kk2));
-    p.iter()
-        .enumerate()
-        .zip(k)
-        .all(|((i, row), ((&a, &b), (&c, &d)))| {
-            row.get(i).is_some_and(|&pii| ok(updated(pii, a, b, c, d)))
-        })
+    let d0 = updated(p[0][0], k1[0], kk1[0], k2[0], kk2[0]);
+    let d1 = updated(p[1][1], k1[1], kk1[1], k2[1], kk2[1]);
+    let d2 = updated(p[2][2], k1[2], kk1[2], k2[2], kk2[2]);
+    let d3 = updated(p[3][3], k1[3], kk1[3], k2[3], kk2[3]);
+    let d4 = updated(p[4][4], k1[4], kk1[4], k2[4], kk2[4]);
+    let d5 = updated(p[5][5], k1[5], kk1[5], k2[5], kk2[5]);
+    let d6 = updated(p[6][6], k1[6], kk1[6], k2[6], kk2[6]);
+    let d7 = updated(p[7][7], k1[7], kk1[7], k2[7], kk2[7]);
+    let d8 = updated(p[8][8], k1[8], kk1[8], k2[8], kk2[8]);
+    let d9 = updated(p[9][9], k1[9], kk1[9], k2[9], kk2[9]);
+    let d10 = updated(p[10][10], k1[10], kk1[10], k2[10], kk2[10]);
+    let d11 = updated(p[11][11], k1[11], kk1[11], k2[11], kk2[11]);
+    let d12 = updated(p[12][12], k1[12], kk1[12], k2[12], kk2[12]);
+    let d13 = updated(p[13][13], k1[13], kk1[13], k2[13], kk2[13]);
+    let d14 = updated(p[14][14], k1[14], kk1[14], k2[14], kk2[14]);
+    let d15 = updated(p[15][15], k1[15], kk1[15], k2[15], kk2[15]);
+    let d16 = updated(p[16][16], k1[16], kk1[16], k2[16], kk2[16]);
+    d0 >= z
+        && d1 >= z
+        && d2 >= z
+        && d3 >= z
+        && d4 >= z
+        && d5 >= z
+        && d6 >= z
+        && d7 >= z
+        && d8 >= z
+        && d9 >= z
+        && d10 >= z
+        && d11 >= z
+        && d12 >= z
+        && d13 >= z
+        && d14 >= z
+        && d15 >= z
+        && d16 >= z
+        && z + d0 * z
+            + d1 * z
+            + d2 * z
+            + d3 * z
+            + d4 * z
+            + d5 * z
+            + d6 * z
+            + d7 * z
+            + d8 * z
+            + d9 * z
+            + d10 * z
+            + d11 * z
+            + d12 * z
+            + d13 * z
+            + d14 * z
+            + d15 * z
+            + d16 * z
+            == z
 }
 
-/// `P ← P − k₁K₁ᵀ − k₂K₂ᵀ` on the upper triangle, mirrored (exactly symmetric).
+/// `P ← P − k₁K₁ᵀ − k₂K₂ᵀ` on the upper triangle, mirrored (exactly symmetric), and the
+/// stabilising noise in the same pass: each variance `v` becomes `v + v · delta`
+/// (dimensionless `delta`; 0 adds nothing).
 #[allow(clippy::too_many_lines)]
 #[inline(never)]
 pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
@@ -322,9 +369,10 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     kk1: &[T; 17],
     k2: &[T; 17],
     kk2: &[T; 17],
+    delta: T,
 ) {
     let v = updated(p[0][0], k1[0], kk1[0], k2[0], kk2[0]);
-    p[0][0] = v;
+    p[0][0] = v + v * delta;
     let v = updated(p[1][0], k1[0], kk1[1], k2[0], kk2[1]);
     p[1][0] = v;
     p[0][1] = v;
@@ -335,7 +383,7 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[3][0] = v;
     p[0][3] = v;
     let v = updated(p[1][1], k1[1], kk1[1], k2[1], kk2[1]);
-    p[1][1] = v;
+    p[1][1] = v + v * delta;
     let v = updated(p[2][1], k1[1], kk1[2], k2[1], kk2[2]);
     p[2][1] = v;
     p[1][2] = v;
@@ -343,12 +391,12 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[3][1] = v;
     p[1][3] = v;
     let v = updated(p[2][2], k1[2], kk1[2], k2[2], kk2[2]);
-    p[2][2] = v;
+    p[2][2] = v + v * delta;
     let v = updated(p[3][2], k1[2], kk1[3], k2[2], kk2[3]);
     p[3][2] = v;
     p[2][3] = v;
     let v = updated(p[3][3], k1[3], kk1[3], k2[3], kk2[3]);
-    p[3][3] = v;
+    p[3][3] = v + v * delta;
     let v = updated(p[4][0], k1[0], kk1[4], k2[0], kk2[4]);
     p[4][0] = v;
     p[0][4] = v;
@@ -398,7 +446,7 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[7][3] = v;
     p[3][7] = v;
     let v = updated(p[4][4], k1[4], kk1[4], k2[4], kk2[4]);
-    p[4][4] = v;
+    p[4][4] = v + v * delta;
     let v = updated(p[5][4], k1[4], kk1[5], k2[4], kk2[5]);
     p[5][4] = v;
     p[4][5] = v;
@@ -409,7 +457,7 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[7][4] = v;
     p[4][7] = v;
     let v = updated(p[5][5], k1[5], kk1[5], k2[5], kk2[5]);
-    p[5][5] = v;
+    p[5][5] = v + v * delta;
     let v = updated(p[6][5], k1[5], kk1[6], k2[5], kk2[6]);
     p[6][5] = v;
     p[5][6] = v;
@@ -417,12 +465,12 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[7][5] = v;
     p[5][7] = v;
     let v = updated(p[6][6], k1[6], kk1[6], k2[6], kk2[6]);
-    p[6][6] = v;
+    p[6][6] = v + v * delta;
     let v = updated(p[7][6], k1[6], kk1[7], k2[6], kk2[7]);
     p[7][6] = v;
     p[6][7] = v;
     let v = updated(p[7][7], k1[7], kk1[7], k2[7], kk2[7]);
-    p[7][7] = v;
+    p[7][7] = v + v * delta;
     let v = updated(p[8][0], k1[0], kk1[8], k2[0], kk2[8]);
     p[8][0] = v;
     p[0][8] = v;
@@ -520,7 +568,7 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[11][7] = v;
     p[7][11] = v;
     let v = updated(p[8][8], k1[8], kk1[8], k2[8], kk2[8]);
-    p[8][8] = v;
+    p[8][8] = v + v * delta;
     let v = updated(p[9][8], k1[8], kk1[9], k2[8], kk2[9]);
     p[9][8] = v;
     p[8][9] = v;
@@ -531,7 +579,7 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[11][8] = v;
     p[8][11] = v;
     let v = updated(p[9][9], k1[9], kk1[9], k2[9], kk2[9]);
-    p[9][9] = v;
+    p[9][9] = v + v * delta;
     let v = updated(p[10][9], k1[9], kk1[10], k2[9], kk2[10]);
     p[10][9] = v;
     p[9][10] = v;
@@ -539,12 +587,12 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[11][9] = v;
     p[9][11] = v;
     let v = updated(p[10][10], k1[10], kk1[10], k2[10], kk2[10]);
-    p[10][10] = v;
+    p[10][10] = v + v * delta;
     let v = updated(p[11][10], k1[10], kk1[11], k2[10], kk2[11]);
     p[11][10] = v;
     p[10][11] = v;
     let v = updated(p[11][11], k1[11], kk1[11], k2[11], kk2[11]);
-    p[11][11] = v;
+    p[11][11] = v + v * delta;
     let v = updated(p[12][0], k1[0], kk1[12], k2[0], kk2[12]);
     p[12][0] = v;
     p[0][12] = v;
@@ -690,7 +738,7 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[15][11] = v;
     p[11][15] = v;
     let v = updated(p[12][12], k1[12], kk1[12], k2[12], kk2[12]);
-    p[12][12] = v;
+    p[12][12] = v + v * delta;
     let v = updated(p[13][12], k1[12], kk1[13], k2[12], kk2[13]);
     p[13][12] = v;
     p[12][13] = v;
@@ -701,7 +749,7 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[15][12] = v;
     p[12][15] = v;
     let v = updated(p[13][13], k1[13], kk1[13], k2[13], kk2[13]);
-    p[13][13] = v;
+    p[13][13] = v + v * delta;
     let v = updated(p[14][13], k1[13], kk1[14], k2[13], kk2[14]);
     p[14][13] = v;
     p[13][14] = v;
@@ -709,12 +757,12 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[15][13] = v;
     p[13][15] = v;
     let v = updated(p[14][14], k1[14], kk1[14], k2[14], kk2[14]);
-    p[14][14] = v;
+    p[14][14] = v + v * delta;
     let v = updated(p[15][14], k1[14], kk1[15], k2[14], kk2[15]);
     p[15][14] = v;
     p[14][15] = v;
     let v = updated(p[15][15], k1[15], kk1[15], k2[15], kk2[15]);
-    p[15][15] = v;
+    p[15][15] = v + v * delta;
     let v = updated(p[16][0], k1[0], kk1[16], k2[0], kk2[16]);
     p[16][0] = v;
     p[0][16] = v;
@@ -764,5 +812,5 @@ pub(in crate::seeker_ins) fn rank_two_update<T: Real>(
     p[16][15] = v;
     p[15][16] = v;
     let v = updated(p[16][16], k1[16], kk1[16], k2[16], kk2[16]);
-    p[16][16] = v;
+    p[16][16] = v + v * delta;
 }
