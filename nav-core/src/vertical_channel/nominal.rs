@@ -12,9 +12,12 @@
 //! step that leaves here has changed nothing and the general step starts from the same state.
 
 use super::core::{report, LoopCore, StepReports};
-use super::gate::{saturate, AidGate, Verdict};
+use super::gate::{AidGate, Verdict};
 use super::samples::{AidChannel, AidStatus, AidTimeouts, BaroSample, ImuSample, VelocitySample};
-use super::{Reacquisition, ALTITUDE_RANGE_M, MAX_SPECIFIC_FORCE_M_S2, MAX_VERTICAL_SPEED_M_S};
+use super::{
+    Reacquisition, ALTITUDE_RANGE_M, MAX_GATE_VARIANCE, MAX_SPECIFIC_FORCE_M_S2,
+    MAX_VERTICAL_SPEED_M_S,
+};
 use crate::contract::{FusionOutcome, FusionReport};
 use crate::time::Timestamp;
 use crate::{HealthState, Real};
@@ -26,26 +29,57 @@ use nalgebra::Vector2;
 struct Fresh<'a, T> {
     time: &'a Timestamp,
     value: T,
+    age_us: u32,
     age_s: T,
     old_age_s: T,
 }
 
-/// One channel's loss timeout as the nominal step tests it: the longest sample age in µs
-/// (below 2³² µs) whose [`short_seconds`] is not above `lost_after_s`. A whole-µs age is
-/// then lost exactly when it exceeds this — the same verdict as the comparison of its age in
-/// seconds with the timeout, with one integer comparison instead of a float one.
+/// One channel's timeouts as the nominal step tests them: the longest sample age in µs
+/// (below 2³² µs) whose [`short_seconds`] is not above `lost_after_s` (`stale_after_s`). A
+/// whole-µs age is then lost (stale) exactly when it exceeds this — the same verdict as the
+/// comparison of its age in seconds with the timeout, with one integer comparison instead of
+/// a float one.
+///
+/// 0 (no new sample is taken by the nominal step) when the aid model's variance could reach
+/// the gate's ceiling within that age: the nominal step's gate then needs no ceiling.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct AgeLimits {
-    lost_us: u32,
+    pub(super) lost_us: u32,
+    /// The same for `stale_after_s` (not 0 with the model: only the freshness reported).
+    pub(super) stale_us: u32,
 }
 
 impl AgeLimits {
-    /// The limit of `timeouts` (validated: positive, so an age of 0 is within it).
-    pub(crate) fn new<T: Real>(timeouts: &AidTimeouts<T>) -> Self {
+    /// The limit of `timeouts` (validated: positive, so an age of 0 is within it) with the aid
+    /// model `aid` (validated, refreshed whenever it changes).
+    pub(crate) fn new<T: Real>(timeouts: &AidTimeouts<T>, aid: &AidGate<T>) -> Self {
+        let lost_us = last_micros_within(timeouts.lost_after_s);
+        // The model variance does not decrease with the gap when its terms are not negative
+        // (each operation is monotonic then, rounding included), and the gap between two
+        // samples the nominal step takes is at most the held sample's age: its value at the
+        // longest age bounds every one the nominal step computes.
+        let monotonic = aid.tracking_var >= T::zero()
+            && aid.drift_rate >= T::zero()
+            && aid.drift_accel >= T::zero();
+        let worst = model_variance(aid, short_seconds::<T>(lost_us));
+        let below_ceiling = worst <= T::lit(MAX_GATE_VARIANCE);
         Self {
-            lost_us: last_micros_within(timeouts.lost_after_s),
+            lost_us: if monotonic && below_ceiling {
+                lost_us
+            } else {
+                0
+            },
+            stale_us: last_micros_within(timeouts.stale_after_s),
         }
     }
+}
+
+/// The aid model's variance after `gap_s` since the held sample, before the gate's ceiling
+/// (`gate::admit`'s formula, in the same order).
+#[inline(always)]
+fn model_variance<T: Real>(aid: &AidGate<T>, gap_s: T) -> T {
+    let d = gap_s * (aid.drift_rate + aid.drift_accel * gap_s);
+    aid.tracking_var + d * d
 }
 
 /// The largest `u` (µs) with `short_seconds(u) ≤ limit_s` (0 if there is none), by bisection
@@ -121,6 +155,7 @@ fn fresh<'a, T: Real>(
     Some(Fresh {
         time,
         value,
+        age_us,
         age_s: short_seconds::<T>(age_us),
         old_age_s: short_seconds::<T>(old_age_us),
     })
@@ -137,9 +172,8 @@ fn gated<T: Real>(
     aid: &AidGate<T>,
 ) -> Option<Verdict<T>> {
     let nu2 = innovation * innovation;
-    let gap = sample.old_age_s - sample.age_s;
-    let d = gap * (aid.drift_rate + aid.drift_accel * gap);
-    let model_var = saturate(aid.tracking_var + d * d);
+    // Below the ceiling (`AgeLimits`): `saturate` would return it as it is.
+    let model_var = model_variance(aid, sample.old_age_s - sample.age_s);
     let (s, tested) = match threshold {
         Some(thr) => {
             let s = model_var;
@@ -173,16 +207,20 @@ fn held<T: Real>(ch: &AidChannel<T>, now: Timestamp, to: &AidTimeouts<T>) -> (T,
     (age, ch.received && !lost)
 }
 
-/// The freshness of a channel whose sample is `age_s` old (`new`: a sample that just entered,
-/// received and not lost).
+/// The freshness of a channel whose sample is `age_s` old (`new`: the age in µs of a sample
+/// that just entered, received and not lost).
 #[inline(always)]
-fn status<T: Real>(ch: &AidChannel<T>, new: bool, age_s: T, to: &AidTimeouts<T>) -> AidStatus<T> {
-    if !new {
-        ch.status(age_s, to)
-    } else if age_s > to.stale_after_s {
-        AidStatus::Stale { age_s }
-    } else {
-        AidStatus::Fresh { age_s }
+fn status<T: Real>(
+    ch: &AidChannel<T>,
+    new: Option<u32>,
+    age_s: T,
+    to: &AidTimeouts<T>,
+    limits: &AgeLimits,
+) -> AidStatus<T> {
+    match new {
+        None => ch.status(age_s, to),
+        Some(age_us) if age_us > limits.stale_us => AidStatus::Stale { age_s },
+        Some(_) => AidStatus::Fresh { age_s },
     }
 }
 
@@ -200,8 +238,8 @@ impl<T: Real> LoopCore<T> {
         let now = imu.time;
         // One test for finiteness and range (false for NaN), one for the interval.
         let force_ok = f.abs() <= T::lit(MAX_SPECIFIC_FORCE_M_S2);
-        if !force_ok || self.nominal_us == 0 || now.micros_since(self.time) != Some(self.nominal_us)
-        {
+        let (interval_us, late) = now.as_micros().overflowing_sub(self.time.as_micros());
+        if !force_ok || self.nominal_us == 0 || late || interval_us != u64::from(self.nominal_us) {
             return None;
         }
         // As `gate_samples` and `advance` with the nominal interval and no state moved.
@@ -308,9 +346,10 @@ impl<T: Real> LoopCore<T> {
             baro: report(
                 status(
                     &self.baro,
-                    new_baro.is_some(),
+                    new_baro.map(|s| s.age_us),
                     baro_age,
                     &self.baro_timeouts,
+                    &self.baro_limits,
                 ),
                 nu_h,
                 baro_verdict,
@@ -318,9 +357,10 @@ impl<T: Real> LoopCore<T> {
             velocity: report(
                 status(
                     &self.velocity,
-                    new_velocity.is_some(),
+                    new_velocity.map(|s| s.age_us),
                     vel_age,
                     &self.velocity_timeouts,
+                    &self.velocity_limits,
                 ),
                 nu_v,
                 vel_verdict,
@@ -334,6 +374,7 @@ impl<T: Real> LoopCore<T> {
     #[cold]
     #[inline(never)]
     fn tick_sigma_nominal(&mut self, use_baro: bool, use_vel: bool) {
-        self.sigma.tick(self.nominal_us, use_baro, use_vel);
+        self.sigma
+            .tick(u64::from(self.nominal_us), use_baro, use_vel);
     }
 }
