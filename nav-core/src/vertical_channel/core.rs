@@ -95,8 +95,8 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) single_step_max_us: u64,
     /// `dt_us` when it is exactly `dt_s` in the float type (the stored step then applies
     /// as is), else 0 (an interval of a whole number of µs is never exactly `dt_s`: every
-    /// step takes the corrected path).
-    pub(crate) nominal_us: u64,
+    /// step takes the corrected path; so is an interval of 2³² µs or more).
+    pub(crate) nominal_us: u32,
     pub(crate) half_dt_s: T,
     pub(crate) modes: Modes<T>,
     pub(crate) feedback: Feedback<T>,
@@ -105,7 +105,8 @@ pub(crate) struct LoopCore<T: Real> {
     pub(crate) velocity: AidChannel<T>,
     pub(crate) baro_timeouts: AidTimeouts<T>,
     pub(crate) velocity_timeouts: AidTimeouts<T>,
-    /// The baro loss timeout as a whole-µs age, for the nominal step.
+    /// The baro loss timeout as a whole-µs age, for the nominal step (with the aid model: kept
+    /// with `gate`).
     pub(crate) baro_limits: AgeLimits,
     /// The same for the velocity aid.
     pub(crate) velocity_limits: AgeLimits,
@@ -163,10 +164,9 @@ impl<T: Real> LoopCore<T> {
             dt_s,
             dt_us,
             single_step_max_us: dt_us.saturating_add(dt_us / 2),
-            nominal_us: if micros_to_seconds::<T>(dt_us) == dt_s {
-                dt_us
-            } else {
-                0
+            nominal_us: match u32::try_from(dt_us) {
+                Ok(us) if micros_to_seconds::<T>(dt_us) == dt_s => us,
+                _ => 0,
             },
             half_dt_s,
             modes: *parts.modes,
@@ -180,8 +180,8 @@ impl<T: Real> LoopCore<T> {
             velocity: AidChannel::new(),
             baro_timeouts: parts.baro_timeouts,
             velocity_timeouts: parts.velocity_timeouts,
-            baro_limits: AgeLimits::new(&parts.baro_timeouts),
-            velocity_limits: AgeLimits::new(&parts.velocity_timeouts),
+            baro_limits: AgeLimits::new(&parts.baro_timeouts, &parts.gate.baro),
+            velocity_limits: AgeLimits::new(&parts.velocity_timeouts, &parts.gate.velocity),
             run_time: parts.run_time,
             gate: parts.gate,
             baro_tally: AidTally::default(),
@@ -364,7 +364,7 @@ impl<T: Real> LoopCore<T> {
         sub: &SubStep<T>,
         samples: &NewSamples<T>,
     ) -> Result<StepReports<T>, NavError> {
-        let nominal = sub.h_us == self.nominal_us;
+        let nominal = sub.h_us == u64::from(self.nominal_us);
         let (h_s, half_h) = if nominal {
             (self.dt_s, self.half_dt_s)
         } else {
@@ -569,6 +569,8 @@ impl<T: Real> LoopCore<T> {
     /// changes).
     fn set_run_time(&mut self, rt: RunTime<T>) -> Result<(), NavError> {
         self.gate = GateParams::compile(&rt)?;
+        self.baro_limits = AgeLimits::new(&self.baro_timeouts, &self.gate.baro);
+        self.velocity_limits = AgeLimits::new(&self.velocity_timeouts, &self.gate.velocity);
         self.run_time = rt;
         Ok(())
     }

@@ -12,40 +12,74 @@
 //! step that leaves here has changed nothing and the general step starts from the same state.
 
 use super::core::{report, LoopCore, StepReports};
-use super::gate::{saturate, AidGate, Verdict};
+use super::gate::{AidGate, Verdict};
 use super::samples::{AidChannel, AidStatus, AidTimeouts, BaroSample, ImuSample, VelocitySample};
-use super::{Reacquisition, ALTITUDE_RANGE_M, MAX_SPECIFIC_FORCE_M_S2, MAX_VERTICAL_SPEED_M_S};
+use super::{
+    Reacquisition, ALTITUDE_RANGE_M, MAX_GATE_VARIANCE, MAX_SPECIFIC_FORCE_M_S2,
+    MAX_VERTICAL_SPEED_M_S,
+};
 use crate::contract::{FusionOutcome, FusionReport};
 use crate::time::Timestamp;
 use crate::{HealthState, Real};
 use nalgebra::Vector2;
 
-/// A new sample that the nominal step can fuse: its value and age now (s and µs), and the
-/// held sample's age now (s).
+/// A new sample that the nominal step can fuse: its stamp (read again at the commit, not kept
+/// in a register through the step), value and age now (s), and the held sample's age now (s).
 #[derive(Clone, Copy)]
-struct Fresh<T> {
-    time: Timestamp,
+struct Fresh<'a, T> {
+    time: &'a Timestamp,
     value: T,
+    age_us: u32,
     age_s: T,
     old_age_s: T,
 }
 
-/// One channel's loss timeout as the nominal step tests it: the longest sample age in µs
-/// (below 2³² µs) whose [`short_seconds`] is not above `lost_after_s`. A whole-µs age is
-/// then lost exactly when it exceeds this — the same verdict as the comparison of its age in
-/// seconds with the timeout, with one integer comparison instead of a float one.
+/// One channel's timeouts as the nominal step tests them: the longest sample age in µs
+/// (below 2³² µs) whose [`short_seconds`] is not above `lost_after_s` (`stale_after_s`). A
+/// whole-µs age is then lost (stale) exactly when it exceeds this — the same verdict as the
+/// comparison of its age in seconds with the timeout, with one integer comparison instead of
+/// a float one.
+///
+/// 0 (no new sample is taken by the nominal step) when the aid model's variance could reach
+/// the gate's ceiling within that age: the nominal step's gate then needs no ceiling.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct AgeLimits {
-    lost_us: u32,
+    pub(super) lost_us: u32,
+    /// The same for `stale_after_s` (not 0 with the model: only the freshness reported).
+    pub(super) stale_us: u32,
 }
 
 impl AgeLimits {
-    /// The limit of `timeouts` (validated: positive, so an age of 0 is within it).
-    pub(crate) fn new<T: Real>(timeouts: &AidTimeouts<T>) -> Self {
+    /// The limit of `timeouts` (validated: positive, so an age of 0 is within it) with the aid
+    /// model `aid` (validated, refreshed whenever it changes).
+    pub(crate) fn new<T: Real>(timeouts: &AidTimeouts<T>, aid: &AidGate<T>) -> Self {
+        let lost_us = last_micros_within(timeouts.lost_after_s);
+        // The model variance does not decrease with the gap when its terms are not negative
+        // (each operation is monotonic then, rounding included), and the gap between two
+        // samples the nominal step takes is at most the held sample's age: its value at the
+        // longest age bounds every one the nominal step computes.
+        let monotonic = aid.tracking_var >= T::zero()
+            && aid.drift_rate >= T::zero()
+            && aid.drift_accel >= T::zero();
+        let worst = model_variance(aid, short_seconds::<T>(lost_us));
+        let below_ceiling = worst <= T::lit(MAX_GATE_VARIANCE);
         Self {
-            lost_us: last_micros_within(timeouts.lost_after_s),
+            lost_us: if monotonic && below_ceiling {
+                lost_us
+            } else {
+                0
+            },
+            stale_us: last_micros_within(timeouts.stale_after_s),
         }
     }
+}
+
+/// The aid model's variance after `gap_s` since the held sample, before the gate's ceiling
+/// (`gate::admit`'s formula, in the same order).
+#[inline(always)]
+fn model_variance<T: Real>(aid: &AidGate<T>, gap_s: T) -> T {
+    let d = gap_s * (aid.drift_rate + aid.drift_accel * gap_s);
+    aid.tracking_var + d * d
 }
 
 /// The largest `u` (µs) with `short_seconds(u) ≤ limit_s` (0 if there is none), by bisection
@@ -83,14 +117,14 @@ pub(super) fn short_seconds<T: Real>(micros: u32) -> T {
 /// and not after `now`, not older than `lost_after_s`, and the channel tracking (a sample held
 /// and not lost, no recovery gate, no rejection run, no re-anchoring pending).
 #[inline(always)]
-fn fresh<T: Real>(
+fn fresh<'a, T: Real>(
     ch: &AidChannel<T>,
-    time: Timestamp,
+    time: &'a Timestamp,
     value: T,
     now: Timestamp,
     range: (f64, f64),
     limits: &AgeLimits,
-) -> Option<Fresh<T>> {
+) -> Option<Fresh<'a, T>> {
     // In range (false for NaN); one test of the magnitude for a range symmetric about 0.
     let valid = if range.0 == -range.1 {
         value.abs() <= T::lit(range.1)
@@ -100,20 +134,28 @@ fn fresh<T: Real>(
     if !(ch.tracking && valid) {
         return None;
     }
-    // The ages in µs, both below 2³² µs (longer ones are left to the general step): one
-    // 64-bit difference each, its borrow and high word tested. The held sample was taken at
-    // or before the loop's clock, so before `now`: its age does not wrap, and the new sample
-    // is after it exactly when it is younger.
-    let (age, late) = now.as_micros().overflowing_sub(time.as_micros());
-    let age_us = u32::try_from(age).ok()?;
-    let old_age_us = u32::try_from(now.as_micros().wrapping_sub(ch.last_time.as_micros())).ok()?;
-    // Within `lost_after_s` (`AgeLimits`): the held sample, and so the younger new one.
-    if late || age_us >= old_age_us || old_age_us > limits.lost_us {
+    // The ages in µs, both below 2³² µs (longer ones are left to the general step). The held
+    // sample's age first: within `lost_after_s` (`AgeLimits`, below 2³² µs), so also not
+    // stamped after `now` (that age would wrap to beyond 2⁶⁴ − 2³² µs). The new sample is
+    // after the held one and not after `now` exactly when its stamp's distance from the held
+    // one's (wrapping) is in [1 µs, the held age]; its age is the held age less that distance.
+    // Two 64-bit differences, their high words tested, the rest in 32 bits.
+    let last = ch.last_time.as_micros();
+    let old = now.as_micros().wrapping_sub(last);
+    let gap = time.as_micros().wrapping_sub(last);
+    let (old_hi, old_age_us) = ((old >> 32) as u32, old as u32);
+    let (gap_hi, gap_us) = ((gap >> 32) as u32, gap as u32);
+    if old_hi != 0 || old_age_us > limits.lost_us || gap_hi != 0 {
+        return None;
+    }
+    let age_us = old_age_us.checked_sub(gap_us)?;
+    if gap_us == 0 {
         return None;
     }
     Some(Fresh {
         time,
         value,
+        age_us,
         age_s: short_seconds::<T>(age_us),
         old_age_s: short_seconds::<T>(old_age_us),
     })
@@ -125,14 +167,13 @@ fn fresh<T: Real>(
 #[inline(always)]
 fn gated<T: Real>(
     innovation: T,
-    sample: &Fresh<T>,
+    sample: &Fresh<'_, T>,
     threshold: Option<T>,
     aid: &AidGate<T>,
 ) -> Option<Verdict<T>> {
     let nu2 = innovation * innovation;
-    let gap = sample.old_age_s - sample.age_s;
-    let d = gap * (aid.drift_rate + aid.drift_accel * gap);
-    let model_var = saturate(aid.tracking_var + d * d);
+    // Below the ceiling (`AgeLimits`): `saturate` would return it as it is.
+    let model_var = model_variance(aid, sample.old_age_s - sample.age_s);
     let (s, tested) = match threshold {
         Some(thr) => {
             let s = model_var;
@@ -166,16 +207,20 @@ fn held<T: Real>(ch: &AidChannel<T>, now: Timestamp, to: &AidTimeouts<T>) -> (T,
     (age, ch.received && !lost)
 }
 
-/// The freshness of a channel whose sample is `age_s` old (`new`: a sample that just entered,
-/// received and not lost).
+/// The freshness of a channel whose sample is `age_s` old (`new`: the age in µs of a sample
+/// that just entered, received and not lost).
 #[inline(always)]
-fn status<T: Real>(ch: &AidChannel<T>, new: bool, age_s: T, to: &AidTimeouts<T>) -> AidStatus<T> {
-    if !new {
-        ch.status(age_s, to)
-    } else if age_s > to.stale_after_s {
-        AidStatus::Stale { age_s }
-    } else {
-        AidStatus::Fresh { age_s }
+fn status<T: Real>(
+    ch: &AidChannel<T>,
+    new: Option<u32>,
+    age_s: T,
+    to: &AidTimeouts<T>,
+    limits: &AgeLimits,
+) -> AidStatus<T> {
+    match new {
+        None => ch.status(age_s, to),
+        Some(age_us) if age_us > limits.stale_us => AidStatus::Stale { age_s },
+        Some(_) => AidStatus::Fresh { age_s },
     }
 }
 
@@ -193,32 +238,10 @@ impl<T: Real> LoopCore<T> {
         let now = imu.time;
         // One test for finiteness and range (false for NaN), one for the interval.
         let force_ok = f.abs() <= T::lit(MAX_SPECIFIC_FORCE_M_S2);
-        if !force_ok || self.nominal_us == 0 || now.micros_since(self.time) != Some(self.nominal_us)
-        {
+        let (interval_us, late) = now.as_micros().overflowing_sub(self.time.as_micros());
+        if !force_ok || self.nominal_us == 0 || late || interval_us != u64::from(self.nominal_us) {
             return None;
         }
-        let new_baro = match baro {
-            Some(s) => Some(fresh(
-                &self.baro,
-                s.time,
-                s.altitude_m,
-                now,
-                ALTITUDE_RANGE_M,
-                &self.baro_limits,
-            )?),
-            None => None,
-        };
-        let new_velocity = match velocity {
-            Some(s) => Some(fresh(
-                &self.velocity,
-                s.time,
-                s.vz_up_m_s,
-                now,
-                (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
-                &self.velocity_limits,
-            )?),
-            None => None,
-        };
         // As `gate_samples` and `advance` with the nominal interval and no state moved.
         let x = self.x;
         let (alt, v, b) = (x.x, x.y, x.z);
@@ -228,52 +251,82 @@ impl<T: Real> LoopCore<T> {
         let h_pred = alt - self.feedback.lag_s * v;
         let v_rate = az + self.feedback.bias_sign * b;
         let half = T::lit(0.5);
-        // The sample each channel uses (new, else held) and whether it is in use.
-        let (baro_value, baro_age, use_baro) = match &new_baro {
-            Some(s) => (s.value, s.age_s, true),
+        let threshold = self.gate.threshold;
+        // Each channel's sample (new, else held) extrapolated to the middle of the interval:
+        // for a new sample this is its innovation, which the gate tests.
+        let baro_nu = |value: T, age_s: T| {
+            let age = age_s - half_h;
+            (value - h_ref) + age * (v - half * v_rate * age) - h_pred
+        };
+        let vel_nu = |value: T, age_s: T| value + (age_s - half_h) * v_rate - v;
+        // Per channel: the new sample (if any), the correction (0 when not in use), whether
+        // the channel is in use, the age of the sample used and the new sample's verdict.
+        let (new_baro, nu_h, use_baro, baro_age, baro_verdict) = match baro {
+            Some(s) => {
+                let new = fresh(
+                    &self.baro,
+                    &s.time,
+                    s.altitude_m,
+                    now,
+                    ALTITUDE_RANGE_M,
+                    &self.baro_limits,
+                )?;
+                let nu = baro_nu(new.value, new.age_s);
+                let verdict = gated(nu, &new, threshold, &self.gate.baro)?;
+                (Some(new), nu, true, new.age_s, Some(verdict))
+            }
             None => {
                 let (age, in_use) = held(&self.baro, now, &self.baro_timeouts);
-                (self.baro.last_value, age, in_use)
+                let nu = if in_use {
+                    baro_nu(self.baro.last_value, age)
+                } else {
+                    T::zero()
+                };
+                (None, nu, in_use, age, None)
             }
         };
-        let (vel_value, vel_age, use_vel) = match &new_velocity {
-            Some(s) => (s.value, s.age_s, true),
+        let (new_velocity, nu_v, use_vel, vel_age, vel_verdict) = match velocity {
+            Some(s) => {
+                let new = fresh(
+                    &self.velocity,
+                    &s.time,
+                    s.vz_up_m_s,
+                    now,
+                    (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
+                    &self.velocity_limits,
+                )?;
+                let nu = vel_nu(new.value, new.age_s);
+                let verdict = gated(nu, &new, threshold, &self.gate.velocity)?;
+                (Some(new), nu, true, new.age_s, Some(verdict))
+            }
             None => {
                 let (age, in_use) = held(&self.velocity, now, &self.velocity_timeouts);
-                (self.velocity.last_value, age, in_use)
+                let nu = if in_use {
+                    vel_nu(self.velocity.last_value, age)
+                } else {
+                    T::zero()
+                };
+                (None, nu, in_use, age, None)
             }
         };
-        // Held samples extrapolated to the middle of the interval; for a new sample this is
-        // its innovation.
-        let nu_h = use_baro.then(|| {
-            let age = baro_age - half_h;
-            (baro_value - h_ref) + age * (v - half * v_rate * age) - h_pred
-        });
-        let nu_v = use_vel.then(|| vel_value + (vel_age - half_h) * v_rate - v);
-        let threshold = self.gate.threshold;
-        let baro_verdict = match (&new_baro, nu_h) {
-            (Some(s), Some(nu)) => Some(gated(nu, s, threshold, &self.gate.baro)?),
-            _ => None,
-        };
-        let vel_verdict = match (&new_velocity, nu_v) {
-            (Some(s), Some(nu)) => Some(gated(nu, s, threshold, &self.gate.velocity)?),
-            _ => None,
-        };
         let mode = self.modes.select(use_baro, use_vel);
-        let nu = Vector2::new(nu_h.unwrap_or(T::zero()), nu_v.unwrap_or(T::zero()));
+        let nu = Vector2::new(nu_h, nu_v);
+        let (nu_h, nu_v) = (use_baro.then_some(nu_h), use_vel.then_some(nu_v));
         let drive = Vector2::new(v, v_rate);
         let x_new = x + (mode.n * drive + mode.g * nu);
         if !(x_new.x + x_new.y + x_new.z).is_finite() {
             return None;
         }
         // Every check passed: commit.
-        self.sigma.tick(self.nominal_us, use_baro, use_vel);
+        if !self.sigma.holds(use_baro, use_vel) {
+            self.tick_sigma_nominal(use_baro, use_vel);
+        }
         if let Some(s) = new_baro {
-            self.baro.last_time = s.time;
+            self.baro.last_time = *s.time;
             self.baro.last_value = s.value;
         }
         if let Some(s) = new_velocity {
-            self.velocity.last_time = s.time;
+            self.velocity.last_time = *s.time;
             self.velocity.last_value = s.value;
         }
         self.settle(x_new, h_ref);
@@ -293,9 +346,10 @@ impl<T: Real> LoopCore<T> {
             baro: report(
                 status(
                     &self.baro,
-                    new_baro.is_some(),
+                    new_baro.map(|s| s.age_us),
                     baro_age,
                     &self.baro_timeouts,
+                    &self.baro_limits,
                 ),
                 nu_h,
                 baro_verdict,
@@ -303,14 +357,24 @@ impl<T: Real> LoopCore<T> {
             velocity: report(
                 status(
                     &self.velocity,
-                    new_velocity.is_some(),
+                    new_velocity.map(|s| s.age_us),
                     vel_age,
                     &self.velocity_timeouts,
+                    &self.velocity_limits,
                 ),
                 nu_v,
                 vel_verdict,
             ),
             imu_intervals: 1,
         })
+    }
+
+    /// σ's step over the nominal interval when it is not settled in the design mode (out of
+    /// line: the interval is read here, not kept through the nominal step).
+    #[cold]
+    #[inline(never)]
+    fn tick_sigma_nominal(&mut self, use_baro: bool, use_vel: bool) {
+        self.sigma
+            .tick(u64::from(self.nominal_us), use_baro, use_vel);
     }
 }

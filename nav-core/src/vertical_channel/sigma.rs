@@ -521,12 +521,19 @@ impl<T: Real> SigmaTrack<T> {
         *self = Self::new(self.design);
     }
 
+    /// Whether [`Self::tick`] with these aids would leave σ as it is: settled, in the design's
+    /// aid mode.
+    #[inline(always)]
+    pub(crate) fn holds(&self, use_baro: bool, use_velocity: bool) -> bool {
+        self.settled && use_baro && use_velocity == self.design.design_uses_velocity
+    }
+
     /// One committed (sub-)step of `h_us` with the aids used. Costs nothing but a compare while
     /// settled in the design mode.
     #[inline(always)]
     pub(crate) fn tick(&mut self, h_us: u64, use_baro: bool, use_velocity: bool) {
         if self.settled {
-            if use_baro && use_velocity == self.design.design_uses_velocity {
+            if self.holds(use_baro, use_velocity) {
                 return;
             }
             self.settled = false;

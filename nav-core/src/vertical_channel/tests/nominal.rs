@@ -265,3 +265,32 @@ fn age_limits_agree_with_the_comparison_in_seconds() {
     assert_eq!(last_micros_within(-1.0_f32), 0);
     assert_eq!(last_micros_within(1.0e4_f32), u32::MAX);
 }
+
+/// The nominal step's gate has no variance ceiling: an aid model whose variance could reach it
+/// within the loss timeout (or has a negative term, so that its growth is not monotonic)
+/// takes no sample in the nominal step; a model far below it keeps the whole-µs timeout.
+#[test]
+fn age_limits_leave_models_reaching_the_ceiling_to_the_general_step() {
+    use super::super::gate::AidGate;
+    use super::super::nominal::{last_micros_within, AgeLimits};
+    fn check<T: crate::Real + std::fmt::Debug>() {
+        let to = AidTimeouts {
+            stale_after_s: T::lit(0.2),
+            lost_after_s: T::lit(1.0),
+        };
+        let aid = |tracking_var: f64, drift_rate: f64, drift_accel: f64| AidGate {
+            tracking_var: T::lit(tracking_var),
+            drift_rate: T::lit(drift_rate),
+            drift_accel: T::lit(drift_accel),
+        };
+        let full = last_micros_within(to.lost_after_s);
+        assert!(full > 0);
+        assert_eq!(AgeLimits::new(&to, &aid(1.0, 2.0, 0.5)).lost_us, full);
+        // d = 1e16 at the timeout: d² = 1e32 > the ceiling 1e30.
+        assert_eq!(AgeLimits::new(&to, &aid(1.0, 1.0e16, 0.0)).lost_us, 0);
+        assert_eq!(AgeLimits::new(&to, &aid(1.0, 0.0, 1.0e16)).lost_us, 0);
+        assert_eq!(AgeLimits::new(&to, &aid(1.0, -1.0, 0.0)).lost_us, 0);
+    }
+    check::<f32>();
+    check::<f64>();
+}
