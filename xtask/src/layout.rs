@@ -364,14 +364,15 @@ impl ModuleTree {
                 .unwrap_or_default();
             dir.join(stem)
         };
-        // Inline `mod name { … }` blocks: (module path, byte offset of its closing brace).
-        let mut inline: Vec<(Vec<String>, usize)> = Vec::new();
-        let current = |inline: &Vec<(Vec<String>, usize)>, pos: usize| -> Vec<String> {
+        // Inline `mod name { … }` blocks: (module path, byte offsets of its braces).
+        let mut inline: Vec<(Vec<String>, usize, usize)> = Vec::new();
+        let current = |inline: &Vec<(Vec<String>, usize, usize)>, pos: usize| -> Vec<String> {
+            // The innermost block around `pos`: the one that opens last.
             inline
                 .iter()
-                .rev()
-                .find(|(_, end)| pos < *end)
-                .map_or_else(|| module.to_vec(), |(m, _)| m.clone())
+                .filter(|(_, open, close)| *open < pos && pos < *close)
+                .max_by_key(|(_, open, _)| *open)
+                .map_or_else(|| module.to_vec(), |(m, _, _)| m.clone())
         };
         let mut i = 0;
         while let Some(p) = find_word(&src, b"mod", i) {
@@ -387,7 +388,7 @@ impl ModuleTree {
             match src.get(k) {
                 Some(b'{') => {
                     if let Some(close) = matching_brace(&src, k) {
-                        inline.push((child.clone(), close));
+                        inline.push((child.clone(), k, close));
                         self.modules.insert(child);
                     }
                 }
@@ -684,5 +685,25 @@ mod tests {
             .collect();
         assert_eq!(big.len(), 1);
         assert!(big[0].contains("a") && big[0].contains("b"));
+    }
+
+    #[test]
+    fn references_before_an_inline_module_belong_to_the_file() {
+        let dir = std::env::temp_dir().join(format!("layout-test-{}", std::process::id()));
+        let _ = fs::create_dir_all(&dir);
+        let root = dir.join("lib.rs");
+        fs::write(&root, "mod a;\nmod b;\n").unwrap();
+        fs::write(
+            dir.join("a.rs"),
+            "use super::b::X;\n#[cfg(test)]\nmod tests {\n    use super::*;\n}\n",
+        )
+        .unwrap();
+        fs::write(dir.join("b.rs"), "pub struct X;\nuse super::a;\n").unwrap();
+        let tree = ModuleTree::load(&dir, &root).unwrap();
+        let _ = fs::remove_dir_all(&dir);
+        assert_eq!(
+            tree.sibling_cycles(),
+            vec!["crate: a -> {b}; b -> {a}".to_string()]
+        );
     }
 }
