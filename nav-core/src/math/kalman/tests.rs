@@ -147,8 +147,22 @@ fn sparse_matches_dense<T: Real>(tol: f64) {
     neg[(1, 1)] = T::lit(-1e3);
     assert!(fuse_scalar_sparse(&mut xs, &mut neg, &row, T::one(), T::one(), Gate::Off).is_err());
     assert_eq!((xs, ps), (x1, p1));
-    // The prepared form (b = P h and hᵀ b by the caller) is the sparse update bit for bit.
-    let b = sparse_covariance_product(&ps, &row).unwrap();
+    prepared_is_sparse_bit_for_bit(xs, ps, &row, &hd);
+    let mut full = SparseRow::<T, 1>::new();
+    full.push(0, T::one()).unwrap();
+    assert_eq!(full.push(1, T::one()), Err(NavError::CapacityExceeded));
+}
+
+/// The prepared form (b = P h and hᵀ b by the caller) is the sparse update bit for bit, and
+/// refuses a non-finite innovation without damage; from the state `(xs, ps)`, row `row` (dense
+/// `hd`).
+fn prepared_is_sparse_bit_for_bit<T: Real>(
+    xs: nalgebra::SVector<T, 7>,
+    ps: nalgebra::SMatrix<T, 7, 7>,
+    row: &SparseRow<T, 4>,
+    hd: &nalgebra::SVector<T, 7>,
+) {
+    let b = sparse_covariance_product(&ps, row).unwrap();
     assert_eq!(b, ps * hd);
     let (mut xp, mut pp) = (xs, ps);
     let (mut xq, mut pq) = (xs, ps);
@@ -165,7 +179,7 @@ fn sparse_matches_dense<T: Real>(tol: f64) {
     let rq = fuse_scalar_sparse(
         &mut xq,
         &mut pq,
-        &row,
+        row,
         T::lit(-0.2),
         T::lit(0.3),
         Gate::Nis(T::lit(25.0)),
@@ -184,9 +198,6 @@ fn sparse_matches_dense<T: Real>(tol: f64) {
     )
     .is_err());
     assert_eq!((xp, pp), (xq, pq));
-    let mut full = SparseRow::<T, 1>::new();
-    full.push(0, T::one()).unwrap();
-    assert_eq!(full.push(1, T::one()), Err(NavError::CapacityExceeded));
 }
 
 #[test]
