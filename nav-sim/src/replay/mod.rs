@@ -15,6 +15,7 @@ mod figure;
 pub mod ins;
 mod log_checks;
 mod loops;
+mod pass;
 pub mod source;
 
 use crate::output::sig;
@@ -35,6 +36,7 @@ use std::path::Path;
 use figure::*;
 use log_checks::*;
 use loops::*;
+use pass::Pass;
 
 /// The replay's configuration (TOML; every field has a default, units in the names).
 #[derive(Debug, Clone, Deserialize)]
@@ -196,6 +198,59 @@ impl<T> Decimated<T> {
 pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
     cfg.ins.validate()?;
     let pre = prescan(log)?;
+    let mut loops = configure_loops(cfg, &pre)?;
+
+    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
+    let csv_path = out.join("timeseries.csv");
+    let mut csv = std::io::BufWriter::new(
+        std::fs::File::create(&csv_path)
+            .with_context(|| format!("{}: cannot create", csv_path.display()))?,
+    );
+    writeln!(
+        csv,
+        "t_s,f_up_m_s2,baro_alt_m,gnss_alt_m,gnss_vz_up_m_s,autopilot_alt_m,autopilot_vz_up_m_s,classical_alt_m,classical_vz_up_m_s,aided_alt_m,aided_vz_up_m_s{}",
+        ins::InsReplay::CSV_HEADER
+    )?;
+    let mut ins = ins::InsReplay::new(&cfg.ins, pre.first_imu, pre.imu_dt_s, cfg.latitude_deg);
+    let mut pass = Pass::new(log, cfg, pre.first_imu);
+    let mut src = source::open(log)?;
+    for ev in src.by_ref() {
+        let ev = ev?;
+        pass.stats
+            .entry(ev.stream())
+            .or_default()
+            .add(ev.time(), cfg.gap_factor);
+        if ev.time() < pre.first_imu {
+            continue; // aids before the first IMU sample: nothing to aid yet
+        }
+        ins.on_event(&ev);
+        pass.on_event(ev, &mut loops, &mut csv, &ins)?;
+    }
+    csv.flush()?;
+    let describe = src.describe();
+    let findings = src.findings();
+    let summary = summary_json(&describe, findings, &pre, cfg, &pass, &loops, &ins);
+    crate::output::write_summary(out, &summary)?;
+    plot_replay(
+        &PlotData {
+            rows: pass.plot_rows.rows(),
+            ap_diff: pass.ap_diff.rows(),
+            gnss_diff: pass.gnss_diff.rows(),
+            settle_s: cfg.settle_s,
+        },
+        &loops.tally,
+        // ap_vs_gnss is autopilot − GNSS; the figure draws GNSS − autopilot.
+        -pass.ap_vs_gnss.0.mean,
+        &out.join("replay.png"),
+        &describe,
+    )?;
+    ins.plot(&out.join("ins.png"), &describe)?;
+    Ok(summary)
+}
+
+/// The two loops for the log (`pre`: its IMU interval, first IMU time and baro altitude)
+/// with the replay's settings and gate.
+fn configure_loops(cfg: &ReplayConfig, pre: &PreScan) -> Result<Loops> {
     let lat = cfg.latitude_deg.to_radians();
     let timeouts = AidTimeouts {
         stale_after_s: cfg.aid_stale_after_s as f32,
@@ -260,212 +315,75 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
         loops.aided.set_recovery(g.recovery()).map_err(e("gate"))?;
         loops.aided.set_gate(g.gate()).map_err(e("gate"))?;
     }
+    Ok(loops)
+}
 
-    std::fs::create_dir_all(out).with_context(|| format!("{}: cannot create", out.display()))?;
-    let csv_path = out.join("timeseries.csv");
-    let mut csv = std::io::BufWriter::new(
-        std::fs::File::create(&csv_path)
-            .with_context(|| format!("{}: cannot create", csv_path.display()))?,
-    );
-    writeln!(
-        csv,
-        "t_s,f_up_m_s2,baro_alt_m,gnss_alt_m,gnss_vz_up_m_s,autopilot_alt_m,autopilot_vz_up_m_s,classical_alt_m,classical_vz_up_m_s,aided_alt_m,aided_vz_up_m_s{}",
-        ins::InsReplay::CSV_HEADER
-    )?;
-    let mut ins = ins::InsReplay::new(&cfg.ins, pre.first_imu, pre.imu_dt_s, cfg.latitude_deg);
+/// A loop's health at the end of the log.
+fn status(st: &Health) -> Value {
+    json!({
+        "health_at_end": format!("{:?}", st.state),
+        "imu_gaps_bridged": st.gaps_bridged,
+        "imu_gaps_skipped": st.gaps_reset,
+        "estimate_limited_steps": st.limits_hit,
+    })
+}
 
-    let mut stats: BTreeMap<Stream, StreamStats> = BTreeMap::new();
-    let mut latest_baro = f64::NAN;
-    let mut latest_gnss = (f64::NAN, f64::NAN);
-    let mut latest_est = (f64::NAN, f64::NAN);
-    let mut ap_vs_gnss = (Moments::default(), Moments::default());
-    let mut last_row: Option<Timestamp> = None;
-    let mut plot_rows: Decimated<[f64; 10]> = Decimated::new(0.05);
-    // Differences at the reference's own time stamps: (t, classical − autopilot altitude,
-    // aided − autopilot, classical − autopilot V_z, aided − autopilot V_z); (t, GNSS −
-    // autopilot altitude, GNSS − autopilot V_z).
-    let mut ap_diff: Decimated<[f64; 5]> = Decimated::new(0.05);
-    let mut gnss_diff: Decimated<[f64; 3]> = Decimated::new(0.05);
-    let mut baro_units = BaroUnitCheck::default();
-    let mut latest_baro_t: Option<Timestamp> = None;
-    let baro_field = if log.is_dir() {
-        format!("{}: `baro_alt_m`", log.join("baro.csv").display())
-    } else {
-        format!(
-            "{}: topic `vehicle_air_data`: field `baro_alt_meter`",
-            log.display()
-        )
-    };
-    let settle_us = (cfg.settle_s.max(0.0) * 1e6) as u64;
-    let settled = |t: Timestamp| {
-        t.micros_since(pre.first_imu)
-            .is_some_and(|d| d >= settle_us)
-    };
-    let mut superseded_baro = 0_u64;
-    let mut superseded_gnss = 0_u64;
-    let fresh = |b: Option<Timestamp>, t: Timestamp| {
-        b.is_some_and(|b| t.signed_seconds_since::<f64>(b).abs() <= BARO_PAIR_MAX_AGE_S)
-    };
+/// One loop's part of the summary: its status, counters and differences to the GNSS and the
+/// autopilot (settled part of the log), and its final estimate.
+fn loop_summary(tl: &LoopTally, counters: Value, st: Value) -> Value {
+    json!({
+        "status": st,
+        "imu_accepted": tl.imu_accepted,
+        "imu_refused": tl.imu_refused,
+        "aid_samples_refused": tl.aid_refused,
+        "gate": counters,
+        "vs_gnss": {
+            "alt_rms_m": sig(tl.alt_vs_gnss.std(), 4),
+            "alt_datum_offset_m": sig(tl.alt_vs_gnss.mean, 4),
+            "vz_rms_m_s": sig(tl.vz_vs_gnss.rms(), 4),
+            "samples": tl.alt_vs_gnss.n,
+        },
+        "vs_autopilot": {
+            "alt_rms_m": sig(tl.alt_vs_autopilot.std(), 4),
+            "alt_datum_offset_m": sig(tl.alt_vs_autopilot.mean, 4),
+            "vz_rms_m_s": sig(tl.vz_vs_autopilot.rms(), 4),
+            "samples": tl.alt_vs_autopilot.n,
+        },
+        "final": { "alt_m": sig(tl.alt, 7), "vz_up_m_s": sig(tl.vz_up, 4) },
+    })
+}
 
-    let mut src = source::open(log)?;
-    for ev in src.by_ref() {
-        let ev = ev?;
-        stats
-            .entry(ev.stream())
-            .or_default()
-            .add(ev.time(), cfg.gap_factor);
-        if ev.time() < pre.first_imu {
-            continue; // aids before the first IMU sample: nothing to aid yet
-        }
-        ins.on_event(&ev);
-        match ev {
-            LogEvent::Baro { t, alt_m } => {
-                latest_baro = alt_m;
-                latest_baro_t = Some(t);
-                if loops.pending_baro.is_some() {
-                    superseded_baro += 1;
-                }
-                loops.pending_baro = Some(BaroSample {
-                    time: t,
-                    altitude_m: alt_m as f32,
-                });
-            }
-            LogEvent::Gnss {
-                t, alt_m, vd_m_s, ..
-            } => {
-                latest_gnss = (alt_m, -vd_m_s);
-                if fresh(latest_baro_t, t) {
-                    baro_units.add(Stream::Gnss, alt_m, latest_baro, &baro_field)?;
-                }
-                if latest_est.0.is_finite() {
-                    let s = t.signed_seconds_since::<f64>(pre.first_imu);
-                    gnss_diff.push(t, || [s, alt_m - latest_est.0, -vd_m_s - latest_est.1]);
-                }
-                if loops.pending_vel.is_some() {
-                    superseded_gnss += 1;
-                }
-                loops.pending_vel = Some(VelocitySample {
-                    time: t,
-                    vz_up_m_s: -vd_m_s as f32,
-                });
-                if settled(t) {
-                    for tl in &mut loops.tally {
-                        tl.alt_vs_gnss.add(tl.alt - alt_m);
-                        tl.vz_vs_gnss.add(tl.vz_up + vd_m_s);
-                    }
-                    if latest_est.0.is_finite() {
-                        ap_vs_gnss.0.add(latest_est.0 - alt_m);
-                        ap_vs_gnss.1.add(latest_est.1 + vd_m_s);
-                    }
-                }
-            }
-            LogEvent::Estimate {
-                t, alt_m, vd_m_s, ..
-            } => {
-                latest_est = (alt_m, -vd_m_s);
-                if fresh(latest_baro_t, t) {
-                    baro_units.add(Stream::Estimate, alt_m, latest_baro, &baro_field)?;
-                }
-                let (c, a) = (&loops.tally[0], &loops.tally[1]);
-                let s = t.signed_seconds_since::<f64>(pre.first_imu);
-                ap_diff.push(t, || {
-                    [
-                        s,
-                        c.alt - alt_m,
-                        a.alt - alt_m,
-                        c.vz_up + vd_m_s,
-                        a.vz_up + vd_m_s,
-                    ]
-                });
-                if settled(t) {
-                    for tl in &mut loops.tally {
-                        tl.alt_vs_autopilot.add(tl.alt - alt_m);
-                        tl.vz_vs_autopilot.add(tl.vz_up + vd_m_s);
-                    }
-                }
-            }
-            LogEvent::Attitude { .. } => {}
-            LogEvent::Imu { t, f_down_m_s2, .. } => {
-                loops.step(t, -f_down_m_s2 as f32);
-                let row = [
-                    t.signed_seconds_since::<f64>(pre.first_imu),
-                    -f_down_m_s2,
-                    latest_baro,
-                    latest_gnss.0,
-                    latest_gnss.1,
-                    latest_est.0,
-                    latest_est.1,
-                    loops.tally[0].alt,
-                    loops.tally[0].vz_up,
-                    loops.tally[1].alt,
-                    loops.tally[1].vz_up,
-                ];
-                let due = |last: Option<Timestamp>, every_s: f64| {
-                    last.is_none_or(|l| t.signed_seconds_since::<f64>(l) >= every_s)
-                };
-                if due(last_row, cfg.csv_interval_s) {
-                    last_row = Some(t);
-                    let line: Vec<String> = row.iter().map(|v| format!("{v}")).collect();
-                    writeln!(csv, "{}{}", line.join(","), ins.csv_fields())?;
-                }
-                plot_rows.push(t, || {
-                    [
-                        row[0], row[2], row[3], row[4], row[5], row[6], row[7], row[8], row[9],
-                        row[10],
-                    ]
-                });
-            }
-        }
-    }
-    csv.flush()?;
-    let describe = src.describe();
-    let findings = src.findings();
+/// An aid's gate counters.
+fn counters(
+    c: nav_core::AidCounters,
+    r: nav_core::vertical_channel::ReacquisitionCounters,
+) -> Value {
+    json!({
+        "accepted": c.fused, "rejected": c.rejected,
+        "reacquisitions": r.reacquisitions, "resets": r.resets,
+    })
+}
 
-    let status = |st: &Health| {
-        json!({
-            "health_at_end": format!("{:?}", st.state),
-            "imu_gaps_bridged": st.gaps_bridged,
-            "imu_gaps_skipped": st.gaps_reset,
-            "estimate_limited_steps": st.limits_hit,
-        })
-    };
-    let loop_summary = |tl: &LoopTally, counters: Value, st: Value| {
-        json!({
-            "status": st,
-            "imu_accepted": tl.imu_accepted,
-            "imu_refused": tl.imu_refused,
-            "aid_samples_refused": tl.aid_refused,
-            "gate": counters,
-            "vs_gnss": {
-                "alt_rms_m": sig(tl.alt_vs_gnss.std(), 4),
-                "alt_datum_offset_m": sig(tl.alt_vs_gnss.mean, 4),
-                "vz_rms_m_s": sig(tl.vz_vs_gnss.rms(), 4),
-                "samples": tl.alt_vs_gnss.n,
-            },
-            "vs_autopilot": {
-                "alt_rms_m": sig(tl.alt_vs_autopilot.std(), 4),
-                "alt_datum_offset_m": sig(tl.alt_vs_autopilot.mean, 4),
-                "vz_rms_m_s": sig(tl.vz_vs_autopilot.rms(), 4),
-                "samples": tl.alt_vs_autopilot.n,
-            },
-            "final": { "alt_m": sig(tl.alt, 7), "vz_up_m_s": sig(tl.vz_up, 4) },
-        })
-    };
-    let counters = |c: nav_core::AidCounters,
-                    r: nav_core::vertical_channel::ReacquisitionCounters| {
-        json!({
-            "accepted": c.fused, "rejected": c.rejected,
-            "reacquisitions": r.reacquisitions, "resets": r.resets,
-        })
-    };
-    let summary = json!({
+/// `summary.json`: the log, its streams and findings, the baro-unit check, each loop's
+/// status, counters and differences to the GNSS and the autopilot, the autopilot against the
+/// GNSS, the INS.
+fn summary_json(
+    describe: &str,
+    findings: Value,
+    pre: &PreScan,
+    cfg: &ReplayConfig,
+    pass: &Pass,
+    loops: &Loops,
+    ins: &ins::InsReplay,
+) -> Value {
+    json!({
         "log": describe,
         "imu_dt_s": pre.imu_dt_s,
         "settle_s": cfg.settle_s,
-        "streams": stats.iter().map(|(s, st)| (s.name().to_string(), st.summary(pre.first_imu))).collect::<serde_json::Map<_, _>>(),
-        "aid_samples_superseded": { "baro": superseded_baro, "gnss": superseded_gnss },
+        "streams": pass.stats.iter().map(|(s, st)| (s.name().to_string(), st.summary(pre.first_imu))).collect::<serde_json::Map<_, _>>(),
+        "aid_samples_superseded": { "baro": pass.superseded_baro, "gnss": pass.superseded_gnss },
         "log_findings": findings,
-        "baro_units_check": baro_units.summary(),
+        "baro_units_check": pass.baro_units.summary(),
         "loops": {
             "classical": loop_summary(
                 &loops.tally[0],
@@ -487,28 +405,12 @@ pub fn replay(log: &Path, cfg: &ReplayConfig, out: &Path) -> Result<Value> {
             }), status(&loops.aided.health())),
         },
         "autopilot_vs_gnss": {
-            "alt_rms_m": sig(ap_vs_gnss.0.std(), 4),
-            "alt_datum_offset_m": sig(ap_vs_gnss.0.mean, 4),
-            "vz_rms_m_s": sig(ap_vs_gnss.1.rms(), 4),
-            "samples": ap_vs_gnss.0.n,
+            "alt_rms_m": sig(pass.ap_vs_gnss.0.std(), 4),
+            "alt_datum_offset_m": sig(pass.ap_vs_gnss.0.mean, 4),
+            "vz_rms_m_s": sig(pass.ap_vs_gnss.1.rms(), 4),
+            "samples": pass.ap_vs_gnss.0.n,
         },
         "ins": ins.summary(),
         "notes": "altitude differences are RMS about their mean: the mean (datum_offset) is the constant offset between altitude datums (baro vs GNSS MSL vs the autopilot's local origin); vertical velocities are compared as they are. Comparisons start settle_s after the first IMU sample.",
-    });
-    crate::output::write_summary(out, &summary)?;
-    plot_replay(
-        &PlotData {
-            rows: plot_rows.rows(),
-            ap_diff: ap_diff.rows(),
-            gnss_diff: gnss_diff.rows(),
-            settle_s: cfg.settle_s,
-        },
-        &loops.tally,
-        // ap_vs_gnss is autopilot − GNSS; the figure draws GNSS − autopilot.
-        -ap_vs_gnss.0.mean,
-        &out.join("replay.png"),
-        &describe,
-    )?;
-    ins.plot(&out.join("ins.png"), &describe)?;
-    Ok(summary)
+    })
 }
