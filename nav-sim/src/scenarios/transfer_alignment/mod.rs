@@ -524,7 +524,7 @@ pub fn observability_ranks<const K: usize, const N: usize>(
         tau_s: cfg.tau_s[a],
     });
     let g = cfg.gravity_m_s2;
-    let a = cfg.accel_g * truth::G0_M_S2;
+    let a = cfg.accel_g * config::G0_M_S2;
     let l0 = Vector3::from(cfg.lever_arm_m);
     let w = Vector3::zeros();
     let seg = |f: Vector3<f64>| -> Result<Segment<f64, N, 6>> {

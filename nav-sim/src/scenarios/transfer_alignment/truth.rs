@@ -3,7 +3,7 @@
 //! (3rd-order Markov, 2nd-order Markov or a lightly damped bending mode), slave location
 //! `L = L_0 + θ_f × L_0`, slave specific force and angular rate from the exact kinematics (seed
 //! eq. 7) and exact rotations `C_m^s = exp(−[θ×])`, and master/slave IMU noise and biases.
-use super::config::{CaseConfig, FlexureTruthConfig, ImuConfig, TruthModel};
+use super::config::{CaseConfig, FlexureTruthConfig, ImuConfig, TruthModel, G0_M_S2};
 use crate::processes::{draw, psd_sqrt, LinearProcess};
 use crate::rng::{normal3, SimRng};
 use crate::truth::{cross_matrix, earth_rate_ned_rad_s, gravity_ned_m_s2, rotation_from_vector};
@@ -13,9 +13,6 @@ use nav_core::math::discretize::{discretize, stationary_covariance};
 use nav_core::math::markov::{GaussMarkov, MarkovOrder};
 use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::{MasterSample, SlaveSample};
-
-/// Standard gravity used for "1 g", m/s².
-pub const G0_M_S2: f64 = 9.80665;
 
 /// One run of truth and sensor data at every epoch.
 #[derive(Debug, Clone)]
