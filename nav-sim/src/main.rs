@@ -3,7 +3,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use nav_sim::scenario::{self, RunOptions};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(Debug, Parser)]
@@ -88,114 +88,10 @@ enum Cmd {
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match cli.cmd {
-        Cmd::List { scenario_dir } => {
-            let dir = scenario_dir.unwrap_or_else(scenario::default_scenario_dir);
-            println!("scenario files in {}:", dir.display());
-            for (name, path) in scenario::list(&dir)? {
-                println!("  {name:<20} {}", path.display());
-            }
-            println!("scenario kinds:");
-            for k in scenario::REGISTRY {
-                println!("  {:<20} {}", k.kind, k.about);
-            }
-            Ok(())
-        }
-        Cmd::Golden { out, seed } => {
-            for (case, steps) in nav_sim::golden::record(&out, seed)? {
-                println!(
-                    "golden {:<14} {steps:>5} steps -> {}",
-                    case.name(),
-                    out.display()
-                );
-            }
-            Ok(())
-        }
-        Cmd::Replay { log, config, out } => {
-            let cfg = match config {
-                Some(p) => nav_sim::replay::ReplayConfig::from_file(&p)?,
-                None => nav_sim::replay::ReplayConfig::default(),
-            };
-            let summary = nav_sim::replay::replay(&log, &cfg, &out)?;
-            println!("{}", serde_json::to_string_pretty(&summary["loops"])?);
-            let ins = &summary["ins"];
-            match ins["status"].as_str() {
-                Some("Available") => println!(
-                    "INS: free {} / re-levelled {} (differences to the autopilot)",
-                    ins["free"]["attitude_vs_autopilot"],
-                    ins["relevelled"]["attitude_vs_autopilot"]
-                ),
-                _ => println!(
-                    "strapdown INS not run ({}): {}; the vertical loops ran",
-                    ins["reason"], ins["detail"]
-                ),
-            }
-            let gaps: Vec<String> = summary["streams"]
-                .as_object()
-                .into_iter()
-                .flatten()
-                .filter(|(_, v)| v["gap_count"].as_u64().unwrap_or(0) > 0)
-                .map(|(k, v)| format!("{k} {}", v["gap_count"]))
-                .collect();
-            if !gaps.is_empty() {
-                println!("gaps (summary.json streams.*.gaps): {}", gaps.join(", "));
-            }
-            for (k, v) in summary["log_findings"].as_object().into_iter().flatten() {
-                if !(v.is_null() || v.as_array().is_some_and(Vec::is_empty)) {
-                    println!("log finding {k}: {v}");
-                }
-            }
-            println!("baro units check: {}", summary["baro_units_check"]);
-            println!(
-                "wrote {}/{{summary.json, timeseries.csv, replay.png, ins.png where the INS ran}}",
-                out.display()
-            );
-            Ok(())
-        }
-        Cmd::Stress { full, out, only } => {
-            use nav_sim::stress::{self, StressLevel};
-            let level = if full {
-                StressLevel::Full
-            } else {
-                StressLevel::Short
-            };
-            let report = stress::run_only(level, only.as_deref())?;
-            std::fs::create_dir_all(&out)?;
-            let path = out.join("report.json");
-            std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")?;
-            println!(
-                "stress ({}, {:.0} s) -> {}",
-                report.level,
-                report.elapsed_s,
-                path.display()
-            );
-            println!(
-                "{:<20} {:>6} {:>12} {:>8} {:>8} {:>10} {:>12}",
-                "estimator", "cases", "steps", "stalls", "non-PSD", "non-finite", "max refusals"
-            );
-            for (name, e) in [
-                ("transfer_alignment", &report.transfer_alignment),
-                ("seeker_ins", &report.seeker_ins),
-                ("vertical_channel", &report.vertical_channel),
-            ] {
-                println!(
-                    "{name:<20} {:>6} {:>12} {:>8} {:>8} {:>10} {:>12}",
-                    e.cases,
-                    e.steps,
-                    e.permanent_stalls,
-                    e.non_psd_commits,
-                    e.non_finite_reports,
-                    e.max_consecutive_refusals
-                );
-                for f in &e.findings {
-                    println!("    {}: {}", f.case, f.finding);
-                }
-            }
-            if report.clean {
-                Ok(())
-            } else {
-                anyhow::bail!("stress campaign not clean (see {})", path.display())
-            }
-        }
+        Cmd::List { scenario_dir } => list(scenario_dir),
+        Cmd::Golden { out, seed } => golden(&out, seed),
+        Cmd::Replay { log, config, out } => replay(&log, config, &out),
+        Cmd::Stress { full, out, only } => stress(full, &out, only.as_deref()),
         Cmd::Run {
             scenario: which,
             runs,
@@ -203,44 +99,172 @@ fn main() -> Result<()> {
             out,
             scenario_dir,
             quiet,
-        } => {
-            let dir = scenario_dir.unwrap_or_else(scenario::default_scenario_dir);
-            let targets = if which == "all" {
-                scenario::list(&dir)?
-            } else {
-                vec![scenario::resolve(&which, &dir)?]
-            };
-            let opts = RunOptions {
-                runs,
-                seed,
-                out_root: out.clone(),
-                progress: !quiet,
-            };
-            let mut failures = Vec::new();
-            for (name, path) in &targets {
-                let t0 = Instant::now();
-                eprintln!("== {name} ({})", path.display());
-                match scenario::run_file(name, path, &opts) {
-                    Ok(_) => eprintln!(
-                        "   wrote {} ({:.1} s)",
-                        out.join(name).join("summary.json").display(),
-                        t0.elapsed().as_secs_f64()
-                    ),
-                    Err(e) => {
-                        eprintln!("   FAILED: {e:#}");
-                        failures.push(name.clone());
-                    }
-                }
-            }
-            if failures.is_empty() {
-                Ok(())
-            } else {
-                anyhow::bail!(
-                    "{} scenario(s) failed: {}",
-                    failures.len(),
-                    failures.join(", ")
-                )
+        } => run(which, runs, seed, out, scenario_dir, quiet),
+    }
+}
+
+/// `list`: the scenario files in `scenario_dir` (default the shipped ones) and the kinds.
+fn list(scenario_dir: Option<PathBuf>) -> Result<()> {
+    let dir = scenario_dir.unwrap_or_else(scenario::default_scenario_dir);
+    println!("scenario files in {}:", dir.display());
+    for (name, path) in scenario::list(&dir)? {
+        println!("  {name:<20} {}", path.display());
+    }
+    println!("scenario kinds:");
+    for k in scenario::REGISTRY {
+        println!("  {:<20} {}", k.kind, k.about);
+    }
+    Ok(())
+}
+
+/// `golden`: records the golden vectors into `out`.
+fn golden(out: &Path, seed: u64) -> Result<()> {
+    for (case, steps) in nav_sim::golden::record(out, seed)? {
+        println!(
+            "golden {:<14} {steps:>5} steps -> {}",
+            case.name(),
+            out.display()
+        );
+    }
+    Ok(())
+}
+
+/// `replay`: one log with the configuration file `config` (default settings without) into
+/// `out`, and what it found on the terminal.
+fn replay(log: &Path, config: Option<PathBuf>, out: &Path) -> Result<()> {
+    let cfg = match config {
+        Some(p) => nav_sim::replay::ReplayConfig::from_file(&p)?,
+        None => nav_sim::replay::ReplayConfig::default(),
+    };
+    let summary = nav_sim::replay::replay(log, &cfg, out)?;
+    println!("{}", serde_json::to_string_pretty(&summary["loops"])?);
+    let ins = &summary["ins"];
+    match ins["status"].as_str() {
+        Some("Available") => println!(
+            "INS: free {} / re-levelled {} (differences to the autopilot)",
+            ins["free"]["attitude_vs_autopilot"], ins["relevelled"]["attitude_vs_autopilot"]
+        ),
+        _ => println!(
+            "strapdown INS not run ({}): {}; the vertical loops ran",
+            ins["reason"], ins["detail"]
+        ),
+    }
+    let gaps: Vec<String> = summary["streams"]
+        .as_object()
+        .into_iter()
+        .flatten()
+        .filter(|(_, v)| v["gap_count"].as_u64().unwrap_or(0) > 0)
+        .map(|(k, v)| format!("{k} {}", v["gap_count"]))
+        .collect();
+    if !gaps.is_empty() {
+        println!("gaps (summary.json streams.*.gaps): {}", gaps.join(", "));
+    }
+    for (k, v) in summary["log_findings"].as_object().into_iter().flatten() {
+        if !(v.is_null() || v.as_array().is_some_and(Vec::is_empty)) {
+            println!("log finding {k}: {v}");
+        }
+    }
+    println!("baro units check: {}", summary["baro_units_check"]);
+    println!(
+        "wrote {}/{{summary.json, timeseries.csv, replay.png, ins.png where the INS ran}}",
+        out.display()
+    );
+    Ok(())
+}
+
+/// `stress`: the campaign (full or short, one estimator's only) into `out/report.json`, and
+/// its table on the terminal; fails unless clean.
+fn stress(full: bool, out: &Path, only: Option<&str>) -> Result<()> {
+    use nav_sim::stress::{self, StressLevel};
+    let level = if full {
+        StressLevel::Full
+    } else {
+        StressLevel::Short
+    };
+    let report = stress::run_only(level, only)?;
+    std::fs::create_dir_all(out)?;
+    let path = out.join("report.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&report)? + "\n")?;
+    println!(
+        "stress ({}, {:.0} s) -> {}",
+        report.level,
+        report.elapsed_s,
+        path.display()
+    );
+    println!(
+        "{:<20} {:>6} {:>12} {:>8} {:>8} {:>10} {:>12}",
+        "estimator", "cases", "steps", "stalls", "non-PSD", "non-finite", "max refusals"
+    );
+    for (name, e) in [
+        ("transfer_alignment", &report.transfer_alignment),
+        ("seeker_ins", &report.seeker_ins),
+        ("vertical_channel", &report.vertical_channel),
+    ] {
+        println!(
+            "{name:<20} {:>6} {:>12} {:>8} {:>8} {:>10} {:>12}",
+            e.cases,
+            e.steps,
+            e.permanent_stalls,
+            e.non_psd_commits,
+            e.non_finite_reports,
+            e.max_consecutive_refusals
+        );
+        for f in &e.findings {
+            println!("    {}: {}", f.case, f.finding);
+        }
+    }
+    if report.clean {
+        Ok(())
+    } else {
+        anyhow::bail!("stress campaign not clean (see {})", path.display())
+    }
+}
+
+/// `run`: the scenario `which` (a name, a file, or `all`) from `scenario_dir` with the
+/// overrides, each into `out/<scenario>/`; fails when any failed.
+fn run(
+    which: String,
+    runs: Option<usize>,
+    seed: Option<u64>,
+    out: PathBuf,
+    scenario_dir: Option<PathBuf>,
+    quiet: bool,
+) -> Result<()> {
+    let dir = scenario_dir.unwrap_or_else(scenario::default_scenario_dir);
+    let targets = if which == "all" {
+        scenario::list(&dir)?
+    } else {
+        vec![scenario::resolve(&which, &dir)?]
+    };
+    let opts = RunOptions {
+        runs,
+        seed,
+        out_root: out.clone(),
+        progress: !quiet,
+    };
+    let mut failures = Vec::new();
+    for (name, path) in &targets {
+        let t0 = Instant::now();
+        eprintln!("== {name} ({})", path.display());
+        match scenario::run_file(name, path, &opts) {
+            Ok(_) => eprintln!(
+                "   wrote {} ({:.1} s)",
+                out.join(name).join("summary.json").display(),
+                t0.elapsed().as_secs_f64()
+            ),
+            Err(e) => {
+                eprintln!("   FAILED: {e:#}");
+                failures.push(name.clone());
             }
         }
+    }
+    if failures.is_empty() {
+        Ok(())
+    } else {
+        anyhow::bail!(
+            "{} scenario(s) failed: {}",
+            failures.len(),
+            failures.join(", ")
+        )
     }
 }

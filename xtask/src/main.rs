@@ -19,12 +19,16 @@
 //! * `flash [ELF]`: where the flash of a firmware image goes (bytes per module, largest
 //!   functions); default the flight image `nav-size` of the last `qemu`/`bench` build. `bench`
 //!   writes the same table for `nav-size` into `report.md`.
+//! * `layout [--strict]`: nav-core and nav-sim files over 600 lines, functions over 80 lines,
+//!   import cycles between sibling modules (`generated/` exempt from the lengths); reports, and
+//!   with `--strict` fails on any finding.
 //! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
 //!   at the end.
 
 mod firmware;
 mod flash;
 mod gen;
+mod layout;
 
 use std::env;
 use std::path::{Path, PathBuf};
@@ -50,6 +54,7 @@ fn main() -> ExitCode {
         "soak" => soak(),
         "replay" => replay(rest),
         "stress" => stress(rest.iter().any(|a| a == "--short")),
+        "layout" => layout::layout(rest.iter().any(|a| a == "--strict")),
         "-h" | "--help" | "help" => {
             usage();
             Ok(())
@@ -77,7 +82,8 @@ fn usage() {
          \n  qemu                                                firmware on QEMU: golden-vector replay\
          \n  bench [--report-only]                               firmware on QEMU: instructions, stack, sizes; fails on a missed target\
          \n  flash [ELF]                                         bytes per module and largest functions of an image (default nav-size)\
-         \n  gen [--check]                                       write (or check) the generated seeker kernels"
+         \n  gen [--check]                                       write (or check) the generated seeker kernels\
+         \n  layout [--strict]                                   files over 600 lines, functions over 80, sibling import cycles"
     );
 }
 

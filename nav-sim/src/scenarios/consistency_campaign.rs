@@ -260,39 +260,7 @@ fn run(ctx: &Context) -> Result<Value> {
             } else {
                 judge(r, paper, Some(ideal_seed(ctx.seed, c.estimator, r.variant)))
             };
-            let (lo, hi) = nees_band_95(r.consistency.dof, r.consistency.runs);
-            let _ = writeln!(
-                csv,
-                "{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{:.4},{},{:.2},{:.4},{:.4},{},{:.3},\
-                 {:.4},{},\"{}\"",
-                c.estimator,
-                r.variant,
-                r.filter,
-                r.consistency.dof,
-                r.consistency.runs,
-                r.consistency.mean_nees(),
-                lo,
-                hi,
-                v.frac_in_band,
-                v.nes_worst.0,
-                v.nes_worst.1,
-                v.accuracy_worst.0,
-                v.accuracy_worst.1,
-                v.pass,
-                r.consistency.nees_effective_epochs,
-                v.mean_band.0,
-                v.mean_band.1,
-                v.pass_statistical,
-                v.ideal_p_below,
-                v.ideal_p5,
-                r.consistency
-                    .normalized_error_sq
-                    .iter()
-                    .map(|(n, x)| format!("{n}={x:.4}"))
-                    .collect::<Vec<_>>()
-                    .join(" "),
-                r.params.to_string().replace('"', "'")
-            );
+            csv_row(&mut csv, c.estimator, r, &v);
             verdicts.push((r, v));
         }
         estimators.insert(c.estimator.into(), estimator_summary(c, &verdicts));
@@ -324,6 +292,43 @@ fn run(ctx: &Context) -> Result<Value> {
         "variants_per_estimator": p.variants,
         "estimators": Value::Object(estimators),
     }))
+}
+
+/// One row of `variants.csv`: a variant of `estimator` with its filter's verdict.
+fn csv_row(csv: &mut String, estimator: &str, r: &VariantResult, v: &Verdict) {
+    let (lo, hi) = nees_band_95(r.consistency.dof, r.consistency.runs);
+    let _ = writeln!(
+        csv,
+        "{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{:.4},{},{:.2},{:.4},{:.4},{},{:.3},\
+         {:.4},{},\"{}\"",
+        estimator,
+        r.variant,
+        r.filter,
+        r.consistency.dof,
+        r.consistency.runs,
+        r.consistency.mean_nees(),
+        lo,
+        hi,
+        v.frac_in_band,
+        v.nes_worst.0,
+        v.nes_worst.1,
+        v.accuracy_worst.0,
+        v.accuracy_worst.1,
+        v.pass,
+        r.consistency.nees_effective_epochs,
+        v.mean_band.0,
+        v.mean_band.1,
+        v.pass_statistical,
+        v.ideal_p_below,
+        v.ideal_p5,
+        r.consistency
+            .normalized_error_sq
+            .iter()
+            .map(|(n, x)| format!("{n}={x:.4}"))
+            .collect::<Vec<_>>()
+            .join(" "),
+        r.params.to_string().replace('"', "'")
+    );
 }
 
 fn estimator_summary(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Value {
@@ -405,41 +410,7 @@ fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec
         .filter(|(r, _)| r.filter == "flight")
         .collect();
     // Drawn last, over the flight filter's points.
-    let mut fails = None;
-    if !flight_rows.is_empty() {
-        let x: Vec<f64> = flight_rows.iter().map(|(r, _)| r.variant as f64).collect();
-        let per_state = |f: &dyn Fn(&(&VariantResult, Verdict)) -> f64| -> Vec<f64> {
-            flight_rows
-                .iter()
-                .map(|rv| (f(rv) / rv.0.consistency.dof as f64).min(RATIO_CLIP))
-                .collect()
-        };
-        let lo = per_state(&|(_, v)| v.mean_band.0);
-        let hi = per_state(&|(_, v)| v.mean_band.1);
-        let mut s = Series::line("band of the time average (ideal: 5 % outside)", &x, &lo, 2);
-        s.style = Style::Points;
-        ratio.series.push(s);
-        let mut s = Series::line("", &x, &hi, 2);
-        s.style = Style::Points;
-        ratio.series.push(s);
-        let (fx, fy): (Vec<f64>, Vec<f64>) = flight_rows
-            .iter()
-            .filter(|(_, v)| !v.pass_statistical)
-            .map(|(r, _)| {
-                (
-                    r.variant as f64,
-                    (r.consistency.mean_nees() / r.consistency.dof as f64).min(RATIO_CLIP),
-                )
-            })
-            .unzip();
-        let mut s = Series::line("flight: outside the band of its time average", &fx, &fy, 4);
-        s.style = Style::Points;
-        fails = Some(s);
-        let p5: Vec<f64> = flight_rows.iter().map(|(_, v)| v.ideal_p5).collect();
-        let mut s = Series::line("ideal filter: 5th percentile", &x, &p5, 2);
-        s.style = Style::Points;
-        frac.series.push(s);
-    }
+    let fails = flight_band_series(&flight_rows, &mut ratio, &mut frac);
     for (color, filter) in [(0usize, "flight"), (1, "paper")] {
         let rows: Vec<&(&VariantResult, Verdict)> = verdicts
             .iter()
@@ -472,6 +443,60 @@ fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec
         frac.series.push(s);
     }
     ratio.series.extend(fails);
+    add_bands(verdicts, &mut ratio, &mut frac);
+    vec![ratio, frac]
+}
+
+/// The flight filter's points drawn under the others: the band of its time-averaged NEES per
+/// state on `ratio`, the ideal filter's 5th percentile on `frac`; returns the series of the
+/// variants outside their band (drawn last), none without flight rows.
+fn flight_band_series(
+    flight_rows: &[&(&VariantResult, Verdict)],
+    ratio: &mut Panel,
+    frac: &mut Panel,
+) -> Option<Series> {
+    if flight_rows.is_empty() {
+        return None;
+    }
+    let x: Vec<f64> = flight_rows.iter().map(|(r, _)| r.variant as f64).collect();
+    let per_state = |f: &dyn Fn(&(&VariantResult, Verdict)) -> f64| -> Vec<f64> {
+        flight_rows
+            .iter()
+            .map(|rv| (f(rv) / rv.0.consistency.dof as f64).min(RATIO_CLIP))
+            .collect()
+    };
+    let lo = per_state(&|(_, v)| v.mean_band.0);
+    let hi = per_state(&|(_, v)| v.mean_band.1);
+    let mut s = Series::line("band of the time average (ideal: 5 % outside)", &x, &lo, 2);
+    s.style = Style::Points;
+    ratio.series.push(s);
+    let mut s = Series::line("", &x, &hi, 2);
+    s.style = Style::Points;
+    ratio.series.push(s);
+    let (fx, fy): (Vec<f64>, Vec<f64>) = flight_rows
+        .iter()
+        .filter(|(_, v)| !v.pass_statistical)
+        .map(|(r, _)| {
+            (
+                r.variant as f64,
+                (r.consistency.mean_nees() / r.consistency.dof as f64).min(RATIO_CLIP),
+            )
+        })
+        .unzip();
+    let mut s = Series::line("flight: outside the band of its time average", &fx, &fy, 4);
+    s.style = Style::Points;
+    let fails = Some(s);
+    let p5: Vec<f64> = flight_rows.iter().map(|(_, v)| v.ideal_p5).collect();
+    let mut s = Series::line("ideal filter: 5th percentile", &x, &p5, 2);
+    s.style = Style::Points;
+    frac.series.push(s);
+
+    fails
+}
+
+/// The 95 % band of one epoch's NEES per state on `ratio`, the target on `frac`, and room on
+/// the right of both for the legend.
+fn add_bands(verdicts: &[(&VariantResult, Verdict)], ratio: &mut Panel, frac: &mut Panel) {
     if let Some(n) = verdicts.iter().map(|(r, _)| r.variant).max() {
         let x = [0.0, n as f64];
         // The 95 % band of the run-averaged NEES per state (same states and runs for every
@@ -501,7 +526,6 @@ fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec
         ratio.series.push(Series::line("", &room, &[0.0], 3));
         frac.series.push(Series::line("", &room, &[0.0], 3));
     }
-    vec![ratio, frac]
 }
 
 /// Two flights of a campaign gave the same variants and the same numbers (the campaigns'

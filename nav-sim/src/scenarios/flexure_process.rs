@@ -135,64 +135,9 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
             |_, rng| one_run(pc, &cfg, rng),
         );
         let results: Vec<RunResult> = results.into_iter().collect::<Result<_>>()?;
-        let m = results.len() as f64;
-        let mean = |f: &dyn Fn(&RunResult) -> f64| results.iter().map(f).sum::<f64>() / m;
-        let sigma_deg = mean(&|r| r.sigma).to_degrees();
-        let rho = mean(&|r| r.rho_at_tau);
-        let tau_est = mean(&|r| r.tau_est);
-        let beta = MarkovOrder::Third.beta_tau() / pc.tau_s;
-        let top_rms = mean(&|r| r.top_rms);
-        let lags: Vec<f64> = (0..results[0].acf.len())
-            .map(|l| l as f64 * cfg.dt_s)
-            .collect();
-        let acf_mean: Vec<f64> = (0..lags.len())
-            .map(|l| results.iter().map(|r| r.acf[l]).sum::<f64>() / m)
-            .collect();
-        let beta_order = match pc.order {
-            1 => 1.0,
-            2 => MarkovOrder::Second.beta_tau(),
-            _ => MarkovOrder::Third.beta_tau(),
-        } / pc.tau_s;
-        let acf_theory: Vec<f64> = lags
-            .iter()
-            .map(|t| theory_acf(pc.order, beta_order * t))
-            .collect();
-        let file = format!("acf_{pi}.csv");
-        write_csv(
-            &ctx.out_dir.join(&file),
-            &["lag_s", "acf_simulated", "acf_theory"],
-            &[&lags, &acf_mean, &acf_theory],
-        )?;
-        println!(
-            "  {:<28} σ {:.4}° (cfg {:.4}°)  ρ(τ) {:.3} (1/e = 0.368)  τ̂ {:.3} s (cfg {:.3} s)",
-            pc.name, sigma_deg, pc.sigma_deg, rho, tau_est, pc.tau_s
-        );
-        let mut entry = json!({
-            "name": pc.name,
-            "order": pc.order,
-            "sigma_deg_configured": pc.sigma_deg,
-            "sigma_deg_simulated": sig(sigma_deg, 5),
-            "tau_s_configured": pc.tau_s,
-            "tau_s_simulated": sig(tau_est, 5),
-            "autocorrelation_at_tau": sig(rho, 5),
-            "acf_csv": file,
-        });
-        if pc.order == 3 {
-            entry["second_derivative_rms_rad_s2_simulated"] = json!(sig(top_rms, 5));
-            entry["second_derivative_rms_rad_s2_theory"] =
-                json!(sig(beta * beta * pc.sigma_deg.to_radians(), 5));
-        }
+        let (entry, panel) = process_outputs(ctx, &cfg, pi, pc, &results)?;
         processes.push(entry);
-        panels.push(Panel {
-            title: pc.name.clone(),
-            y_label: "autocorrelation / σ²".into(),
-            series: vec![
-                Series::line("simulated", &lags, &acf_mean, 0),
-                Series::dashed("theory", &lags, &acf_theory, 1),
-                Series::dashed("1/e", &[0.0, lags[lags.len() - 1]], &[(-1f64).exp(); 2], 7),
-            ],
-            y_range: None,
-        });
+        panels.push(panel);
     }
     render(
         &Figure {
@@ -206,4 +151,74 @@ fn run(ctx: &Context) -> Result<serde_json::Value> {
         900,
     )?;
     Ok(json!({ "dt_s": cfg.dt_s, "duration_s": cfg.duration_s, "processes": processes }))
+}
+
+/// The outputs of process `pi` (`pc`) from its runs: `acf_<pi>.csv`, its summary entry (σ,
+/// τ and the autocorrelation at τ simulated against configured; the second derivative's RMS
+/// for the third order) and its autocorrelation panel.
+fn process_outputs(
+    ctx: &Context,
+    cfg: &Config,
+    pi: usize,
+    pc: &ProcessConfig,
+    results: &[RunResult],
+) -> Result<(serde_json::Value, Panel)> {
+    let m = results.len() as f64;
+    let mean = |f: &dyn Fn(&RunResult) -> f64| results.iter().map(f).sum::<f64>() / m;
+    let sigma_deg = mean(&|r| r.sigma).to_degrees();
+    let rho = mean(&|r| r.rho_at_tau);
+    let tau_est = mean(&|r| r.tau_est);
+    let beta = MarkovOrder::Third.beta_tau() / pc.tau_s;
+    let top_rms = mean(&|r| r.top_rms);
+    let lags: Vec<f64> = (0..results[0].acf.len())
+        .map(|l| l as f64 * cfg.dt_s)
+        .collect();
+    let acf_mean: Vec<f64> = (0..lags.len())
+        .map(|l| results.iter().map(|r| r.acf[l]).sum::<f64>() / m)
+        .collect();
+    let beta_order = match pc.order {
+        1 => 1.0,
+        2 => MarkovOrder::Second.beta_tau(),
+        _ => MarkovOrder::Third.beta_tau(),
+    } / pc.tau_s;
+    let acf_theory: Vec<f64> = lags
+        .iter()
+        .map(|t| theory_acf(pc.order, beta_order * t))
+        .collect();
+    let file = format!("acf_{pi}.csv");
+    write_csv(
+        &ctx.out_dir.join(&file),
+        &["lag_s", "acf_simulated", "acf_theory"],
+        &[&lags, &acf_mean, &acf_theory],
+    )?;
+    println!(
+        "  {:<28} σ {:.4}° (cfg {:.4}°)  ρ(τ) {:.3} (1/e = 0.368)  τ̂ {:.3} s (cfg {:.3} s)",
+        pc.name, sigma_deg, pc.sigma_deg, rho, tau_est, pc.tau_s
+    );
+    let mut entry = json!({
+        "name": pc.name,
+        "order": pc.order,
+        "sigma_deg_configured": pc.sigma_deg,
+        "sigma_deg_simulated": sig(sigma_deg, 5),
+        "tau_s_configured": pc.tau_s,
+        "tau_s_simulated": sig(tau_est, 5),
+        "autocorrelation_at_tau": sig(rho, 5),
+        "acf_csv": file,
+    });
+    if pc.order == 3 {
+        entry["second_derivative_rms_rad_s2_simulated"] = json!(sig(top_rms, 5));
+        entry["second_derivative_rms_rad_s2_theory"] =
+            json!(sig(beta * beta * pc.sigma_deg.to_radians(), 5));
+    }
+    let panel = Panel {
+        title: pc.name.clone(),
+        y_label: "autocorrelation / σ²".into(),
+        series: vec![
+            Series::line("simulated", &lags, &acf_mean, 0),
+            Series::dashed("theory", &lags, &acf_theory, 1),
+            Series::dashed("1/e", &[0.0, lags[lags.len() - 1]], &[(-1f64).exp(); 2], 7),
+        ],
+        y_range: None,
+    };
+    Ok((entry, panel))
 }

@@ -146,6 +146,77 @@ struct World {
     next_manoeuvre_s: f64,
 }
 
+impl World {
+    /// A new manoeuvre: angular rate up to 1 rad/s (0.5 about z), specific force within
+    /// ±30 m/s² of 1 g, held 0.5-3 s.
+    fn manoeuvre(&mut self, rng: &mut SimRng) {
+        self.omega = Vector3::new(
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-1.0..1.0),
+            rng.random_range(-0.5..0.5),
+        );
+        self.force = Vector3::new(
+            rng.random_range(-30.0..30.0),
+            rng.random_range(-30.0..30.0),
+            -9.81 + rng.random_range(-30.0..30.0),
+        );
+        self.next_manoeuvre_s = self.t_s + rng.random_range(0.5..3.0);
+    }
+
+    /// The master and slave samples at `stamp`: the slave rotated by the mounting and flexure
+    /// angles (σ `c.sigma_deg` at the correlation frequency 1/τ), with white noise of σ
+    /// `noise = (rate rad/s, specific force m/s²)`.
+    fn samples(
+        &self,
+        c: &Case,
+        stamp: Timestamp,
+        noise: (f64, f64),
+        rng: &mut SimRng,
+    ) -> (MasterSample<f32>, SlaveSample<f32>) {
+        let (rate_sigma, accel_sigma) = noise;
+        // Flexure: a sinusoid of amplitude σ at the correlation frequency, per axis.
+        let om_f = 1.0 / c.tau_s;
+        let arg = self.phase + Vector3::repeat(om_f * self.t_s);
+        let sigma = c.sigma_deg.to_radians();
+        let theta_f = arg.map(f64::sin) * sigma;
+        let theta_f_dot = arg.map(f64::cos) * (sigma * om_f);
+        let theta = self.theta_m + theta_f;
+        let noise3 =
+            |rng: &mut SimRng, s: f64| Vector3::new(normal(rng, s), normal(rng, s), normal(rng, s));
+        let master = MasterSample {
+            time: stamp,
+            angular_rate_rad_s: self.omega.map(|v| v as f32),
+            angular_accel_rad_s2: Vector3::zeros(),
+            specific_force_m_s2: self.force.map(|v| v as f32),
+        };
+        let ws = self.omega - theta.cross(&self.omega) + theta_f_dot + noise3(rng, rate_sigma);
+        let fs = self.force - theta.cross(&self.force) + noise3(rng, accel_sigma);
+        let slave = SlaveSample {
+            time: stamp,
+            angular_rate_rad_s: ws.map(|v| v as f32),
+            specific_force_m_s2: fs.map(|v| v as f32),
+        };
+        (master, slave)
+    }
+}
+
+/// The interval to the next sample, µs: `dt_us`, or with hostile inputs jittered 0.5-1.5 dt
+/// and, one time in a thousand, a few samples missing (sometimes beyond `max_gap_steps`).
+fn next_interval_us(rng: &mut SimRng, dt_us: u64, hostile: bool) -> u64 {
+    if hostile {
+        let jitter = (dt_us as f64 * rng.random_range(0.5..1.5)).round() as u64;
+        let missing = if rng.random_bool(1e-3) {
+            // Missing samples: a few steps, sometimes beyond max_gap_steps.
+            dt_us * rng.random_range(1..12)
+        } else {
+            0
+        };
+        jitter.max(1) + missing
+    } else {
+        dt_us
+    }
+}
+
 fn record<T: Copy + Into<f64>>(tally: &mut Tally, rep: &StepReport<T>) {
     let vals = rep.updates.iter().flat_map(|u| {
         [
@@ -196,7 +267,6 @@ fn run_case<const K: usize, const N: usize>(c: &Case) -> Tally {
         return tally;
     };
     let dt_us = 1_000_000 / u64::from(c.rate_hz);
-    let sigma = c.sigma_deg.to_radians();
     let hostile = c.inputs != Inputs::ConstantClean;
     let (rate_sigma, accel_sigma) = if hostile {
         (
@@ -220,55 +290,14 @@ fn run_case<const K: usize, const N: usize>(c: &Case) -> Tally {
     let mut k = 0u64;
     while k < c.steps {
         // Time stamp of the next sample.
-        let interval = if hostile {
-            let jitter = (dt_us as f64 * rng.random_range(0.5..1.5)).round() as u64;
-            let missing = if rng.random_bool(1e-3) {
-                // Missing samples: a few steps, sometimes beyond max_gap_steps.
-                dt_us * rng.random_range(1..12)
-            } else {
-                0
-            };
-            jitter.max(1) + missing
-        } else {
-            dt_us
-        };
+        let interval = next_interval_us(&mut rng, dt_us, hostile);
         now_us += interval;
         w.t_s += interval as f64 * 1e-6;
         if hostile && w.t_s >= w.next_manoeuvre_s {
-            w.omega = Vector3::new(
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-1.0..1.0),
-                rng.random_range(-0.5..0.5),
-            );
-            w.force = Vector3::new(
-                rng.random_range(-30.0..30.0),
-                rng.random_range(-30.0..30.0),
-                -9.81 + rng.random_range(-30.0..30.0),
-            );
-            w.next_manoeuvre_s = w.t_s + rng.random_range(0.5..3.0);
+            w.manoeuvre(&mut rng);
         }
-        // Flexure: a sinusoid of amplitude σ at the correlation frequency, per axis.
-        let om_f = 1.0 / c.tau_s;
-        let arg = w.phase + Vector3::repeat(om_f * w.t_s);
-        let theta_f = arg.map(f64::sin) * sigma;
-        let theta_f_dot = arg.map(f64::cos) * (sigma * om_f);
-        let theta = w.theta_m + theta_f;
         let stamp = Timestamp::from_micros(now_us);
-        let noise3 =
-            |rng: &mut SimRng, s: f64| Vector3::new(normal(rng, s), normal(rng, s), normal(rng, s));
-        let master = MasterSample {
-            time: stamp,
-            angular_rate_rad_s: w.omega.map(|v| v as f32),
-            angular_accel_rad_s2: Vector3::zeros(),
-            specific_force_m_s2: w.force.map(|v| v as f32),
-        };
-        let ws = w.omega - theta.cross(&w.omega) + theta_f_dot + noise3(&mut rng, rate_sigma);
-        let fs = w.force - theta.cross(&w.force) + noise3(&mut rng, accel_sigma);
-        let slave = SlaveSample {
-            time: stamp,
-            angular_rate_rad_s: ws.map(|v| v as f32),
-            specific_force_m_s2: fs.map(|v| v as f32),
-        };
+        let (master, slave) = w.samples(c, stamp, (rate_sigma, accel_sigma), &mut rng);
         let dropout = hostile && (k / 2000) % 10 == 9;
         if dropout {
             let r = f.propagate(stamp);
@@ -315,6 +344,22 @@ pub fn run(level: StressLevel) -> EstimatorStress {
         StressLevel::Short => (10.0, 100_000),
         StressLevel::Full => (600.0, 10_000_000),
     };
+    let cases = cases(grid_seconds, long_steps);
+    for c in [&SKIPPED, &REINITS, &RESETS, &RECOVERIES] {
+        c.store(0, Ordering::Relaxed);
+    }
+    let tallies: Vec<Tally> = cases.par_iter().map(run_one).collect();
+    let mut out = EstimatorStress::default();
+    for t in tallies {
+        out.add(t);
+    }
+    out.coverage = coverage(grid_seconds, long_steps);
+    out
+}
+
+/// The cases: both paper filters, then the flight configuration, over the grid of rates, σ,
+/// τ and inputs (`grid_seconds` each), and the two long runs (`long_steps`); each its seed.
+fn cases(grid_seconds: f64, long_steps: u64) -> Vec<Case> {
     let mut cases = Vec::new();
     let mut seed = 0u64;
     for rate_hz in [100u32, 200, 500, 1000] {
@@ -384,15 +429,12 @@ pub fn run(level: StressLevel) -> EstimatorStress {
             seed,
         });
     }
-    for c in [&SKIPPED, &REINITS, &RESETS, &RECOVERIES] {
-        c.store(0, Ordering::Relaxed);
-    }
-    let tallies: Vec<Tally> = cases.par_iter().map(run_one).collect();
-    let mut out = EstimatorStress::default();
-    for t in tallies {
-        out.add(t);
-    }
-    out.coverage = vec![
+    cases
+}
+
+/// The campaign's coverage lines.
+fn coverage(grid_seconds: f64, long_steps: u64) -> Vec<String> {
+    vec![
         format!(
             "both paper filters and the flight configuration (15 states), f32, 100/200/500/1000 Hz × σ 0.01/0.1/0.5/2° × τ 0.05/0.5/5/100/1e4 s × \
              (constant noise-free | noisy manoeuvres with jitter 0.5-1.5 dt, missing samples, \
@@ -414,6 +456,5 @@ pub fn run(level: StressLevel) -> EstimatorStress {
             RESETS.load(Ordering::Relaxed),
             RECOVERIES.load(Ordering::Relaxed)
         ),
-    ];
-    out
+    ]
 }

@@ -110,26 +110,9 @@ fn design_stamps_refuse_other_configurations_f32_f64() {
     stamps::<f64>();
 }
 
-/// Setters and configuration refuse out-of-envelope gates, recoveries and aid models with the
-/// field named and leave the loop unchanged; the covariance recovery actions are refused.
-fn run_time_refusals<T: Real>() {
-    let cc = ClassicalConfig::<T>::paper();
-    let i0 = init::<T>(500.0);
-    let mut lp = ClassicalLoop::new(&cc, &i0).unwrap();
-    let before = lp;
-    let field = |r: Result<(), NavError>| match r {
-        Err(NavError::InvalidConfig { field, .. }) => field,
-        other => panic!("{other:?}"),
-    };
-    for g in [0.0, -1.0, 1e-4, 1e5, f64::NAN] {
-        assert_eq!(field(lp.set_gate(Gate::Nis(T::lit(g)))), "gate", "{g}");
-        let c = ClassicalConfig {
-            gate: Gate::Nis(T::lit(g)),
-            ..cc
-        };
-        assert_eq!(field(ClassicalLoop::new(&c, &i0).map(|_| ())), "gate");
-    }
-    let bad_recoveries = [
+/// Recovery policies outside the vertical loops' envelope, with the field each is refused on.
+fn bad_recoveries<T: Real>() -> [(RecoveryPolicy<T>, &'static str); 4] {
+    [
         (
             RecoveryPolicy {
                 starved_after_s: Some(T::zero()),
@@ -160,7 +143,29 @@ fn run_time_refusals<T: Real>() {
             },
             "recovery.action",
         ),
-    ];
+    ]
+}
+
+/// Setters and configuration refuse out-of-envelope gates, recoveries and aid models with the
+/// field named and leave the loop unchanged; the covariance recovery actions are refused.
+fn run_time_refusals<T: Real>() {
+    let cc = ClassicalConfig::<T>::paper();
+    let i0 = init::<T>(500.0);
+    let mut lp = ClassicalLoop::new(&cc, &i0).unwrap();
+    let before = lp;
+    let field = |r: Result<(), NavError>| match r {
+        Err(NavError::InvalidConfig { field, .. }) => field,
+        other => panic!("{other:?}"),
+    };
+    for g in [0.0, -1.0, 1e-4, 1e5, f64::NAN] {
+        assert_eq!(field(lp.set_gate(Gate::Nis(T::lit(g)))), "gate", "{g}");
+        let c = ClassicalConfig {
+            gate: Gate::Nis(T::lit(g)),
+            ..cc
+        };
+        assert_eq!(field(ClassicalLoop::new(&c, &i0).map(|_| ())), "gate");
+    }
+    let bad_recoveries = bad_recoveries::<T>();
     for (r, name) in bad_recoveries {
         assert_eq!(field(lp.set_recovery(r)), name);
     }

@@ -137,6 +137,32 @@ pub(super) fn write_outputs(
     free: &Stats,
     first: &RunOutput,
 ) -> Result<()> {
+    write_errors_csv(ctx, aided, free)?;
+    let shape = format!("{:?}", cfg.trajectory.shape);
+    write_error_figures(ctx, &shape, aided, free)?;
+    write_nees_figure(ctx, &shape, aided)?;
+    write_trajectory(ctx, cfg, &shape, truth, first)
+}
+
+/// Titles of the nine error channels.
+const TITLES: [&str; 9] = [
+    "latitude error",
+    "longitude error",
+    "altitude error",
+    "north velocity error",
+    "east velocity error",
+    "down velocity error",
+    "roll error",
+    "pitch error",
+    "yaw error",
+];
+
+/// Units of the channels.
+const UNITS: [&str; 9] = ["m", "m", "m", "m/s", "m/s", "m/s", "deg", "deg", "deg"];
+
+/// `errors.csv`: per channel the error mean, Monte Carlo σ, filter σ and RMS of the aided
+/// filter and the free INS's RMS; the NEES of the 17 states and of each block.
+fn write_errors_csv(ctx: &Context, aided: &Stats, free: &Stats) -> Result<()> {
     // CSV: per channel mean, MC std, filter σ (aided), RMS aided and free; NEES.
     let mut headers: Vec<String> = vec!["t_s".into()];
     let mut cols: Vec<&[f64]> = vec![&aided.t_s];
@@ -161,26 +187,19 @@ pub(super) fn write_outputs(
     }
     let hdr: Vec<&str> = headers.iter().map(String::as_str).collect();
     write_csv(&ctx.out_dir.join("errors.csv"), &hdr, &cols)?;
+    Ok(())
+}
 
-    let titles = [
-        "latitude error",
-        "longitude error",
-        "altitude error",
-        "north velocity error",
-        "east velocity error",
-        "down velocity error",
-        "roll error",
-        "pitch error",
-        "yaw error",
-    ];
-    let units = ["m", "m", "m", "m/s", "m/s", "m/s", "deg", "deg", "deg"];
+/// `errors.png` (error mean, Monte Carlo σ and filter σ per channel) and `aided_vs_free.png`
+/// (RMS of the aided filter and the free INS).
+fn write_error_figures(ctx: &Context, shape: &str, aided: &Stats, free: &Stats) -> Result<()> {
     let t = &aided.t_s;
     let neg = |v: &[f64]| v.iter().map(|x| -x).collect::<Vec<f64>>();
     let mut panels = Vec::new();
     for i in 0..9 {
         panels.push(Panel {
-            title: titles[i].into(),
-            y_label: units[i].into(),
+            title: TITLES[i].into(),
+            y_label: UNITS[i].into(),
             series: vec![
                 Series::line("error mean", t, &aided.mean[i], 0),
                 Series::line("MC σ", t, &aided.std[i], 1),
@@ -191,7 +210,6 @@ pub(super) fn write_outputs(
             y_range: None,
         });
     }
-    let shape = format!("{:?}", cfg.trajectory.shape);
     render(
         &Figure {
             title: format!(
@@ -210,8 +228,8 @@ pub(super) fn write_outputs(
     let mut panels = Vec::new();
     for i in [0usize, 1, 2, 4, 7, 8] {
         panels.push(Panel {
-            title: format!("{} RMS", titles[i]),
-            y_label: units[i].into(),
+            title: format!("{} RMS", TITLES[i]),
+            y_label: UNITS[i].into(),
             series: vec![
                 Series::line("aided", t, &aided.rms[i], 0),
                 Series::dashed("free INS", t, &free.rms[i], 1),
@@ -230,6 +248,12 @@ pub(super) fn write_outputs(
         1500,
         800,
     )?;
+    Ok(())
+}
+
+/// `nees.png`: the run-averaged NEES of the 17 states and of each block with its 95 % band.
+fn write_nees_figure(ctx: &Context, shape: &str, aided: &Stats) -> Result<()> {
+    let t = &aided.t_s;
     // NEES.
     let runs = aided.runs.max(1) as f64;
     let mut panels = Vec::new();
@@ -273,6 +297,18 @@ pub(super) fn write_outputs(
         1300,
         900,
     )?;
+    Ok(())
+}
+
+/// `trajectory.png`: the ground track with the landmark, and the true gimbal angles of run 0
+/// with their limit.
+fn write_trajectory(
+    ctx: &Context,
+    cfg: &Config,
+    shape: &str,
+    truth: &Truth,
+    first: &RunOutput,
+) -> Result<()> {
     // Trajectory and gimbal angles.
     let lat0 = truth.position[0].lat_rad;
     let (rm, rn) = radii_m(lat0);

@@ -5,6 +5,9 @@ use nav_core::transfer_alignment::{AxisFlexure, PaperCase, TaConfig};
 use nav_core::Gate;
 use serde::Deserialize;
 
+/// Standard gravity used for "1 g" (accelerations and biases configured in g, µg), m/s².
+pub const G0_M_S2: f64 = 9.80665;
+
 /// Truth flexure model.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -69,7 +72,7 @@ impl ImuConfig {
     }
     /// 1σ of one accelerometer sample over `dt_s`: density / √Δt, m/s².
     pub fn accel_sigma_per_sample_m_s2(&self, dt_s: f64) -> f64 {
-        self.accel_noise_ug_rt_hz * 1e-6 * super::truth::G0_M_S2 / dt_s.sqrt()
+        self.accel_noise_ug_rt_hz * 1e-6 * G0_M_S2 / dt_s.sqrt()
     }
 }
 
@@ -227,7 +230,7 @@ impl CaseConfig {
         let accel_bias =
             (self.master_imu.accel_bias_ug.powi(2) + self.slave_imu.accel_bias_ug.powi(2)).sqrt()
                 * 1e-6
-                * super::truth::G0_M_S2;
+                * G0_M_S2;
         TaConfig {
             lever_arm_m: Vector3::from(self.lever_arm_m),
             flexure: [ax(0), ax(1), ax(2)],

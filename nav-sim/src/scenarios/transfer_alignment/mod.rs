@@ -106,9 +106,34 @@ fn print_method(label: &str, m: &MethodStats) {
 }
 
 fn write_case_outputs(ctx: &Context, cfg: &CaseConfig, r: &CaseResult) -> Result<Value> {
+    let acc = write_flexure_accel(ctx, r)?;
+    write_single_run(ctx, r)?;
+    write_monte_carlo(ctx, r)?;
+    // NEES of θ of the three filters with their 95 % bands.
+    render_nees(ctx, r)?;
+    // Flexure angular-acceleration level of this case (theory β²σ for the 3rd-order truth).
+    let acc_rms: Vec<f64> = acc
+        .iter()
+        .map(|v| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
+        .collect();
+    let theory: Vec<f64> = (0..3)
+        .map(|a| {
+            let b = MarkovOrder::Third.beta_tau() / cfg.truth_flexure.tau_s[a];
+            b * b * cfg.truth_flexure.sigma_deg[a].to_radians()
+        })
+        .collect();
+    Ok(json!({
+        "flexure_accel_rms_rad_s2_run0": acc_rms.iter().map(|v| sig(*v, 3)).collect::<Vec<_>>(),
+        "flexure_accel_rms_rad_s2_markov3_theory": theory.iter().map(|v| sig(*v, 3)).collect::<Vec<_>>(),
+    }))
+}
+
+/// Fig. 2: `flexure_accel.{csv,png}`, the flexure angular acceleration of the case (run 0);
+/// returns it per axis, rad/s².
+fn write_flexure_accel(ctx: &Context, r: &CaseResult) -> Result<Vec<Vec<f64>>> {
     let t = &r.t_s;
-    let (truth, conv, prop) = &r.run0;
     let dir = &ctx.out_dir;
+    let truth = &r.run0.0;
     // Fig. 2: flexure angular acceleration of this case (run 0).
     let acc: Vec<Vec<f64>> = (0..3)
         .map(|a| truth.theta_f_accel_rad_s2.iter().map(|v| v[a]).collect())
@@ -141,6 +166,14 @@ fn write_case_outputs(ctx: &Context, cfg: &CaseConfig, r: &CaseResult) -> Result
         1000,
         900,
     )?;
+    Ok(acc)
+}
+
+/// Figs. 3-5: `single_run.{csv,png}`, the estimation error of both paper filters in run 0.
+fn write_single_run(ctx: &Context, r: &CaseResult) -> Result<()> {
+    let t = &r.t_s;
+    let dir = &ctx.out_dir;
+    let (truth, conv, prop) = &r.run0;
     // Figs. 3-5: one run, estimation error of both methods.
     let ec: Vec<Vec<f64>> = conv.err_rad.iter().map(|v| mrad(v)).collect();
     let ep: Vec<Vec<f64>> = prop.err_rad.iter().map(|v| mrad(v)).collect();
@@ -199,8 +232,19 @@ fn write_case_outputs(ctx: &Context, cfg: &CaseConfig, r: &CaseResult) -> Result
         1000,
         900,
     )?;
-    // Fig. 6: Monte Carlo 1σ with the filters' own σ.
-    let (c, p) = (&r.conventional, &r.proposed);
+    Ok(())
+}
+
+/// Fig. 6: `monte_carlo.{csv,png}`, the Monte Carlo 1σ of both paper filters' errors with
+/// their own σ.
+/// `monte_carlo.csv`: per axis, RMS and 1σ of the error over the runs and the filter's σ, of
+/// the conventional (`c`) and the proposed (`p`) filter, mrad.
+fn write_monte_carlo_csv(
+    dir: &std::path::Path,
+    t: &[f64],
+    c: &MethodStats,
+    p: &MethodStats,
+) -> Result<()> {
     write_csv(
         &dir.join("monte_carlo.csv"),
         &[
@@ -246,6 +290,15 @@ fn write_case_outputs(ctx: &Context, cfg: &CaseConfig, r: &CaseResult) -> Result
             &p.filter_sigma_mrad[2],
         ],
     )?;
+    Ok(())
+}
+
+fn write_monte_carlo(ctx: &Context, r: &CaseResult) -> Result<()> {
+    let t = &r.t_s;
+    let dir = &ctx.out_dir;
+    // Fig. 6: Monte Carlo 1σ with the filters' own σ.
+    let (c, p) = (&r.conventional, &r.proposed);
+    write_monte_carlo_csv(dir, t, c, p)?;
     let mc_span = |a: usize| {
         let m = [
             &c.std_mrad[a],
@@ -291,23 +344,7 @@ fn write_case_outputs(ctx: &Context, cfg: &CaseConfig, r: &CaseResult) -> Result
         1000,
         900,
     )?;
-    // NEES of θ of the three filters with their 95 % bands.
-    render_nees(ctx, r)?;
-    // Flexure angular-acceleration level of this case (theory β²σ for the 3rd-order truth).
-    let acc_rms: Vec<f64> = acc
-        .iter()
-        .map(|v| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt())
-        .collect();
-    let theory: Vec<f64> = (0..3)
-        .map(|a| {
-            let b = MarkovOrder::Third.beta_tau() / cfg.truth_flexure.tau_s[a];
-            b * b * cfg.truth_flexure.sigma_deg[a].to_radians()
-        })
-        .collect();
-    Ok(json!({
-        "flexure_accel_rms_rad_s2_run0": acc_rms.iter().map(|v| sig(*v, 3)).collect::<Vec<_>>(),
-        "flexure_accel_rms_rad_s2_markov3_theory": theory.iter().map(|v| sig(*v, 3)).collect::<Vec<_>>(),
-    }))
+    Ok(())
 }
 
 /// `nees.png`: the run-averaged NEES of θ of each filter (paper filters and the flight
@@ -487,7 +524,7 @@ pub fn observability_ranks<const K: usize, const N: usize>(
         tau_s: cfg.tau_s[a],
     });
     let g = cfg.gravity_m_s2;
-    let a = cfg.accel_g * truth::G0_M_S2;
+    let a = cfg.accel_g * config::G0_M_S2;
     let l0 = Vector3::from(cfg.lever_arm_m);
     let w = Vector3::zeros();
     let seg = |f: Vector3<f64>| -> Result<Segment<f64, N, 6>> {

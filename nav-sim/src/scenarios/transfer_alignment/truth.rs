@@ -3,7 +3,7 @@
 //! (3rd-order Markov, 2nd-order Markov or a lightly damped bending mode), slave location
 //! `L = L_0 + θ_f × L_0`, slave specific force and angular rate from the exact kinematics (seed
 //! eq. 7) and exact rotations `C_m^s = exp(−[θ×])`, and master/slave IMU noise and biases.
-use super::config::{CaseConfig, FlexureTruthConfig, ImuConfig, TruthModel};
+use super::config::{CaseConfig, FlexureTruthConfig, ImuConfig, TruthModel, G0_M_S2};
 use crate::processes::{draw, psd_sqrt, LinearProcess};
 use crate::rng::{normal3, SimRng};
 use crate::truth::{cross_matrix, earth_rate_ned_rad_s, gravity_ned_m_s2, rotation_from_vector};
@@ -13,9 +13,6 @@ use nav_core::math::discretize::{discretize, stationary_covariance};
 use nav_core::math::markov::{GaussMarkov, MarkovOrder};
 use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::{MasterSample, SlaveSample};
-
-/// Standard gravity used for "1 g", m/s².
-pub const G0_M_S2: f64 = 9.80665;
 
 /// One run of truth and sensor data at every epoch.
 #[derive(Debug, Clone)]
@@ -90,45 +87,58 @@ pub(crate) fn flexure_axis(
                 out[2][k] = (xs[k + 1][1] - prev) / span;
             }
         }
-        TruthModel::Bending => {
-            // θ̈ = −ω_n² θ − 2ζω_n θ̇ + u, u̇ = −u/τ_u + w: a lightly damped wing-bending mode
-            // driven by 1st-order Markov turbulence; scaled so the stationary σ of θ is σ.
-            let wn = 2.0 * std::f64::consts::PI * cfg.bending_frequency_hz[axis];
-            let zeta = cfg.bending_damping_ratio;
-            let tau_u = cfg.turbulence_tau_s;
-            if !(wn > 0.0 && zeta > 0.0 && tau_u > 0.0) {
-                bail!("bending mode needs positive frequency, damping ratio and turbulence τ");
-            }
-            let f = SMatrix::<f64, 3, 3>::new(
-                0.0,
-                1.0,
-                0.0,
-                -wn * wn,
-                -2.0 * zeta * wn,
-                1.0,
-                0.0,
-                0.0,
-                -1.0 / tau_u,
-            );
-            let mut q = SMatrix::<f64, 3, 3>::zeros();
-            q[(2, 2)] = 1.0;
-            let (phi, qd) = discretize(&f, &q, dt).map_err(|e| anyhow!("{e}"))?;
-            let p_unit = stationary_covariance(&phi, &qd, 200).map_err(|e| anyhow!("{e}"))?;
-            let scale = sigma * sigma / p_unit[(0, 0)];
-            q[(2, 2)] = scale;
-            let x0: SVector<f64, 3> = draw(rng, &psd_sqrt(&(p_unit * scale)));
-            let mut p = LinearProcess::new(&f, &q, dt, x0)?;
-            let mut x = x0;
-            let [th, th_d, th_dd] = &mut out;
-            for ((a, b), c) in th.iter_mut().zip(th_d.iter_mut()).zip(th_dd.iter_mut()) {
-                *a = x[0];
-                *b = x[1];
-                *c = -wn * wn * x[0] - 2.0 * zeta * wn * x[1] + x[2];
-                x = p.step(rng);
-            }
-        }
+        TruthModel::Bending => bending_axis(cfg, axis, sigma, dt, &mut out, rng)?,
     }
     Ok(out)
+}
+
+/// The bending-mode truth of `axis` (θ, θ̇, θ̈ in `out`, `dt` s apart): a lightly damped
+/// wing-bending mode driven by first-order Markov turbulence, its stationary σ of θ `sigma`
+/// (rad).
+fn bending_axis(
+    cfg: &FlexureTruthConfig,
+    axis: usize,
+    sigma: f64,
+    dt: f64,
+    out: &mut [Vec<f64>; 3],
+    rng: &mut SimRng,
+) -> Result<()> {
+    // θ̈ = −ω_n² θ − 2ζω_n θ̇ + u, u̇ = −u/τ_u + w: a lightly damped wing-bending mode
+    // driven by 1st-order Markov turbulence; scaled so the stationary σ of θ is σ.
+    let wn = 2.0 * std::f64::consts::PI * cfg.bending_frequency_hz[axis];
+    let zeta = cfg.bending_damping_ratio;
+    let tau_u = cfg.turbulence_tau_s;
+    if !(wn > 0.0 && zeta > 0.0 && tau_u > 0.0) {
+        bail!("bending mode needs positive frequency, damping ratio and turbulence τ");
+    }
+    let f = SMatrix::<f64, 3, 3>::new(
+        0.0,
+        1.0,
+        0.0,
+        -wn * wn,
+        -2.0 * zeta * wn,
+        1.0,
+        0.0,
+        0.0,
+        -1.0 / tau_u,
+    );
+    let mut q = SMatrix::<f64, 3, 3>::zeros();
+    q[(2, 2)] = 1.0;
+    let (phi, qd) = discretize(&f, &q, dt).map_err(|e| anyhow!("{e}"))?;
+    let p_unit = stationary_covariance(&phi, &qd, 200).map_err(|e| anyhow!("{e}"))?;
+    let scale = sigma * sigma / p_unit[(0, 0)];
+    q[(2, 2)] = scale;
+    let x0: SVector<f64, 3> = draw(rng, &psd_sqrt(&(p_unit * scale)));
+    let mut p = LinearProcess::new(&f, &q, dt, x0)?;
+    let mut x = x0;
+    let [th, th_d, th_dd] = out;
+    for ((a, b), c) in th.iter_mut().zip(th_d.iter_mut()).zip(th_dd.iter_mut()) {
+        *a = x[0];
+        *b = x[1];
+        *c = -wn * wn * x[0] - 2.0 * zeta * wn * x[1] + x[2];
+        x = p.step(rng);
+    }
+    Ok(())
 }
 
 /// IMU error model of one run: per-sample noise σ and drawn random-constant biases (shared

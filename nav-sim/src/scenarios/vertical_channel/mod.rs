@@ -28,8 +28,9 @@ mod truth;
 pub use campaign::{draw_variant, fly_variant, CAMPAIGN, CAMPAIGN_CLASSICAL, VARIANT_DURATION_S};
 pub use run::{
     error_model, loop_configs, monte_carlo_rmse, nees_h_vz, one_run, push_consistency, simulate,
-    McResult, Noise, RunOut, AXES, FILTERS,
+    McResult, RunOut, AXES, FILTERS,
 };
+pub use sensors::Noise;
 pub use truth::Profile;
 
 use crate::scenario::Kind;

@@ -1,7 +1,7 @@
 //! The kinds' runners: figures, CSV and summaries of `vc-response`, `vc-montecarlo` and
 //! `vc-tau-sweep`.
 
-use super::run::{loop_configs, monte_carlo_rmse, one_run, McResult, FILTERS};
+use super::run::{loop_configs, monte_carlo_rmse, one_run, McResult, RunOut, FILTERS};
 use super::truth::Profile;
 use super::{validate, Config};
 use crate::consistency::Consistency;
@@ -89,6 +89,29 @@ pub(super) fn run_response(ctx: &Context) -> Result<Value> {
             }),
         );
     }
+    write_response_csv(ctx, &run, &twin)?;
+    render_response(ctx, &cfg, tau, &run, &twin)?;
+    let cons: Vec<Consistency> = run
+        .consistency
+        .iter()
+        .map(|rc| Consistency::from_runs(2, std::slice::from_ref(rc)))
+        .collect();
+    nees_figure(
+        "vc-response: NEES of (h, V_z), one run (band of one run: χ²(2))",
+        &cons,
+        &ctx.out_dir.join("nees.png"),
+    )?;
+    Ok(json!({
+        "consistency": consistency_json(&cons),
+        "loops": loops,
+        "design": design_json(&cfg, tau)?,
+        "precision": cfg.precision,
+    }))
+}
+
+/// `response.csv`: truth, baro, both loops' estimates and errors, and the noise-free twin's
+/// altitude errors.
+fn write_response_csv(ctx: &Context, run: &RunOut, twin: &RunOut) -> Result<()> {
     write_csv(
         &ctx.out_dir.join("response.csv"),
         &[
@@ -124,14 +147,29 @@ pub(super) fn run_response(ctx: &Context) -> Result<Value> {
             &twin.err_h[1],
         ],
     )?;
+    Ok(())
+}
+
+/// The legend of loop `l` (0 classical with its τ in s, 1 aided).
+fn loop_label(l: usize, tau: f64) -> String {
+    if l == 0 {
+        format!("classical (τ = {tau} s)")
+    } else {
+        "velocity-aided (Riccati)".to_string()
+    }
+}
+
+/// `fig3_response.png`: altitude, vertical velocity and their errors of both loops, with the
+/// noise-free twin's errors.
+fn render_response(
+    ctx: &Context,
+    cfg: &Config,
+    tau: f64,
+    run: &RunOut,
+    twin: &RunOut,
+) -> Result<()> {
     let t = &run.t;
-    let label = |l: usize| {
-        if l == 0 {
-            format!("classical (τ = {tau} s)")
-        } else {
-            "velocity-aided (Riccati)".to_string()
-        }
-    };
+    let label = |l: usize| loop_label(l, tau);
     let fig = Figure {
         title: "Vertical channel response (seed Fig. 3): one run, initial errors 20 m / 2 m/s"
             .into(),
@@ -200,22 +238,7 @@ pub(super) fn run_response(ctx: &Context) -> Result<Value> {
         ],
     };
     render(&fig, &ctx.out_dir.join("fig3_response.png"), 1400, 1200)?;
-    let cons: Vec<Consistency> = run
-        .consistency
-        .iter()
-        .map(|rc| Consistency::from_runs(2, std::slice::from_ref(rc)))
-        .collect();
-    nees_figure(
-        "vc-response: NEES of (h, V_z), one run (band of one run: χ²(2))",
-        &cons,
-        &ctx.out_dir.join("nees.png"),
-    )?;
-    Ok(json!({
-        "consistency": consistency_json(&cons),
-        "loops": loops,
-        "design": design_json(&cfg, tau)?,
-        "precision": cfg.precision,
-    }))
+    Ok(())
 }
 
 pub(super) fn run_montecarlo(ctx: &Context) -> Result<Value> {
@@ -250,14 +273,27 @@ pub(super) fn run_montecarlo(ctx: &Context) -> Result<Value> {
             }),
         );
     }
+    write_rmse(ctx, tau, &mc)?;
+    print_consistency(&mc);
+    nees_figure(
+        &format!("vc-montecarlo: NEES of (h, V_z), {} runs", ctx.runs),
+        &mc.consistency,
+        &ctx.out_dir.join("nees.png"),
+    )?;
+    Ok(json!({
+        "consistency": consistency_json(&mc.consistency),
+        "loops": loops,
+        "design": design_json(&cfg, tau)?,
+        "precision": cfg.precision,
+        "initial_error_mode": cfg.initial_error.mode,
+    }))
+}
+
+/// `rmse.csv` and `fig4_rmse.png`: both loops' RMSE over the runs against time (linear and
+/// log10).
+fn write_rmse(ctx: &Context, tau: f64, mc: &McResult) -> Result<()> {
     let t = &mc.t;
-    let label = |l: usize| {
-        if l == 0 {
-            format!("classical (τ = {tau} s)")
-        } else {
-            "velocity-aided (Riccati)".to_string()
-        }
-    };
+    let label = |l: usize| loop_label(l, tau);
     let cols: Vec<&[f64]> = vec![
         t,
         &mc.rmse_t[0][0],
@@ -324,19 +360,7 @@ pub(super) fn run_montecarlo(ctx: &Context) -> Result<Value> {
         ],
     };
     render(&fig, &ctx.out_dir.join("fig4_rmse.png"), 1400, 900)?;
-    print_consistency(&mc);
-    nees_figure(
-        &format!("vc-montecarlo: NEES of (h, V_z), {} runs", ctx.runs),
-        &mc.consistency,
-        &ctx.out_dir.join("nees.png"),
-    )?;
-    Ok(json!({
-        "consistency": consistency_json(&mc.consistency),
-        "loops": loops,
-        "design": design_json(&cfg, tau)?,
-        "precision": cfg.precision,
-        "initial_error_mode": cfg.initial_error.mode,
-    }))
+    Ok(())
 }
 
 pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
@@ -393,6 +417,25 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
             );
         }
     }
+    let aided_rows = aided_design_sweep(ctx, &cfg)?;
+    let aided = aided_ref.clone().unwrap_or(Value::Null);
+    write_tau_sweep(ctx, &taus, [&rh, &rv, &st], &aided)?;
+    nees_panels(
+        &format!("vc-tau-sweep: NEES of (h, V_z), {} runs per τ", ctx.runs),
+        nees.iter().map(|(c, a)| (c, a.clone())).collect(),
+        &ctx.out_dir.join("nees.png"),
+    )?;
+    Ok(json!({
+        "classical": rows,
+        "aided_reference": aided,
+        "aided_design_sweep": aided_rows,
+        "precision": cfg.precision,
+    }))
+}
+
+/// The aided loop over the design accelerometer noises of `aided_design_sweep_m_s2_rt_hz`:
+/// one summary row each.
+fn aided_design_sweep(ctx: &Context, cfg: &Config) -> Result<Vec<Value>> {
     let mut aided_rows = Vec::new();
     for &q in &cfg.aided_design_sweep_m_s2_rt_hz {
         let mut c2 = cfg.clone();
@@ -412,12 +455,23 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
             "settle_time_s": settle_json(mc.settle_s[1]),
         }));
     }
+    Ok(aided_rows)
+}
+
+/// `tau_sweep.csv` and `tau_sweep.png`: the classical loop's altitude and velocity RMSE (m,
+/// m/s) and noise-free settle time (s) against τ (`taus`, s), the aided loop's (`aided`) as
+/// reference.
+fn write_tau_sweep(
+    ctx: &Context,
+    taus: &[f64],
+    [rh, rv, st]: [&[f64]; 3],
+    aided: &Value,
+) -> Result<()> {
     write_csv(
         &ctx.out_dir.join("tau_sweep.csv"),
         &["tau_s", "rmse_h_m", "rmse_vz_mps", "settle_time_s"],
-        &[&taus, &rh, &rv, &st],
+        &[taus, rh, rv, st],
     )?;
-    let aided = aided_ref.clone().unwrap_or(Value::Null);
     let flat = |key: &str| {
         let v = aided[key].as_f64().unwrap_or(f64::NAN);
         vec![v; taus.len()]
@@ -435,7 +489,7 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
                 title: "altitude RMSE".into(),
                 y_label: "m".into(),
                 series: vec![
-                    Series::line("classical", &lt, &rh, 1),
+                    Series::line("classical", &lt, rh, 1),
                     Series::dashed("aided", &lt, &flat("rmse_h_m"), 0),
                 ],
                 y_range: None,
@@ -444,7 +498,7 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
                 title: "vertical velocity RMSE".into(),
                 y_label: "m/s".into(),
                 series: vec![
-                    Series::line("classical", &lt, &rv, 1),
+                    Series::line("classical", &lt, rv, 1),
                     Series::dashed("aided", &lt, &flat("rmse_vz_mps"), 0),
                 ],
                 y_range: None,
@@ -453,7 +507,7 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
                 title: "noise-free settle time (1 m)".into(),
                 y_label: "s".into(),
                 series: vec![
-                    Series::line("classical", &lt, &st, 1),
+                    Series::line("classical", &lt, st, 1),
                     Series::dashed("aided", &lt, &flat("settle_time_s"), 0),
                 ],
                 y_range: None,
@@ -461,17 +515,7 @@ pub(super) fn run_tau_sweep(ctx: &Context) -> Result<Value> {
         ],
     };
     render(&fig, &ctx.out_dir.join("tau_sweep.png"), 1500, 500)?;
-    nees_panels(
-        &format!("vc-tau-sweep: NEES of (h, V_z), {} runs per τ", ctx.runs),
-        nees.iter().map(|(c, a)| (c, a.clone())).collect(),
-        &ctx.out_dir.join("nees.png"),
-    )?;
-    Ok(json!({
-        "classical": rows,
-        "aided_reference": aided,
-        "aided_design_sweep": aided_rows,
-        "precision": cfg.precision,
-    }))
+    Ok(())
 }
 
 /// The `consistency` object of every filter ([`FILTERS`]).

@@ -1,6 +1,6 @@
 //! One run of both loops on the simulated sensors, and the Monte Carlo over runs.
 
-use super::sensors::Sensors;
+use super::sensors::{Noise, Sensors};
 use super::truth::Profile;
 use super::{validate, Config, MG};
 use crate::consistency::{Consistency, RunConsistency};
@@ -67,13 +67,6 @@ pub struct RunOut {
     pub settle_s: [Option<f64>; 2],
     /// Consistency samples at the output epochs, per [`FILTERS`].
     pub consistency: Vec<RunConsistency>,
-}
-
-/// Sensor switches of a run.
-#[derive(Debug, Clone, Copy)]
-pub struct Noise {
-    /// Sensor noise, biases and correlated errors on.
-    pub on: bool,
 }
 
 fn in_dropout(cfg: &Config, aid: &str, t: f64) -> bool {

@@ -4,10 +4,16 @@
 //! vertical-velocity aid (white noise). With the noise off they read the truth (the baro
 //! keeps its lag).
 
-use super::run::Noise;
 use super::{BaroConfig, Config, MG};
 use crate::rng::{normal, SimRng};
 use nav_core::earth::normal_gravity_m_s2;
+
+/// Sensor switches of a run.
+#[derive(Debug, Clone, Copy)]
+pub struct Noise {
+    /// Sensor noise, biases and correlated errors on.
+    pub on: bool,
+}
 
 /// The sensors' error states of one run.
 #[derive(Debug, Clone)]

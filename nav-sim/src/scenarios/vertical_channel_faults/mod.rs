@@ -34,6 +34,9 @@ use nav_core::{AidCounters, Estimator, Gate, Real, RecoveryAction, RecoveryPolic
 use serde::Deserialize;
 use serde_json::{json, Value};
 
+mod simulate;
+pub use simulate::simulate;
+
 /// The JSON summary type (re-exported for the cross-crate tests).
 pub type Summary = Value;
 
@@ -178,182 +181,6 @@ fn faults(fc: &FaultConfig) -> [(&'static str, &Window); 3] {
         ("frozen", &fc.frozen),
         ("dropout", &fc.dropout),
     ]
-}
-
-/// Simulates one run: the faulty stream into the four variants, the clean one into the twins.
-pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Result<FaultRun> {
-    let profile = Profile::new(&cfg.profile)?;
-    let dt = 1.0 / cfg.imu_rate_hz;
-    let steps = (cfg.duration_s / dt).round() as usize;
-    let baro_every = (cfg.imu_rate_hz / cfg.baro.rate_hz).round() as usize;
-    let vel_every = (cfg.imu_rate_hz / cfg.velocity_aid.rate_hz).round() as usize;
-    let out_every = ((cfg.output_interval_s / dt).round() as usize).max(1);
-    ensure!(
-        baro_every >= 1 && vel_every >= 1,
-        "aid rates above the IMU rate"
-    );
-    let lat = cfg.latitude_deg.to_radians();
-    // The loops start converged: their error model's initial σ says so (the baro's
-    // correlated error is in the model; the σ grows to its steady state with it).
-    let mut start_cfg = cfg.clone();
-    start_cfg.initial_error.altitude_m = fc.initial_error_m;
-    start_cfg.initial_error.vz_m_s = fc.initial_error_m_s;
-    let (ccfg, acfg) = loop_configs::<T>(&start_cfg, cfg.classical.tau_s);
-    let (h0, v0, _) = profile.at(0.0);
-    let init = InitialState {
-        time: Timestamp::ZERO,
-        altitude_m: T::lit(h0 + fc.initial_error_m),
-        vz_up_m_s: T::lit(v0 + fc.initial_error_m_s),
-        accel_bias_m_s2: T::zero(),
-    };
-    let g = &fc.gate;
-    let e = |e: nav_core::NavError| anyhow!("{e}");
-    let mut classical = [
-        ClassicalLoop::<T>::new(&ccfg, &init).map_err(e)?,
-        ClassicalLoop::<T>::new(&ccfg, &init).map_err(e)?,
-        ClassicalLoop::<T>::new(&ccfg, &init).map_err(e)?,
-    ];
-    let mut aided = [
-        AidedLoop::<T>::new(&acfg, &init).map_err(e)?,
-        AidedLoop::<T>::new(&acfg, &init).map_err(e)?,
-        AidedLoop::<T>::new(&acfg, &init).map_err(e)?,
-    ];
-    // [0] gated, [1] ungated, [2] gated fault-free twin.
-    for i in [0, 2] {
-        classical[i].set_aid_model(g.aid_model()).map_err(e)?;
-        classical[i].set_recovery(g.recovery()).map_err(e)?;
-        classical[i].set_gate(g.gate()).map_err(e)?;
-        aided[i].set_aid_model(g.aid_model()).map_err(e)?;
-        aided[i].set_recovery(g.recovery()).map_err(e)?;
-        aided[i].set_gate(g.gate()).map_err(e)?;
-    }
-
-    // Sensor error states (as in the base scenario).
-    let bias = normal(rng, cfg.imu.bias_sigma_mg * 9.806_65e-3);
-    let sigma_f = cfg.imu.noise_m_s2_rt_hz / dt.sqrt();
-    let tb = baro_every as f64 * dt;
-    let rho = (-tb / cfg.baro.markov_tau_s).exp();
-    let markov_drive = cfg.baro.markov_sigma_m * (1.0 - rho * rho).sqrt();
-    let mut markov = normal(rng, cfg.baro.markov_sigma_m);
-    let lag = cfg.baro.lag_s;
-    let mut z_lag = h0 - lag * v0;
-    let mut frozen_value = f64::NAN;
-    let mut last_good = h0;
-
-    let mut out = FaultRun {
-        consistency: (0..6).map(|_| RunConsistency::new(&AXES)).collect(),
-        ..FaultRun::default()
-    };
-    let mut est_v = [0.0; 6];
-    let mut cov = [Matrix2::<f64>::zeros(); 6];
-    let (mut h_prev, mut v_prev, _) = profile.at(0.0);
-    for k in 1..=steps {
-        let t = k as f64 * dt;
-        let stamp = Timestamp::from_secs_f64(t).map_err(|e| anyhow!("time stamp {t}: {e}"))?;
-        let (h, v, _) = profile.at(t);
-        let (h_mid, _, _) = profile.at(t - 0.5 * dt);
-        let f = (v - v_prev) / dt + normal_gravity_m_s2(lat, h_mid) + bias + normal(rng, sigma_f);
-        if lag > 0.0 {
-            let slope = (h - h_prev) / dt;
-            let ex = (-dt / lag).exp();
-            z_lag = h - slope * lag + (z_lag - h_prev + slope * lag) * ex;
-        } else {
-            z_lag = h;
-        }
-        // (clean reading, faulty reading or None)
-        let (clean, faulty) = if k % baro_every == 0 {
-            markov = rho * markov + normal(rng, markov_drive);
-            let z = z_lag + markov + normal(rng, cfg.baro.noise_m);
-            let faulty = if fc.dropout.has(t) {
-                None
-            } else if fc.frozen.has(t) {
-                if frozen_value.is_nan() {
-                    frozen_value = last_good;
-                }
-                Some(frozen_value)
-            } else if fc.spike.has(t) {
-                Some(z + fc.spike_offset_m)
-            } else {
-                last_good = z;
-                Some(z)
-            };
-            (Some(z), faulty)
-        } else {
-            (None, None)
-        };
-        let vel = (k % vel_every == 0).then(|| VelocitySample {
-            time: stamp,
-            vz_up_m_s: T::lit(v + normal(rng, cfg.velocity_aid.noise_m_s)),
-        });
-        let imu = ImuSample {
-            time: stamp,
-            specific_force_up_m_s2: T::lit(f),
-        };
-        let sample = |z: Option<f64>| {
-            z.map(|z| BaroSample {
-                time: stamp,
-                altitude_m: T::lit(z),
-            })
-        };
-        let (bf, bc) = (sample(faulty), sample(clean));
-        // Variant order: classical gated, classical ungated, aided gated, aided ungated,
-        // classical twin, aided twin.
-        let mut est = [0.0; 6];
-        let mut lost = [false; 6];
-        for (i, lp) in classical.iter_mut().enumerate() {
-            let b = if i == 2 { bc.as_ref() } else { bf.as_ref() };
-            let r = lp
-                .step(&imu, b)
-                .map_err(|e| anyhow!("classical {i} at t = {t}: {e}"))?;
-            let slot = [0, 1, 4][i];
-            est[slot] = lp.altitude_m().to_f64();
-            est_v[slot] = lp.vz_up_m_s().to_f64();
-            cov[slot] = lp.covariance_h_vz().map(|x| x.to_f64());
-            lost[slot] = matches!(r.baro.status, AidStatus::Lost { .. });
-            out.counters[slot] = BaroCounts {
-                counters: lp.aid_counters(Aid::Baro),
-                reacquisition: lp.reacquisition_counters(Aid::Baro),
-            };
-        }
-        for (i, lp) in aided.iter_mut().enumerate() {
-            let b = if i == 2 { bc.as_ref() } else { bf.as_ref() };
-            let r = lp
-                .step(&imu, b, vel.as_ref())
-                .map_err(|e| anyhow!("aided {i} at t = {t}: {e}"))?;
-            let slot = [2, 3, 5][i];
-            est[slot] = lp.altitude_m().to_f64();
-            est_v[slot] = lp.vz_up_m_s().to_f64();
-            cov[slot] = lp.covariance_h_vz().map(|x| x.to_f64());
-            lost[slot] = matches!(r.baro.status, AidStatus::Lost { .. });
-            out.counters[slot] = BaroCounts {
-                counters: lp.aid_counters(Aid::Baro),
-                reacquisition: lp.reacquisition_counters(Aid::Baro),
-            };
-        }
-        for ((a, n), (e, l)) in out
-            .abs_err
-            .iter_mut()
-            .zip(out.lost_steps.iter_mut())
-            .zip(est.iter().zip(&lost))
-        {
-            a.push((e - h).abs());
-            *n += usize::from(*l);
-        }
-        if k % out_every == 0 {
-            out.t.push(t);
-            out.h_true.push(h);
-            out.h_baro.push(faulty.unwrap_or(f64::NAN));
-            for (series, e) in out.err_h.iter_mut().zip(&est) {
-                series.push(e - h);
-            }
-            for (j, rc) in out.consistency.iter_mut().enumerate() {
-                push_consistency(rc, t, est[j] - h, est_v[j] - v, &cov[j]);
-            }
-        }
-        h_prev = h;
-        v_prev = v;
-    }
-    Ok(out)
 }
 
 /// Recovery metrics of one error series (|δh| at the IMU rate).
@@ -525,6 +352,24 @@ fn run_fault_baro(ctx: &Context) -> Result<Value> {
     let r0 = runs
         .first()
         .ok_or_else(|| anyhow!("at least one run is needed"))?;
+    write_run0(ctx, r0)?;
+    let consistency = write_consistency(ctx, &runs)?;
+
+    Ok(json!({
+        "faults": {
+            "spike": { "start_s": fc.spike.start_s, "end_s": fc.spike.end_s, "offset_m": fc.spike_offset_m },
+            "frozen": { "start_s": fc.frozen.start_s, "end_s": fc.frozen.end_s },
+            "dropout": { "start_s": fc.dropout.start_s, "end_s": fc.dropout.end_s },
+        },
+        "pre_fault_window_s": fc.pre_fault_window_s,
+        "hold_within_s": fc.hold_within_s,
+        "consistency": consistency,
+        "loops": summarise(&runs, dt, &fc),
+    }))
+}
+
+/// `fault_baro.csv`: run 0's truth, delivered baro and every loop's altitude error.
+fn write_run0_csv(ctx: &Context, r0: &FaultRun) -> Result<()> {
     let mut cols: Vec<(&str, &[f64])> = vec![
         ("t_s", &r0.t),
         ("h_true_m", &r0.h_true),
@@ -544,6 +389,13 @@ fn run_fault_baro(ctx: &Context) -> Result<Value> {
     let headers: Vec<&str> = cols.iter().map(|c| c.0).collect();
     let columns: Vec<&[f64]> = cols.iter().map(|c| c.1).collect();
     write_csv(&ctx.out_dir.join("fault_baro.csv"), &headers, &columns)?;
+    Ok(())
+}
+
+/// `fault_baro.csv` and `fault_baro.png`: run 0's truth, delivered baro and every loop's
+/// altitude error.
+fn write_run0(ctx: &Context, r0: &FaultRun) -> Result<()> {
+    write_run0_csv(ctx, r0)?;
 
     let baro_err: Vec<f64> = r0
         .h_baro
@@ -605,7 +457,12 @@ fn run_fault_baro(ctx: &Context) -> Result<Value> {
         ],
     };
     render(&fig, &ctx.out_dir.join("fault_baro.png"), 1200, 1100)?;
+    Ok(())
+}
 
+/// `nees.png` and the `consistency` object: every loop's NEES of (h, V_z) with the σ it
+/// reports, over the runs.
+fn write_consistency(ctx: &Context, runs: &[FaultRun]) -> Result<Value> {
     // Consistency of every loop with the σ it reports (spike and frozen baro: the ungated
     // loops follow the fault, their NEES leaves the band; the dropout: the σ grows open-loop).
     let twin_names = [
@@ -645,16 +502,5 @@ fn run_fault_baro(ctx: &Context) -> Result<Value> {
         panels,
     };
     render(&fig, &ctx.out_dir.join("nees.png"), 1400, 1100)?;
-
-    Ok(json!({
-        "faults": {
-            "spike": { "start_s": fc.spike.start_s, "end_s": fc.spike.end_s, "offset_m": fc.spike_offset_m },
-            "frozen": { "start_s": fc.frozen.start_s, "end_s": fc.frozen.end_s },
-            "dropout": { "start_s": fc.dropout.start_s, "end_s": fc.dropout.end_s },
-        },
-        "pre_fault_window_s": fc.pre_fault_window_s,
-        "hold_within_s": fc.hold_within_s,
-        "consistency": Value::Object(consistency),
-        "loops": summarise(&runs, dt, &fc),
-    }))
+    Ok(Value::Object(consistency))
 }

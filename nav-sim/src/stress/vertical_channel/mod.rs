@@ -33,6 +33,9 @@ use nav_core::{Estimator, Gate, HealthState, NavError, RecoveryAction, RecoveryP
 use rand::Rng;
 use rayon::prelude::*;
 
+mod totals;
+use totals::Totals;
+
 /// The loops' σ covariance of (h, V_z) is checked (finite, symmetric, PSD) every this many
 /// steps (the check allocates; every step would dominate the campaign's time).
 pub const SIGMA_CHECK_EVERY: u64 = 64;
@@ -192,6 +195,149 @@ fn build(c: &Case, t0: Timestamp, h0: f64, v0: f64) -> Result<Loop, NavError> {
     }
 }
 
+impl Loop {
+    /// One step with the IMU sample and the aid samples (`vv` ignored by the classical loop),
+    /// the call and, every `SIGMA_CHECK_EVERY` steps, the σ covariance tallied, the report's
+    /// values appended to `values`; returns the altitude, vertical velocity, accelerometer bias
+    /// and health after it.
+    fn step_checked(
+        &mut self,
+        imu: &ImuSample<f32>,
+        b: Option<&BaroSample<f32>>,
+        vv: Option<&VelocitySample<f32>>,
+        step_index: u64,
+        tally: &mut Tally,
+        values: &mut Vec<f64>,
+    ) -> (f32, f32, f32, HealthState) {
+        match self {
+            Loop::Classical(l) => {
+                let r = l.step(imu, b);
+                tally.call("classical step", &r);
+                if let Ok(rep) = &r {
+                    aid_values(&rep.baro, values);
+                }
+                if step_index % SIGMA_CHECK_EVERY == 0 {
+                    sigma_check(tally, "classical σ covariance", &l.covariance_h_vz());
+                }
+                (
+                    l.altitude_m(),
+                    l.vz_up_m_s(),
+                    l.accel_bias_m_s2(),
+                    l.health().state,
+                )
+            }
+            Loop::Aided(l) => {
+                let r = l.step(imu, b, vv);
+                tally.call("aided step", &r);
+                if let Ok(rep) = &r {
+                    aid_values(&rep.baro, values);
+                    aid_values(&rep.velocity, values);
+                }
+                if step_index % SIGMA_CHECK_EVERY == 0 {
+                    sigma_check(tally, "aided σ covariance", &l.covariance_h_vz());
+                }
+                (
+                    l.altitude_m(),
+                    l.vz_up_m_s(),
+                    l.accel_bias_m_s2(),
+                    l.health().state,
+                )
+            }
+        }
+    }
+}
+/// The next IMU interval after `t_prev_s`, µs: the nominal `dt_us` with ±50 % jitter, 2 %
+/// missing samples, and a logging gap of 0.5-2 s once per cycle (`gap_done_cycle` the last
+/// cycle that had it).
+fn next_interval_us(rng: &mut SimRng, dt_us: u64, t_prev_s: f64, gap_done_cycle: &mut u64) -> u64 {
+    let jitter = rng.random_range(0.5..1.5);
+    let mut step = ((dt_us as f64) * jitter).round().max(1.0) as u64;
+    if rng.random::<f64>() < 0.02 {
+        step += dt_us;
+    }
+    let cycle = (t_prev_s / CYCLE_S) as u64;
+    if t_prev_s % CYCLE_S >= 100.0 && *gap_done_cycle != cycle {
+        *gap_done_cycle = cycle;
+        step += rng.random_range(500_000..2_000_000);
+    }
+    step
+}
+
+/// The baro altitude at tick `tb` (s) of the true altitude `hb` (m): σ 1 m noise, a 1 km
+/// glitch at 30 s of each cycle, frozen (`frozen` the held value) from 60 to 75 s.
+fn baro_reading(tb: f64, hb: f64, rng: &mut SimRng, frozen: &mut Option<f64>) -> f64 {
+    let tp = tb % CYCLE_S;
+    let mut z = hb + normal(rng, 1.0);
+    if (30.0..30.2).contains(&tp) {
+        z += 1000.0;
+    }
+    if (60.0..75.0).contains(&tp) {
+        z = *frozen.get_or_insert(z);
+    } else {
+        *frozen = None;
+    }
+    z
+}
+
+impl Extra {
+    /// At the end of each aided window after the first cycle (once per cycle,
+    /// `checkpoint_cycle` the last that had it): the altitude error `err_m` against its bound.
+    fn checkpoint(&mut self, t: f64, err_m: f64, checkpoint_cycle: &mut u64) {
+        let ph = t % CYCLE_S;
+        let cyc = (t / CYCLE_S) as u64;
+        if (149.0..150.0).contains(&ph) && *checkpoint_cycle != cyc && t > CYCLE_S {
+            *checkpoint_cycle = cyc;
+            let e = err_m.abs();
+            self.checkpoints += 1;
+            self.worst_checkpoint_m = self.worst_checkpoint_m.max(e);
+            if e > CHECKPOINT_BOUND_M {
+                self.checkpoint_failures += 1;
+            }
+        }
+    }
+}
+
+/// The aided loop's design covariance must be symmetric positive semi-definite.
+fn check_design(tally: &mut Tally, lp: &Loop) {
+    if let Loop::Aided(a) = lp {
+        let p = a.gains().p;
+        let rows: Vec<f64> = (0..3)
+            .flat_map(|i| (0..3).map(move |j| p[(i, j)]))
+            .collect();
+        tally.covariance("aided design P", &rows, 3, f64::EPSILON);
+    }
+}
+
+/// The newest aid tick not after `t` (s; the ticks every `period` s from `next`, which is
+/// advanced past `t`), none in an outage.
+fn newest_tick(next: &mut f64, period: f64, t: f64, outage: bool) -> Option<f64> {
+    let mut got = None;
+    while *next <= t {
+        got = Some(*next);
+        *next += period;
+    }
+    got.filter(|_| !outage)
+}
+
+/// The aid samples of a baro altitude and a vertical velocity (each with its tick time, s
+/// after `t0`), stamped at their ticks; the altitude clamped to the loops' range.
+fn aid_samples(
+    t0: Timestamp,
+    baro: Option<(f64, f64)>,
+    vel: Option<(f64, f64)>,
+) -> (Option<BaroSample<f32>>, Option<VelocitySample<f32>>) {
+    let stamp = |s: f64| t0.add_micros((s * 1e6).round() as u64);
+    let b = baro.map(|(tb, z)| BaroSample {
+        time: stamp(tb),
+        altitude_m: z.clamp(-1_999.0, 59_999.0) as f32,
+    });
+    let vv = vel.map(|(tv, z)| VelocitySample {
+        time: stamp(tv),
+        vz_up_m_s: z as f32,
+    });
+    (b, vv)
+}
+
 fn run_case(c: &Case) -> (Tally, Extra) {
     let mut tally = Tally::new(c.name());
     let mut extra = Extra::default();
@@ -218,13 +364,7 @@ fn run_case(c: &Case) -> (Tally, Extra) {
             return (tally, extra);
         }
     };
-    if let Loop::Aided(a) = &lp {
-        let p = a.gains().p;
-        let rows: Vec<f64> = (0..3)
-            .flat_map(|i| (0..3).map(move |j| p[(i, j)]))
-            .collect();
-        tally.covariance("aided design P", &rows, 3, f64::EPSILON);
-    }
+    check_design(&mut tally, &lp);
     let dt_us = (1e6 / c.rate_hz).round() as u64;
     let mut t_us: u64 = 0;
     let mut v_prev = v0;
@@ -234,19 +374,8 @@ fn run_case(c: &Case) -> (Tally, Extra) {
     let mut values = Vec::with_capacity(16);
     let mut checkpoint_cycle = u64::MAX;
     for step_index in 0..c.steps {
-        // The interval: jitter ±50 %, 2 % missing samples, a logging gap once per cycle.
-        let jitter = rng.random_range(0.5..1.5);
-        let mut step = ((dt_us as f64) * jitter).round().max(1.0) as u64;
-        if rng.random::<f64>() < 0.02 {
-            step += dt_us;
-        }
         let t_prev = t_us as f64 * 1e-6;
-        let cycle = (t_prev / CYCLE_S) as u64;
-        if t_prev % CYCLE_S >= 100.0 && gap_done_cycle != cycle {
-            gap_done_cycle = cycle;
-            step += rng.random_range(500_000..2_000_000);
-        }
-        t_us += step;
+        t_us += next_interval_us(&mut rng, dt_us, t_prev, &mut gap_done_cycle);
         let t = t_us as f64 * 1e-6;
         let ph = t % CYCLE_S;
         let (h, v) = truth(t);
@@ -258,80 +387,24 @@ fn run_case(c: &Case) -> (Tally, Extra) {
             + normal(&mut rng, noise_density / dts.sqrt());
         v_prev = v;
         let outage = (150.0..270.0).contains(&ph);
-        // The newest aid tick not after t (stamped at its tick).
-        let tick = |next: &mut f64, period: f64| -> Option<f64> {
-            let mut got = None;
-            while *next <= t {
-                got = Some(*next);
-                *next += period;
-            }
-            got.filter(|_| !outage)
-        };
-        let baro = tick(&mut next_baro, BARO_PERIOD_S).map(|tb| {
-            let (hb, _) = truth(tb);
-            let tp = tb % CYCLE_S;
-            let mut z = hb + normal(&mut rng, 1.0);
-            if (30.0..30.2).contains(&tp) {
-                z += 1000.0;
-            }
-            if (60.0..75.0).contains(&tp) {
-                z = *frozen.get_or_insert(z);
-            } else {
-                frozen = None;
-            }
-            (tb, z)
-        });
-        let vel =
-            tick(&mut next_vel, VEL_PERIOD_S).map(|tv| (tv, truth(tv).1 + normal(&mut rng, 0.2)));
-        let stamp = |s: f64| t0.add_micros((s * 1e6).round() as u64);
+        let baro = newest_tick(&mut next_baro, BARO_PERIOD_S, t, outage)
+            .map(|tb| (tb, baro_reading(tb, truth(tb).0, &mut rng, &mut frozen)));
+        let vel = newest_tick(&mut next_vel, VEL_PERIOD_S, t, outage)
+            .map(|tv| (tv, truth(tv).1 + normal(&mut rng, 0.2)));
         let imu = ImuSample {
             time: t0.add_micros(t_us),
             specific_force_up_m_s2: f as f32,
         };
-        let b = baro.map(|(tb, z)| BaroSample {
-            time: stamp(tb),
-            altitude_m: z.clamp(-1_999.0, 59_999.0) as f32,
-        });
-        let vv = vel.map(|(tv, z)| VelocitySample {
-            time: stamp(tv),
-            vz_up_m_s: z as f32,
-        });
+        let (b, vv) = aid_samples(t0, baro, vel);
         values.clear();
-        let (alt, vz, bias, health) = match &mut lp {
-            Loop::Classical(l) => {
-                let r = l.step(&imu, b.as_ref());
-                tally.call("classical step", &r);
-                if let Ok(rep) = &r {
-                    aid_values(&rep.baro, &mut values);
-                }
-                if step_index % SIGMA_CHECK_EVERY == 0 {
-                    sigma_check(&mut tally, "classical σ covariance", &l.covariance_h_vz());
-                }
-                (
-                    l.altitude_m(),
-                    l.vz_up_m_s(),
-                    l.accel_bias_m_s2(),
-                    l.health().state,
-                )
-            }
-            Loop::Aided(l) => {
-                let r = l.step(&imu, b.as_ref(), vv.as_ref());
-                tally.call("aided step", &r);
-                if let Ok(rep) = &r {
-                    aid_values(&rep.baro, &mut values);
-                    aid_values(&rep.velocity, &mut values);
-                }
-                if step_index % SIGMA_CHECK_EVERY == 0 {
-                    sigma_check(&mut tally, "aided σ covariance", &l.covariance_h_vz());
-                }
-                (
-                    l.altitude_m(),
-                    l.vz_up_m_s(),
-                    l.accel_bias_m_s2(),
-                    l.health().state,
-                )
-            }
-        };
+        let (alt, vz, bias, health) = lp.step_checked(
+            &imu,
+            b.as_ref(),
+            vv.as_ref(),
+            step_index,
+            &mut tally,
+            &mut values,
+        );
         values.extend([alt, vz, bias].map(f64::from));
         let est_h = f64::from(alt);
         tally.finite("report", values.iter().copied());
@@ -340,16 +413,7 @@ fn run_case(c: &Case) -> (Tally, Extra) {
         }
         extra.end_health = Some(health);
         // Checkpoint at the end of each aided window (after the first cycle's transient).
-        let cyc = (t / CYCLE_S) as u64;
-        if (149.0..150.0).contains(&ph) && checkpoint_cycle != cyc && t > CYCLE_S {
-            checkpoint_cycle = cyc;
-            let e = (est_h - h).abs();
-            extra.checkpoints += 1;
-            extra.worst_checkpoint_m = extra.worst_checkpoint_m.max(e);
-            if e > CHECKPOINT_BOUND_M {
-                extra.checkpoint_failures += 1;
-            }
-        }
+        extra.checkpoint(t, est_h - h, &mut checkpoint_cycle);
     }
     (tally, extra)
 }
@@ -421,89 +485,12 @@ pub fn run(level: StressLevel) -> EstimatorStress {
         })
         .collect();
     let mut s = EstimatorStress::default();
-    let mut refused_configs = Vec::new();
-    let (mut cp, mut cp_fail_on, mut cp_fail_off) = (0u64, 0u64, 0u64);
-    let (mut worst_on, mut worst_off, mut worst_slow) = (0.0f64, 0.0f64, 0.0f64);
-    let mut reinit_steps = 0u64;
-    let mut fail_cases = Vec::new();
-    let mut end_reinit = 0u64;
-    let mut reinit_cases = Vec::new();
+    let mut totals = Totals::default();
     for (c, t, e) in results {
-        if e.refused_config {
-            refused_configs.push(c.name());
-            continue;
+        if totals.add(&c, &e) {
+            s.add(t);
         }
-        cp += e.checkpoints;
-        // A classical τ > 30 s loop needs longer than the 150 s aided window to settle (5τ).
-        let slow = !c.aided && c.param > 30.0;
-        if slow {
-            worst_slow = worst_slow.max(e.worst_checkpoint_m);
-        } else if c.gate {
-            cp_fail_on += e.checkpoint_failures;
-            worst_on = worst_on.max(e.worst_checkpoint_m);
-            if e.checkpoint_failures > 0 && fail_cases.len() < 5 {
-                fail_cases.push(format!(
-                    "{}: {} of {} checkpoints, worst {:.0} m",
-                    c.name(),
-                    e.checkpoint_failures,
-                    e.checkpoints,
-                    e.worst_checkpoint_m
-                ));
-            }
-        } else {
-            cp_fail_off += e.checkpoint_failures;
-            worst_off = worst_off.max(e.worst_checkpoint_m);
-        }
-        reinit_steps += e.needs_reinit_steps;
-        if e.needs_reinit_steps > 0 && reinit_cases.len() < 5 {
-            reinit_cases.push(format!("{}: {} steps", c.name(), e.needs_reinit_steps));
-        }
-        if e.end_health == Some(HealthState::NeedsReinitialisation) {
-            end_reinit += 1;
-        }
-        s.add(t);
     }
-    s.coverage = vec![
-        "both loops in f32; IMU 50, 100, 200, 500, 1000 Hz with ±50 % stamp jitter, 2 % \
-         missing samples and a 0.5-2 s logging gap every 300 s; stamps from 0, 10⁶ and 10⁹ s"
-            .into(),
-        "classical τ 0.1, 1, 5, 20, 100 s; aided accelerometer noise 1e-3, 1e-2, 1e-1, 1 m/s²/√Hz; \
-         gate off and on (σ_a0 = 0.1 m/s², starvation reset 30 s)"
-            .into(),
-        "15 g manoeuvres (20 km ± 2.4 km, |V_z| ≤ 590 m/s) or gentle ones, 5 mg bias; per 300 s: \
-         1 km baro spike, 15 s frozen baro, 120 s outage of both aids"
-            .into(),
-        format!(
-            "long runs: both loops, 15 g, outages, 1000 Hz and 100 Hz gate on, 1000 Hz gate off, \
-             {} steps each",
-            if level == StressLevel::Full {
-                "10⁷"
-            } else {
-                "10⁶"
-            }
-        ),
-        format!(
-            "configurations refused as outside the envelope: {} ({})",
-            refused_configs.len(),
-            refused_configs.join("; ")
-        ),
-        format!(
-            "altitude error at the end of each aided window ({cp} checkpoints; bound \
-             {CHECKPOINT_BOUND_M} m for the loops that settle within the window, gate on): \
-             {cp_fail_on} findings, worst {worst_on:.1} m; gate off (no fault detection, the \
-             frozen baro drags the loop): {cp_fail_off} beyond the bound, worst \
-             {worst_off:.1} m; classical τ = 100 s (settles in 5τ = 500 s, longer than the \
-             150 s window; not bounded): worst {worst_slow:.1} m{}",
-            if fail_cases.is_empty() {
-                String::new()
-            } else {
-                format!(" — {}", fail_cases.join("; "))
-            }
-        ),
-        format!(
-            "steps in NeedsReinitialisation: {reinit_steps}; cases ending in it: {end_reinit} ({})",
-            reinit_cases.join("; ")
-        ),
-    ];
+    s.coverage = totals.coverage(level);
     s
 }

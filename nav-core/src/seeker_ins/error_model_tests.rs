@@ -1,0 +1,314 @@
+//! Unit tests of the 17-state error model: sparse and generated propagation against dense,
+//! exact symmetry, f32 against f64, F against finite differences of the INS equations.
+use super::*;
+use crate::math::kalman::{asymmetry, propagate_dense};
+use nalgebra::SVector;
+
+#[test]
+fn sparse_propagation_equals_dense() {
+    let pos = Position {
+        lat_rad: 0.65,
+        lon_rad: 2.2,
+        alt_m: 1000.0,
+    };
+    let v = Vector3::new(30.0, 200.0, -3.0);
+    let c = crate::math::rotation::euler_to_dcm(0.3, 0.05, 1.4);
+    let f_n = Vector3::new(0.5, 2.0, -9.8);
+    let fb = f_block(&pos, &v, &c, &f_n);
+    let dt = 0.1;
+    let a = transition_block(&fb, dt);
+    // A random-ish SPD P.
+    let mut l = SMatrix::<f64, 17, 17>::zeros();
+    for i in 0..17 {
+        for j in 0..=i {
+            l[(i, j)] = ((i * 7 + j * 3) % 11) as f64 * 0.1 + if i == j { 1.0 } else { 0.0 };
+        }
+    }
+    let p0 = l * l.transpose();
+    let mut phi = SMatrix::<f64, 17, 17>::identity();
+    let blk = phi.fixed_view::<9, 15>(0, 0) + a;
+    phi.fixed_view_mut::<9, 15>(0, 0).copy_from(&blk);
+    let (qa, qg) = (1e-3, 1e-5);
+    let mut qc = SMatrix::<f64, 17, 17>::zeros();
+    for i in 3..9 {
+        qc[(i, i)] = if i < 6 { qa } else { qg };
+    }
+    let qd = qc * dt
+        + (phi - SMatrix::identity()) * qc * (0.5 * dt)
+        + qc * (phi - SMatrix::identity()).transpose() * (0.5 * dt);
+    let mut dense = p0;
+    propagate_dense(&mut dense, &phi, &qd);
+    let mut sparse = p0;
+    propagate_covariance(&mut sparse, &a, dt, qa, qg).unwrap();
+    assert!((dense - sparse).abs().max() < 1e-9 * dense.abs().max());
+    assert_eq!(asymmetry(&sparse), 0.0);
+    // Bad dt leaves P untouched.
+    let before = sparse;
+    assert!(propagate_covariance(&mut sparse, &a, -1.0, qa, qg).is_err());
+    assert_eq!(sparse, before);
+}
+
+/// The sparse propagation (second-order term restricted to the fast couplings) against the
+/// dense `Φ = I + FΔt + ½(FΔt)²`, on a covariance of physical size: every element within
+/// 1e-5 of √(P_ii P_jj).
+#[test]
+fn sparse_propagation_matches_dense_second_order() {
+    let pos = Position {
+        lat_rad: 0.65,
+        lon_rad: 2.2,
+        alt_m: 1000.0,
+    };
+    let v = Vector3::new(30.0, 200.0, -3.0);
+    let c = crate::math::rotation::euler_to_dcm(0.3, 0.05, 1.4);
+    let f_n = Vector3::new(0.5, 2.0, -9.8);
+    let sf = SparseF::new(&pos, &v, &c, &f_n);
+    let fb = sf.to_block();
+    let p0 = physical_p();
+    let (qa, qg) = (2.4e-9, 8.5e-13);
+    for dt in [0.01, 0.1, 1.0] {
+        let a = transition_block(&fb, dt);
+        let mut dense = p0;
+        propagate_covariance(&mut dense, &a, dt, qa, qg).unwrap();
+        let mut sparse = p0;
+        propagate_covariance_sparse(&mut sparse, &sf, dt, qa, qg).unwrap();
+        assert_eq!(asymmetry(&sparse), 0.0);
+        for i in 0..17 {
+            for j in 0..17 {
+                let scale = (dense[(i, i)] * dense[(j, j)]).sqrt();
+                let tol = if dt <= 0.1 { 1e-5 } else { 1e-3 };
+                assert!(
+                    (dense[(i, j)] - sparse[(i, j)]).abs() <= tol * scale,
+                    "dt {dt} P[{i},{j}] dense {:e} sparse {:e}",
+                    dense[(i, j)],
+                    sparse[(i, j)]
+                );
+            }
+        }
+    }
+    // Bad input leaves P untouched.
+    let mut p = p0;
+    assert!(propagate_covariance_sparse(&mut p, &sf, f64::NAN, qa, qg).is_err());
+    assert!(propagate_covariance_sparse(&mut p, &sf.scaled(f64::INFINITY), 0.1, qa, qg).is_err());
+    assert_eq!(p, p0);
+}
+
+/// A covariance of physical size (σ per state, correlations from a fixed Cholesky factor).
+fn physical_p() -> SMatrix<f64, 17, 17> {
+    let sig = [
+        6e-6, 6e-6, 40.0, 10.0, 10.0, 10.0, 0.017, 0.017, 0.087, 1e-3, 1e-3, 1e-3, 5e-8, 5e-8,
+        5e-8, 7e-4, 7e-4,
+    ];
+    let mut l = SMatrix::<f64, 17, 17>::zeros();
+    for i in 0..17 {
+        for j in 0..=i {
+            l[(i, j)] = ((i * 7 + j * 3) % 11) as f64 * 0.05 + if i == j { 1.0 } else { 0.0 };
+        }
+    }
+    let corr = l * l.transpose();
+    let mut p0 = SMatrix::<f64, 17, 17>::zeros();
+    for i in 0..17 {
+        for j in 0..17 {
+            p0[(i, j)] = corr[(i, j)] / (corr[(i, i)] * corr[(j, j)]).sqrt() * sig[i] * sig[j];
+        }
+    }
+    (p0 + p0.transpose()) * 0.5
+}
+
+fn test_f<T: Real>() -> SparseF<T> {
+    let pos = Position {
+        lat_rad: 0.65,
+        lon_rad: 2.2,
+        alt_m: 1000.0,
+    };
+    let v = Vector3::new(T::lit(30.0), T::lit(200.0), T::lit(-3.0));
+    let c = crate::math::rotation::euler_to_dcm(T::lit(0.3), T::lit(0.05), T::lit(1.4));
+    let f_n = Vector3::new(T::lit(0.5), T::lit(2.0), T::lit(-9.8));
+    SparseF::new(&pos, &v, &c, &f_n)
+}
+
+/// The generated step writes both triangles of rows and columns 0..9 with the same bits
+/// (P stays exactly symmetric) and leaves the bias and gimbal block untouched; a non-finite
+/// result leaves P unchanged.
+#[test]
+fn generated_step_is_exactly_symmetric_and_touches_the_navigation_rows_only() {
+    let p0 = physical_p();
+    let sf = test_f::<f64>();
+    let (qa, qg) = (2.4e-9, 8.5e-13);
+    let mut p = p0;
+    propagate_covariance_sparse(&mut p, &sf, 0.1, qa, qg).unwrap();
+    assert_eq!(asymmetry(&p), 0.0);
+    for j in 9..17 {
+        for i in 9..17 {
+            assert_eq!(p[(i, j)].to_bits(), p0[(i, j)].to_bits(), "P[{i},{j}]");
+        }
+    }
+    assert!(p != p0);
+    let mut huge = p0;
+    huge[(12, 12)] = f64::INFINITY;
+    let before = huge;
+    assert!(propagate_covariance_sparse(&mut huge, &sf, 0.1, qa, qg).is_err());
+    assert_eq!(huge, before);
+}
+
+/// The generated step reads whole columns of P (its precondition: P exactly symmetric):
+/// a lower triangle of NaN is seen (the step refuses, P unchanged), the symmetric P gives
+/// exactly symmetric rows.
+#[test]
+fn generated_step_reads_whole_columns_of_the_symmetric_p() {
+    let p0 = physical_p();
+    let sf = test_f::<f64>();
+    let (qa, qg) = (2.4e-9, 8.5e-13);
+    let mut clean = p0;
+    propagate_covariance_sparse(&mut clean, &sf, 0.1, qa, qg).unwrap();
+    let mut poisoned = p0;
+    for j in 0..17 {
+        for i in (j + 1)..17 {
+            poisoned[(i, j)] = f64::NAN;
+        }
+    }
+    let before = poisoned;
+    assert!(propagate_covariance_sparse(&mut poisoned, &sf, 0.1, qa, qg).is_err());
+    assert_eq!(
+        poisoned.map(f64::to_bits),
+        before.map(f64::to_bits),
+        "P unchanged"
+    );
+    assert_eq!(asymmetry(&clean), 0.0);
+}
+
+/// Error bound of the f32 step against the same step in f64, on a covariance of physical
+/// size, over 100 steps of 0.1 s: every element within 5e-6 of √(P_ii P_jj) (measured 2.2e-6;
+/// f32 ε is 1.2e-7, sums of up to 14 terms per step, 100 steps).
+#[test]
+fn f32_step_stays_within_its_bound_of_f64() {
+    let p64_0 = physical_p();
+    let (sf32, sf64) = (test_f::<f32>(), test_f::<f64>());
+    let (qa, qg) = (2.4e-9, 8.5e-13);
+    let mut p64 = p64_0;
+    let mut p32 = p64_0.map(|v| v as f32);
+    let mut worst = 0.0f64;
+    for _ in 0..100 {
+        propagate_covariance_sparse(&mut p64, &sf64, 0.1, qa, qg).unwrap();
+        propagate_covariance_sparse(&mut p32, &sf32, 0.1, qa as f32, qg as f32).unwrap();
+        for i in 0..17 {
+            for j in 0..17 {
+                let scale = (p64[(i, i)] * p64[(j, j)]).sqrt();
+                let err = (f64::from(p32[(i, j)]) - p64[(i, j)]).abs() / scale;
+                worst = worst.max(err);
+            }
+        }
+    }
+    assert!(worst < 5e-6, "worst relative error {worst:e}");
+}
+
+/// F against central finite differences of the nonlinear INS equations: each error
+/// component is applied to the truth (p̂ = p + δp, V̂ = V + δV, Ĉ = exp(−[φ×]) C,
+/// f̂ = f + ∇, ω̂ = ω + ε) and the error derivative is read off the two derivatives.
+#[test]
+fn f_matches_finite_differences_of_the_ins_equations() {
+    use crate::math::rotation::{exp_so3, unskew};
+    use crate::seeker_ins::mechanization::continuous_derivative;
+    let pos = Position {
+        lat_rad: 0.65,
+        lon_rad: 2.2,
+        alt_m: 1500.0,
+    };
+    let v = Vector3::new(40.0, 210.0, -5.0);
+    let c = crate::math::rotation::euler_to_dcm(0.4, 0.1, 1.3);
+    let f_b = Vector3::new(1.5, -2.0, -9.5);
+    let w_b = Vector3::new(0.02, -0.01, 0.04);
+    let err_dot = |dx: &SVector<f64, 17>| -> SVector<f64, 17> {
+        let p_hat = Position {
+            lat_rad: pos.lat_rad + dx[0],
+            lon_rad: pos.lon_rad + dx[1],
+            alt_m: pos.alt_m + dx[2],
+        };
+        let v_hat = v + dx.fixed_rows::<3>(3);
+        let e = exp_so3(&(-dx.fixed_rows::<3>(6).into_owned()));
+        let c_hat = e * c;
+        let f_hat = f_b + dx.fixed_rows::<3>(9);
+        let w_hat = w_b + dx.fixed_rows::<3>(12);
+        let d0 = continuous_derivative(&pos, &v, &c, &f_b, &w_b);
+        let d1 = continuous_derivative(&p_hat, &v_hat, &c_hat, &f_hat, &w_hat);
+        let e_dot = d1.4 * c.transpose() + c_hat * d0.4.transpose();
+        let phi_dot = -unskew(&e_dot);
+        let mut out = SVector::<f64, 17>::zeros();
+        out[0] = d1.0 - d0.0;
+        out[1] = d1.1 - d0.1;
+        out[2] = d1.2 - d0.2;
+        out.fixed_rows_mut::<3>(3).copy_from(&(d1.3 - d0.3));
+        out.fixed_rows_mut::<3>(6).copy_from(&phi_dot);
+        out
+    };
+    let f = full_f(&f_block(&pos, &v, &c, &(c * f_b)));
+    let steps = [
+        1e-7, 1e-7, 1.0, 0.01, 0.01, 0.01, 1e-5, 1e-5, 1e-5, 1e-3, 1e-3, 1e-3, 1e-6, 1e-6, 1e-6,
+        1e-4, 1e-4,
+    ];
+    for (j, &h) in steps.iter().enumerate() {
+        let mut dx = SVector::<f64, 17>::zeros();
+        dx[j] = h;
+        let col = (err_dot(&dx) - err_dot(&(-dx))) / (2.0 * h);
+        let scale: f64 = f.column(j).abs().max().max(1e-12);
+        for i in 0..17 {
+            let diff = (col[i] - f[(i, j)]).abs();
+            assert!(
+                diff <= 1e-5 * scale,
+                "F[{i},{j}] = {:e}, finite difference {:e}",
+                f[(i, j)],
+                col[i]
+            );
+        }
+    }
+}
+
+#[test]
+fn transition_times_equals_the_dense_product_bit_for_bit() {
+    fn dense<T: Real>(
+        f: &SparseF<T>,
+        dt: T,
+        c: &nalgebra::SVector<T, STATES>,
+    ) -> nalgebra::SVector<T, STATES> {
+        let g = f.scaled(dt);
+        let w: nalgebra::SVector<T, 9> = g.to_block() * c.fixed_rows::<15>(0);
+        let half = T::lit(0.5);
+        let w_vel: Vector3<T> = w.fixed_rows::<3>(3).into_owned();
+        let w_att: Vector3<T> = w.fixed_rows::<3>(6).into_owned();
+        let mut hw = nalgebra::SVector::<T, 9>::zeros();
+        hw.fixed_rows_mut::<3>(0).copy_from(&Vector3::new(
+            half * g.f03 * w_vel.x,
+            half * g.f14 * w_vel.y,
+            half * g.f25 * w_vel.z,
+        ));
+        hw.fixed_rows_mut::<3>(3)
+            .copy_from(&(g.f_ned * half).cross(&w_att));
+        let mut out = *c;
+        let add = w + hw;
+        out.fixed_rows_mut::<9>(0)
+            .iter_mut()
+            .zip(add.iter())
+            .for_each(|(o, a)| *o += *a);
+        out
+    }
+    fn check<T: Real + core::fmt::Debug>() {
+        let pos = Position {
+            lat_rad: 0.65,
+            lon_rad: 2.2,
+            alt_m: 1000.0,
+        };
+        let v = Vector3::new(T::lit(30.0), T::lit(200.0), T::lit(-3.0));
+        let c = crate::math::rotation::euler_to_dcm(T::lit(0.3), T::lit(0.05), T::lit(1.4));
+        let f_n = Vector3::new(T::lit(0.5), T::lit(2.0), T::lit(-9.8));
+        let sf = SparseF::new(&pos, &v, &c, &f_n);
+        for (k, dt) in [0.01, 0.02, 0.1].into_iter().enumerate() {
+            let col = nalgebra::SVector::<T, STATES>::from_fn(|i, _| {
+                T::lit(((i * 7 + k * 3) % 11) as f64 - 5.0) * T::lit(0.37_f64.powi(i as i32 % 5))
+            });
+            let a = transition_times(&sf, T::lit(dt), &col);
+            let b = dense(&sf, T::lit(dt), &col);
+            assert_eq!(a, b, "dt {dt}");
+        }
+    }
+    check::<f32>();
+    check::<f64>();
+}
