@@ -222,10 +222,7 @@ impl<T: Real> SeekerIns<T> {
         if let Some(col) = col {
             let fused = |r: &FusionReport<T>| r.outcome == FusionOutcome::Fused;
             if fused(&report.pitch) || fused(&report.yaw) {
-                match cross_after_los(&report, &model, &c, col) {
-                    Some(next) => *col = next,
-                    None => col.forget(),
-                }
+                cross_after_los(&report, &model, &c, col);
             }
         }
         Ok(report)
@@ -734,15 +731,16 @@ impl<T: Real> SeekerIns<T> {
     }
 }
 
-/// The column after the fused components of `report` (`None`: cannot be formed): the
-/// components `c` of `model` as computed against P before the update.
+/// The column after the fused components of `report`, in place (forgotten, `c ← 0` with `s`
+/// and `δb̂` as they were, when it cannot be formed): the components `c` of `model` as computed
+/// against P before the update.
 fn cross_after_los<T: Real>(
     report: &LosReport<T>,
     model: &LosModel<T>,
     c: &TwoComponents<T>,
-    col: &CrossColumn<T>,
-) -> Option<CrossColumn<T>> {
-    let mut out = *col;
+    col: &mut CrossColumn<T>,
+) {
+    let (variance, correction) = (col.variance, col.correction);
     let steps = [
         (&report.pitch, &c.rep1, &model.h_pitch, &c.kk1),
         (&report.yaw, &c.rep2, &model.h_yaw, &c.kk2),
@@ -751,15 +749,19 @@ fn cross_after_los<T: Real>(
         if committed.outcome != FusionOutcome::Fused {
             continue;
         }
-        let g = h.dot(&out.cross);
+        let g = h.dot(&col.cross);
         let inv_s = T::one() / rep.innovation_variance;
-        out.cross -= SVector::<T, STATES>::from(*kk) * g;
-        out.variance -= g * g * inv_s;
-        out.correction += g * inv_s * rep.innovation;
+        col.cross -= SVector::<T, STATES>::from(*kk) * g;
+        col.variance -= g * g * inv_s;
+        col.correction += g * inv_s * rep.innovation;
     }
-    let ok = out.variance >= T::zero()
-        && out.variance.is_finite()
-        && out.correction.is_finite()
-        && crate::math::checks::all_finite(out.cross.as_slice());
-    ok.then_some(out)
+    let ok = col.variance >= T::zero()
+        && col.variance.is_finite()
+        && col.correction.is_finite()
+        && crate::math::checks::all_finite(col.cross.as_slice());
+    if !ok {
+        col.variance = variance;
+        col.correction = correction;
+        col.forget();
+    }
 }
