@@ -131,6 +131,7 @@ mod config;
 mod covariance;
 mod design;
 mod filter;
+mod fusion;
 mod health;
 mod history;
 mod measurement;
