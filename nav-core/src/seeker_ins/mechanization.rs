@@ -349,21 +349,10 @@ impl<T: Real> Ins<T> {
         let dth = inc.delta_theta_rad;
         let dv = inc.delta_v_m_s;
         let half = T::lit(0.5);
-        let twelfth = T::lit(1.0 / 12.0);
         let s = &self.state;
         let v = s.vel_ned_m_s;
         let k = Kinematics::new(&s.position, &v);
-        // Coning (α) and sculling/rotation (Δv_b) from the current and previous increments.
-        let (alpha, dv_b) = if self.has_prev {
-            let p = &self.prev;
-            (
-                dth + p.delta_theta_rad.cross(&dth) * twelfth,
-                dv + dth.cross(&dv) * half
-                    + (p.delta_theta_rad.cross(&dv) + p.delta_v_m_s.cross(&dth)) * twelfth,
-            )
-        } else {
-            (dth, dv + dth.cross(&dv) * half)
-        };
+        let (alpha, dv_b) = self.coning_sculling(&dth, &dv);
         let w_in = k.w_ie + k.w_en;
         let zeta = w_in * dt;
         let c = unit_dcm(&s.q_b_n);
@@ -385,25 +374,7 @@ impl<T: Real> Ins<T> {
             lon_rad: s.position.lon_rad + d_lon.to_f64(),
             alt_m: s.position.alt_m + dh.to_f64(),
         };
-        // Attitude: q₊ = (1 + n) ⊗ q ⊗ (1 + b) with the small parts n = q(−ζ) − 1,
-        // b = q(α) − 1, so the increment Δ = n⊗q + q⊗b + n⊗q⊗b is formed without cancellation
-        // and added with compensation.
-        let b = quat_minus_one(&alpha);
-        let n = quat_minus_one(&(-zeta));
-        let qb = quat_mul(&s.q_b_n, &b);
-        let delta = quat_mul(&n, &s.q_b_n).coords + qb.coords + quat_mul(&n, &qb).coords;
-        let (mut q_hi, mut q_lo) = kahan_add4(&s.q_b_n.coords, &self.q_lo, &delta);
-        let n2 = q_hi.norm_squared();
-        if !n2.is_finite() || n2 <= T::zero() {
-            return Err(NavError::NonFiniteInput {
-                input: "attitude quaternion",
-            });
-        }
-        if (n2 - T::one()).abs() > T::EPS * T::lit(16.0) {
-            let inv = T::one() / n2.sqrt();
-            q_hi *= inv;
-            q_lo *= inv;
-        }
+        let (q_hi, q_lo) = attitude_step(&s.q_b_n, &self.q_lo, &alpha, &zeta)?;
         let new_state = InsState {
             position,
             vel_ned_m_s: v_new,
@@ -425,6 +396,25 @@ impl<T: Real> Ins<T> {
         self.prev = *inc;
         self.has_prev = true;
         Ok(())
+    }
+
+    /// Coning (α, rad) and sculling/rotation (Δv_b, m/s) of the increments `dth` (rad) and
+    /// `dv` (m/s) with the previous increment (none before the first sample).
+    #[inline(always)]
+    fn coning_sculling(&self, dth: &Vector3<T>, dv: &Vector3<T>) -> (Vector3<T>, Vector3<T>) {
+        let half = T::lit(0.5);
+        let twelfth = T::lit(1.0 / 12.0);
+        let (dth, dv) = (*dth, *dv);
+        if self.has_prev {
+            let p = &self.prev;
+            (
+                dth + p.delta_theta_rad.cross(&dth) * twelfth,
+                dv + dth.cross(&dv) * half
+                    + (p.delta_theta_rad.cross(&dv) + p.delta_v_m_s.cross(&dth)) * twelfth,
+            )
+        } else {
+            (dth, dv + dth.cross(&dv) * half)
+        }
     }
 
     /// Applies the filter's error estimate (closed loop): subtracts the position and velocity
@@ -483,6 +473,38 @@ fn validate_increment<T: Real>(inc: &ImuIncrement<T>) -> Result<(), NavError> {
         });
     }
     Ok(())
+}
+
+/// The attitude over one interval, `q` with its compensation `q_lo` → the new pair, from the
+/// body rotation `alpha` (rad) and the navigation frame's rotation `zeta` (rad):
+/// q₊ = (1 + n) ⊗ q ⊗ (1 + b) with the small parts n = q(−ζ) − 1, b = q(α) − 1, so the
+/// increment Δ = n⊗q + q⊗b + n⊗q⊗b is formed without cancellation and added with
+/// compensation; renormalised when |q₊|² departs from 1 by more than 16 ε.
+/// `NonFiniteInput` if |q₊|² is not finite and > 0.
+#[inline(always)]
+fn attitude_step<T: Real>(
+    q: &Quaternion<T>,
+    q_lo: &Vector4<T>,
+    alpha: &Vector3<T>,
+    zeta: &Vector3<T>,
+) -> Result<(Vector4<T>, Vector4<T>), NavError> {
+    let b = quat_minus_one(alpha);
+    let n = quat_minus_one(&(-zeta));
+    let qb = quat_mul(q, &b);
+    let delta = quat_mul(&n, q).coords + qb.coords + quat_mul(&n, &qb).coords;
+    let (mut q_hi, mut q_lo) = kahan_add4(&q.coords, q_lo, &delta);
+    let n2 = q_hi.norm_squared();
+    if !n2.is_finite() || n2 <= T::zero() {
+        return Err(NavError::NonFiniteInput {
+            input: "attitude quaternion",
+        });
+    }
+    if (n2 - T::one()).abs() > T::EPS * T::lit(16.0) {
+        let inv = T::one() / n2.sqrt();
+        q_hi *= inv;
+        q_lo *= inv;
+    }
+    Ok((q_hi, q_lo))
 }
 
 /// C_b^n of a quaternion of any non-zero norm: the homogeneous DCM formula divided by |q|².
