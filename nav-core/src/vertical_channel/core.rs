@@ -1,6 +1,7 @@
 //! The state and machinery shared by both loops: the variable-interval step, the gap
 //! handling, the commit with its envelope limits, the health and counters.
 
+use super::age_limits::AgeLimits;
 use super::config::{AidModel, RunTime};
 use super::gate::{
     admit, AidReport, AidTally, Extrapolation, GateParams, Reacquisition, ReacquisitionCounters,
@@ -8,7 +9,6 @@ use super::gate::{
 };
 use super::gravity::GravityModel;
 use super::modes::{off_nominal_increment, AidMask, Feedback, Modes};
-use super::nominal::AgeLimits;
 use super::samples::{
     check_imu_values, check_initial, Aid, AidChannel, AidTimeouts, BaroSample, ImuSample,
     InitialState, SampleRule, ValidSample, VelocitySample, NEVER,
