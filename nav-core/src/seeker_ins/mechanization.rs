@@ -33,11 +33,14 @@
 //! the per-step increments are computed in `T`, then added in `f64`.
 
 use crate::earth::{normal_gravity_m_s2, EARTH_RATE_RAD_S};
-use crate::math::rotation::{quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm};
+use crate::math::rotation::{quat_from_rotation_vector, quat_mul, quat_normalize};
 use crate::math::trig;
 use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, Quaternion, Vector3, Vector4};
+
+mod numerics;
+use numerics::{attitude_step, kahan_add, unit_dcm};
 
 /// Geodetic position on WGS-84, always `f64`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -349,21 +352,10 @@ impl<T: Real> Ins<T> {
         let dth = inc.delta_theta_rad;
         let dv = inc.delta_v_m_s;
         let half = T::lit(0.5);
-        let twelfth = T::lit(1.0 / 12.0);
         let s = &self.state;
         let v = s.vel_ned_m_s;
         let k = Kinematics::new(&s.position, &v);
-        // Coning (α) and sculling/rotation (Δv_b) from the current and previous increments.
-        let (alpha, dv_b) = if self.has_prev {
-            let p = &self.prev;
-            (
-                dth + p.delta_theta_rad.cross(&dth) * twelfth,
-                dv + dth.cross(&dv) * half
-                    + (p.delta_theta_rad.cross(&dv) + p.delta_v_m_s.cross(&dth)) * twelfth,
-            )
-        } else {
-            (dth, dv + dth.cross(&dv) * half)
-        };
+        let (alpha, dv_b) = self.coning_sculling(&dth, &dv);
         let w_in = k.w_ie + k.w_en;
         let zeta = w_in * dt;
         let c = unit_dcm(&s.q_b_n);
@@ -385,25 +377,7 @@ impl<T: Real> Ins<T> {
             lon_rad: s.position.lon_rad + d_lon.to_f64(),
             alt_m: s.position.alt_m + dh.to_f64(),
         };
-        // Attitude: q₊ = (1 + n) ⊗ q ⊗ (1 + b) with the small parts n = q(−ζ) − 1,
-        // b = q(α) − 1, so the increment Δ = n⊗q + q⊗b + n⊗q⊗b is formed without cancellation
-        // and added with compensation.
-        let b = quat_minus_one(&alpha);
-        let n = quat_minus_one(&(-zeta));
-        let qb = quat_mul(&s.q_b_n, &b);
-        let delta = quat_mul(&n, &s.q_b_n).coords + qb.coords + quat_mul(&n, &qb).coords;
-        let (mut q_hi, mut q_lo) = kahan_add4(&s.q_b_n.coords, &self.q_lo, &delta);
-        let n2 = q_hi.norm_squared();
-        if !n2.is_finite() || n2 <= T::zero() {
-            return Err(NavError::NonFiniteInput {
-                input: "attitude quaternion",
-            });
-        }
-        if (n2 - T::one()).abs() > T::EPS * T::lit(16.0) {
-            let inv = T::one() / n2.sqrt();
-            q_hi *= inv;
-            q_lo *= inv;
-        }
+        let (q_hi, q_lo) = attitude_step(&s.q_b_n, &self.q_lo, &alpha, &zeta)?;
         let new_state = InsState {
             position,
             vel_ned_m_s: v_new,
@@ -425,6 +399,25 @@ impl<T: Real> Ins<T> {
         self.prev = *inc;
         self.has_prev = true;
         Ok(())
+    }
+
+    /// Coning (α, rad) and sculling/rotation (Δv_b, m/s) of the increments `dth` (rad) and
+    /// `dv` (m/s) with the previous increment (none before the first sample).
+    #[inline(always)]
+    fn coning_sculling(&self, dth: &Vector3<T>, dv: &Vector3<T>) -> (Vector3<T>, Vector3<T>) {
+        let half = T::lit(0.5);
+        let twelfth = T::lit(1.0 / 12.0);
+        let (dth, dv) = (*dth, *dv);
+        if self.has_prev {
+            let p = &self.prev;
+            (
+                dth + p.delta_theta_rad.cross(&dth) * twelfth,
+                dv + dth.cross(&dv) * half
+                    + (p.delta_theta_rad.cross(&dv) + p.delta_v_m_s.cross(&dth)) * twelfth,
+            )
+        } else {
+            (dth, dv + dth.cross(&dv) * half)
+        }
     }
 
     /// Applies the filter's error estimate (closed loop): subtracts the position and velocity
@@ -483,51 +476,6 @@ fn validate_increment<T: Real>(inc: &ImuIncrement<T>) -> Result<(), NavError> {
         });
     }
     Ok(())
-}
-
-/// C_b^n of a quaternion of any non-zero norm: the homogeneous DCM formula divided by |q|².
-fn unit_dcm<T: Real>(q: &Quaternion<T>) -> Matrix3<T> {
-    quat_to_dcm(q) * (T::one() / q.norm_squared())
-}
-
-/// `q(φ) − 1` for a rotation vector φ (|φ| < 1 rad): scalar part `cos(θ/2) − 1 = −2 sin²(θ/4)`
-/// without cancellation, vector part `sin(θ/2) φ/θ`.
-fn quat_minus_one<T: Real>(phi: &Vector3<T>) -> Quaternion<T> {
-    let th2 = phi.norm_squared();
-    let (w_m1, s_over_th) = if th2 < T::lit(1e-8) {
-        (
-            -th2 / T::lit(8.0) + th2 * th2 / T::lit(384.0),
-            T::lit(0.5) - th2 / T::lit(48.0) + th2 * th2 / T::lit(3840.0),
-        )
-    } else {
-        let th = th2.sqrt();
-        let s4 = trig::sin(th * T::lit(0.25));
-        (-T::lit(2.0) * s4 * s4, trig::sin(th * T::lit(0.5)) / th)
-    };
-    Quaternion::new(
-        w_m1,
-        phi.x * s_over_th,
-        phi.y * s_over_th,
-        phi.z * s_over_th,
-    )
-}
-
-/// Kahan compensated sum `s + x` with running compensation `c`: returns the new `(s, c)`.
-/// Slowly varying increments (a constant acceleration, a steady turn) otherwise round the same
-/// way step after step: in f32 that alone is ≈ 0.1 m/s and 2e-4 rad after 240 s.
-fn kahan_add<T: Real>(s: &Vector3<T>, c: &Vector3<T>, x: &Vector3<T>) -> (Vector3<T>, Vector3<T>) {
-    let y = x - c;
-    let t = s + y;
-    let c_new = (t - s) - y;
-    (t, c_new)
-}
-
-/// [`kahan_add`] for quaternion coordinates.
-fn kahan_add4<T: Real>(s: &Vector4<T>, c: &Vector4<T>, x: &Vector4<T>) -> (Vector4<T>, Vector4<T>) {
-    let y = x - c;
-    let t = s + y;
-    let c_new = (t - s) - y;
-    (t, c_new)
 }
 
 /// An initial state: finite, in the model range, unit-normalisable quaternion.

@@ -1,6 +1,6 @@
 //! Unit tests of the strapdown INS (time stamps, stationary INS, refused input).
 use super::*;
-use crate::math::rotation::{dcm_to_quat, euler_to_dcm};
+use crate::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 
 fn start<T: Real>() -> InsState<T> {
     InsState {

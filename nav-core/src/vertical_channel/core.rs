@@ -1,6 +1,7 @@
 //! The state and machinery shared by both loops: the variable-interval step, the gap
 //! handling, the commit with its envelope limits, the health and counters.
 
+use super::age_limits::AgeLimits;
 use super::config::{AidModel, RunTime};
 use super::gate::{
     admit, AidReport, AidTally, Extrapolation, GateParams, Reacquisition, ReacquisitionCounters,
@@ -8,7 +9,6 @@ use super::gate::{
 };
 use super::gravity::GravityModel;
 use super::modes::{off_nominal_increment, AidMask, Feedback, Modes};
-use super::nominal::AgeLimits;
 use super::samples::{
     check_imu_values, check_initial, Aid, AidChannel, AidTimeouts, BaroSample, ImuSample,
     InitialState, SampleRule, ValidSample, VelocitySample, NEVER,
@@ -503,30 +503,8 @@ impl<T: Real> LoopCore<T> {
             &self.gate,
             &self.gate.velocity,
         );
-        // A reset or re-anchoring moves the measured state so that its innovation is zero
-        // (baro: ĥ; velocity: V̂_z); the other states are kept.
-        let moved = |v: &Option<Verdict<T>>| {
-            v.filter(|v| {
-                matches!(
-                    v.reacquisition,
-                    Reacquisition::Reset | Reacquisition::Reanchored
-                )
-            })
-            .map(|v| v.report.innovation)
-        };
-        let (dh, dv) = (moved(&baro_verdict), moved(&vel_verdict));
-        let mut moved_states = None;
-        if dh.is_some() || dv.is_some() {
-            moved_states = Some(Moved {
-                baro: dh.is_some(),
-                velocity: dv.is_some(),
-            });
-            if let Some(d) = dh {
-                x.x += d;
-            }
-            if let Some(d) = dv {
-                x.y += d;
-            }
+        let moved_states = moved_states(&baro_verdict, &vel_verdict, &mut x);
+        if moved_states.is_some() {
             az = sub.specific_force - self.gravity.gravity_m_s2(sub.h_ref + x.x);
             h_pred = x.x - lag * x.y;
             v_rate = az + bias_sign * x.z;
@@ -654,6 +632,40 @@ struct Gated<T: Real> {
 struct Moved {
     baro: bool,
     velocity: bool,
+}
+
+/// A reset or re-anchoring moves the measured state so that its innovation is zero (baro: ĥ,
+/// m; velocity: V̂_z, m/s); the other states are kept. The states moved (`None`: none), `x`
+/// moved in place.
+#[inline(always)]
+fn moved_states<T: Real>(
+    baro: &Option<Verdict<T>>,
+    velocity: &Option<Verdict<T>>,
+    x: &mut Vector3<T>,
+) -> Option<Moved> {
+    let moved = |v: &Option<Verdict<T>>| {
+        v.filter(|v| {
+            matches!(
+                v.reacquisition,
+                Reacquisition::Reset | Reacquisition::Reanchored
+            )
+        })
+        .map(|v| v.report.innovation)
+    };
+    let (dh, dv) = (moved(baro), moved(velocity));
+    if dh.is_none() && dv.is_none() {
+        return None;
+    }
+    if let Some(d) = dh {
+        x.x += d;
+    }
+    if let Some(d) = dv {
+        x.y += d;
+    }
+    Some(Moved {
+        baro: dh.is_some(),
+        velocity: dv.is_some(),
+    })
 }
 
 #[inline(always)]

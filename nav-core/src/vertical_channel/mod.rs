@@ -140,6 +140,7 @@
 //! held (`Stale`) sample is extrapolated at constant acceleration: choose `lost_after_s` so
 //! that ½ · jerk · age² stays below the aid's noise.
 
+mod age_limits;
 mod aided;
 mod bridge;
 mod classical;

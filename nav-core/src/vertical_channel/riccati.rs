@@ -112,6 +112,47 @@ pub fn solve_filter_care<T: Real, const M: usize>(
     c: &SMatrix<T, M, 3>,
     r_diag: &SVector<T, M>,
 ) -> Result<CareSolution<T, M>, NavError> {
+    check_care_inputs(a, q, c, r_diag)?;
+    let q = (q + q.transpose()) * T::lit(0.5);
+    let r_inv = SMatrix::<T, M, M>::from_diagonal(&r_diag.map(|r| T::one() / r));
+    let g = c.transpose() * r_inv * c;
+
+    let mut z = SMatrix::<T, 6, 6>::zeros();
+    z.fixed_view_mut::<3, 3>(0, 0).copy_from(&a.transpose());
+    z.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-g));
+    z.fixed_view_mut::<3, 3>(3, 0).copy_from(&(-q));
+    z.fixed_view_mut::<3, 3>(3, 3).copy_from(&(-a));
+
+    let (z, iterations) = matrix_sign(z)?;
+    let p = p_from_sign(&z, iterations)?;
+    let gain = p * c.transpose() * r_inv;
+    let (_, relative_residual) = care_residual(a, &q, c, r_diag, &p);
+    let small = matches!(
+        relative_residual.partial_cmp(&T::EPS.sqrt()),
+        Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
+    );
+    if !small {
+        return Err(NavError::NotConverged { iterations });
+    }
+    if !is_hurwitz3(&(a - gain * c)) {
+        return Err(NavError::NotConverged { iterations });
+    }
+    Ok(CareSolution {
+        p,
+        gain,
+        iterations,
+        relative_residual,
+    })
+}
+
+/// The input checks of [`solve_filter_care`]: `NonFiniteInput` for NaN/Inf in A, Q, C or R,
+/// `InputOutOfRange` for a non-positive `r` or a negative diagonal of `q`.
+fn check_care_inputs<T: Real, const M: usize>(
+    a: &Matrix3<T>,
+    q: &Matrix3<T>,
+    c: &SMatrix<T, M, 3>,
+    r_diag: &SVector<T, M>,
+) -> Result<(), NavError> {
     if !a.iter().all(|v| v.is_finite()) {
         return Err(NavError::NonFiniteInput { input: "A" });
     }
@@ -130,16 +171,14 @@ pub fn solve_filter_care<T: Real, const M: usize>(
     if q.diagonal().iter().any(|&v| v < T::zero()) {
         return Err(NavError::InputOutOfRange { input: "Q" });
     }
-    let q = (q + q.transpose()) * T::lit(0.5);
-    let r_inv = SMatrix::<T, M, M>::from_diagonal(&r_diag.map(|r| T::one() / r));
-    let g = c.transpose() * r_inv * c;
+    Ok(())
+}
 
-    let mut z = SMatrix::<T, 6, 6>::zeros();
-    z.fixed_view_mut::<3, 3>(0, 0).copy_from(&a.transpose());
-    z.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-g));
-    z.fixed_view_mut::<3, 3>(3, 0).copy_from(&(-q));
-    z.fixed_view_mut::<3, 3>(3, 3).copy_from(&(-a));
-
+/// The matrix sign function of the 6×6 Hamiltonian `z`
+/// by the scaled Newton iteration, with the number of iterations taken. `SingularMatrix` if an
+/// iterate is singular, `NotConverged` if an iterate is not finite or the iteration does not
+/// converge within [`MAX_SIGN_ITERATIONS`].
+fn matrix_sign<T: Real>(mut z: SMatrix<T, 6, 6>) -> Result<(SMatrix<T, 6, 6>, u32), NavError> {
     let tol = T::lit(100.0) * T::EPS;
     let sixth = T::one() / T::lit(6.0);
     let mut iterations = 0u32;
@@ -186,6 +225,14 @@ pub fn solve_filter_care<T: Real, const M: usize>(
     if !converged {
         return Err(NavError::NotConverged { iterations });
     }
+    Ok((z, iterations))
+}
+
+/// The stabilising P (3×3, symmetric, state units²) from the sign matrix `z` of the
+/// Hamiltonian: the least-squares solution of `N P = −M` with `[M N] = z + I`.
+/// `SingularMatrix` if the normal equations are singular, `NotConverged { iterations }` if P
+/// is not finite or has a negative diagonal.
+fn p_from_sign<T: Real>(z: &SMatrix<T, 6, 6>, iterations: u32) -> Result<Matrix3<T>, NavError> {
     let w = z + SMatrix::<T, 6, 6>::identity();
     // copy_from rather than into_owned / try_inverse: no reachable panic on the target.
     let mut n = SMatrix::<T, 6, 3>::zeros();
@@ -201,24 +248,7 @@ pub fn solve_filter_care<T: Real, const M: usize>(
     if !p.iter().all(|v| v.is_finite()) || p.diagonal().iter().any(|&v| v < T::zero()) {
         return Err(NavError::NotConverged { iterations });
     }
-    let gain = p * c.transpose() * r_inv;
-    let (_, relative_residual) = care_residual(a, &q, c, r_diag, &p);
-    let small = matches!(
-        relative_residual.partial_cmp(&T::EPS.sqrt()),
-        Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
-    );
-    if !small {
-        return Err(NavError::NotConverged { iterations });
-    }
-    if !is_hurwitz3(&(a - gain * c)) {
-        return Err(NavError::NotConverged { iterations });
-    }
-    Ok(CareSolution {
-        p,
-        gain,
-        iterations,
-        relative_residual,
-    })
+    Ok(p)
 }
 
 #[cfg(test)]

@@ -234,7 +234,7 @@ fn nominal_step_matches_general_step_bit_for_bit_f32_f64() {
 /// age in seconds is within the limit — the next one is not — in f32 and f64.
 #[test]
 fn age_limits_agree_with_the_comparison_in_seconds() {
-    use super::super::nominal::{last_micros_within, short_seconds};
+    use super::super::age_limits::{last_micros_within, short_seconds};
     fn check<T: crate::Real + std::fmt::Debug>(limit_s: T) {
         let u = last_micros_within(limit_s);
         assert!(
@@ -271,8 +271,8 @@ fn age_limits_agree_with_the_comparison_in_seconds() {
 /// takes no sample in the nominal step; a model far below it keeps the whole-µs timeout.
 #[test]
 fn age_limits_leave_models_reaching_the_ceiling_to_the_general_step() {
+    use super::super::age_limits::{last_micros_within, AgeLimits};
     use super::super::gate::AidGate;
-    use super::super::nominal::{last_micros_within, AgeLimits};
     fn check<T: crate::Real + std::fmt::Debug>() {
         let to = AidTimeouts {
             stale_after_s: T::lit(0.2),
