@@ -27,7 +27,7 @@
 //!   where in truth they largely cancel (`g φ ≈ −∇` along the level axes).
 //!
 //! * the specific force the accelerometer-bias states refer to: the carry's (the last master
-//!   epoch's, in slave axes), set on the new EKF at the hand-over ([`refer_to_carry`]). The
+//!   epoch's, in slave axes), set on the new EKF at the hand-over (`refer_to_carry`). The
 //!   alignment levelled the slave against its own accelerometers at that force, so the
 //!   scale-factor and misalignment share of the bias, `(S + M) f_carry`, is part of the error
 //!   the tilt and the difference bias absorbed; the drop (≈ 0 g) and the pull-up after it are

@@ -165,7 +165,7 @@ impl Baro {
 /// The six loops of a run and their latest velocity and covariance. Variant order:
 /// classical gated, classical ungated, aided gated, aided ungated, classical twin, aided twin.
 struct Variants<T: Real> {
-    /// [0] gated, [1] ungated, [2] gated fault-free twin.
+    /// Index 0 gated, 1 ungated, 2 the gated fault-free twin.
     classical: [ClassicalLoop<T>; 3],
     aided: [AidedLoop<T>; 3],
     est_v: [f64; 6],
