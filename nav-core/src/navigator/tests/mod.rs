@@ -316,11 +316,103 @@ struct Run {
     joint_min_correlation_eigenvalue: f64,
 }
 
+impl Run {
+    fn new() -> Self {
+        Run {
+            phases: Vec::new(),
+            transitions: Vec::new(),
+            handover_phi: Vector3::zeros(),
+            handover_sigma: Vector3::zeros(),
+            final_health: HealthState::Initialising,
+            terminal_pos_err_m: f64::NAN,
+            baro_fused: 0,
+            seeker_fused: 0,
+            midcourse_vertical_cross: f64::NAN,
+            midcourse_vertical_var: [f64::NAN; 2],
+            midcourse_alt_err_m: f64::NAN,
+            final_seeker: AidState::NotUsedInPhase,
+            final_degradation: Degradation::default(),
+            baro_fused_at_seeker_loss: 0,
+            carry_worst_normalized: 0.0,
+            joint_min_correlation_eigenvalue: f64::INFINITY,
+        }
+    }
+}
+
 fn gimbal_truth(truth: &InsState<f64>) -> crate::seeker_ins::GimbalAngles<f64> {
     let lm = Landmark::new(landmark_position()).unwrap();
     let d = landmark_vector_ned(&truth.position, &lm);
     let c_b_n = quat_to_dcm(&truth.q_b_n);
     gimbal_angles_of(&(c_b_n.transpose() * d))
+}
+
+/// The seeker's LOS sample at `t` (truth gimbal angles every 10th tick inside the seeker window).
+fn los_sample<T: Real>(
+    t: f64,
+    k: u64,
+    time: Timestamp,
+    truth: &InsState<f64>,
+) -> Option<LosSample<T>> {
+    ((SEEKER_FROM_S..SEEKER_UNTIL_S).contains(&t) && k % 10 == 0).then(|| LosSample {
+        time,
+        gimbal: {
+            let g = gimbal_truth(truth);
+            crate::seeker_ins::GimbalAngles {
+                pitch_rad: T::lit(g.pitch_rad),
+                yaw_rad: T::lit(g.yaw_rad),
+            }
+        },
+    })
+}
+
+/// Largest |cross-covariance| of δD or δV_D with the other navigation states.
+fn vertical_cross<T: Real>(p: &SMatrix<T, 9, 9>) -> f64 {
+    let mut m = 0.0_f64;
+    for j in 0..9 {
+        if j != 2 && j != 5 {
+            m = m
+                .max(p[(2, j)].to_f64().abs())
+                .max(p[(5, j)].to_f64().abs());
+        }
+    }
+    m
+}
+
+/// Smallest eigenvalue of the joint (17 + baro) correlation matrix of the baro EKF.
+fn joint_min_correlation_eigenvalue<T: Real>(nav: &FlightNavigator<T, 32>) -> f64 {
+    let p = nav.ekf().unwrap().covariance().map(|x| x.to_f64());
+    let b = nav.baro_state();
+    let mut pa = SMatrix::<f64, 18, 18>::zeros();
+    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
+    let c = b.cross.map(|x| x.to_f64());
+    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&c);
+    pa.fixed_view_mut::<1, 17>(17, 0).copy_from(&c.transpose());
+    pa[(17, 17)] = b.variance_m2.to_f64();
+    let d = pa.diagonal().map(|v| 1.0 / v.max(1e-300).sqrt());
+    let corr = SMatrix::<f64, 18, 18>::from_fn(|i, j| pa[(i, j)] * d[i] * d[j]);
+    corr.symmetric_eigenvalues().min()
+}
+
+/// The attitude σ (states 6..9 of the navigation covariance), rad.
+fn attitude_sigma<T: Real>(p: &SMatrix<T, 9, 9>) -> Vector3<f64> {
+    Vector3::from_fn(|i, _| p[(6 + i, 6 + i)].to_f64().sqrt())
+}
+
+/// Largest per-state |error| / σ of the navigation states.
+fn worst_normalized<T: Real>(e: &[f64; 9], p: &SMatrix<T, 9, 9>) -> f64 {
+    let mut worst = 0.0_f64;
+    for (i, ei) in e.iter().enumerate() {
+        let sigma = p[(i, i)].to_f64().sqrt();
+        worst = worst.max(ei.abs() / sigma);
+    }
+    worst
+}
+
+/// Position error in the north-vertical plane (north from latitude, and altitude), m.
+fn north_vertical_error_m<T: Real>(s: &InsState<T>, truth: &InsState<f64>) -> f64 {
+    let (rm, _) = crate::earth::radii_m(truth.position.lat_rad);
+    ((s.position.lat_rad - truth.position.lat_rad) * rm)
+        .hypot(s.position.alt_m - truth.position.alt_m)
 }
 
 fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
@@ -331,24 +423,7 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
     // A twin flown through `tick_into` with one report slot reused for the whole run.
     let mut twin = nav.clone();
     let mut slot = twin.blank_report();
-    let mut run = Run {
-        phases: Vec::new(),
-        transitions: Vec::new(),
-        handover_phi: Vector3::zeros(),
-        handover_sigma: Vector3::zeros(),
-        final_health: HealthState::Initialising,
-        terminal_pos_err_m: f64::NAN,
-        baro_fused: 0,
-        seeker_fused: 0,
-        midcourse_vertical_cross: f64::NAN,
-        midcourse_vertical_var: [f64::NAN; 2],
-        midcourse_alt_err_m: f64::NAN,
-        final_seeker: AidState::NotUsedInPhase,
-        final_degradation: Degradation::default(),
-        baro_fused_at_seeker_loss: 0,
-        carry_worst_normalized: 0.0,
-        joint_min_correlation_eigenvalue: f64::INFINITY,
-    };
+    let mut run = Run::new();
     let mut last_phase = Phase::Carry;
     let steps = (end_s / DT).round() as u64;
     for _ in 0..steps {
@@ -364,19 +439,7 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
             time: inc.time,
             altitude_m: T::lit(truth.position.alt_m),
         });
-        let seeker =
-            ((SEEKER_FROM_S..SEEKER_UNTIL_S).contains(&t) && world.k % 10 == 0).then(|| {
-                LosSample {
-                    time: inc.time,
-                    gimbal: {
-                        let g = gimbal_truth(&truth);
-                        crate::seeker_ins::GimbalAngles {
-                            pitch_rad: T::lit(g.pitch_rad),
-                            yaw_rad: T::lit(g.yaw_rad),
-                        }
-                    },
-                }
-            });
+        let seeker = los_sample::<T>(t, world.k, inc.time, &truth);
         let separation = ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(inc.time);
         let aids = Aids {
             master: master.as_ref(),
@@ -395,52 +458,28 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
             if report.phase == Phase::Released {
                 let phi = attitude_error(&report.solution.state, &truth);
                 run.handover_phi = phi;
-                run.handover_sigma = Vector3::from_fn(|i, _| {
-                    report.solution.nav_covariance[(6 + i, 6 + i)]
-                        .to_f64()
-                        .sqrt()
-                });
+                run.handover_sigma = attitude_sigma(&report.solution.nav_covariance);
             }
             last_phase = report.phase;
         }
         if report.phase == Phase::Midcourse {
             let p = &report.solution.nav_covariance;
-            let mut m = 0.0_f64;
-            for j in 0..9 {
-                if j != 2 && j != 5 {
-                    m = m
-                        .max(p[(2, j)].to_f64().abs())
-                        .max(p[(5, j)].to_f64().abs());
-                }
-            }
-            run.midcourse_vertical_cross = m;
+            run.midcourse_vertical_cross = vertical_cross(p);
             run.midcourse_vertical_var = [p[(2, 2)].to_f64(), p[(5, 5)].to_f64()];
             run.midcourse_alt_err_m = report.solution.state.position.alt_m - truth.position.alt_m;
         }
         if report.phase == Phase::Carry && t > 2.0 && world.k % 100 == 0 {
             let e = nav_error(&report.solution.state, &truth);
-            for (i, ei) in e.iter().enumerate() {
-                let sigma = report.solution.nav_covariance[(i, i)].to_f64().sqrt();
-                run.carry_worst_normalized = run.carry_worst_normalized.max(ei.abs() / sigma);
-            }
+            let w = worst_normalized(&e, &report.solution.nav_covariance);
+            run.carry_worst_normalized = run.carry_worst_normalized.max(w);
         }
         if matches!(report.phase, Phase::Midcourse | Phase::Terminal)
             && matches!(cfg.baro, BaroDamping::Ekf(_))
             && world.k % 100 == 0
         {
-            let p = nav.ekf().unwrap().covariance().map(|x| x.to_f64());
-            let b = nav.baro_state();
-            let mut pa = SMatrix::<f64, 18, 18>::zeros();
-            pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
-            let c = b.cross.map(|x| x.to_f64());
-            pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&c);
-            pa.fixed_view_mut::<1, 17>(17, 0).copy_from(&c.transpose());
-            pa[(17, 17)] = b.variance_m2.to_f64();
-            let d = pa.diagonal().map(|v| 1.0 / v.max(1e-300).sqrt());
-            let corr = SMatrix::<f64, 18, 18>::from_fn(|i, j| pa[(i, j)] * d[i] * d[j]);
             run.joint_min_correlation_eigenvalue = run
                 .joint_min_correlation_eigenvalue
-                .min(corr.symmetric_eigenvalues().min());
+                .min(joint_min_correlation_eigenvalue(&nav));
         }
         if (t - SEEKER_UNTIL_S).abs() < 0.5 * DT {
             run.baro_fused_at_seeker_loss = report.baro.counters.fused;
@@ -450,10 +489,7 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
         run.final_health = report.health;
         run.baro_fused = report.baro.counters.fused;
         run.seeker_fused = report.seeker.counters.fused;
-        let s = &report.solution.state;
-        let (rm, _) = crate::earth::radii_m(truth.position.lat_rad);
-        run.terminal_pos_err_m = ((s.position.lat_rad - truth.position.lat_rad) * rm)
-            .hypot(s.position.alt_m - truth.position.alt_m);
+        run.terminal_pos_err_m = north_vertical_error_m(&report.solution.state, &truth);
     }
     run
 }
