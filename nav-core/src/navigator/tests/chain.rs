@@ -89,15 +89,22 @@ fn refused_inputs_change_nothing<T: Real>() {
     let (mut nav, mut world) = carry_for::<T>(2.0, 10.0);
     let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     let inc = world.step(&lever);
+    refused_imu_changes_nothing(&mut nav, &inc);
+    refused_master_is_counted(&mut nav, &mut world, &lever, &inc);
+    refused_in_flight_changes_nothing(&mut nav, &mut world, &lever);
+}
+
+/// A bad or late IMU sample in carry: `Err`, the navigator (and a `tick_into` slot) unchanged.
+fn refused_imu_changes_nothing<T: Real>(nav: &mut FlightNavigator<T, 32>, inc: &ImuIncrement<f64>) {
     // A bad IMU sample: Err, the navigator unchanged bit for bit.
-    let before = dump(&nav);
-    let mut bad = tick_of::<T>(&inc);
+    let before = dump(nav);
+    let mut bad = tick_of::<T>(inc);
     bad.increment.delta_v_m_s.x = T::lit(f64::NAN);
     assert!(matches!(
         nav.tick(&bad, &Aids::NONE),
         Err(NavError::NonFiniteInput { .. })
     ));
-    assert_eq!(dump(&nav), before);
+    assert_eq!(dump(nav), before);
     // Through `tick_into`: the caller's report slot is left as it was too.
     let mut slot = nav.blank_report();
     slot.phase = Phase::Terminal;
@@ -106,15 +113,24 @@ fn refused_inputs_change_nothing<T: Real>() {
         nav.tick_into(&bad, &Aids::NONE, &mut slot),
         Err(NavError::NonFiniteInput { .. })
     ));
-    assert_eq!(dump(&nav), before);
+    assert_eq!(dump(nav), before);
     assert_eq!(format!("{slot:?}"), slot_before);
-    let mut late = tick_of::<T>(&inc);
+    let mut late = tick_of::<T>(inc);
     late.increment.time = Timestamp::from_micros(inc.time.as_micros() - DT_US);
     assert_eq!(
         nav.tick(&late, &Aids::NONE),
         Err(NavError::TimeNotIncreasing)
     );
-    assert_eq!(dump(&nav), before);
+    assert_eq!(dump(nav), before);
+}
+
+/// A bad master in carry: refused, counted, nothing of it applied; the next valid tick works.
+fn refused_master_is_counted<T: Real>(
+    nav: &mut FlightNavigator<T, 32>,
+    world: &mut World,
+    lever: &Vector3<f64>,
+    inc: &ImuIncrement<f64>,
+) {
     // A bad master: refused, counted, nothing of it applied (same solution as without it).
     let mut twin = nav.clone();
     let mut m = world.master_sample::<T>().or_else(|| {
@@ -129,13 +145,13 @@ fn refused_inputs_change_nothing<T: Real>() {
         master: Some(m),
         ..Aids::NONE
     };
-    let r = nav.tick(&tick_of(&inc), &aids).unwrap();
+    let r = nav.tick(&tick_of(inc), &aids).unwrap();
     assert!(matches!(r.master.state, AidState::Refused(_)));
     assert_eq!(r.master.counters.refused, 1);
-    let r2 = twin.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+    let r2 = twin.tick(&tick_of(inc), &Aids::NONE).unwrap();
     assert_eq!(r.solution, r2.solution);
     // The next valid tick works.
-    let inc = world.step(&lever);
+    let inc = world.step(lever);
     let m = world.master_sample::<T>();
     let r = nav
         .tick(
@@ -147,9 +163,16 @@ fn refused_inputs_change_nothing<T: Real>() {
         )
         .unwrap();
     assert_eq!(r.phase, Phase::Carry);
+}
+
+/// In flight: a bad IMU sample is refused with nothing changed, the next tick works.
+fn refused_in_flight_changes_nothing<T: Real>(
+    nav: &mut FlightNavigator<T, 32>,
+    world: &mut World,
+    lever: &Vector3<f64>,
+) {
     // In flight: a bad LOS sample is refused with nothing changed, the next tick works.
-    let mut nav = nav;
-    let truth = world.missile_truth(&lever);
+    let truth = world.missile_truth(lever);
     let p0 = {
         let mut p = crate::seeker_ins::paper_initial_covariance::<T>();
         p *= T::lit(0.01);
@@ -165,18 +188,18 @@ fn refused_inputs_change_nothing<T: Real>() {
     })
     .unwrap();
     assert_eq!(nav.phase(), Phase::Released);
-    let inc = world.step(&lever);
+    let inc = world.step(lever);
     let r = nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
     assert_eq!(
         r.transition.map(|t| t.cause),
         Some(TransitionCause::ReleaseCommanded)
     );
-    let before = dump(&nav);
-    let inc = world.step(&lever);
+    let before = dump(nav);
+    let inc = world.step(lever);
     let mut bad = tick_of::<T>(&inc);
     bad.increment.delta_theta_rad.y = T::lit(f64::INFINITY);
     assert!(nav.tick(&bad, &Aids::NONE).is_err());
-    assert_eq!(dump(&nav), before);
+    assert_eq!(dump(nav), before);
     assert!(nav.tick(&tick_of(&inc), &Aids::NONE).is_ok());
 }
 
