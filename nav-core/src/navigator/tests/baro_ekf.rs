@@ -384,6 +384,21 @@ fn baro_update_keeps_the_joint_covariance_psd_in_f32() {
     assert!(u.report.innovation_variance > 1.0e8);
 }
 
+/// The dense 18-state covariance of the 17-state P, the baro column and the baro variance.
+fn joint_matrix(
+    p: &SMatrix<f64, STATES, STATES>,
+    cross: &SVector<f64, STATES>,
+    s: f64,
+) -> SMatrix<f64, 18, 18> {
+    let mut pa = SMatrix::<f64, 18, 18>::zeros();
+    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(p);
+    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(cross);
+    pa.fixed_view_mut::<1, 17>(17, 0)
+        .copy_from(&cross.transpose());
+    pa[(17, 17)] = s;
+    pa
+}
+
 /// The baro column through a LOS update equals the dense 18-state sequential update (b not in
 /// the LOS rows) to rounding.
 #[test]
@@ -430,12 +445,7 @@ fn baro_column_through_los_update_matches_dense_18_state_reference() {
     assert_eq!(rep.pitch.outcome, FusionOutcome::Fused);
     assert_eq!(rep.yaw.outcome, FusionOutcome::Fused);
     // Dense reference.
-    let mut pa = SMatrix::<f64, 18, 18>::zeros();
-    pa.fixed_view_mut::<17, 17>(0, 0).copy_from(&p);
-    pa.fixed_view_mut::<17, 1>(0, 17).copy_from(&cross);
-    pa.fixed_view_mut::<1, 17>(17, 0)
-        .copy_from(&cross.transpose());
-    pa[(17, 17)] = s;
+    let mut pa = joint_matrix(&p, &cross, s);
     let mut xa = SVector::<f64, 18>::zeros();
     let mut h1 = SVector::<f64, 18>::zeros();
     h1.fixed_rows_mut::<17>(0).copy_from(&model.h_pitch);
