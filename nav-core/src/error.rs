@@ -115,6 +115,29 @@ pub fn require_positive<T: crate::Real>(field: &'static str, v: T) -> Result<T, 
     }
 }
 
+/// Checks a configuration value: finite and in [lo, hi] (`InvalidConfig` naming `field`).
+#[inline(never)]
+pub(crate) fn in_range<T: crate::Real>(
+    field: &'static str,
+    v: T,
+    lo: T,
+    hi: T,
+) -> Result<(), NavError> {
+    if !v.is_finite() {
+        return Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::NotFinite,
+        });
+    }
+    if v < lo || v > hi {
+        return Err(NavError::InvalidConfig {
+            field,
+            issue: ConfigIssue::OutOfRange,
+        });
+    }
+    Ok(())
+}
+
 /// Checks a configuration value: finite and non-negative.
 #[inline(never)]
 pub fn require_non_negative<T: crate::Real>(field: &'static str, v: T) -> Result<T, NavError> {

@@ -3,6 +3,8 @@
 
 use nalgebra::{ComplexField, RealField};
 
+pub(crate) mod sincos_f32;
+
 /// A real scalar the filters run on: `f32` on the flight computer, `f64` on the host.
 ///
 /// Sealed: only `f32` and `f64` implement it.
@@ -56,19 +58,19 @@ impl Real for f32 {
     }
     #[inline]
     fn trig_sin_cos(self) -> (Self, Self) {
-        crate::math::sincos_f32::sin_cos_f32(self)
+        sincos_f32::sin_cos_f32(self)
     }
     #[inline]
     fn trig_sin(self) -> Self {
-        crate::math::sincos_f32::sin_cos_f32(self).0
+        sincos_f32::sin_cos_f32(self).0
     }
     #[inline]
     fn trig_cos(self) -> Self {
-        crate::math::sincos_f32::sin_cos_f32(self).1
+        sincos_f32::sin_cos_f32(self).1
     }
     #[inline]
     fn trig_tan(self) -> Self {
-        let (s, c) = crate::math::sincos_f32::sin_cos_f32(self);
+        let (s, c) = sincos_f32::sin_cos_f32(self);
         s / c
     }
 }

@@ -7,5 +7,4 @@ pub mod kalman;
 pub mod linalg;
 pub mod markov;
 pub mod rotation;
-pub(crate) mod sincos_f32;
 pub mod trig;

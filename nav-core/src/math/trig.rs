@@ -1,5 +1,5 @@
 //! Sine and cosine for the filters: `f32` computed in `f32` only (the kernel in
-//! `sincos_f32`, whose module documentation gives the method, domain and accuracy), `f64` by
+//! `real/sincos_f32.rs`, whose module documentation gives the method, domain and accuracy), `f64` by
 //! the library (`RealField::sin`/`cos`: `std` on the host, libm in `no_std`).
 //!
 //! # Domain and accuracy (`f32`)
@@ -10,8 +10,7 @@
 
 use crate::real::Real;
 
-/// Upper bound of |x| (rad) on which the `f32` implementation keeps its ≤ 2 ulp accuracy.
-pub const F32_ACCURATE_DOMAIN_RAD: f32 = 8192.0;
+pub use crate::real::sincos_f32::F32_ACCURATE_DOMAIN_RAD;
 
 /// `(sin x, cos x)`, x in rad. See the module documentation for the `f32` domain and accuracy.
 #[inline]
@@ -35,4 +34,47 @@ pub fn cos<T: Real>(x: T) -> T {
 #[inline]
 pub fn tan<T: Real>(x: T) -> T {
     x.trig_tan()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::real::sincos_f32::sin_cos_f32;
+
+    /// Deterministic points in [lo, hi) (xorshift, `seed`).
+    fn uniform(seed: u64, n: usize, lo: f32, hi: f32) -> impl Iterator<Item = f32> {
+        let mut state = seed;
+        (0..n).map(move |_| {
+            state ^= state >> 12;
+            state ^= state << 25;
+            state ^= state >> 27;
+            let u = (state.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 40) as f32 / (1u64 << 24) as f32;
+            lo + (hi - lo) * u
+        })
+    }
+
+    #[test]
+    fn f32_wrappers_are_the_kernel() {
+        assert_eq!(sin(0.3f32), sin_cos_f32(0.3).0);
+        assert_eq!(cos(0.3f32), sin_cos_f32(0.3).1);
+        assert_eq!(tan(0.3f32), sin_cos_f32(0.3).0 / sin_cos_f32(0.3).1);
+        for x in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            assert!(sin(x).is_nan() && cos(x).is_nan() && tan(x).is_nan());
+        }
+    }
+
+    #[test]
+    fn f64_path_is_the_library() {
+        use nalgebra::ComplexField;
+        for x in uniform(11, 10_000, -100.0, 100.0).map(|v| f64::from(v) * 1.000_000_1) {
+            assert_eq!(sin(x).to_bits(), ComplexField::sin(x).to_bits());
+            assert_eq!(cos(x).to_bits(), ComplexField::cos(x).to_bits());
+            assert_eq!(tan(x).to_bits(), ComplexField::tan(x).to_bits());
+            let (s, c) = sin_cos(x);
+            assert_eq!(
+                (s.to_bits(), c.to_bits()),
+                (sin(x).to_bits(), cos(x).to_bits())
+            );
+        }
+    }
 }

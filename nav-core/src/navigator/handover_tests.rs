@@ -45,119 +45,156 @@ const PRIORS: HandoverPriors<f64> = HandoverPriors {
     gimbal_bias_sigma_rad: 7e-4,
 };
 
-/// The right Jacobian satisfies its defining relation (finite differences of exp).
+/// The hand-over's inputs ([`master`], [`alignment`], [`LEVER`], [`PRIORS`]) in `T`.
+struct Inputs<T> {
+    master: MasterAtRelease<T>,
+    align: AlignmentAtRelease<T>,
+    lever: LeverArm<T>,
+    priors: HandoverPriors<T>,
+}
+
+fn inputs<T: Real>() -> Inputs<T> {
+    let m = master();
+    let cast3 = |v: &Vector3<f64>| v.map(T::lit);
+    let master = MasterAtRelease::<T> {
+        c_m_n: m.c_m_n.map(T::lit),
+        vel_ned_m_s: cast3(&m.vel_ned_m_s),
+        position: m.position,
+        rate_nm_rad_s: cast3(&m.rate_nm_rad_s),
+        attitude_sigma_rad: cast3(&m.attitude_sigma_rad),
+        velocity_sigma_m_s: cast3(&m.velocity_sigma_m_s),
+        position_sigma_m: cast3(&m.position_sigma_m),
+        rate_sigma_rad_s: T::lit(m.rate_sigma_rad_s),
+    };
+    let a = alignment();
+    let align = AlignmentAtRelease::<T> {
+        theta_rad: cast3(&a.theta_rad),
+        theta_covariance_rad2: a.theta_covariance_rad2.map(T::lit),
+        flexure_rad: cast3(&a.flexure_rad),
+        flexure_rate_rad_s: cast3(&a.flexure_rate_rad_s),
+        flexure_rate_covariance: a.flexure_rate_covariance.map(T::lit),
+        theta_bias_covariance: a.theta_bias_covariance.map(T::lit),
+        bias_prior_variance_m2_s4: T::lit(a.bias_prior_variance_m2_s4),
+    };
+    let lever = LeverArm {
+        nominal_m: cast3(&LEVER.nominal_m),
+        sigma_m: cast3(&LEVER.sigma_m),
+    };
+    let priors = HandoverPriors {
+        accel_bias_sigma_m_s2: T::lit(PRIORS.accel_bias_sigma_m_s2),
+        gyro_bias_sigma_rad_s: T::lit(PRIORS.gyro_bias_sigma_rad_s),
+        gimbal_bias_sigma_rad: T::lit(PRIORS.gimbal_bias_sigma_rad),
+    };
+    Inputs {
+        master,
+        align,
+        lever,
+        priors,
+    }
+}
+
 /// The hand-over's blocks: `hand_over` is their P0; the cheap block check vouches for
 /// them, and the EKF built with P0 written in place is the one the public constructor
 /// (with its dense checks) builds. Blocks that are not PSD fail both checks.
 #[test]
 fn p0_from_blocks_is_the_hand_over_and_passes_the_ekf_checks() {
-    use crate::contract::Estimator;
-    use crate::seeker_ins::{Landmark, SeekerIns, SeekerInsConfig};
-    fn check<T: Real>() {
-        let m = master();
-        let cast3 = |v: &Vector3<f64>| v.map(T::lit);
-        let master = MasterAtRelease::<T> {
-            c_m_n: m.c_m_n.map(T::lit),
-            vel_ned_m_s: cast3(&m.vel_ned_m_s),
-            position: m.position,
-            rate_nm_rad_s: cast3(&m.rate_nm_rad_s),
-            attitude_sigma_rad: cast3(&m.attitude_sigma_rad),
-            velocity_sigma_m_s: cast3(&m.velocity_sigma_m_s),
-            position_sigma_m: cast3(&m.position_sigma_m),
-            rate_sigma_rad_s: T::lit(m.rate_sigma_rad_s),
-        };
-        let a = alignment();
-        let align = AlignmentAtRelease::<T> {
-            theta_rad: cast3(&a.theta_rad),
-            theta_covariance_rad2: a.theta_covariance_rad2.map(T::lit),
-            flexure_rad: cast3(&a.flexure_rad),
-            flexure_rate_rad_s: cast3(&a.flexure_rate_rad_s),
-            flexure_rate_covariance: a.flexure_rate_covariance.map(T::lit),
-            theta_bias_covariance: a.theta_bias_covariance.map(T::lit),
-            bias_prior_variance_m2_s4: T::lit(a.bias_prior_variance_m2_s4),
-        };
-        let lever = LeverArm {
-            nominal_m: cast3(&LEVER.nominal_m),
-            sigma_m: cast3(&LEVER.sigma_m),
-        };
-        let priors = HandoverPriors {
-            accel_bias_sigma_m_s2: T::lit(PRIORS.accel_bias_sigma_m_s2),
-            gyro_bias_sigma_rad_s: T::lit(PRIORS.gyro_bias_sigma_rad_s),
-            gimbal_bias_sigma_rad: T::lit(PRIORS.gimbal_bias_sigma_rad),
-        };
-        let full = hand_over(&master, &align, &lever, &priors).unwrap();
-        let nav = hand_over_nav(&master, &align, &lever, &priors).unwrap();
-        let mut p0 = SMatrix::<T, STATES, STATES>::from_element(T::lit(7.0));
-        nav.blocks.write_p0(&priors, &mut p0);
-        assert_eq!(p0, full.covariance);
-        assert!(nav.blocks.p0_passes_checks(&priors));
-        let landmark = Landmark::new(Position {
-            lat_rad: 0.651,
-            ..master.position
-        })
-        .unwrap();
-        let cfg = SeekerInsConfig::<T>::flight(landmark);
-        let design = SeekerIns::design(&cfg).unwrap();
-        let dense = SeekerIns::from_design(&cfg, &design, &full).unwrap();
-        let mut in_place = None;
-        SeekerIns::start_in(&mut in_place, &cfg, &design, &full.state, |p| {
-            nav.blocks.write_p0(&priors, p)
-        })
-        .unwrap();
-        let in_place = in_place.unwrap();
-        assert!(in_place == dense);
-        // A velocity block with a negative eigenvalue well beyond the dense check's
-        // tolerance: refused by both.
-        let mut bad = nav.blocks;
-        bad.vel[(0, 1)] = bad.vel[(0, 0)] * T::lit(3.0);
-        bad.vel[(1, 0)] = bad.vel[(0, 1)];
-        assert!(!bad.p0_passes_checks(&priors));
-        let mut p = full.covariance;
-        bad.write_p0(&priors, &mut p);
-        let refused = SeekerIns::from_design(
-            &cfg,
-            &design,
-            &SeekerInsInitial {
-                state: full.state,
-                covariance: p,
-            },
-        );
-        assert_eq!(
-            refused.err(),
-            Some(NavError::CovarianceNotPositiveSemiDefinite)
-        );
-        // The block check is stricter: the dense check's tolerance is relative to the
-        // whole trace (dominated by the altitude's m²), so it accepts an attitude block
-        // that is not PSD at its own scale; the navigator then leaves the decision to it.
-        let mut small = nav.blocks;
-        small.att[(0, 1)] = small.att[(0, 0)] * T::lit(3.0);
-        small.att[(1, 0)] = small.att[(0, 1)];
-        assert!(!small.p0_passes_checks(&priors));
-        // Not symmetric, or a variance beyond its ceiling: not vouched for.
-        let mut asym = nav.blocks;
-        asym.vel[(0, 1)] += T::lit(1e-3);
-        assert!(!asym.p0_passes_checks(&priors));
-        let mut huge = nav.blocks;
-        huge.pos[(2, 2)] = T::lit(1e30);
-        assert!(!huge.p0_passes_checks(&priors));
-        // An attitude–bias cross block too large for the two diagonal blocks (the Schur
-        // complement att − X Xᵀ/ab indefinite): not vouched for, and the dense check
-        // refuses the P0 too.
-        assert!(nav
-            .blocks
-            .att_bias(priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2)
-            .is_some());
-        let mut cross = nav.blocks;
-        cross.att_bias_unscaled *= T::lit(1e4);
-        assert!(!cross.p0_passes_checks(&priors));
-        let mut p = full.covariance;
-        cross.write_p0(&priors, &mut p);
-        assert!(!crate::math::kalman::is_psd(&p, T::lit(1e-6)));
-    }
-    check::<f64>();
-    check::<f32>();
+    p0_from_blocks::<f64>();
+    p0_from_blocks::<f32>();
 }
 
+fn p0_from_blocks<T: Real>() {
+    use crate::contract::Estimator;
+    use crate::seeker_ins::{Landmark, SeekerIns, SeekerInsConfig};
+    let Inputs {
+        master,
+        align,
+        lever,
+        priors,
+    } = inputs::<T>();
+    let full = hand_over(&master, &align, &lever, &priors).unwrap();
+    let nav = hand_over_nav(&master, &align, &lever, &priors).unwrap();
+    let mut p0 = SMatrix::<T, STATES, STATES>::from_element(T::lit(7.0));
+    nav.blocks.write_p0(&priors, &mut p0);
+    assert_eq!(p0, full.covariance);
+    assert!(nav.blocks.p0_passes_checks(&priors));
+    let landmark = Landmark::new(Position {
+        lat_rad: 0.651,
+        ..master.position
+    })
+    .unwrap();
+    let cfg = SeekerInsConfig::<T>::flight(landmark);
+    let design = SeekerIns::design(&cfg).unwrap();
+    let dense = SeekerIns::from_design(&cfg, &design, &full).unwrap();
+    let mut in_place = None;
+    SeekerIns::start_in(&mut in_place, &cfg, &design, &full.state, |p| {
+        nav.blocks.write_p0(&priors, p)
+    })
+    .unwrap();
+    let in_place = in_place.unwrap();
+    assert!(in_place == dense);
+    bad_blocks_refused(&nav.blocks, &priors, &full, &cfg, &design);
+}
+
+/// Blocks that are not PSD at their own scale, not symmetric, beyond a ceiling, or with an
+/// attitude–bias cross block too large: not vouched for; the dense check refuses what it can.
+fn bad_blocks_refused<T: Real>(
+    blocks: &NavBlocks<T>,
+    priors: &HandoverPriors<T>,
+    full: &SeekerInsInitial<T>,
+    cfg: &crate::seeker_ins::SeekerInsConfig<T>,
+    design: &crate::seeker_ins::SeekerInsDesign<T>,
+) {
+    use crate::contract::Estimator;
+    use crate::seeker_ins::SeekerIns;
+    // A velocity block with a negative eigenvalue well beyond the dense check's
+    // tolerance: refused by both.
+    let mut bad = *blocks;
+    bad.vel[(0, 1)] = bad.vel[(0, 0)] * T::lit(3.0);
+    bad.vel[(1, 0)] = bad.vel[(0, 1)];
+    assert!(!bad.p0_passes_checks(priors));
+    let mut p = full.covariance;
+    bad.write_p0(priors, &mut p);
+    let refused = SeekerIns::from_design(
+        cfg,
+        design,
+        &SeekerInsInitial {
+            state: full.state,
+            covariance: p,
+        },
+    );
+    assert_eq!(
+        refused.err(),
+        Some(NavError::CovarianceNotPositiveSemiDefinite)
+    );
+    // The block check is stricter: the dense check's tolerance is relative to the
+    // whole trace (dominated by the altitude's m²), so it accepts an attitude block
+    // that is not PSD at its own scale; the navigator then leaves the decision to it.
+    let mut small = *blocks;
+    small.att[(0, 1)] = small.att[(0, 0)] * T::lit(3.0);
+    small.att[(1, 0)] = small.att[(0, 1)];
+    assert!(!small.p0_passes_checks(priors));
+    // Not symmetric, or a variance beyond its ceiling: not vouched for.
+    let mut asym = *blocks;
+    asym.vel[(0, 1)] += T::lit(1e-3);
+    assert!(!asym.p0_passes_checks(priors));
+    let mut huge = *blocks;
+    huge.pos[(2, 2)] = T::lit(1e30);
+    assert!(!huge.p0_passes_checks(priors));
+    // An attitude–bias cross block too large for the two diagonal blocks (the Schur
+    // complement att − X Xᵀ/ab indefinite): not vouched for, and the dense check
+    // refuses the P0 too.
+    assert!(blocks
+        .att_bias(priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2)
+        .is_some());
+    let mut cross = *blocks;
+    cross.att_bias_unscaled *= T::lit(1e4);
+    assert!(!cross.p0_passes_checks(priors));
+    let mut p = full.covariance;
+    cross.write_p0(priors, &mut p);
+    assert!(!crate::math::kalman::is_psd(&p, T::lit(1e-6)));
+}
+
+/// The right Jacobian satisfies its defining relation (finite differences of exp).
 #[test]
 fn right_jacobian_matches_finite_differences() {
     let th = Vector3::new(0.3, -0.2, 0.5);

@@ -6,7 +6,7 @@ use super::flight_noise::InstrumentErrors;
 use super::measurement::Landmark;
 use crate::contract::{DesignStamp, Fingerprint, Gate, RecoveryAction, RecoveryPolicy};
 use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
-use crate::error::ConfigIssue;
+use crate::error::{in_range, ConfigIssue};
 use crate::time::{seconds_to_micros, MICROS_PER_SECOND};
 use crate::{NavError, Real};
 
@@ -257,24 +257,6 @@ pub(crate) fn check_design<T: Real>(
                 issue: ConfigIssue::OutOfRange,
             });
         }
-    }
-    Ok(())
-}
-
-/// Checks a configuration value: finite and in [lo, hi] (`InvalidConfig` naming `field`).
-#[inline(never)]
-pub(crate) fn in_range<T: Real>(field: &'static str, v: T, lo: T, hi: T) -> Result<(), NavError> {
-    if !v.is_finite() {
-        return Err(NavError::InvalidConfig {
-            field,
-            issue: ConfigIssue::NotFinite,
-        });
-    }
-    if v < lo || v > hi {
-        return Err(NavError::InvalidConfig {
-            field,
-            issue: ConfigIssue::OutOfRange,
-        });
     }
     Ok(())
 }

@@ -3,15 +3,16 @@
 
 use super::config::{
     check_design, compute_design, validate_config, validate_gate, validate_imu_faults,
-    validate_recovery, ImuFaultPolicy, SeekerInsConfig, SeekerInsDesign, VARIANCE_CEILING,
+    validate_recovery, ImuFaultPolicy, SeekerInsConfig, SeekerInsDesign, AID_TIMEOUT_US,
+    VARIANCE_CEILING,
 };
 use super::error_model::STATES;
 use super::flight_noise::EquivalentBiasCharge;
-use super::health::{LastUpdate, SeekerCounters};
+use super::health::{LastUpdate, SeekerAid, SeekerCounters};
 use super::mechanization::{Ins, InsState};
 use crate::contract::{AidCounters, Estimator, Gate, Health, RecoveryPolicy};
 use crate::time::Timestamp;
-use crate::{NavError, Real};
+use crate::{HealthState, NavError, Real};
 use nalgebra::{SMatrix, Vector2, Vector3};
 
 /// Where the filter starts (and restarts, [`Estimator::reinitialise`]): the navigation state
@@ -459,5 +460,72 @@ impl<T: Real> SeekerIns<T> {
         let ekf = slot.insert(Self::assemble(config, design, ins, &SMatrix::zeros()));
         write_p0(&mut ekf.p);
         Ok(())
+    }
+}
+
+/// 99 % of the navigation states' [`VARIANCE_CEILING`]s, computed at compile time (the health
+/// check runs every step; on the f32 target an f64 product per state is emulated).
+const NAV_CEILING_99: [f64; 9] = {
+    let [a, b, c, d, e, f, g, h, i, ..] = VARIANCE_CEILING;
+    [
+        0.99 * a,
+        0.99 * b,
+        0.99 * c,
+        0.99 * d,
+        0.99 * e,
+        0.99 * f,
+        0.99 * g,
+        0.99 * h,
+        0.99 * i,
+    ]
+};
+
+impl<T: Real> SeekerIns<T> {
+    /// How far the solution can be trusted now:
+    ///
+    /// * `Initialising`: no IMU sample since construction or re-initialisation;
+    /// * `NeedsReinitialisation`: the position is outside the model range (|L| ≥ 86°,
+    ///   |h| ≥ 1000 km), or a navigation variance is at its ceiling ([`VARIANCE_CEILING`]:
+    ///   the filter knows nothing there any more, e.g. after a gap too long to bridge). The
+    ///   filter keeps running (and comes back by itself if LOS updates bring the state and P
+    ///   back), but its solution is not to be used until then or until `reinitialise`;
+    /// * `Degraded`: no LOS component fused for [`super::AID_TIMEOUT_S`], the gate rejecting
+    ///   every component of the last LOS samples, the last update conditioned or skipped, or
+    ///   an IMU gap or clipped sample within the last [`super::AID_TIMEOUT_S`];
+    /// * `Nominal` otherwise.
+    pub(super) fn health_state(&self) -> HealthState {
+        let Some(now) = self.ins.time() else {
+            return HealthState::Initialising;
+        };
+        let at_ceiling = NAV_CEILING_99
+            .iter()
+            .enumerate()
+            .any(|(i, m)| self.p.get((i, i)).is_some_and(|v| *v >= T::lit(*m)));
+        if at_ceiling || !self.ins.state().position.is_in_range() {
+            return HealthState::NeedsReinitialisation;
+        }
+        let since = |t: Option<_>| t.and_then(|t| now.micros_since(t));
+        let aid_lost = since(self.fusion_ref).is_some_and(|us| us > AID_TIMEOUT_US);
+        let imu_fault = since(self.last_imu_fault).is_some_and(|us| us <= AID_TIMEOUT_US);
+        if aid_lost
+            || imu_fault
+            || self.los.consecutive_rejected > 0
+            || self.last_update == LastUpdate::Degraded
+        {
+            return HealthState::Degraded;
+        }
+        HealthState::Nominal
+    }
+
+    /// Counters of one aid ([`SeekerAid`] says what each counts).
+    pub fn aid_counters(&self, aid: SeekerAid) -> AidCounters {
+        match aid {
+            SeekerAid::Los => self.los,
+        }
+    }
+
+    /// The counters that do not fit [`crate::contract::Health`].
+    pub fn seeker_counters(&self) -> SeekerCounters {
+        self.counters
     }
 }

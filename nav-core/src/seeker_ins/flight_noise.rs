@@ -166,7 +166,7 @@ fn equivalent_variance<T: Real>(u: &Vector3<T>, sf: T, mis: T) -> Vector3<T> {
 
 /// Validates the σ ([`InstrumentErrors`] ranges), `InvalidConfig` naming the field.
 pub(crate) fn validate<T: Real>(e: &InstrumentErrors<T>) -> Result<(), NavError> {
-    use super::config::in_range;
+    use crate::error::in_range;
     let (sf, mis) = (T::lit(MAX_SCALE_FACTOR), T::lit(MAX_MISALIGNMENT_RAD));
     let z = T::zero();
     in_range(
