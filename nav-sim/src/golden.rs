@@ -109,13 +109,43 @@ const MISSION_BARO_SIGMA_M: f64 = 0.5;
 /// Mission: LOS every 10th tick from this tick on (7 s), 1σ noise 0.17°.
 const MISSION_LOS_FROM: usize = 700;
 
+/// The mission record's master message valid at tick `m` (26 values: flag, tick, attitude,
+/// velocity m/s, position offsets, rate rad/s, angular acceleration rad/s², specific force
+/// m/s²) onto `v`; `dt` is the tick, s.
+fn master_record(truth: &trajectory::Truth, m: usize, dt: f64, v: &mut Vec<f32>) -> Result<()> {
+    use nav_golden::mission::offsets_of;
+    let rate = |j: usize| -> Result<nalgebra::Vector3<f64>> {
+        Ok(truth.imu.get(j).context("trajectory")?.delta_theta_rad / dt)
+    };
+    let w = rate(m)?;
+    let w_dot = (rate(m + 1)? - rate(m - 1)?) / (2.0 * dt);
+    let f = truth.imu.get(m).context("trajectory")?.delta_v_m_s / dt;
+    let c_m = truth.c_b_n.get(m).context("trajectory")?;
+    let off = offsets_of(truth.position.get(m).context("trajectory")?);
+    v.extend([1.0, m as f32]);
+    v.extend(c_m.iter().map(|x| *x as f32));
+    v.extend(
+        truth
+            .vel_ned_m_s
+            .get(m)
+            .context("trajectory")?
+            .iter()
+            .map(|x| *x as f32),
+    );
+    v.extend(off.iter().map(|x| *x as f32));
+    v.extend(w.iter().map(|x| *x as f32));
+    v.extend(w_dot.iter().map(|x| *x as f32));
+    v.extend(f.iter().map(|x| *x as f32));
+    Ok(())
+}
+
 /// The mission's inputs: the missile on an S-turn (±2° heading, 10 s period, banked) at
 /// 200 m/s, 1000 m, east, under the aircraft until 3 s; the master INS (the same point: lever
 /// arm zero) from 0.5 s every 20 ms, 30 ms late; release signal at 3 s and 0.3 s of free fall
 /// then 0.3 s of pull-out; baro at 25 Hz throughout (the navigator uses it from midcourse);
 /// LOS to the case's landmark at 10 Hz from 7 s. Noise from `seed` (stream 3).
 fn mission_inputs(seed: u64) -> Result<Vec<f32>> {
-    use nav_golden::mission::{offsets_of, MISSION_INPUT_LEN};
+    use nav_golden::mission::MISSION_INPUT_LEN;
     use trajectory::{Shape, TrajectoryConfig};
     let start = nav_golden::seeker_start();
     let cfg = TrajectoryConfig {
@@ -162,29 +192,7 @@ fn mission_inputs(seed: u64) -> Result<Vec<f32>> {
         // Master: its time of validity `MISSION_MASTER_LATENCY` ticks ago.
         let master = (MISSION_MASTER_FROM..MISSION_RELEASE).contains(&k) && k % 2 == 0;
         if master {
-            let m = k - MISSION_MASTER_LATENCY;
-            let rate = |j: usize| -> Result<nalgebra::Vector3<f64>> {
-                Ok(truth.imu.get(j).context("trajectory")?.delta_theta_rad / dt)
-            };
-            let w = rate(m)?;
-            let w_dot = (rate(m + 1)? - rate(m - 1)?) / (2.0 * dt);
-            let f = truth.imu.get(m).context("trajectory")?.delta_v_m_s / dt;
-            let c_m = truth.c_b_n.get(m).context("trajectory")?;
-            let off = offsets_of(truth.position.get(m).context("trajectory")?);
-            v.extend([1.0, m as f32]);
-            v.extend(c_m.iter().map(|x| *x as f32));
-            v.extend(
-                truth
-                    .vel_ned_m_s
-                    .get(m)
-                    .context("trajectory")?
-                    .iter()
-                    .map(|x| *x as f32),
-            );
-            v.extend(off.iter().map(|x| *x as f32));
-            v.extend(w.iter().map(|x| *x as f32));
-            v.extend(w_dot.iter().map(|x| *x as f32));
-            v.extend(f.iter().map(|x| *x as f32));
+            master_record(&truth, k - MISSION_MASTER_LATENCY, dt, &mut v)?;
         } else {
             v.extend([0.0f32; 26]);
         }

@@ -272,6 +272,51 @@ fn trajectory_figure(
     truth: &truth::MissionTruth,
     rec0: &report::FlightRecord,
 ) -> Result<()> {
+    let (mut track, alt) = phase_tracks(truth, rec0);
+    track.push(Series {
+        style: crate::plot::Style::Points,
+        ..Series::line(
+            "landmark",
+            &[cfg.landmark.east_m * 1e-3],
+            &[cfg.landmark.north_m * 1e-3],
+            5,
+        )
+    });
+    render(
+        &Figure {
+            title: format!(
+                "{}: run 0 — missile track and altitude by navigator phase",
+                ctx.name
+            ),
+            x_label: "east, km (top) / time, s (bottom)".into(),
+            panels: vec![
+                Panel {
+                    title: "track: north vs east".into(),
+                    y_label: "north, km".into(),
+                    series: track,
+                    y_range: None,
+                },
+                Panel {
+                    title: "altitude".into(),
+                    y_label: "m".into(),
+                    series: alt,
+                    y_range: None,
+                },
+            ],
+            columns: 1,
+        },
+        &ctx.out_dir.join("trajectory.png"),
+        1200,
+        1000,
+    )
+}
+
+/// The first run's missile track (north-east, km) and altitude (m against time, s), one
+/// series per navigator phase, every 50th epoch.
+fn phase_tracks(
+    truth: &truth::MissionTruth,
+    rec0: &report::FlightRecord,
+) -> (Vec<Series>, Vec<Series>) {
     let m = &truth.missile;
     let p0 = m.position[0];
     let ne = |k: usize| {
@@ -318,40 +363,5 @@ fn trajectory_figure(
             )
         });
     }
-    track.push(Series {
-        style: crate::plot::Style::Points,
-        ..Series::line(
-            "landmark",
-            &[cfg.landmark.east_m * 1e-3],
-            &[cfg.landmark.north_m * 1e-3],
-            5,
-        )
-    });
-    render(
-        &Figure {
-            title: format!(
-                "{}: run 0 — missile track and altitude by navigator phase",
-                ctx.name
-            ),
-            x_label: "east, km (top) / time, s (bottom)".into(),
-            panels: vec![
-                Panel {
-                    title: "track: north vs east".into(),
-                    y_label: "north, km".into(),
-                    series: track,
-                    y_range: None,
-                },
-                Panel {
-                    title: "altitude".into(),
-                    y_label: "m".into(),
-                    series: alt,
-                    y_range: None,
-                },
-            ],
-            columns: 1,
-        },
-        &ctx.out_dir.join("trajectory.png"),
-        1200,
-        1000,
-    )
+    (track, alt)
 }

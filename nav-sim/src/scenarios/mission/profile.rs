@@ -161,6 +161,26 @@ impl MissionProfile {
         let ev = self.events();
         let recover_start = ev.drop_end_s;
         let turn_start = recover_start + self.recover_s;
+        let course = self.course(turn_start);
+        let mut speed = Schedule::constant(self.carry_speed_m_s);
+        speed.ramps.push(Ramp {
+            start_s: ev.drop_end_s,
+            duration_s: self.boost_s,
+            delta: self.boost_speed_gain_m_s,
+        });
+        let flight_path = self.flight_path(recover_start, turn_start);
+        let tip_off = self.tip_off(recover_start);
+        MissionMotion {
+            speed,
+            course,
+            flight_path,
+            tip_off,
+        }
+    }
+
+    /// The course schedule, rad: the carry turn (and back), the midcourse turn from
+    /// `turn_start` (s), the weave.
+    fn course(&self, turn_start: f64) -> Schedule {
         let mut course = Schedule::constant(self.heading_deg.to_radians());
         course.ramps.push(Ramp {
             start_s: self.carry_turn_start_s,
@@ -187,12 +207,12 @@ impl MissionProfile {
                 end_s: self.end_s,
             });
         }
-        let mut speed = Schedule::constant(self.carry_speed_m_s);
-        speed.ramps.push(Ramp {
-            start_s: ev.drop_end_s,
-            duration_s: self.boost_s,
-            delta: self.boost_speed_gain_m_s,
-        });
+        course
+    }
+
+    /// The flight-path schedule, rad: sink during the drop, back to level over the recovery
+    /// (from `recover_start`, s), then the altitude change to cruise from `turn_start` (s).
+    fn flight_path(&self, recover_start: f64, turn_start: f64) -> Schedule {
         // Flight path: sink during the drop, back to level over the recovery, then the
         // altitude change to cruise, held long enough to cover it.
         let gd = self.drop_flight_path_deg.to_radians();
@@ -228,9 +248,13 @@ impl MissionProfile {
                 delta: -gc,
             });
         }
-        // Tip-off: attitude offsets rising over the drop at the given peak rates, recovered
-        // after it.
-        let tip_off = self.tip_off_rate_deg_s.map(|rate| {
+        flight_path
+    }
+
+    /// The tip-off schedules per axis, rad: rising over the drop at the given peak rates,
+    /// recovered after it (from `recover_start`, s).
+    fn tip_off(&self, recover_start: f64) -> [Schedule; 3] {
+        self.tip_off_rate_deg_s.map(|rate| {
             let delta = rate.to_radians() * self.drop_s / RAMP_PEAK_RATE;
             let mut s = Schedule::constant(0.0);
             s.ramps.push(Ramp {
@@ -244,13 +268,7 @@ impl MissionProfile {
                 delta: -delta,
             });
             s
-        });
-        MissionMotion {
-            speed,
-            course,
-            flight_path,
-            tip_off,
-        }
+        })
     }
 }
 

@@ -154,7 +154,35 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
     });
     let cons: Vec<RunConsistency> = records.iter().map(|r| r.consistency.clone()).collect();
     let consistency = Consistency::from_runs(NAV_DOF, &cons);
-    let phases = PhaseTag::ALL
+    let phases = phase_consistency(&cons, &phase, &t_s);
+    let group_nees = phase_group_nees(records, &phase);
+    let phase_entry_s = phase_entries(records);
+    let aid_counts = total_aid_counts(records);
+    VariantStats {
+        name: name.to_string(),
+        runs: records.len(),
+        t_s,
+        phase,
+        rms,
+        sigma,
+        consistency,
+        phases,
+        group_nees,
+        handover: records.iter().filter_map(|r| r.handover).collect(),
+        phase_entry_s,
+        aid_counts,
+    }
+}
+
+/// Per phase (the epochs whose modal phase it is): the consistency of the runs over them and
+/// the phase's first and last epoch, s.
+fn phase_consistency(
+    cons: &[RunConsistency],
+    phase: &[Option<PhaseTag>],
+    t_s: &[f64],
+) -> Vec<(PhaseTag, Consistency, (f64, f64))> {
+    let n = phase.len();
+    PhaseTag::ALL
         .iter()
         .filter_map(|p| {
             let keep: Vec<usize> = (0..n).filter(|&k| phase[k] == Some(*p)).collect();
@@ -177,8 +205,16 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
                 (t_s[*first], t_s[*last]),
             ))
         })
-        .collect();
-    let group_nees = PhaseTag::ALL
+        .collect()
+}
+
+/// Per phase: the mean over runs and the phase's epochs of the three group NEES.
+fn phase_group_nees(
+    records: &[&FlightRecord],
+    phase: &[Option<PhaseTag>],
+) -> Vec<(PhaseTag, [f64; 3])> {
+    let n = phase.len();
+    PhaseTag::ALL
         .iter()
         .filter_map(|p| {
             let keep: Vec<usize> = (0..n).filter(|&k| phase[k] == Some(*p)).collect();
@@ -195,8 +231,12 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
             });
             Some((*p, mean))
         })
-        .collect();
-    let phase_entry_s = PhaseTag::ALL
+        .collect()
+}
+
+/// Per phase: the mean entry time over the runs that entered it, s, and their number.
+fn phase_entries(records: &[&FlightRecord]) -> Vec<(PhaseTag, f64, usize)> {
+    PhaseTag::ALL
         .iter()
         .map(|p| {
             let entries: Vec<f64> = records
@@ -206,7 +246,11 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
             let m = entries.iter().sum::<f64>() / entries.len().max(1) as f64;
             (*p, m, entries.len())
         })
-        .collect();
+        .collect()
+}
+
+/// The aids' counts summed over the runs, in order of first appearance.
+fn total_aid_counts(records: &[&FlightRecord]) -> Vec<(String, u64)> {
     let mut aid_counts: Vec<(String, u64)> = Vec::new();
     for r in records {
         for (k, v) in &r.aid_counts {
@@ -216,20 +260,7 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
             }
         }
     }
-    VariantStats {
-        name: name.to_string(),
-        runs: records.len(),
-        t_s,
-        phase,
-        rms,
-        sigma,
-        consistency,
-        phases,
-        group_nees,
-        handover: records.iter().filter_map(|r| r.handover).collect(),
-        phase_entry_s,
-        aid_counts,
-    }
+    aid_counts
 }
 
 impl VariantStats {

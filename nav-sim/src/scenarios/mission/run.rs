@@ -533,6 +533,38 @@ pub fn table4_release(
     }
 }
 
+/// A navigator started at the Table 4 release point (`time`): the release state and
+/// covariance handed over as if the carry had produced them.
+fn table4_start<T: Real, const K: usize, const NS: usize>(
+    config: &NavigatorConfig<T>,
+    t4: &Table4Release,
+    time: nav_core::time::Timestamp,
+) -> Result<Navigator<T, K, NS, HISTORY>> {
+    let st = &t4.state;
+    let p17: SMatrix<T, 17, 17> = t4.covariance.map(T::lit);
+    let init = NavigatorInitial {
+        time,
+        nav_covariance: table4_nav_covariance(&t4.covariance).map(T::lit),
+        state: InsState {
+            position: st.position,
+            vel_ned_m_s: st.vel_ned_m_s.map(T::lit),
+            q_b_n: nalgebra::Quaternion::new(
+                T::lit(st.q_b_n.w),
+                T::lit(st.q_b_n.i),
+                T::lit(st.q_b_n.j),
+                T::lit(st.q_b_n.k),
+            ),
+        },
+    };
+    let mut nav = Navigator::new(config, &init).map_err(|e| anyhow!("{e}"))?;
+    nav.release_with(&SeekerInsInitial {
+        state: init.state,
+        covariance: p17,
+    })
+    .map_err(|e| anyhow!("release_with: {e}"))?;
+    Ok(nav)
+}
+
 /// Flies one variant over one run's inputs with the navigator `N` in float type T.
 fn fly_with<T: Real, const K: usize, const NS: usize>(
     cfg: &MissionConfig,
@@ -558,28 +590,7 @@ fn fly_with<T: Real, const K: usize, const NS: usize>(
                 if tick.index < t4.index {
                     continue;
                 }
-                let st = &t4.state;
-                let p17: SMatrix<T, 17, 17> = t4.covariance.map(T::lit);
-                let init = NavigatorInitial {
-                    time: tick.imu.time,
-                    nav_covariance: table4_nav_covariance(&t4.covariance).map(T::lit),
-                    state: InsState {
-                        position: st.position,
-                        vel_ned_m_s: st.vel_ned_m_s.map(T::lit),
-                        q_b_n: nalgebra::Quaternion::new(
-                            T::lit(st.q_b_n.w),
-                            T::lit(st.q_b_n.i),
-                            T::lit(st.q_b_n.j),
-                            T::lit(st.q_b_n.k),
-                        ),
-                    },
-                };
-                let mut n = Navigator::new(&config, &init).map_err(|e| anyhow!("{e}"))?;
-                n.release_with(&SeekerInsInitial {
-                    state: init.state,
-                    covariance: p17,
-                })
-                .map_err(|e| anyhow!("release_with: {e}"))?;
+                let n = table4_start::<T, K, NS>(&config, t4, tick.imu.time)?;
                 queue.clear();
                 n
             } else {

@@ -143,17 +143,65 @@ pub fn simulate(
     let aircraft = generate(&motion, start, &stamps);
     let theta_m = normal3(rng, carry.mount_sigma_deg.map(f64::to_radians));
     let flex = flexure(&carry.flexure, dt_s, release_index + 1, rng)?;
-    let l0 = Vector3::from(carry.lever_arm_m);
+    let mount = Mount {
+        theta_m,
+        l0: Vector3::from(carry.lever_arm_m),
+        flex: &flex,
+    };
+    let (mut missile, theta) = carried(&aircraft, &motion, &mount, dt_s, end_index + 1);
+    // Free flight from release.
+    let c_s_m = aircraft.c_b_n[release_index].transpose() * missile.c_b_n[release_index];
+    let released = Released {
+        inner: &motion,
+        c_s_m,
+        dv0_ned_m_s: missile.vel_ned_m_s[release_index] - aircraft.vel_ned_m_s[release_index],
+        release_s,
+        fade_s: profile.drop_s,
+    };
+    let stamps: Vec<u64> = (release_index as u64..=end_index as u64)
+        .map(|k| k * dt_us)
+        .collect();
+    let free = generate(&released, missile.position[release_index], &stamps);
+    append_free(&mut missile, &free);
+    Ok(MissionTruth {
+        events,
+        release_index,
+        aircraft,
+        theta_rad: theta,
+        theta_m_rad: theta_m,
+        missile,
+    })
+}
 
-    let n = release_index + 1;
+/// How the missile hangs on the pylon.
+struct Mount<'a> {
+    /// Mount misalignment (random constant), rad.
+    theta_m: Vector3<f64>,
+    /// Lever arm from the master to the missile IMU, master axes, m.
+    l0: Vector3<f64>,
+    /// The flexure at the IMU epochs of the carry.
+    flex: &'a Flexure,
+}
+
+/// The missile's truth over the carry (the aircraft's epochs, through release) and its total
+/// misalignment θ (rad) per epoch; `capacity` is the length the series will grow to.
+fn carried(
+    aircraft: &FlightTruth,
+    motion: &MissionMotion,
+    mount: &Mount,
+    dt_s: f64,
+    capacity: usize,
+) -> (FlightTruth, Vec<Vector3<f64>>) {
+    let (theta_m, l0, flex) = (mount.theta_m, mount.l0, mount.flex);
+    let n = aircraft.t_s.len();
     let mut missile = FlightTruth {
-        t_s: Vec::with_capacity(end_index + 1),
-        position: Vec::with_capacity(end_index + 1),
-        vel_ned_m_s: Vec::with_capacity(end_index + 1),
-        c_b_n: Vec::with_capacity(end_index + 1),
-        specific_force_b_m_s2: Vec::with_capacity(end_index + 1),
-        rate_b_rad_s: Vec::with_capacity(end_index + 1),
-        imu: Vec::with_capacity(end_index + 1),
+        t_s: Vec::with_capacity(capacity),
+        position: Vec::with_capacity(capacity),
+        vel_ned_m_s: Vec::with_capacity(capacity),
+        c_b_n: Vec::with_capacity(capacity),
+        specific_force_b_m_s2: Vec::with_capacity(capacity),
+        rate_b_rad_s: Vec::with_capacity(capacity),
+        imu: Vec::with_capacity(capacity),
     };
     let mut theta = Vec::with_capacity(n);
     // Rigid lever-arm acceleration in master axes at the previous epoch (for the trapezoid).
@@ -214,20 +262,11 @@ pub fn simulate(
         theta.push(th);
         a_rigid_prev = a_rigid;
     }
-    // Free flight from release.
-    let c_s_m = aircraft.c_b_n[release_index].transpose() * missile.c_b_n[release_index];
-    let released = Released {
-        inner: &motion,
-        c_s_m,
-        dv0_ned_m_s: missile.vel_ned_m_s[release_index] - aircraft.vel_ned_m_s[release_index],
-        release_s,
-        fade_s: profile.drop_s,
-    };
-    let stamps: Vec<u64> = (release_index as u64..=end_index as u64)
-        .map(|k| k * dt_us)
-        .collect();
-    let free = generate(&released, missile.position[release_index], &stamps);
-    // Epoch 0 of `free` is the release epoch already stored.
+    (missile, theta)
+}
+
+/// Appends the free flight from release (its epoch 0 is the release epoch already stored).
+fn append_free(missile: &mut FlightTruth, free: &FlightTruth) {
     missile.t_s.extend_from_slice(&free.t_s[1..]);
     missile.position.extend_from_slice(&free.position[1..]);
     missile
@@ -241,14 +280,6 @@ pub fn simulate(
         .rate_b_rad_s
         .extend_from_slice(&free.rate_b_rad_s[1..]);
     missile.imu.extend_from_slice(&free.imu[1..]);
-    Ok(MissionTruth {
-        events,
-        release_index,
-        aircraft,
-        theta_rad: theta,
-        theta_m_rad: theta_m,
-        missile,
-    })
 }
 
 #[cfg(test)]
