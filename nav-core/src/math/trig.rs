@@ -40,18 +40,7 @@ pub fn tan<T: Real>(x: T) -> T {
 mod tests {
     use super::*;
     use crate::real::sincos_f32::sin_cos_f32;
-
-    /// Deterministic points in [lo, hi) (xorshift, `seed`).
-    fn uniform(seed: u64, n: usize, lo: f32, hi: f32) -> impl Iterator<Item = f32> {
-        let mut state = seed;
-        (0..n).map(move |_| {
-            state ^= state >> 12;
-            state ^= state << 25;
-            state ^= state >> 27;
-            let u = (state.wrapping_mul(0x2545_f491_4f6c_dd1d) >> 40) as f32 / (1u64 << 24) as f32;
-            lo + (hi - lo) * u
-        })
-    }
+    use crate::real::sincos_f32::tests::uniform;
 
     #[test]
     fn f32_wrappers_are_the_kernel() {

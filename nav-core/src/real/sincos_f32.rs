@@ -109,7 +109,7 @@ fn sin_cos_kernel(r: f32, r_lo: f32) -> (f32, f32) {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// Error of `got` in units in the last place of the `f32` nearest to `exact`.
@@ -139,8 +139,9 @@ mod tests {
         (es, ec, xs, xc)
     }
 
-    /// xorshift64*: reproducible uniform points without a dev-dependency.
-    fn uniform(seed: u64, n: usize, lo: f32, hi: f32) -> impl Iterator<Item = f32> {
+    /// xorshift64*: reproducible uniform points without a dev-dependency (also the trig
+    /// wrappers' tests).
+    pub(crate) fn uniform(seed: u64, n: usize, lo: f32, hi: f32) -> impl Iterator<Item = f32> {
         let mut state = seed;
         (0..n).map(move |_| {
             state ^= state >> 12;
