@@ -234,8 +234,14 @@ fn charge_ned<T: Real>(
     charged: &Vector3<T>,
 ) -> (Vector3<T>, Vector3<T>) {
     let w = c_b_n.component_mul(c_b_n) * equivalent_variance(u_b, sf, mis);
+    charge_above(&w, charged)
+}
+
+/// The part of the variances `w` above the largest charged so far, per axis, and the new
+/// largest: `(added, new charged)`.
+fn charge_above<T: Real>(w: &Vector3<T>, charged: &Vector3<T>) -> (Vector3<T>, Vector3<T>) {
     let add = (w - charged).map(|x| x.max(T::zero()));
-    (add, charged.sup(&w))
+    (add, charged.sup(w))
 }
 
 /// The hook of the covariance step: after `P ← Φ P Φᵀ + Q_d` over an interval `dt_s` with
@@ -278,8 +284,9 @@ pub(crate) fn add_instrument_noise<T: Real>(
                 charge.sustained_f_b_m_s2 + (departure - charge.sustained_f_b_m_s2) * alpha;
             next.sustained_f_b_m_s2 = sustained;
             let w = equivalent_variance(&sustained, sa, ma);
-            add_bias = (w - charge.charged_bias_m2_s4).map(|x| x.max(T::zero()));
-            next.charged_bias_m2_s4 = charge.charged_bias_m2_s4.sup(&w);
+            let (add, charged) = charge_above(&w, &charge.charged_bias_m2_s4);
+            add_bias = add;
+            next.charged_bias_m2_s4 = charged;
             next.excess_dv_b_m_s = charge.excess_dv_b_m_s + (departure - sustained) * dt_s;
             let (add, charged) = charge_ned(
                 c_b_n,
