@@ -161,6 +161,10 @@ impl<T: Real> Estimator for SeekerIns<T> {
     /// Errors (filter unchanged): `NonFiniteInput`, `InputOutOfRange` (position outside the
     /// model range, a variance beyond [`VARIANCE_CEILING`]),
     /// `CovarianceNotPositiveSemiDefinite`.
+    // Runs once per flight, or after a failure: cold and out of line, so that the caller's
+    // hot path does not carry an inlined copy.
+    #[cold]
+    #[inline(never)]
     fn reinitialise(&mut self, initial: &SeekerInsInitial<T>) -> Result<(), NavError> {
         validate_covariance(&initial.covariance)?;
         let ins = Ins::new(initial.state, self.config.imu_dt_s)?;

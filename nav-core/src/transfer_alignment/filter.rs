@@ -170,6 +170,10 @@ impl<T: Real, const K: usize, const N: usize> Estimator for TransferAlignment<T,
     /// another flexure, mount σ or `dt_s`), every Φ, Q_d, P0 value finite (`InvalidConfig {
     /// field: "flexure" }`), the design's structure (`InvalidConfig { field: "design.q_d" |
     /// "design.p0" | "design.phi" }`), then the initial state ([`TaInitial::validate`]).
+    // Runs once per flight, or after a failure: cold and out of line, so that the caller's
+    // hot path does not carry an inlined copy.
+    #[cold]
+    #[inline(never)]
     fn from_design(
         config: &TaConfig<T>,
         design: &TaDesign<T, K>,
@@ -215,6 +219,10 @@ impl<T: Real, const K: usize, const N: usize> Estimator for TransferAlignment<T,
     /// [`super::DEGRADED_HOLD_EPOCHS`] epochs (still `Initialising` before the first sample).
     /// To keep the current mounting estimate, pass `TaInitial { mount_misalignment_rad:
     /// filter.theta_m() }`. Errors (nothing changed): those of [`TaInitial::validate`].
+    // Runs once per flight, or after a failure: cold and out of line, so that the caller's
+    // hot path does not carry an inlined copy.
+    #[cold]
+    #[inline(never)]
     fn reinitialise(&mut self, initial: &TaInitial<T>) -> Result<(), NavError> {
         initial.validate()?;
         let m = &initial.mount_misalignment_rad;

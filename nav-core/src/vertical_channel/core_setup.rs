@@ -16,6 +16,10 @@ use nalgebra::Vector3;
 
 impl<T: Real> LoopCore<T> {
     /// The loop at `init` with a design's values (copies only: no f64 arithmetic).
+    // Runs once per flight, or after a failure: cold and out of line, so that the caller's
+    // hot path does not carry an inlined copy.
+    #[cold]
+    #[inline(never)]
     pub(crate) fn new(init: &InitialState<T>, parts: CoreParts<'_, T>) -> Result<Self, NavError> {
         check_initial(init)?;
         let StepValues {
@@ -76,6 +80,10 @@ impl<T: Real> LoopCore<T> {
     /// Restarts the state and clock from `init`, keeping the design, the gate and the
     /// counters (held aid samples are dropped; health `Initialising`). On error nothing
     /// changes.
+    // Runs once per flight, or after a failure: cold and out of line, so that the caller's
+    // hot path does not carry an inlined copy.
+    #[cold]
+    #[inline(never)]
     pub(crate) fn reinitialise(&mut self, init: &InitialState<T>) -> Result<(), NavError> {
         check_initial(init)?;
         self.h_ref_m = init.altitude_m;
