@@ -236,9 +236,12 @@ impl Fingerprint {
         Self(Self::OFFSET)
     }
 
-    /// Adds raw bytes.
-    fn bytes(mut self, bytes: &[u8]) -> Self {
-        for &b in bytes {
+    /// Adds raw bytes. Out of line: stamps are computed when a filter is built or checked,
+    /// never on a step, and one copy per width (4 and 8 bytes) serves every value of every
+    /// stamp (inlined, each value was its own unrolled copy).
+    #[inline(never)]
+    fn bytes<const L: usize>(mut self, bytes: [u8; L]) -> Self {
+        for b in bytes {
             self.0 ^= u32::from(b);
             self.0 = self.0.wrapping_mul(Self::PRIME);
         }
@@ -250,7 +253,7 @@ impl Fingerprint {
     pub fn real<T: Real>(self, v: T) -> Self {
         let w = v.to_f64();
         let w = if w == 0.0 { 0.0 } else { w };
-        self.bytes(&w.to_bits().to_le_bytes())
+        self.bytes(w.to_bits().to_le_bytes())
     }
 
     /// Adds an `f64` value.
@@ -262,7 +265,7 @@ impl Fingerprint {
     /// Adds an integer.
     #[must_use]
     pub fn count(self, v: u32) -> Self {
-        self.bytes(&v.to_le_bytes())
+        self.bytes(v.to_le_bytes())
     }
 
     /// The 32-bit fingerprint.
