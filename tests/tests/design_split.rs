@@ -116,7 +116,7 @@ fn ta_new_equals_from_design<T: Real, const K: usize, const N: usize>() {
         fused += ra
             .updates
             .iter()
-            .filter(|u| u.outcome == nav_core::math::kalman::FusionOutcome::Fused)
+            .filter(|u| u.outcome == nav_core::FusionOutcome::Fused)
             .count();
     }
     // The run did exercise the updates.

@@ -7,7 +7,6 @@
 use nalgebra::{SMatrix, Vector3};
 use nav_core::contract::{Estimator, Gate, RecoveryAction, RecoveryPolicy};
 use nav_core::error::ConfigIssue;
-use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
     gimbal_angles_of, landmark_vector_ned, ClipFlags, GimbalAngles, ImuFaultPolicy, ImuIncrement,
@@ -15,6 +14,7 @@ use nav_core::seeker_ins::{
     SeekerInsInitial, VARIANCE_CEILING,
 };
 use nav_core::time::Timestamp;
+use nav_core::FusionOutcome;
 use nav_core::{HealthState, NavError, Real};
 use nav_sim::stress::psd_defect;
 

@@ -3,13 +3,13 @@
 
 use nalgebra::{SMatrix, Vector3};
 use nav_core::contract::{Estimator, Gate, RecoveryAction, RecoveryPolicy};
-use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
     gimbal_angles_of, landmark_vector_ned, GimbalAngles, ImuIncrement, InsState, Landmark,
     LosSample, LosSkipReason, Position, SeekerAid, SeekerIns, SeekerInsConfig, SeekerInsInitial,
 };
 use nav_core::time::Timestamp;
+use nav_core::FusionOutcome;
 use nav_core::{NavError, Real};
 use proptest::prelude::*;
 
@@ -494,14 +494,8 @@ fn gate_counts_rejections_and_recovery_inflates() {
         // 10 s of false lock (100 updates).
         for _ in 0..100 {
             let r = step_and_update(&mut f, Some(two_deg)).unwrap();
-            assert_eq!(
-                r.pitch.outcome,
-                nav_core::math::kalman::FusionOutcome::Rejected
-            );
-            assert_eq!(
-                r.yaw.outcome,
-                nav_core::math::kalman::FusionOutcome::Rejected
-            );
+            assert_eq!(r.pitch.outcome, nav_core::FusionOutcome::Rejected);
+            assert_eq!(r.yaw.outcome, nav_core::FusionOutcome::Rejected);
         }
         let c1 = f.aid_counters(SeekerAid::Los);
         assert_eq!(c1.rejected, 200);
@@ -510,10 +504,7 @@ fn gate_counts_rejections_and_recovery_inflates() {
         check_health(&f, if T::EPS > T::lit(1e-10) { 1e-3 } else { 1e-9 }).unwrap();
         // Lock regained.
         let r = step_and_update(&mut f, Some(0.0)).unwrap();
-        assert_eq!(
-            r.pitch.outcome,
-            nav_core::math::kalman::FusionOutcome::Fused
-        );
+        assert_eq!(r.pitch.outcome, nav_core::FusionOutcome::Fused);
         assert_eq!(f.aid_counters(SeekerAid::Los).consecutive_rejected, 0);
         // 30 s loss of lock: no updates, P grows, then the first LOS is fused.
         let v0 = f.covariance()[(2, 2)];
@@ -522,10 +513,7 @@ fn gate_counts_rejections_and_recovery_inflates() {
         }
         assert!(f.covariance()[(1, 1)] > T::zero() && f.covariance()[(2, 2)] >= v0);
         let r = step_and_update(&mut f, Some(0.001)).unwrap();
-        assert_eq!(
-            r.pitch.outcome,
-            nav_core::math::kalman::FusionOutcome::Fused
-        );
+        assert_eq!(r.pitch.outcome, nav_core::FusionOutcome::Fused);
     }
     case::<f32>();
     case::<f64>();
