@@ -22,9 +22,9 @@ use crate::scenario::{Context, Kind};
 use crate::scenarios::vertical_channel::{
     load_config, loop_configs, push_consistency, Config, Profile, AXES,
 };
+use crate::truth::gravity_down_m_s2;
 use anyhow::{anyhow, ensure, Result};
 use nalgebra::Matrix2;
-use nav_core::earth::normal_gravity_m_s2;
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     Aid, AidModel, AidStatus, AidedLoop, BaroSample, ClassicalLoop, ImuSample, InitialState,

@@ -34,7 +34,7 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
         let stamp = Timestamp::from_secs_f64(t).map_err(|e| anyhow!("time stamp {t}: {e}"))?;
         let (h, v, _) = profile.at(t);
         let (h_mid, _, _) = profile.at(t - 0.5 * dt);
-        let f = (v - v_prev) / dt + normal_gravity_m_s2(lat, h_mid) + bias + normal(rng, sigma_f);
+        let f = (v - v_prev) / dt + gravity_down_m_s2(lat, h_mid) + bias + normal(rng, sigma_f);
         baro.lag(h, h_prev, dt);
         // (clean reading, faulty reading or None)
         let (clean, faulty) = if k % baro_every == 0 {
