@@ -137,6 +137,17 @@ pub(crate) struct Admitted<T> {
     pub(crate) verdict: Option<Verdict<T>>,
 }
 
+/// The [`Admitted`] of a new sample: the channel `channel` holding a sample of age `age_s`
+/// now, and the verdict on it.
+#[inline(always)]
+fn admitted<T>(channel: AidChannel<T>, age_s: T, verdict: Verdict<T>) -> Admitted<T> {
+    Admitted {
+        channel: Some(channel),
+        age_s,
+        verdict: Some(verdict),
+    }
+}
+
 #[inline(always)]
 pub(crate) fn saturate<T: Real>(s: T) -> T {
     // Also catches an overflow to +∞ (s cannot be NaN: every term is finite or +∞).
@@ -254,11 +265,7 @@ fn admit_sample<T: Real>(
     };
     if old.reanchor || starved {
         let (cand, verdict) = reanchor(cand, innovation, model_var, params, aid);
-        return Admitted {
-            channel: Some(cand),
-            age_s: cand_age,
-            verdict: Some(verdict),
-        };
+        return admitted(cand, cand_age, verdict);
     }
     let lost = old.received && old_age > ex.lost_after_s;
     let (s, tested, pass) = match params.threshold {
@@ -294,21 +301,13 @@ fn admit_sample<T: Real>(
     };
     if pass {
         cand.rejected_since = NEVER;
-        Admitted {
-            channel: Some(cand),
-            age_s: cand_age,
-            verdict: Some(verdict),
-        }
+        admitted(cand, cand_age, verdict)
     } else {
         let mut kept = *old;
         if old.rejected_since == NEVER {
             kept.rejected_since = cand.last_time;
         }
-        Admitted {
-            channel: Some(kept),
-            age_s: old_age,
-            verdict: Some(verdict),
-        }
+        admitted(kept, old_age, verdict)
     }
 }
 

@@ -1,5 +1,5 @@
 //! The sensors of `fault-baro`: the baro with its lag, correlated error, noise and the faults
-//! of the faulty stream (the IMU's specific force is formed in [`super::simulate`] from the
+//! of the faulty stream (the IMU's specific force is formed in `simulate` from the
 //! simulator's own gravity).
 
 use super::*;
