@@ -120,9 +120,3 @@ mod sealed {
     impl Sealed for f32 {}
     impl Sealed for f64 {}
 }
-
-/// `true` when every element of the slice-like iterator is finite.
-#[inline]
-pub fn all_finite<'a, T: Real + 'a>(values: impl IntoIterator<Item = &'a T>) -> bool {
-    values.into_iter().all(|v| v.is_finite())
-}

@@ -95,6 +95,12 @@ pub fn gravity_ned_m_s2(lat_rad: f64, lon_rad: f64, alt_m: f64) -> Vector3<f64> 
     ecef_to_ned(lat_rad, lon_rad) * (e_u * g_u + e_beta * g_beta)
 }
 
+/// Down component of [`gravity_ned_m_s2`] (normal gravity does not depend on longitude), m/s²:
+/// the gravity a simulated vertical accelerometer feels.
+pub fn gravity_down_m_s2(lat_rad: f64, alt_m: f64) -> f64 {
+    gravity_ned_m_s2(lat_rad, 0.0, alt_m).z
+}
+
 /// Radii of curvature `(meridian R_M, prime vertical R_N)` at a geodetic latitude, m.
 pub fn radii_of_curvature_m(lat_rad: f64) -> (f64, f64) {
     let w2 = 1.0 - e2() * lat_rad.sin().powi(2);

@@ -116,7 +116,7 @@ fn ta_new_equals_from_design<T: Real, const K: usize, const N: usize>() {
         fused += ra
             .updates
             .iter()
-            .filter(|u| u.outcome == nav_core::math::kalman::FusionOutcome::Fused)
+            .filter(|u| u.outcome == nav_core::FusionOutcome::Fused)
             .count();
     }
     // The run did exercise the updates.
@@ -431,10 +431,10 @@ fn aided_new_equals_from_design<T: Real>() {
     assert_eq!(a, b);
     assert_eq!(a, c);
     assert_eq!(a.gains(), design.gains());
-    let (bv, vv) = design.innovation_variances();
-    let (sb, sv) = a.design_innovation_sigmas();
-    assert_eq!(bits(sb), bits(bv.sqrt()));
-    assert_eq!(bits(sv), bits(vv.sqrt()));
+    let variances = design.innovation_variances();
+    let sigmas = a.design_innovation_sigmas();
+    assert_eq!(bits(sigmas.baro), bits(variances.baro.sqrt()));
+    assert_eq!(bits(sigmas.velocity), bits(variances.velocity.sqrt()));
     let mut rng = Lcg(5);
     let mut used = [0usize; 2];
     for k in 0..STEPS {
@@ -569,7 +569,7 @@ fn vc_values_and_refusals<T: Real>() {
     assert_eq!(v[2], ad.gains().k[(0, 0)]);
     assert_eq!(v[43], f64::from(ad.gains().riccati_iterations));
     assert_eq!(v[45], ad.gravity().g0_m_s2.to_f64());
-    assert_eq!(v[51], ad.innovation_variances().0.to_f64());
+    assert_eq!(v[51], ad.innovation_variances().baro.to_f64());
     assert_eq!(v[53], ad.phi_with_baro()[(0, 0)].to_f64());
     assert_eq!(v[110], 100_000.0);
     assert_eq!(v[110 + 1 + 128], 1.0);

@@ -5,13 +5,13 @@
 use nalgebra::{SMatrix, Vector3};
 use nav_core::contract::{Estimator, Gate};
 use nav_core::earth::radii_m;
-use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
     gimbal_angles_of, landmark_vector_ned, GimbalAngles, ImuIncrement, Ins, InsState, Landmark,
     LosSample, Position, SeekerIns, SeekerInsConfig, SeekerInsInitial,
 };
 use nav_core::time::Timestamp;
+use nav_core::FusionOutcome;
 use nav_core::{NavError, Real};
 use nav_sim::rng::{gauss, run_rng};
 use nav_sim::scenarios::seeker_ins::{monte_carlo_batches, trajectory, Config};

@@ -7,14 +7,14 @@
 use nalgebra::{SMatrix, Vector3};
 use nav_core::contract::{Estimator, Gate, RecoveryAction, RecoveryPolicy};
 use nav_core::error::ConfigIssue;
-use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
-    gimbal_angles_of, landmark_vector_ned, ClipFlags, GimbalAngles, ImuFaultPolicy, ImuIncrement,
-    InsState, Landmark, LosSample, LosSkipReason, Position, SeekerAid, SeekerIns, SeekerInsConfig,
-    SeekerInsInitial, VARIANCE_CEILING,
+    gimbal_angles_of, landmark_vector_ned, paper_initial_covariance, ClipFlags, GimbalAngles,
+    ImuFaultPolicy, ImuIncrement, InsState, Landmark, LosSample, LosSkipReason, Position,
+    SeekerAid, SeekerIns, SeekerInsConfig, SeekerInsInitial, VARIANCE_CEILING,
 };
 use nav_core::time::Timestamp;
+use nav_core::FusionOutcome;
 use nav_core::{HealthState, NavError, Real};
 use nav_sim::stress::psd_defect;
 
@@ -65,19 +65,9 @@ fn config<T: Real>(landmark: Position) -> SeekerInsConfig<T> {
     }
 }
 
-const SIG0: [f64; 17] = [
-    6e-6, 6e-6, 40.0, 10.0, 10.0, 10.0, 0.017, 0.017, 0.087, 1e-3, 1e-3, 1e-3, 5e-8, 5e-8, 5e-8,
-    7e-4, 7e-4,
-];
-
+/// The paper's initial covariance (Table 4, diagonal).
 fn p0<T: Real>() -> SMatrix<T, 17, 17> {
-    SMatrix::from_fn(|i, j| {
-        if i == j {
-            T::lit(SIG0[i] * SIG0[i])
-        } else {
-            T::zero()
-        }
-    })
+    paper_initial_covariance()
 }
 
 /// The start with P0 (the navigation block replaced by `p_nav`).
@@ -482,13 +472,7 @@ fn out_of_range_and_back<T: Real>() {
     assert_eq!(f.health().state, HealthState::NeedsReinitialisation);
     assert!(f.seeker_counters().out_of_range_samples > 0);
     // Refused re-initialisations change nothing.
-    let mut p_nav = SMatrix::<T, 9, 9>::from_fn(|i, j| {
-        if i == j {
-            T::lit(SIG0[i] * SIG0[i])
-        } else {
-            T::zero()
-        }
-    });
+    let mut p_nav: SMatrix<T, 9, 9> = p0::<T>().fixed_view::<9, 9>(0, 0).into_owned();
     let before = format!("{f:?}");
     let mut bad = p_nav;
     bad[(3, 4)] = T::lit(150.0);

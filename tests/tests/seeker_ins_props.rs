@@ -3,13 +3,14 @@
 
 use nalgebra::{SMatrix, Vector3};
 use nav_core::contract::{Estimator, Gate, RecoveryAction, RecoveryPolicy};
-use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
-    gimbal_angles_of, landmark_vector_ned, GimbalAngles, ImuIncrement, InsState, Landmark,
-    LosSample, LosSkipReason, Position, SeekerAid, SeekerIns, SeekerInsConfig, SeekerInsInitial,
+    gimbal_angles_of, landmark_vector_ned, paper_initial_covariance, GimbalAngles, ImuIncrement,
+    InsState, Landmark, LosSample, LosSkipReason, Position, SeekerAid, SeekerIns, SeekerInsConfig,
+    SeekerInsInitial,
 };
 use nav_core::time::Timestamp;
+use nav_core::FusionOutcome;
 use nav_core::{NavError, Real};
 use proptest::prelude::*;
 
@@ -49,17 +50,9 @@ fn config<T: Real>(lm_north_m: f64, lm_east_m: f64) -> SeekerInsConfig<T> {
     }
 }
 
-const SIG0: [f64; 17] = [
-    6e-6, 6e-6, 40.0, 10.0, 10.0, 10.0, 0.017, 0.017, 0.087, 1e-3, 1e-3, 1e-3, 5e-8, 5e-8, 5e-8,
-    7e-4, 7e-4,
-];
-
+/// The paper's initial covariance (Table 4, diagonal).
 fn p0<T: Real>() -> SMatrix<T, 17, 17> {
-    let mut p = SMatrix::<T, 17, 17>::zeros();
-    for (i, s) in SIG0.iter().enumerate() {
-        p[(i, i)] = T::lit(s * s);
-    }
-    p
+    paper_initial_covariance()
 }
 
 fn initial<T: Real>() -> SeekerInsInitial<T> {
@@ -150,7 +143,7 @@ fn check_health<T: Real>(f: &SeekerIns<T>, tol_eig: f64) -> Result<(), String> {
         let ok = if i < 9 {
             (0.0..=bounds[i]).contains(&v)
         } else {
-            v >= 0.0 && v <= SIG0[i] * SIG0[i] * 1.25
+            v >= 0.0 && v <= p0::<f64>()[(i, i)] * 1.25
         };
         if !ok {
             return Err(format!("variance {i} out of bounds: {v:e}"));
@@ -494,14 +487,8 @@ fn gate_counts_rejections_and_recovery_inflates() {
         // 10 s of false lock (100 updates).
         for _ in 0..100 {
             let r = step_and_update(&mut f, Some(two_deg)).unwrap();
-            assert_eq!(
-                r.pitch.outcome,
-                nav_core::math::kalman::FusionOutcome::Rejected
-            );
-            assert_eq!(
-                r.yaw.outcome,
-                nav_core::math::kalman::FusionOutcome::Rejected
-            );
+            assert_eq!(r.pitch.outcome, nav_core::FusionOutcome::Rejected);
+            assert_eq!(r.yaw.outcome, nav_core::FusionOutcome::Rejected);
         }
         let c1 = f.aid_counters(SeekerAid::Los);
         assert_eq!(c1.rejected, 200);
@@ -510,10 +497,7 @@ fn gate_counts_rejections_and_recovery_inflates() {
         check_health(&f, if T::EPS > T::lit(1e-10) { 1e-3 } else { 1e-9 }).unwrap();
         // Lock regained.
         let r = step_and_update(&mut f, Some(0.0)).unwrap();
-        assert_eq!(
-            r.pitch.outcome,
-            nav_core::math::kalman::FusionOutcome::Fused
-        );
+        assert_eq!(r.pitch.outcome, nav_core::FusionOutcome::Fused);
         assert_eq!(f.aid_counters(SeekerAid::Los).consecutive_rejected, 0);
         // 30 s loss of lock: no updates, P grows, then the first LOS is fused.
         let v0 = f.covariance()[(2, 2)];
@@ -522,10 +506,7 @@ fn gate_counts_rejections_and_recovery_inflates() {
         }
         assert!(f.covariance()[(1, 1)] > T::zero() && f.covariance()[(2, 2)] >= v0);
         let r = step_and_update(&mut f, Some(0.001)).unwrap();
-        assert_eq!(
-            r.pitch.outcome,
-            nav_core::math::kalman::FusionOutcome::Fused
-        );
+        assert_eq!(r.pitch.outcome, nav_core::FusionOutcome::Fused);
     }
     case::<f32>();
     case::<f64>();

@@ -92,7 +92,7 @@ fn toml_dropouts() -> Vec<nav_sim::scenarios::vertical_channel::Dropout> {
 }
 
 #[test]
-fn vc_response_summary_has_the_issue_keys() {
+fn vc_response_summary_has_its_keys() {
     let out = std::env::temp_dir().join(format!("nav-tests-vc-{}", std::process::id()));
     let (name, path) = resolve("vc-response", &default_scenario_dir()).unwrap();
     let opts = RunOptions {

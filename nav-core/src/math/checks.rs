@@ -1,5 +1,6 @@
-//! Compact configuration-time checks over slices (column-major `n × n` matrices as
-//! `m.as_slice()` plus the dimension).
+//! The finiteness tests of nav-core (one home: [`finite`], [`all_finite`], [`all_finite_parts`],
+//! and the inlined [`all_finite_inline`] of the hot paths), and compact configuration-time
+//! checks over slices (column-major `n × n` matrices as `m.as_slice()` plus the dimension).
 //!
 //! The constructors (`new`, `from_design`) validate many fixed-size matrices. Written with
 //! nalgebra's static types each check is instantiated per dimension and fully unrolled at
@@ -10,6 +11,26 @@
 //! documented with the exact expression it is equal to (same result, bit for bit, for any
 //! input).
 use crate::Real;
+
+/// `true` for a finite value (not NaN or ±∞): `v.is_finite()`, computed as `|v| < ∞` (NaN
+/// fails the comparison), one compare on the target instead of a classification. Inlined: it
+/// runs in the measurement updates.
+#[inline(always)]
+pub fn finite<T: Real>(v: T) -> bool {
+    v.abs() < T::lit(f64::INFINITY)
+}
+
+/// [`all_finite`] inlined into its caller (the measurement updates' check of a correction):
+/// `Σ vᵢ·0` is 0 unless some vᵢ is NaN or ±∞ (one compare instead of a classification per
+/// element on the target).
+#[inline(always)]
+pub fn all_finite_inline<T: Real>(v: &[T]) -> bool {
+    let mut z = T::zero();
+    for &x in v {
+        z += x * T::zero();
+    }
+    z == T::zero()
+}
 
 /// `true` when every value is finite (not NaN or ±∞): `values.iter().all(|v| v.is_finite())`.
 /// Computed without a branch per value (it also runs on step paths, on 17 × 17 covariances):

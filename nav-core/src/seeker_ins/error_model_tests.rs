@@ -230,13 +230,14 @@ fn f_matches_finite_differences_of_the_ins_equations() {
         let w_hat = w_b + dx.fixed_rows::<3>(12);
         let d0 = continuous_derivative(&pos, &v, &c, &f_b, &w_b);
         let d1 = continuous_derivative(&p_hat, &v_hat, &c_hat, &f_hat, &w_hat);
-        let e_dot = d1.4 * c.transpose() + c_hat * d0.4.transpose();
+        let e_dot = d1.c_b_n_rate_per_s * c.transpose() + c_hat * d0.c_b_n_rate_per_s.transpose();
         let phi_dot = -unskew(&e_dot);
         let mut out = SVector::<f64, 17>::zeros();
-        out[0] = d1.0 - d0.0;
-        out[1] = d1.1 - d0.1;
-        out[2] = d1.2 - d0.2;
-        out.fixed_rows_mut::<3>(3).copy_from(&(d1.3 - d0.3));
+        out[0] = d1.lat_rate_rad_s - d0.lat_rate_rad_s;
+        out[1] = d1.lon_rate_rad_s - d0.lon_rate_rad_s;
+        out[2] = d1.alt_rate_m_s - d0.alt_rate_m_s;
+        out.fixed_rows_mut::<3>(3)
+            .copy_from(&(d1.vel_ned_rate_m_s2 - d0.vel_ned_rate_m_s2));
         out.fixed_rows_mut::<3>(6).copy_from(&phi_dot);
         out
     };

@@ -506,23 +506,45 @@ fn finite_state<T: Real>(s: &InsState<T>) -> Result<InsState<T>, NavError> {
     })
 }
 
+/// Time derivative of the INS state under the continuous nonlinear INS equations (module doc),
+/// as [`continuous_derivative`] returns it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct InsDerivative<T> {
+    /// L̇, rate of geodetic latitude, rad/s.
+    pub lat_rate_rad_s: T,
+    /// l̇, rate of longitude, rad/s.
+    pub lon_rate_rad_s: T,
+    /// ḣ, rate of altitude (up), m/s.
+    pub alt_rate_m_s: T,
+    /// V̇ⁿ, acceleration in NED, m/s².
+    pub vel_ned_rate_m_s2: Vector3<T>,
+    /// Ċ_b^n, rate of the body-to-NED direction cosine matrix, 1/s.
+    pub c_b_n_rate_per_s: Matrix3<T>,
+}
+
 /// Derivative of the continuous nonlinear INS equations (module doc) at a state, for the
-/// error-model checks: returns `(L̇ rad/s, l̇ rad/s, ḣ m/s, V̇ⁿ m/s², Ċ_b^n 1/s)` given the
-/// body specific force `f_b_m_s2` and angular rate `w_ib_b_rad_s`.
+/// error-model checks, given the body specific force `f_b_m_s2` and angular rate
+/// `w_ib_b_rad_s`.
 pub fn continuous_derivative<T: Real>(
     pos: &Position,
     v: &Vector3<T>,
     c_b_n: &Matrix3<T>,
     f_b_m_s2: &Vector3<T>,
     w_ib_b_rad_s: &Vector3<T>,
-) -> (T, T, T, Vector3<T>, Matrix3<T>) {
+) -> InsDerivative<T> {
     use crate::math::rotation::skew;
     let k = Kinematics::new(pos, v);
     let g = normal_gravity_m_s2(T::lit(pos.lat_rad), T::lit(pos.alt_m));
     let mut v_dot = c_b_n * f_b_m_s2 - (k.w_ie * T::lit(2.0) + k.w_en).cross(v);
     v_dot.z += g;
     let c_dot = c_b_n * skew(w_ib_b_rad_s) - skew(&(k.w_ie + k.w_en)) * c_b_n;
-    (v.x / k.rm_h, v.y / (k.rn_h * k.cos_lat), -v.z, v_dot, c_dot)
+    InsDerivative {
+        lat_rate_rad_s: v.x / k.rm_h,
+        lon_rate_rad_s: v.y / (k.rn_h * k.cos_lat),
+        alt_rate_m_s: -v.z,
+        vel_ned_rate_m_s2: v_dot,
+        c_b_n_rate_per_s: c_dot,
+    }
 }
 
 #[cfg(test)]

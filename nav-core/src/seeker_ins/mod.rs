@@ -187,8 +187,8 @@ pub use measurement::{
     MIN_LANDMARK_RANGE_M,
 };
 pub use mechanization::{
-    continuous_derivative, ImuIncrement, Ins, InsState, Position, MAX_ALT_M, MAX_DELTA_THETA_RAD,
-    MAX_DELTA_V_M_S, MAX_INTERVAL_S, MAX_LAT_RAD,
+    continuous_derivative, ImuIncrement, Ins, InsDerivative, InsState, Position, MAX_ALT_M,
+    MAX_DELTA_THETA_RAD, MAX_DELTA_V_M_S, MAX_INTERVAL_S, MAX_LAT_RAD,
 };
 pub use paper::{
     paper_initial_covariance, PAPER_COVARIANCE_INTERVAL_STEPS, PAPER_IMU_DT_S, PAPER_IMU_DT_US,

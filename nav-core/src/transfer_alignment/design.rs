@@ -16,10 +16,12 @@ use nalgebra::SMatrix;
 pub const TA_DESIGN_VERSION: u16 = 1;
 
 /// Precomputed design of a transfer-alignment filter with `K` states per axis chain
-/// (K = 3: [`super::ConventionalFilter`], K = 4: [`super::ProposedFilter`]).
+/// (K = 3: [`super::ConventionalFilter`], K = 4: [`super::ProposedFilter`], K = 5:
+/// [`super::FlightFilter`]).
 ///
-/// It depends on the configuration's `flexure`, `mount_sigma_rad` and `dt_s` only; its
-/// [`stamp`](Self::stamp) fingerprints them ([`TaDesign::stamp_for`]).
+/// It depends on the configuration's `flexure`, `mount_sigma_rad` and `dt_s` only (and, for
+/// K = 5, `accel_bias_sigma_m_s2`); its [`stamp`](Self::stamp) fingerprints them
+/// ([`TaDesign::stamp_for`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TaDesign<T: Real, const K: usize> {
     /// Layout version and fingerprint of the configuration the design was computed for.
@@ -33,7 +35,7 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
     /// chains exactly at `dt_s` (spec "Flexure models": Φ_j = exp(F_j Δt), Van Loan Q_d,j,
     /// stationary flexure covariance in P0_j).
     ///
-    /// Errors: `InvalidConfig` for a chain length other than 3 or 4 or an invalid field,
+    /// Errors: `InvalidConfig` for a chain length other than 3, 4 or 5 or an invalid field,
     /// the discretisation's errors.
     pub(super) fn compute(cfg: &TaConfig<T>) -> Result<Self, NavError> {
         FlexureModel::for_chain::<K>()?;

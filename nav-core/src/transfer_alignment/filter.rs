@@ -156,7 +156,7 @@ impl<T: Real, const K: usize, const N: usize> Estimator for TransferAlignment<T,
 
     /// Validates the configuration and discretises the per-axis chains at `dt_s`
     /// ([`TaDesign`]). Errors: `InvalidConfig` naming the field, or for a chain length other
-    /// than 3 or 4.
+    /// than 3, 4 or 5.
     fn design(config: &TaConfig<T>) -> Result<TaDesign<T, K>, NavError> {
         TaDesign::compute(config)
     }

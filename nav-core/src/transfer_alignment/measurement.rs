@@ -63,7 +63,7 @@ impl<T: Real> SlaveSample<T> {
 }
 
 fn finite3<T: Real>(input: &'static str, v: &Vector3<T>) -> Result<(), NavError> {
-    if v.as_slice().iter().all(|c| c.abs() < T::lit(f64::INFINITY)) {
+    if v.as_slice().iter().all(|c| crate::math::checks::finite(*c)) {
         Ok(())
     } else {
         Err(NavError::NonFiniteInput { input })

@@ -35,8 +35,8 @@ pub enum FlexureModel {
 }
 
 impl FlexureModel {
-    /// The model of chain length `K` (states per axis), or `InvalidConfig` if `K` is not 3 or 4
-    /// or `N ≠ 3 K`.
+    /// The model of chain length `K` (states per axis), or `InvalidConfig` if `K` is not 3, 4
+    /// or 5 or `N ≠ 3 K`.
     pub fn for_dims<const K: usize, const N: usize>() -> Result<Self, NavError> {
         let model = Self::for_chain::<K>()?;
         if N != 3 * K {

@@ -29,7 +29,7 @@
 use super::common::{loop_common_methods, loop_estimator_items};
 use super::config::{AidModel, AidedConfig};
 use super::core::{CoreParts, LoopCore};
-use super::design::AidedDesign;
+use super::design::{AidPair, AidedDesign};
 use super::envelope::check_imu_dt;
 use super::gate::{AidReport, GateParams, ReacquisitionCounters};
 use super::samples::{Aid, BaroSample, ImuSample, InitialState, VelocitySample};
@@ -114,12 +114,12 @@ impl<T: Real> Estimator for AidedLoop<T> {
                 sigma: &design.sigma,
             },
         )?;
-        let (bv, vv) = design.innovation_variances();
+        let variances = design.innovation_variances();
         Ok(Self {
             core,
             gains: design.gains,
-            baro_innovation_variance: bv,
-            velocity_innovation_variance: vv,
+            baro_innovation_variance: variances.baro,
+            velocity_innovation_variance: variances.velocity,
         })
     }
 
@@ -150,11 +150,11 @@ impl<T: Real> AidedLoop<T> {
     }
     /// Design innovation σ of (baro m, velocity m/s): `√(C P Cᵀ + σ²)` of the steady state —
     /// a starting point for the [`AidModel`]'s σ₀ (the design ignores correlated baro errors).
-    pub fn design_innovation_sigmas(&self) -> (T, T) {
-        (
-            self.baro_innovation_variance.sqrt(),
-            self.velocity_innovation_variance.sqrt(),
-        )
+    pub fn design_innovation_sigmas(&self) -> AidPair<T> {
+        AidPair {
+            baro: self.baro_innovation_variance.sqrt(),
+            velocity: self.velocity_innovation_variance.sqrt(),
+        }
     }
     #[cfg(test)]
     pub(crate) fn core(&self) -> &LoopCore<T> {

@@ -3,7 +3,9 @@
 
 use super::age_limits::AgeLimits;
 use super::config::RunTime;
-use super::gate::{admit, AidReport, AidTally, Extrapolation, GateParams, Reacquisition, Verdict};
+use super::gate::{
+    admit, Admitted, AidReport, AidTally, Extrapolation, GateParams, Reacquisition, Verdict,
+};
 use super::gravity::GravityModel;
 use super::modes::{off_nominal_increment, AidMask, Feedback, Modes};
 use super::samples::{
@@ -409,7 +411,11 @@ impl<T: Real> LoopCore<T> {
         let mut v_rate = az + bias_sign * b;
         let half = T::lit(0.5);
         let now = sub.now;
-        let (baro_ch, baro_age, baro_verdict) = admit(
+        let Admitted {
+            channel: baro_ch,
+            age_s: baro_age,
+            verdict: baro_verdict,
+        } = admit(
             true,
             &self.baro,
             self.baro.age(now),
@@ -425,7 +431,11 @@ impl<T: Real> LoopCore<T> {
             &self.gate,
             &self.gate.baro,
         );
-        let (vel_ch, vel_age, vel_verdict) = admit(
+        let Admitted {
+            channel: vel_ch,
+            age_s: vel_age,
+            verdict: vel_verdict,
+        } = admit(
             false,
             &self.velocity,
             self.velocity.age(now),

@@ -220,6 +220,17 @@ fn not_finite() -> NavError {
     }
 }
 
+/// One value per aid of the aided loop (baro, velocity aid); the method returning it gives the
+/// quantity and its units.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct AidPair<T> {
+    /// The baro's value (altitude unit: m, m²).
+    pub baro: T,
+    /// The velocity aid's value (vertical velocity unit: m/s, (m/s)²).
+    pub velocity: T,
+}
+
 /// Precomputed design of a [`super::ClassicalLoop`]: its stamp, the pole-placement gains
 /// (`f64` data, for reporting only), the discretised aid modes, the gravity model and the
 /// step values in the loop's float type `T`.
@@ -461,12 +472,12 @@ impl<T: Real> AidedDesign<T> {
     pub fn imu_dt_s(&self) -> T {
         self.step.dt_s
     }
-    /// Design innovation variances of (baro m², velocity (m/s)²): `C P Cᵀ + σ²`.
-    pub fn innovation_variances(&self) -> (T, T) {
-        (
-            self.baro_innovation_variance,
-            self.velocity_innovation_variance,
-        )
+    /// Design innovation variances (baro m², velocity (m/s)²): `C P Cᵀ + σ²`.
+    pub fn innovation_variances(&self) -> AidPair<T> {
+        AidPair {
+            baro: self.baro_innovation_variance,
+            velocity: self.velocity_innovation_variance,
+        }
     }
     /// Discrete transition matrix with the baro in use (for analysis).
     pub fn phi_with_baro(&self) -> Matrix3<T> {
@@ -478,7 +489,10 @@ impl<T: Real> AidedDesign<T> {
     pub(crate) fn check(&self, config: &AidedConfig<T>) -> Result<(), NavError> {
         self.stamp.check(&aided_stamp(config))?;
         self.step.check(config.imu_dt_s, config.baro_lag_s)?;
-        let (bv, vv) = self.innovation_variances();
+        let AidPair {
+            baro: bv,
+            velocity: vv,
+        } = self.innovation_variances();
         if !(modes_finite(&self.modes)
             && self.gravity.is_finite()
             && self.sigma.is_finite()

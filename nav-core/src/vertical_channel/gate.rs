@@ -125,9 +125,28 @@ pub(crate) struct Verdict<T> {
     pub(crate) reacquisition: Reacquisition,
 }
 
-/// The channel after a new sample (`None`: no new sample, the channel is unchanged), the
-/// age now of the sample it holds, and the verdict.
-pub(crate) type Admitted<T> = (Option<AidChannel<T>>, T, Option<Verdict<T>>);
+/// What [`admit`] returns: the channel after a new sample, the age now of the sample it holds,
+/// and the verdict.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Admitted<T> {
+    /// The channel to use (`None`: no new sample, the channel is unchanged).
+    pub(crate) channel: Option<AidChannel<T>>,
+    /// Age now of the sample the channel holds, s.
+    pub(crate) age_s: T,
+    /// The verdict on the new sample (`None`: no new sample).
+    pub(crate) verdict: Option<Verdict<T>>,
+}
+
+/// The [`Admitted`] of a new sample: the channel `channel` holding a sample of age `age_s`
+/// now, and the verdict on it.
+#[inline(always)]
+fn admitted<T>(channel: AidChannel<T>, age_s: T, verdict: Verdict<T>) -> Admitted<T> {
+    Admitted {
+        channel: Some(channel),
+        age_s,
+        verdict: Some(verdict),
+    }
+}
 
 #[inline(always)]
 pub(crate) fn saturate<T: Real>(s: T) -> T {
@@ -199,7 +218,11 @@ pub(crate) fn admit<T: Real>(
     aid: &AidGate<T>,
 ) -> Admitted<T> {
     match sample {
-        None => (None, old_age, None),
+        None => Admitted {
+            channel: None,
+            age_s: old_age,
+            verdict: None,
+        },
         Some(sample) => admit_sample(second_order, old, old_age, sample, ex, params, aid),
     }
 }
@@ -242,7 +265,7 @@ fn admit_sample<T: Real>(
     };
     if old.reanchor || starved {
         let (cand, verdict) = reanchor(cand, innovation, model_var, params, aid);
-        return (Some(cand), cand_age, Some(verdict));
+        return admitted(cand, cand_age, verdict);
     }
     let lost = old.received && old_age > ex.lost_after_s;
     let (s, tested, pass) = match params.threshold {
@@ -278,13 +301,13 @@ fn admit_sample<T: Real>(
     };
     if pass {
         cand.rejected_since = NEVER;
-        (Some(cand), cand_age, Some(verdict))
+        admitted(cand, cand_age, verdict)
     } else {
         let mut kept = *old;
         if old.rejected_since == NEVER {
             kept.rejected_since = cand.last_time;
         }
-        (Some(kept), old_age, Some(verdict))
+        admitted(kept, old_age, verdict)
     }
 }
 

@@ -165,7 +165,7 @@ pub use config::{
     PAPER_LATITUDE_RAD,
 };
 pub use design::{
-    aided_stamp, classical_stamp, AidedDesign, ClassicalDesign, AIDED_DESIGN_VERSION,
+    aided_stamp, classical_stamp, AidPair, AidedDesign, ClassicalDesign, AIDED_DESIGN_VERSION,
     CLASSICAL_DESIGN_VERSION,
 };
 pub use gains::{AidedGains, ClassicalGains};

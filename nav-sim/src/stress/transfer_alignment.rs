@@ -122,7 +122,11 @@ fn config(c: &Case, rng: &mut SimRng) -> TaConfig<f32> {
         time_tolerance_s: (0.1 * dt) as f32,
         max_gap_steps: 3,
         // The flight configuration's bias σ (ignored by the paper's filters).
-        accel_bias_sigma_m_s2: if c.flight { 3.0e-3 } else { 0.0 },
+        accel_bias_sigma_m_s2: if c.flight {
+            TaConfig::<f32>::flight(PaperCase::Case2).accel_bias_sigma_m_s2
+        } else {
+            0.0
+        },
         gate: if rng.random_bool(0.5) {
             Gate::Nis(25.0)
         } else {

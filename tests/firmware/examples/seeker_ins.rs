@@ -67,7 +67,7 @@ fn fly() -> Result<(), NavError> {
     let mut stored = [0.0_f64; SeekerInsDesign::<f32>::COUNT];
     SeekerIns::design(&config)?.write_values(&mut stored)?;
     // Board: load the design and build the filter; no design code needed.
-    let design = SeekerInsDesign::<f32>::read_values(core::hint::black_box(&stored))?;
+    let design = SeekerInsDesign::<f32>::read_values(&stored)?;
     let mut ins = SeekerIns::from_design(&config, &design, &initial())?;
     let mut refused = 0u32;
     for k in 1..=3000u64 {

@@ -15,8 +15,8 @@ use cortex_m_rt::entry;
 use nalgebra::Vector3;
 use nav_core::design::DesignValues;
 use nav_core::transfer_alignment::{
-    Channel, MasterSample, PaperCase, ProposedFilter, SlaveHistory, SlaveSample, TaConfig,
-    TaDesign, TaInitial,
+    Channel, MasterSample, ProposedFilter, SlaveHistory, SlaveSample, TaConfig, TaDesign,
+    TaInitial,
 };
 use nav_core::{Estimator, FusionOutcome, HealthState, NavError, Timestamp};
 use nav_firmware::harness;
@@ -30,12 +30,10 @@ const DT_US: u64 = 10_000;
 /// Master data latency, epochs (the data link delivers the master sample 30 ms late).
 const LATENCY: u64 = 3;
 
-/// The configuration the stored design was computed for (the golden vectors').
+/// The configuration the stored design was computed for: the golden vectors'
+/// ([`nav_golden::ta_config`], the paper's case 2 with their rate-difference noise).
 fn config() -> TaConfig<f32> {
-    TaConfig {
-        rate_noise_sigma_rad_s: 2.0e-4,
-        ..TaConfig::paper(PaperCase::Case2)
-    }
+    nav_golden::ta_config()
 }
 
 /// The stored design, or (if the image was built without one) the design computed on board.

@@ -18,6 +18,7 @@
 //! variance is refused with [`NavError::CovarianceNotPositiveSemiDefinite`] and leaves x and P
 //! untouched.
 
+use crate::math::checks::{all_finite_inline, finite};
 use crate::{NavError, Real};
 use nalgebra::{SMatrix, SVector};
 
@@ -134,7 +135,7 @@ pub fn fuse_scalar_prepared<T: Real, const N: usize>(
     };
     check_diagonal(p, &k, b, &c)?;
     let dx = k * innovation;
-    if !all_finite(dx.as_slice()) {
+    if !all_finite_inline(dx.as_slice()) {
         return Err(NavError::NonFiniteInput {
             input: "state correction",
         });
@@ -144,17 +145,6 @@ pub fn fuse_scalar_prepared<T: Real, const N: usize>(
         *xi += di;
     }
     Ok(report)
-}
-
-/// `true` if every value is finite: `Σ vᵢ·0` is 0 unless some vᵢ is NaN or ±∞ (one compare
-/// instead of a classification per element on the target).
-#[inline(always)]
-fn all_finite<T: Real>(v: &[T]) -> bool {
-    let mut z = T::zero();
-    for &x in v {
-        z += x * T::zero();
-    }
-    z == T::zero()
 }
 
 fn check_scalar_inputs<T: Real>(innovation: T, r: T) -> Result<(), NavError> {
@@ -279,17 +269,10 @@ fn check_diagonal<T: Real, const N: usize>(
             sum += d;
         }
     }
-    if negative || !all_finite(&[sum]) {
+    if negative || !all_finite_inline(&[sum]) {
         return Err(NavError::CovarianceNotPositiveSemiDefinite);
     }
     Ok(())
-}
-
-/// `true` for a finite value (NaN fails the comparison); cheaper on the target than the
-/// generic `is_finite`.
-#[inline(always)]
-fn finite<T: Real>(v: T) -> bool {
-    v.abs() < T::lit(f64::INFINITY)
 }
 
 /// Copies the upper triangle of a square matrix onto its lower triangle.

@@ -3,7 +3,8 @@
 
 #[cfg(doc)]
 use super::fuse_scalar;
-use super::{check_scalar_inputs, finite, fuse_scalar_prepared, FusionReport, Gate};
+use super::{check_scalar_inputs, fuse_scalar_prepared, FusionReport, Gate};
+use crate::math::checks::finite;
 use crate::{NavError, Real};
 use nalgebra::{SMatrix, SVector};
 

@@ -22,7 +22,7 @@ fn cfg<T: Real>() -> TaConfig<T> {
         time_tolerance_s: T::lit(1e-4),
         max_gap_steps: 3,
         // Used by the flight configuration (K = 5) only.
-        accel_bias_sigma_m_s2: T::lit(3e-3),
+        accel_bias_sigma_m_s2: TaConfig::<T>::flight(PaperCase::Case2).accel_bias_sigma_m_s2,
         ..TaConfig::paper(PaperCase::Case2)
     }
 }

@@ -98,8 +98,10 @@ pub struct FilterConfig {
     pub sigma_deg: Option<[f64; 3]>,
     /// Flexure correlation time per axis, s (default: truth).
     pub tau_s: Option<[f64; 3]>,
-    /// χ²(1) NIS gate per scalar update (absent: no gate).
-    pub nis_gate: Option<f64>,
+    /// χ²(1) NIS gate per scalar update (absent: no gate); the key every scenario file uses
+    /// (`nis_gate`, its former spelling, still read).
+    #[serde(alias = "nis_gate")]
+    pub gate_nis: Option<f64>,
 }
 
 /// Configuration of `ta-case` (and the base of `ta-model-error`).
@@ -196,7 +198,7 @@ impl CaseConfig {
     /// scenario's lever arm, flexure, mount σ, noise (master and slave per sample, combined),
     /// the specific-force-difference bias 1σ of the flight configuration (master and slave
     /// accelerometer bias σ, combined: the IMUs' specification, used by the flight filter only)
-    /// and step, pairing tolerance 0.1 `dt_s`, the gate of `[filter] nis_gate` (absent: off), and
+    /// and step, pairing tolerance 0.1 `dt_s`, the gate of `[filter] gate_nis` (absent: off), and
     /// the paper configuration's gap bridging and recovery policy ([`TaConfig::paper`]).
     pub fn filter_config(&self, tau_error_pct: f64) -> TaConfig<f64> {
         let sigma = self
@@ -240,7 +242,7 @@ impl CaseConfig {
             accel_bias_sigma_m_s2: accel_bias,
             dt_s: self.dt_s,
             time_tolerance_s: 0.1 * self.dt_s,
-            gate: self.filter.nis_gate.map_or(Gate::Off, Gate::Nis),
+            gate: self.filter.gate_nis.map_or(Gate::Off, Gate::Nis),
             ..TaConfig::paper(PaperCase::Case2)
         }
     }

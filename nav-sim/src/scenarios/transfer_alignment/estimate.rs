@@ -6,10 +6,10 @@ use crate::montecarlo::monte_carlo;
 use crate::stats::{ensemble, rms_where};
 use anyhow::{anyhow, Result};
 use nalgebra::Vector3;
-use nav_core::math::kalman::FusionOutcome;
 use nav_core::transfer_alignment::{
     AxisFlexure, MasterSample, SlaveSample, TaConfig, TaInitial, TransferAlignment,
 };
+use nav_core::FusionOutcome;
 use nav_core::{Estimator, Gate, Real, RecoveryAction, RecoveryPolicy};
 
 /// Late-cruise window of the summary, s.

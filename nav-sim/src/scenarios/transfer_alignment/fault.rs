@@ -21,10 +21,10 @@ use crate::scenario::{Context, Kind};
 use crate::stats::ensemble;
 use anyhow::{anyhow, Result};
 use nalgebra::Vector3;
-use nav_core::math::kalman::FusionOutcome;
 use nav_core::transfer_alignment::{
     Channel, MasterSample, SlaveHistory, SlaveSample, TaInitial, TransferAlignment,
 };
+use nav_core::FusionOutcome;
 use nav_core::{Estimator, Gate};
 use serde::Deserialize;
 use serde_json::{json, Value};

@@ -1,12 +1,13 @@
 //! The simulated sensors of the vertical channel: the vertical accelerometer (random-constant
-//! bias and white noise, true normal gravity with its altitude dependence), the barometer
+//! bias and white noise, true normal gravity with its altitude dependence, from the
+//! simulator's own earth model [`crate::truth`], not nav-core's), the barometer
 //! (first-order lag of the true altitude, 1st-order Gauss-Markov error, white noise) and the
 //! vertical-velocity aid (white noise). With the noise off they read the truth (the baro
 //! keeps its lag).
 
 use super::{BaroConfig, Config, MG};
 use crate::rng::{normal, SimRng};
-use nav_core::earth::normal_gravity_m_s2;
+use crate::truth::gravity_down_m_s2;
 
 /// Sensor switches of a run.
 #[derive(Debug, Clone, Copy)]
@@ -67,7 +68,7 @@ impl Sensors {
     /// Specific force up over an interval of mean acceleration `accel_m_s2` whose middle is at
     /// `h_mid_m`, m/s².
     pub(crate) fn specific_force(&self, accel_m_s2: f64, h_mid_m: f64, rng: &mut SimRng) -> f64 {
-        let mut f = accel_m_s2 + normal_gravity_m_s2(self.latitude_rad, h_mid_m);
+        let mut f = accel_m_s2 + gravity_down_m_s2(self.latitude_rad, h_mid_m);
         if self.noise.on {
             f += self.bias_m_s2 + normal(rng, self.sigma_f_m_s2);
         }

@@ -1,4 +1,5 @@
-//! One run of the baro-fault scenario: the baro with its faults, the six loops (gated,
+//! One run of the baro-fault scenario (truth and run): the true altitude profile and specific
+//! force, the baro (`sensors`) with its faults into the six loops (gated,
 //! ungated, fault-free twins) stepped on the same IMU samples.
 
 use super::*;
@@ -34,7 +35,7 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
         let stamp = Timestamp::from_secs_f64(t).map_err(|e| anyhow!("time stamp {t}: {e}"))?;
         let (h, v, _) = profile.at(t);
         let (h_mid, _, _) = profile.at(t - 0.5 * dt);
-        let f = (v - v_prev) / dt + normal_gravity_m_s2(lat, h_mid) + bias + normal(rng, sigma_f);
+        let f = (v - v_prev) / dt + gravity_down_m_s2(lat, h_mid) + bias + normal(rng, sigma_f);
         baro.lag(h, h_prev, dt);
         // (clean reading, faulty reading or None)
         let (clean, faulty) = if k % baro_every == 0 {
@@ -83,83 +84,6 @@ pub fn simulate<T: Real>(cfg: &Config, fc: &FaultConfig, rng: &mut SimRng) -> Re
         v_prev = v;
     }
     Ok(out)
-}
-
-/// The baro of a run: the lag, the correlated (first-order Gauss-Markov) error, white noise,
-/// and the faults of the faulty stream.
-struct Baro {
-    /// Gauss-Markov decay and drive (σ, m) over one baro interval.
-    rho: f64,
-    markov_drive: f64,
-    /// The correlated error, m.
-    markov: f64,
-    /// Lag time constant, s, and the lagged altitude, m.
-    lag: f64,
-    z_lag: f64,
-    /// The value a frozen baro repeats (NaN until the freeze), m.
-    frozen_value: f64,
-    /// The last reading delivered without a fault, m.
-    last_good: f64,
-}
-
-impl Baro {
-    /// At the start (altitude `h0` m, vertical velocity `v0` m/s), a reading every `tb` s; the
-    /// correlated error drawn from its steady state (`rng`).
-    fn new(cfg: &Config, tb: f64, h0: f64, v0: f64, rng: &mut SimRng) -> Self {
-        let rho = (-tb / cfg.baro.markov_tau_s).exp();
-        let markov_drive = cfg.baro.markov_sigma_m * (1.0 - rho * rho).sqrt();
-        let markov = normal(rng, cfg.baro.markov_sigma_m);
-        let lag = cfg.baro.lag_s;
-        Self {
-            rho,
-            markov_drive,
-            markov,
-            lag,
-            z_lag: h0 - lag * v0,
-            frozen_value: f64::NAN,
-            last_good: h0,
-        }
-    }
-
-    /// The lagged altitude after one IMU interval `dt` (s) from `h_prev` to `h` (m; exact for
-    /// a linear change).
-    fn lag(&mut self, h: f64, h_prev: f64, dt: f64) {
-        let lag = self.lag;
-        if lag > 0.0 {
-            let slope = (h - h_prev) / dt;
-            let ex = (-dt / lag).exp();
-            self.z_lag = h - slope * lag + (self.z_lag - h_prev + slope * lag) * ex;
-        } else {
-            self.z_lag = h;
-        }
-    }
-
-    /// A reading at `t` (s): the clean one, and the faulty one (none in a dropout, the last
-    /// good value while frozen, offset in a spike).
-    fn read(
-        &mut self,
-        cfg: &Config,
-        fc: &FaultConfig,
-        t: f64,
-        rng: &mut SimRng,
-    ) -> (Option<f64>, Option<f64>) {
-        self.markov = self.rho * self.markov + normal(rng, self.markov_drive);
-        let z = self.z_lag + self.markov + normal(rng, cfg.baro.noise_m);
-        let faulty = if fc.dropout.has(t) {
-            None
-        } else if fc.frozen.has(t) {
-            if self.frozen_value.is_nan() {
-                self.frozen_value = self.last_good;
-            }
-            Some(self.frozen_value)
-        } else if fc.spike.has(t) {
-            Some(z + fc.spike_offset_m)
-        } else {
-            self.last_good = z;
-            Some(z)
-        };
-        (Some(z), faulty)
-    }
 }
 
 /// The six loops of a run and their latest velocity and covariance. Variant order:

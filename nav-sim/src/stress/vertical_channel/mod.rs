@@ -23,7 +23,7 @@
 
 use super::{EstimatorStress, StressLevel, Tally};
 use crate::rng::{normal, run_rng, SimRng};
-use nav_core::earth::normal_gravity_m_s2;
+use crate::truth::gravity_down_m_s2;
 use nav_core::time::Timestamp;
 use nav_core::vertical_channel::{
     AidModel, AidReport, AidStatus, AidTimeouts, AidedConfig, AidedLoop, BaroSample,
@@ -382,7 +382,7 @@ fn run_case(c: &Case) -> (Tally, Extra) {
         let (hm, _) = truth(0.5 * (t + t_prev));
         let dts = t - t_prev;
         let f = (v - v_prev) / dts
-            + normal_gravity_m_s2(LAT_RAD, hm)
+            + gravity_down_m_s2(LAT_RAD, hm)
             + bias
             + normal(&mut rng, noise_density / dts.sqrt());
         v_prev = v;
