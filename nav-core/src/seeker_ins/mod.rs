@@ -155,6 +155,7 @@ mod filter;
 mod flight_noise;
 mod generated;
 mod health;
+mod los_components;
 mod measurement;
 mod mechanization;
 mod paper;
@@ -181,6 +182,7 @@ pub use error_model::{
 pub use filter::{SeekerIns, SeekerInsInitial};
 pub use flight_noise::{InstrumentErrors, MAX_MISALIGNMENT_RAD, MAX_SCALE_FACTOR};
 pub use health::{SeekerAid, SeekerCounters};
+pub use los_components::{max_information_ratio, STABILISING_EPS};
 pub use measurement::{
     gimbal_angles_of, landmark_vector_ned, los_body, los_model, los_model_3d, los_model_at,
     validate_gimbal, GimbalAngles, Landmark, LosModel, LosModel3, MAX_GIMBAL_PITCH_RAD,
@@ -195,4 +197,4 @@ pub use paper::{
 };
 pub use propagation::{ClipFlags, PROPAGATION_STABILISING_EPS};
 pub(crate) use update::CrossColumn;
-pub use update::{max_information_ratio, LosReport, LosSample, LosSkipReason, STABILISING_EPS};
+pub use update::{LosReport, LosSample, LosSkipReason};
