@@ -19,7 +19,7 @@ use super::{Reacquisition, ALTITUDE_RANGE_M, MAX_SPECIFIC_FORCE_M_S2, MAX_VERTIC
 use crate::contract::{FusionOutcome, FusionReport};
 use crate::time::Timestamp;
 use crate::{HealthState, Real};
-use nalgebra::Vector2;
+use nalgebra::{Vector2, Vector3};
 
 /// A new sample that the nominal step can fuse: its stamp (read again at the commit, not kept
 /// in a register through the step), value and age now (s), and the held sample's age now (s).
@@ -144,6 +144,76 @@ fn status<T: Real>(
     }
 }
 
+/// A new aid sample as the nominal step reads it: its stamp and value (m or m/s).
+#[derive(Clone, Copy)]
+struct Reading<'a, T> {
+    time: &'a Timestamp,
+    value: T,
+}
+
+/// One aid channel as the nominal step reads it: the channel, its age limits and timeouts,
+/// its gate and the range its values are valid in (m or m/s).
+struct ChannelView<'c, T> {
+    ch: &'c AidChannel<T>,
+    limits: &'c AgeLimits,
+    timeouts: &'c AidTimeouts<T>,
+    gate: &'c AidGate<T>,
+    range: (f64, f64),
+}
+
+/// One channel's part of the nominal step: the new sample (if any), the correction `nu`
+/// (m or m/s; 0 when not in use), whether the channel is in use, the age of the sample used
+/// (s) and the new sample's verdict.
+struct ChannelStep<'a, T> {
+    new: Option<Fresh<'a, T>>,
+    nu: T,
+    in_use: bool,
+    age_s: T,
+    verdict: Option<Verdict<T>>,
+}
+
+/// A channel's part of the nominal step with `reading` (new) or the held sample:
+/// `innovation(value, age_s)` is the sample extrapolated to the middle of the interval.
+/// `None`: the new sample is not one the nominal step fuses (left to the general step).
+#[inline(always)]
+fn channel_step<'a, T: Real>(
+    view: &ChannelView<'_, T>,
+    reading: Option<Reading<'a, T>>,
+    now: Timestamp,
+    threshold: Option<T>,
+    innovation: impl Fn(T, T) -> T,
+) -> Option<ChannelStep<'a, T>> {
+    match reading {
+        Some(s) => {
+            let new = fresh(view.ch, s.time, s.value, now, view.range, view.limits)?;
+            let nu = innovation(new.value, new.age_s);
+            let verdict = gated(nu, &new, threshold, view.gate)?;
+            Some(ChannelStep {
+                new: Some(new),
+                nu,
+                in_use: true,
+                age_s: new.age_s,
+                verdict: Some(verdict),
+            })
+        }
+        None => {
+            let (age, in_use) = held(view.ch, now, view.timeouts);
+            let nu = if in_use {
+                innovation(view.ch.last_value, age)
+            } else {
+                T::zero()
+            };
+            Some(ChannelStep {
+                new: None,
+                nu,
+                in_use,
+                age_s: age,
+                verdict: None,
+            })
+        }
+    }
+}
+
 impl<T: Real> LoopCore<T> {
     /// The nominal step (see the module documentation); `None` when this step is not one, and
     /// then nothing has changed.
@@ -181,112 +251,113 @@ impl<T: Real> LoopCore<T> {
         let vel_nu = |value: T, age_s: T| value + (age_s - half_h) * v_rate - v;
         // Per channel: the new sample (if any), the correction (0 when not in use), whether
         // the channel is in use, the age of the sample used and the new sample's verdict.
-        let (new_baro, nu_h, use_baro, baro_age, baro_verdict) = match baro {
-            Some(s) => {
-                let new = fresh(
-                    &self.baro,
-                    &s.time,
-                    s.altitude_m,
-                    now,
-                    ALTITUDE_RANGE_M,
-                    &self.baro_limits,
-                )?;
-                let nu = baro_nu(new.value, new.age_s);
-                let verdict = gated(nu, &new, threshold, &self.gate.baro)?;
-                (Some(new), nu, true, new.age_s, Some(verdict))
-            }
-            None => {
-                let (age, in_use) = held(&self.baro, now, &self.baro_timeouts);
-                let nu = if in_use {
-                    baro_nu(self.baro.last_value, age)
-                } else {
-                    T::zero()
-                };
-                (None, nu, in_use, age, None)
-            }
+        let baro_ch = ChannelView {
+            ch: &self.baro,
+            limits: &self.baro_limits,
+            timeouts: &self.baro_timeouts,
+            gate: &self.gate.baro,
+            range: ALTITUDE_RANGE_M,
         };
-        let (new_velocity, nu_v, use_vel, vel_age, vel_verdict) = match velocity {
-            Some(s) => {
-                let new = fresh(
-                    &self.velocity,
-                    &s.time,
-                    s.vz_up_m_s,
-                    now,
-                    (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
-                    &self.velocity_limits,
-                )?;
-                let nu = vel_nu(new.value, new.age_s);
-                let verdict = gated(nu, &new, threshold, &self.gate.velocity)?;
-                (Some(new), nu, true, new.age_s, Some(verdict))
-            }
-            None => {
-                let (age, in_use) = held(&self.velocity, now, &self.velocity_timeouts);
-                let nu = if in_use {
-                    vel_nu(self.velocity.last_value, age)
-                } else {
-                    T::zero()
-                };
-                (None, nu, in_use, age, None)
-            }
+        let baro_reading = baro.map(|s| Reading {
+            time: &s.time,
+            value: s.altitude_m,
+        });
+        let b_step = channel_step(&baro_ch, baro_reading, now, threshold, baro_nu)?;
+        let vel_ch = ChannelView {
+            ch: &self.velocity,
+            limits: &self.velocity_limits,
+            timeouts: &self.velocity_timeouts,
+            gate: &self.gate.velocity,
+            range: (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
         };
+        let vel_reading = velocity.map(|s| Reading {
+            time: &s.time,
+            value: s.vz_up_m_s,
+        });
+        let v_step = channel_step(&vel_ch, vel_reading, now, threshold, vel_nu)?;
+        let (use_baro, use_vel) = (b_step.in_use, v_step.in_use);
         let mode = self.modes.select(use_baro, use_vel);
-        let nu = Vector2::new(nu_h, nu_v);
-        let (nu_h, nu_v) = (use_baro.then_some(nu_h), use_vel.then_some(nu_v));
+        let nu = Vector2::new(b_step.nu, v_step.nu);
         let drive = Vector2::new(v, v_rate);
         let x_new = x + (mode.n * drive + mode.g * nu);
         if !(x_new.x + x_new.y + x_new.z).is_finite() {
             return None;
         }
         // Every check passed: commit.
+        self.commit_nominal(now, x_new, h_ref, &b_step, &v_step);
+        Some(self.nominal_reports(&b_step, &v_step))
+    }
+
+    /// The nominal step's commit, once every check has passed: σ's step, the new samples
+    /// held, the state settled, the tallies and the health.
+    #[inline(always)]
+    fn commit_nominal(
+        &mut self,
+        now: Timestamp,
+        x_new: Vector3<T>,
+        h_ref: T,
+        baro: &ChannelStep<'_, T>,
+        velocity: &ChannelStep<'_, T>,
+    ) {
+        let (use_baro, use_vel) = (baro.in_use, velocity.in_use);
         if !self.sigma.holds(use_baro, use_vel) {
             self.tick_sigma_nominal(use_baro, use_vel);
         }
-        if let Some(s) = new_baro {
+        if let Some(s) = baro.new {
             self.baro.last_time = *s.time;
             self.baro.last_value = s.value;
         }
-        if let Some(s) = new_velocity {
+        if let Some(s) = velocity.new {
             self.velocity.last_time = *s.time;
             self.velocity.last_value = s.value;
         }
         self.settle(x_new, h_ref);
         self.time = now;
-        self.baro_tally.count(&baro_verdict);
-        self.velocity_tally.count(&vel_verdict);
+        self.baro_tally.count(&baro.verdict);
+        self.velocity_tally.count(&velocity.verdict);
         // `health_state`, shortened where the checks above decided it: a new baro sample on a
         // tracking channel, and the velocity aid either never received or tracking with a new
         // sample, is `Nominal` unless the commit held the estimate at a limit.
-        let velocity_fine = new_velocity.is_some() || !self.velocity.received;
-        self.health.state = if new_baro.is_some() && velocity_fine && !self.baro.reanchor {
+        let velocity_fine = velocity.new.is_some() || !self.velocity.received;
+        self.health.state = if baro.new.is_some() && velocity_fine && !self.baro.reanchor {
             HealthState::Nominal
         } else {
             self.health_state(false, use_baro, use_vel)
         };
-        Some(StepReports {
+    }
+
+    /// The nominal step's reports, after its commit.
+    #[inline(always)]
+    fn nominal_reports(
+        &self,
+        baro: &ChannelStep<'_, T>,
+        velocity: &ChannelStep<'_, T>,
+    ) -> StepReports<T> {
+        StepReports {
             baro: report(
                 status(
                     &self.baro,
-                    new_baro.map(|s| s.age_us),
-                    baro_age,
+                    baro.new.map(|s| s.age_us),
+                    baro.age_s,
                     &self.baro_timeouts,
                     &self.baro_limits,
                 ),
-                nu_h,
-                baro_verdict,
+                baro.in_use.then_some(baro.nu),
+                baro.verdict,
             ),
             velocity: report(
                 status(
                     &self.velocity,
-                    new_velocity.map(|s| s.age_us),
-                    vel_age,
+                    velocity.new.map(|s| s.age_us),
+                    velocity.age_s,
                     &self.velocity_timeouts,
                     &self.velocity_limits,
                 ),
-                nu_v,
-                vel_verdict,
+                velocity.in_use.then_some(velocity.nu),
+                velocity.verdict,
             ),
             imu_intervals: 1,
-        })
+        }
     }
 
     /// σ's step over the nominal interval when it is not settled in the design mode (out of
