@@ -27,7 +27,7 @@ use super::run::{simulate_run_with, FilterKind, RunOutput};
 use super::trajectory::{self, Shape};
 use crate::consistency::Consistency;
 use crate::rng::run_rng;
-use crate::scenarios::consistency_campaign::{Campaign, CampaignPlan, VariantResult};
+use crate::scenarios::campaign_plan::{Campaign, CampaignPlan, VariantResult};
 use anyhow::Result;
 use nav_core::seeker_ins::STATES;
 use rand::Rng;
@@ -257,7 +257,7 @@ fn run_f32(plan: &CampaignPlan) -> Result<Vec<VariantResult>> {
 mod tests {
     use super::*;
     use crate::consistency::nees_band_95;
-    use crate::scenarios::consistency_campaign::{MIN_FRAC_IN_BAND, NES_MAX};
+    use crate::scenarios::campaign_plan::{MIN_FRAC_IN_BAND, NES_MAX};
 
     /// Same seed, same numbers; the variants stay inside the drawn ranges.
     #[test]
@@ -271,7 +271,7 @@ mod tests {
         let a = run(&plan).unwrap();
         let b = run(&plan).unwrap();
         assert_eq!(a.len(), 4);
-        crate::scenarios::consistency_campaign::assert_same_results(&a, &b);
+        crate::scenarios::campaign_plan::assert_same_results(&a, &b);
         let other = run(&CampaignPlan { seed: 18, ..plan }).unwrap();
         assert_ne!(a[0].params, other[0].params);
         for r in &a {
