@@ -23,7 +23,8 @@
 //! stream; both filters fly each run from the same stream.
 
 use super::config::{load_config, output_epochs, Config};
-use super::run::{simulate_run_with, FilterKind, RunOutput};
+use super::errors::RunOutput;
+use super::run::{simulate_run_with, FilterKind};
 use super::trajectory::{self, Shape};
 use crate::consistency::Consistency;
 use crate::rng::run_rng;
