@@ -195,7 +195,7 @@ fn fault_mission_false_lock_is_rejected_and_counted() {
         ms.sqrt()
     };
     let only_fl = MissionFaults {
-        imu_seeker: nav_sim::scenarios::seeker_ins::fault::Faults {
+        imu_seeker: nav_sim::scenarios::seeker_ins::injection::Faults {
             false_lock: table.false_lock.clone(),
             ..Default::default()
         },

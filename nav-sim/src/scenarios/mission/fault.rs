@@ -14,7 +14,7 @@ use crate::consistency::nees_band_95;
 use crate::montecarlo::monte_carlo;
 use crate::output::sig;
 use crate::scenario::{Context, Kind};
-use crate::scenarios::seeker_ins::fault::{Clipping, FalseLock, Faults, Window};
+use crate::scenarios::seeker_ins::injection::{Clipping, FalseLock, Faults, Window};
 use anyhow::{anyhow, Result};
 use serde::Deserialize;
 use serde_json::{json, Map, Value};

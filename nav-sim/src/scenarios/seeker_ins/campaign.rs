@@ -190,7 +190,7 @@ fn fly_variant<T: nav_core::Real>(
     let truth = trajectory::generate(&cfg.trajectory, 1.0 / cfg.rates.imu_hz);
     let epochs = output_epochs(&truth, cfg);
     let t_s: Vec<f64> = epochs.iter().map(|&k| truth.t_s[k]).collect();
-    let none = super::fault::Faults::default();
+    let none = super::injection::Faults::default();
     let label = format!("seeker v{v}");
     let out = crate::montecarlo::monte_carlo(&label, runs, var.run_seed, progress, |_, rng| {
         let mut r = rng.clone();

@@ -17,6 +17,7 @@ pub mod campaign;
 mod config;
 pub(crate) mod errors;
 pub mod fault;
+pub mod injection;
 mod report;
 pub(crate) mod run;
 pub(crate) mod sensors;

@@ -4,7 +4,7 @@
 
 use super::config::{landmark_position, output_epochs, Config, InitialErrorConfig, ARCSEC, R0};
 use super::errors::{euler_to_phi_jacobian, record, ImuFaultTally, RunOutput, TrueBiases};
-use super::fault::{self, Faults};
+use super::injection::{self, Faults};
 use super::report::{statistics, Stats};
 use super::sensors::Sensors;
 use super::trajectory::Truth;
@@ -180,7 +180,7 @@ fn filter_config<T: Real>(
         imu_faults: faults
             .policy
             .as_ref()
-            .map_or_else(ImuFaultPolicy::default, fault::policy_cast::<T>),
+            .map_or_else(ImuFaultPolicy::default, injection::policy_cast::<T>),
         landmark: Landmark::new(landmark_position(cfg))
             .map_err(|e| anyhow::anyhow!("landmark: {e}"))?,
         residual: match fc.residual.as_str() {
