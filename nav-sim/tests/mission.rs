@@ -3,8 +3,8 @@
 //! sequence, the error against the navigator's σ, and reproducibility with the same seed; and
 //! the whole `fault-mission`'s seeker false lock (rejected, counted, harmless).
 
+use nav_sim::scenarios::mission::navigator_setup::Variant;
 use nav_sim::scenarios::mission::report::{PhaseTag, COMPONENTS};
-use nav_sim::scenarios::mission::run::Variant;
 use nav_sim::scenarios::mission::sensors::MissionFaults;
 use nav_sim::scenarios::mission::{load_scenario, monte_carlo_runs, MissionScenario};
 

@@ -6,8 +6,9 @@
 //! error against σ there: the largest ensemble RMS / σ of the position per axis, the mean NEES
 //! against its band, and the same for the baseline.
 
+use super::navigator_setup::Variant;
 use super::report::{reduce, FlightRecord, VariantStats};
-use super::run::{simulate_run, Variant};
+use super::run::simulate_run;
 use super::sensors::{MissionFaults, ValueWindow};
 use super::MissionScenario;
 use crate::consistency::nees_band_95;
