@@ -554,9 +554,6 @@ fn budget_table(report: &Map<String, Value>) -> String {
     let get = |k: &str| m4.get(k).and_then(Value::as_u64).unwrap_or(0);
     let f_text = get("filters_image_text_bytes");
     let o_text = get("onboard_design_image_text_bytes");
-    let ceiling = |image: Image, value: u64| {
-        budget_cell(value, limit_of(CEILINGS, Measure::TextBytes(image)))
-    };
     md.push_str(&format!(
         "\nFilters image (`nav-size`: a flight program — every filter built from designs \
          computed on the host and stored in the image, `from_design`, with opaque \
@@ -569,12 +566,12 @@ fn budget_table(report: &Map<String, Value>) -> String {
          `.text` {o_text} B (ceiling {}). \
          Bench image (harness, golden replay and recorded vectors included): \
          `.text` {} B, `.rodata` {} B.\n",
-        ceiling(Image::Filters, f_text),
+        text_ceiling_cell(Image::Filters, f_text),
         mark(f_text, TARGET_TEXT_BYTES),
         get("filters_image_rodata_bytes"),
         get("filters_image_data_bytes"),
         get("filters_image_bss_bytes"),
-        ceiling(Image::OnboardDesign, o_text),
+        text_ceiling_cell(Image::OnboardDesign, o_text),
         get("text_bytes"),
         get("rodata_bytes"),
     ));
