@@ -5,7 +5,7 @@
 //! PNG plots. It drives nav-core only through its public API, as a firmware would.
 //!
 //! Every scenario is a TOML file in `nav-sim/scenarios/` whose `kind` selects a runner in
-//! [`scenario::REGISTRY`]. One seed gives the same output bit for bit: run `i` draws from
+//! [`scenarios::REGISTRY`]. One seed gives the same output bit for bit: run `i` draws from
 //! ChaCha8 stream `i` of the seed, whatever the thread that runs it.
 
 pub mod consistency;

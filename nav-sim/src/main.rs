@@ -3,6 +3,7 @@
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use nav_sim::scenario::{self, RunOptions};
+use nav_sim::scenarios;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -111,7 +112,7 @@ fn list(scenario_dir: Option<PathBuf>) -> Result<()> {
         println!("  {name:<20} {}", path.display());
     }
     println!("scenario kinds:");
-    for k in scenario::REGISTRY {
+    for k in scenarios::REGISTRY {
         println!("  {:<20} {}", k.kind, k.about);
     }
     Ok(())
@@ -246,7 +247,7 @@ fn run(
     for (name, path) in &targets {
         let t0 = Instant::now();
         eprintln!("== {name} ({})", path.display());
-        match scenario::run_file(name, path, &opts) {
+        match scenarios::run_file(name, path, &opts) {
             Ok(_) => eprintln!(
                 "   wrote {} ({:.1} s)",
                 out.join(name).join("summary.json").display(),

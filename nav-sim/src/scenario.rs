@@ -1,9 +1,11 @@
-//! Scenario files and the registry of scenario kinds.
+//! Scenario files and what a scenario kind is: the [`Context`] a runner gets and the [`Kind`]
+//! it registers (the registry, [`crate::scenarios::REGISTRY`], and the loading of a file,
+//! [`crate::scenarios::run_file`], are with the runners).
 //!
 //! A scenario is a TOML file. Its header keys are common to all kinds:
 //!
 //! ```toml
-//! kind = "flexure-process"   # selects the runner in REGISTRY
+//! kind = "flexure-process"   # selects the runner in `scenarios::REGISTRY`
 //! description = "…"
 //! runs = 30                  # default Monte Carlo run count
 //! seed = 1                   # default seed
@@ -14,7 +16,6 @@
 
 use anyhow::{bail, Context as _, Result};
 use serde::de::DeserializeOwned;
-use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
 /// Everything a runner gets.
@@ -55,33 +56,6 @@ pub struct Kind {
     pub about: &'static str,
     /// The runner.
     pub run: Runner,
-}
-
-/// Every scenario kind nav-sim knows.
-pub static REGISTRY: &[Kind] = &[
-    crate::scenarios::flexure_process::KIND,
-    crate::scenarios::transfer_alignment::KIND_CASE,
-    crate::scenarios::transfer_alignment::KIND_MODEL_ERROR,
-    crate::scenarios::transfer_alignment::KIND_OBSERVABILITY,
-    crate::scenarios::transfer_alignment::fault::KIND_FAULT,
-    crate::scenarios::seeker_ins::KIND,
-    crate::scenarios::seeker_ins::fault::KIND,
-    crate::scenarios::vertical_channel::KIND_RESPONSE,
-    crate::scenarios::vertical_channel::KIND_MONTECARLO,
-    crate::scenarios::vertical_channel_faults::KIND,
-    crate::scenarios::vertical_channel::KIND_TAU_SWEEP,
-    crate::scenarios::consistency_campaign::KIND,
-    crate::scenarios::mission::KIND,
-    crate::scenarios::mission::fault::KIND,
-];
-
-#[derive(Debug, Deserialize)]
-struct Header {
-    kind: String,
-    #[serde(default)]
-    description: String,
-    runs: usize,
-    seed: u64,
 }
 
 /// The scenario files shipped with nav-sim.
@@ -133,53 +107,4 @@ pub struct RunOptions {
     pub out_root: PathBuf,
     /// Draw progress bars.
     pub progress: bool,
-}
-
-/// Loads and runs one scenario file; writes `summary.json` and returns it.
-pub fn run_file(name: &str, path: &Path, opts: &RunOptions) -> Result<serde_json::Value> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-    let mut doc: toml::Table =
-        toml::from_str(&text).with_context(|| format!("parsing {}", path.display()))?;
-    let header: Header = Header::deserialize(toml::Value::Table(doc.clone()))
-        .with_context(|| format!("{}: header (kind, runs, seed)", path.display()))?;
-    for key in ["kind", "description", "runs", "seed"] {
-        doc.remove(key);
-    }
-    let Some(kind) = REGISTRY.iter().find(|k| k.kind == header.kind) else {
-        let known: Vec<&str> = REGISTRY.iter().map(|k| k.kind).collect();
-        bail!(
-            "{}: unknown kind `{}`; known: {}",
-            path.display(),
-            header.kind,
-            known.join(", ")
-        );
-    };
-    let out_dir = opts.out_root.join(name);
-    std::fs::create_dir_all(&out_dir).with_context(|| format!("creating {}", out_dir.display()))?;
-    let ctx = Context {
-        name: name.to_string(),
-        runs: opts.runs.unwrap_or(header.runs).max(1),
-        seed: opts.seed.unwrap_or(header.seed),
-        out_dir: out_dir.clone(),
-        progress: opts.progress,
-        params: doc,
-    };
-    let body = (kind.run)(&ctx)?;
-    let mut summary = serde_json::Map::new();
-    summary.insert("scenario".into(), name.into());
-    summary.insert("kind".into(), header.kind.clone().into());
-    summary.insert("description".into(), header.description.clone().into());
-    summary.insert("runs".into(), ctx.runs.into());
-    summary.insert("seed".into(), ctx.seed.into());
-    if let serde_json::Value::Object(m) = body {
-        for (k, v) in m {
-            summary.insert(k, v);
-        }
-    } else {
-        summary.insert("result".into(), body);
-    }
-    let summary = serde_json::Value::Object(summary);
-    crate::output::write_summary(&out_dir, &summary)?;
-    Ok(summary)
 }

@@ -3,8 +3,8 @@
 //! sequence, the error against the navigator's σ, and reproducibility with the same seed; and
 //! the whole `fault-mission`'s seeker false lock (rejected, counted, harmless).
 
+use nav_sim::scenarios::mission::navigator_setup::Variant;
 use nav_sim::scenarios::mission::report::{PhaseTag, COMPONENTS};
-use nav_sim::scenarios::mission::run::Variant;
 use nav_sim::scenarios::mission::sensors::MissionFaults;
 use nav_sim::scenarios::mission::{load_scenario, monte_carlo_runs, MissionScenario};
 
@@ -195,7 +195,7 @@ fn fault_mission_false_lock_is_rejected_and_counted() {
         ms.sqrt()
     };
     let only_fl = MissionFaults {
-        imu_seeker: nav_sim::scenarios::seeker_ins::fault::Faults {
+        imu_seeker: nav_sim::scenarios::seeker_ins::injection::Faults {
             false_lock: table.false_lock.clone(),
             ..Default::default()
         },

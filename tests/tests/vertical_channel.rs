@@ -1,7 +1,8 @@
 //! Vertical channel: the simulator's reproduction of the paper's claims at reduced
 //! run counts, the summary keys fixed by the issue, and the loops through an aid dropout.
 
-use nav_sim::scenario::{default_scenario_dir, resolve, run_file, RunOptions};
+use nav_sim::scenario::{default_scenario_dir, resolve, RunOptions};
+use nav_sim::scenarios::run_file;
 use nav_sim::scenarios::vertical_channel::{load_config, monte_carlo_rmse};
 
 const RUNS: usize = 20;

@@ -211,7 +211,7 @@ fn predict_source() -> String {
          //! `xtask/src/gen.rs`.\n\n",
     );
     s.push_str(
-        "use super::super::error_model::SparseF;\nuse crate::Real;\n\n\
+        "use super::super::sparse_f::SparseF;\nuse crate::Real;\n\n\
          /// `P ← Φ P Φᵀ + Q_d` in place for F = `f` and Δt = `dt` (s; G = F Δt entry by entry,\n\
          /// as `SparseF::scaled`), `p` exactly symmetric (column-major storage, `p[col][row]`;\n\
          /// the upper triangle of columns 0 and 1 is read, then whole columns: U = Φ P is one\n\

@@ -155,10 +155,12 @@ mod filter;
 mod flight_noise;
 mod generated;
 mod health;
+mod los_components;
 mod measurement;
 mod mechanization;
 mod paper;
 mod propagation;
+mod sparse_f;
 mod update;
 #[cfg(feature = "los-residual-3d")]
 mod update_3d;
@@ -175,12 +177,13 @@ pub use config::{
 #[cfg(test)]
 pub(crate) use error_model::transition_times as transition_times_for_tests;
 pub use error_model::{
-    f_block, full_f, propagate_covariance, propagate_covariance_sparse, transition_block, FBlock,
-    SparseF, ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
+    f_block, full_f, propagate_covariance, propagate_covariance_sparse, transition_block, ACC_BIAS,
+    ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL,
 };
 pub use filter::{SeekerIns, SeekerInsInitial};
 pub use flight_noise::{InstrumentErrors, MAX_MISALIGNMENT_RAD, MAX_SCALE_FACTOR};
 pub use health::{SeekerAid, SeekerCounters};
+pub use los_components::{max_information_ratio, STABILISING_EPS};
 pub use measurement::{
     gimbal_angles_of, landmark_vector_ned, los_body, los_model, los_model_3d, los_model_at,
     validate_gimbal, GimbalAngles, Landmark, LosModel, LosModel3, MAX_GIMBAL_PITCH_RAD,
@@ -194,5 +197,6 @@ pub use paper::{
     paper_initial_covariance, PAPER_COVARIANCE_INTERVAL_STEPS, PAPER_IMU_DT_S, PAPER_IMU_DT_US,
 };
 pub use propagation::{ClipFlags, PROPAGATION_STABILISING_EPS};
+pub use sparse_f::{FBlock, SparseF};
 pub(crate) use update::CrossColumn;
-pub use update::{max_information_ratio, LosReport, LosSample, LosSkipReason, STABILISING_EPS};
+pub use update::{LosReport, LosSample, LosSkipReason};

@@ -2,12 +2,11 @@
 //! the covariance steps.
 
 use super::config::VARIANCE_CEILING;
-use super::error_model::{
-    propagate_covariance_sparse, transition_times, SparseF, ATT, STATES, VEL,
-};
+use super::error_model::{propagate_covariance_sparse, transition_times, ATT, STATES, VEL};
 use super::filter::SeekerIns;
 use super::flight_noise::flight_noise_step;
 use super::mechanization::{ImuIncrement, Ins};
+use super::sparse_f::SparseF;
 use crate::contract::Health;
 use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
 use crate::{NavError, Real};

@@ -7,19 +7,17 @@ use super::config::starved_after_us;
 use super::config::LosResidual;
 use super::error_model::{ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL};
 use super::filter::SeekerIns;
-use super::generated::los17::{
-    dot_pitch, dot_yaw, p_h_pitch, p_h_yaw, rank_two_update, rank_two_variances_ok,
-};
+use super::generated::los17::{rank_two_update, rank_two_variances_ok};
 use super::health::LastUpdate;
+use super::los_components::{skipped_report, stabilising_delta, two_components, TwoComponents};
 use super::measurement::{
     landmark_vector_ned, los_model_at, validate_gimbal, GimbalAngles, LosModel,
     MIN_LANDMARK_RANGE_M,
 };
-use crate::contract::{FusionOutcome, FusionReport, Gate, RecoveryAction};
-use crate::math::kalman::gate_scalar;
+use crate::contract::{FusionOutcome, FusionReport, RecoveryAction};
 use crate::time::Timestamp;
 use crate::{NavError, Real};
-use nalgebra::{SMatrix, SVector};
+use nalgebra::SVector;
 
 /// One seeker sample: the measured gimbal angles and when they were measured.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -70,41 +68,11 @@ pub enum LosSkipReason {
     NotAtInsTime,
 }
 
-/// Largest ratio `hᵀPh / r` a LOS component is fused with in the working precision:
-/// `10⁻³ / ε` (8 389 in f32, 4.5e12 in f64). Beyond it r is raised (module doc of [`super`]).
-pub fn max_information_ratio<T: Real>() -> T {
-    T::lit(1e-3) / T::EPS
-}
-
-/// Largest relative variance added to every state after a fused LOS update, in units of ε of
-/// the working precision (`stabilise`): the noise is `ρ ε` for an update of information ratio
-/// `ρ = hᵀPh / r` (the largest of the fused components), at most this.
-pub const STABILISING_EPS: f64 = 256.0;
-
-/// The two components of a 2-D update, computed against P without changing it.
-struct TwoComponents<T> {
-    rep1: FusionReport<T>,
-    rep2: FusionReport<T>,
-    cond1: bool,
-    cond2: bool,
-    /// `P h₁` and the gain `K₁ = P h₁ / s₁` (zero unless fused).
-    k1: [T; STATES],
-    kk1: [T; STATES],
-    /// `P⁺₁ h₂` and `K₂` (zero unless fused).
-    k2: [T; STATES],
-    kk2: [T; STATES],
-    /// The correction δx.
-    x: [T; STATES],
-    /// Largest information ratio `hᵀPh / r` of the fused components (r as fused, i.e.
-    /// conditioned), dimensionless; 0 when none was fused.
-    info_ratio: T,
-}
-
 impl<T: Real> SeekerIns<T> {
     /// Fuses one seeker sample (gimbal angles, rad) to the configured landmark.
     ///
     /// Each of the two residual components is gated separately by the configured
-    /// [`Gate`] (χ², 1 dof); the report says which were fused,
+    /// [`Gate`](crate::contract::Gate) (χ², 1 dof); the report says which were fused,
     /// [`SeekerIns::aid_counters`] counts them, and the recovery policy re-inflates P when the
     /// gate starves the filter. Errors (filter unchanged but for the aid's `refused` counter):
     /// `TimeNotIncreasing` (not later than the previous LOS sample), `NonFiniteInput`,
@@ -405,153 +373,6 @@ impl<T: Real> SeekerIns<T> {
         self.gimbal_bias_rad += x.fixed_rows::<2>(GIMBAL);
         Ok(())
     }
-}
-
-/// The two scalar components against P (unchanged): component 1 (pitch direction) against P,
-/// component 2 (yaw direction) against P after component 1, `k₂ = P h₂ − k₁ (K₁·h₂)`. The
-/// products with the rows of H run over their non-zero columns only (generated,
-/// `generated::los17`).
-#[inline(always)]
-fn two_components<T: Real>(
-    p: &SMatrix<T, STATES, STATES>,
-    model: &LosModel<T>,
-    gate: Gate<T>,
-) -> TwoComponents<T> {
-    let zero = T::zero();
-    let kappa = max_information_ratio::<T>();
-    let p = &p.data.0;
-    let [h1] = &model.h_pitch.data.0;
-    let [h2] = &model.h_yaw.data.0;
-    let k1 = p_h_pitch(p, h1);
-    let hph1 = dot_pitch(&k1, h1);
-    let (r1, cond1) = conditioned_noise(hph1, model.variance_rad2.x, kappa);
-    let (rep1, inv_s1) = scalar_report(hph1, r1, model.residual_rad.x, gate);
-    let mut k2 = p_h_yaw(p, h2);
-    let mut x = [zero; STATES];
-    let mut kk1 = [zero; STATES];
-    if rep1.outcome == FusionOutcome::Fused {
-        let c = dot_yaw(&k1, h2) * inv_s1;
-        let it = k2
-            .iter_mut()
-            .zip(k1.iter())
-            .zip(x.iter_mut())
-            .zip(kk1.iter_mut());
-        for (((k2i, k1i), xi), kk) in it {
-            *k2i -= *k1i * c;
-            *kk = *k1i * inv_s1;
-            *xi = *kk * rep1.innovation;
-        }
-    }
-    let nu2 = model.residual_rad.y - dot_yaw(&x, h2);
-    let hph2 = dot_yaw(&k2, h2);
-    let (r2, cond2) = conditioned_noise(hph2, model.variance_rad2.y, kappa);
-    let (rep2, inv_s2) = scalar_report(hph2, r2, nu2, gate);
-    let mut kk2 = [zero; STATES];
-    if rep2.outcome == FusionOutcome::Fused {
-        for ((kk, k2i), xi) in kk2.iter_mut().zip(k2.iter()).zip(x.iter_mut()) {
-            *kk = *k2i * inv_s2;
-            *xi += *kk * rep2.innovation;
-        }
-    }
-    let info_ratio = information_ratio(&rep1, hph1, r1).max(information_ratio(&rep2, hph2, r2));
-    TwoComponents {
-        info_ratio,
-        rep1,
-        rep2,
-        cond1,
-        cond2,
-        k1,
-        kk1,
-        k2,
-        kk2,
-        x,
-    }
-}
-
-/// Stabilising noise `P ← P + δ diag(P)` after an update of information ratio `ρ`
-/// (dimensionless, `hᵀPh / r`), `δ = min(ρ, STABILISING_EPS) · ε` (at most 3.1e-5 in f32):
-/// the correlation matrix becomes `(C + δ I)/(1 + δ)`, so its smallest eigenvalue is at least
-/// `δ/(1 + δ)` — a margin above the rounding of the update. The update divides the variance
-/// along h by `1 + ρ` while its rounding stays ε relative to the prior, so the rounding
-/// relative to the posterior, and the margin it needs, grow with ρ. Without the margin an f32
-/// P that the updates have made singular to working precision (a combination of states known
-/// to the seeker's precision) turns indefinite, and the next precise LOS, fused into an
-/// indefinite prior, commits a P with a correlation eigenvalue of −0.27 (measured, seeker
-/// σ = 1e-5 rad). A constant `256 ε` after every update acted as process noise along the
-/// directions the seeker observes (their variance is a tiny fraction of the states' own): the
-/// f32 flight configuration's final σ lat was 19.7 m for an RMS error of 13.3 m
-/// (seeker-straight; f64 12.4 m, 12.2 m; with the ρ-scaled noise 12.5 m, 12.2 m).
-#[inline(never)]
-#[cfg_attr(not(feature = "los-residual-3d"), allow(dead_code))]
-pub(super) fn stabilise<T: Real, const N: usize>(p: &mut SMatrix<T, N, N>, info_ratio: T) {
-    let delta = stabilising_delta(info_ratio);
-    for i in 0..N {
-        if let Some(v) = p.get_mut((i, i)) {
-            *v += *v * delta;
-        }
-    }
-}
-
-/// The relative stabilising noise `δ = min(ρ, STABILISING_EPS) · ε` of [`stabilise`]
-/// (dimensionless) after an update of information ratio `ρ`.
-#[inline(always)]
-pub(super) fn stabilising_delta<T: Real>(info_ratio: T) -> T {
-    let cap = T::lit(STABILISING_EPS);
-    let rho = if info_ratio < cap { info_ratio } else { cap };
-    rho * T::EPS
-}
-
-/// Information ratio `hᵀPh / r` of a fused component (dimensionless), 0 when it was not
-/// fused. A fused component has `hᵀPh ≥ 0` and `hᵀPh + r` finite ([`gate_scalar`]) and r at
-/// least `hᵀPh / max_information_ratio` ([`conditioned_noise`]), so the ratio is finite and at
-/// most [`max_information_ratio`].
-#[inline(always)]
-pub(super) fn information_ratio<T: Real>(rep: &FusionReport<T>, hph: T, r: T) -> T {
-    if rep.outcome == FusionOutcome::Fused {
-        hph / r
-    } else {
-        T::zero()
-    }
-}
-
-/// The noise variance a scalar component is fused with: `r`, or `hph / kappa` when the
-/// component would carry more information than the working precision resolves
-/// ([`max_information_ratio`]); `true` when raised.
-#[inline(always)]
-pub(super) fn conditioned_noise<T: Real>(hph: T, r: T, kappa: T) -> (T, bool) {
-    let floor = hph / kappa;
-    if floor > r {
-        (floor, true)
-    } else {
-        (r, false)
-    }
-}
-
-/// The report of a component that could not be fused (non-finite numbers reported as 0).
-pub(super) fn skipped_report<T: Real>(innovation: T) -> FusionReport<T> {
-    let zero = T::zero();
-    FusionReport {
-        innovation: if innovation.is_finite() {
-            innovation
-        } else {
-            zero
-        },
-        innovation_variance: zero,
-        nis: zero,
-        test_ratio: zero,
-        outcome: FusionOutcome::Skipped,
-    }
-}
-
-/// Innovation variance, NIS and gate of one scalar component with `hᵀPh = hph` (the shared
-/// [`gate_scalar`]): the report and `1/s`. A component whose s is not finite and > 0 (or
-/// hᵀPh < 0, or a non-finite innovation) is reported [`FusionOutcome::Skipped`] with `1/s = 0`.
-fn scalar_report<T: Real>(hph: T, r: T, innovation: T, gate: Gate<T>) -> (FusionReport<T>, T) {
-    if !innovation.is_finite() {
-        return (skipped_report(innovation), T::zero());
-    }
-    gate_scalar(innovation, hph, hph + r, gate)
-        .unwrap_or_else(|| (skipped_report(innovation), T::zero()))
 }
 
 #[cfg(test)]

@@ -3,11 +3,11 @@
 
 use super::error_model::STATES;
 use super::filter::SeekerIns;
-use super::measurement::{los_model_3d, GimbalAngles};
-use super::update::{
+use super::los_components::{
     conditioned_noise, information_ratio, max_information_ratio, skipped_report, stabilise,
-    LosReport, LosSample, LosSkipReason,
 };
+use super::measurement::{los_model_3d, GimbalAngles};
+use super::update::{LosReport, LosSample, LosSkipReason};
 use crate::contract::{FusionOutcome, FusionReport, Gate};
 use crate::math::kalman::fuse_scalar;
 use crate::{NavError, Real};

@@ -2,8 +2,10 @@
 //! structural zeros of H outside their support.
 use super::*;
 use crate::math::rotation::euler_to_dcm;
+use crate::seeker_ins::generated::los17::p_h_pitch;
 use crate::seeker_ins::measurement::los_model;
 use crate::seeker_ins::{Landmark, Position};
+use nalgebra::SMatrix;
 
 /// The generated LOS kernels read the rows of H in their structurally non-zero columns
 /// only (position, attitude, the component's gimbal angle error): every other entry is an

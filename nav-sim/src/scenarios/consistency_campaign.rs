@@ -17,64 +17,16 @@
 //! filter) and `consistency.png` (per estimator, each variant's mean NEES per state with the
 //! 95 % band, and its fraction of epochs in band).
 
-use crate::consistency::{nees_band_95, Consistency};
+use crate::consistency::nees_band_95;
 use crate::plot::{self, Figure, Panel, Series, Style};
 use crate::scenario::{Context, Kind};
+use crate::scenarios::campaign_plan::{
+    Campaign, CampaignPlan, VariantResult, MAX_ACCURACY_LOSS, MIN_FRAC_IN_BAND, NES_MAX, NES_MIN,
+};
 use anyhow::Result;
 use serde::Deserialize;
 use serde_json::{json, Map, Value};
 use std::fmt::Write as _;
-
-/// Minimum fraction of settled epochs with the run-averaged NEES in its 95 % band.
-pub const MIN_FRAC_IN_BAND: f64 = 0.9;
-/// Lower limit of every per-axis `normalized_error_sq` (σ at most √2 too large).
-pub const NES_MIN: f64 = 0.5;
-/// Upper limit of every per-axis `normalized_error_sq` (σ at most √2 too small).
-pub const NES_MAX: f64 = 2.0;
-/// Largest accepted ratio of the flight configuration's RMS error to the paper filter's, per
-/// axis (accuracy may not get worse by more than 10 %).
-pub const MAX_ACCURACY_LOSS: f64 = 1.1;
-
-/// What a campaign is asked to fly.
-#[derive(Debug, Clone, Copy)]
-pub struct CampaignPlan {
-    /// Randomized variants to draw.
-    pub variants: usize,
-    /// Monte Carlo runs per variant.
-    pub runs: usize,
-    /// Campaign seed: variant `v` draws its parameters from stream `v`, its runs from their own
-    /// streams derived from it.
-    pub seed: u64,
-    /// Draw progress bars.
-    pub progress: bool,
-}
-
-/// One variant flown by one filter.
-#[derive(Debug, Clone)]
-pub struct VariantResult {
-    /// Variant index (0-based) within the estimator's campaign.
-    pub variant: usize,
-    /// Filter flown: `"flight"` (judged) or `"paper"` (the paper's filter, for comparison).
-    pub filter: String,
-    /// The drawn parameters, with units in the key names (e.g. `"lever_arm_m"`).
-    pub params: Value,
-    /// The consistency over the variant's runs.
-    pub consistency: Consistency,
-    /// RMS error per axis over the runs and settled epochs, in the axis's unit
-    /// (`(axis name with unit, rms)`), same axes for both filters.
-    pub rms: Vec<(String, f64)>,
-}
-
-/// An estimator's contribution to the campaign.
-#[derive(Debug, Clone, Copy)]
-pub struct Campaign {
-    /// Estimator name as it appears in the outputs.
-    pub estimator: &'static str,
-    /// What is randomized, one line.
-    pub about: &'static str,
-    /// Flies the variants.
-    pub run: fn(&CampaignPlan) -> Result<Vec<VariantResult>>,
-}
 
 /// The NEES per state plotted is clipped here (a paper filter can be 10⁴ too large, which
 /// would flatten the flight configuration's points onto one).
@@ -122,7 +74,8 @@ pub fn binomial_tail(n: usize, p: f64, k: usize) -> f64 {
     (1.0 - below).max(0.0)
 }
 
-/// Simulated ideal filters per flight variant ([`Consistency::ideal_frac_in_band`]).
+/// Simulated ideal filters per flight variant
+/// ([`Consistency::ideal_frac_in_band`](crate::consistency::Consistency::ideal_frac_in_band)).
 pub const IDEAL_ENSEMBLES: usize = 200;
 
 /// Verdict of one flight variant against the targets.
@@ -135,7 +88,8 @@ struct Verdict {
     /// accuracy.
     pass: bool,
     /// Time-averaged NEES inside its band for the filter's time correlation
-    /// ([`Consistency::mean_nees_band_95`]), normalized errors and accuracy: a consistent
+    /// ([`Consistency::mean_nees_band_95`](crate::consistency::Consistency::mean_nees_band_95)),
+    /// normalized errors and accuracy: a consistent
     /// filter fails it with probability ≈ 5 %.
     pass_statistical: bool,
     /// Band of the time-averaged NEES.
@@ -528,22 +482,10 @@ fn add_bands(verdicts: &[(&VariantResult, Verdict)], ratio: &mut Panel, frac: &m
     }
 }
 
-/// Two flights of a campaign gave the same variants and the same numbers (the campaigns'
-/// reproducibility tests).
-#[cfg(test)]
-pub(crate) fn assert_same_results(a: &[VariantResult], b: &[VariantResult]) {
-    assert_eq!(a.len(), b.len());
-    for (x, y) in a.iter().zip(b) {
-        assert_eq!(x.params, y.params);
-        assert_eq!(x.consistency.nees_mean, y.consistency.nees_mean);
-        assert_eq!(x.rms, y.rms);
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::consistency::RunConsistency;
+    use crate::consistency::{Consistency, RunConsistency};
 
     fn result(filter: &str, scale: f64, rms: f64) -> VariantResult {
         // Deterministic errors: e = scale·σ·(±1) alternating, σ = 1, 3 components.

@@ -7,7 +7,7 @@
 //! flash of writing each out, about 18 instructions more per column). Generator:
 //! `xtask/src/gen.rs`.
 
-use super::super::error_model::SparseF;
+use super::super::sparse_f::SparseF;
 use crate::Real;
 
 /// `P ← Φ P Φᵀ + Q_d` in place for F = `f` and Δt = `dt` (s; G = F Δt entry by entry,

@@ -4,7 +4,7 @@
 //! kind, gate rejections and rejection runs, lost aids and their re-acquisition, recovery
 //! gates, starvation re-anchoring.
 
-use super::super::core::LoopCore;
+use super::super::core::{LoopCore, StepReports};
 use super::*;
 use std::format;
 
@@ -42,26 +42,52 @@ struct Visits {
     reacquired: u32,
 }
 
-/// One hostile run of `steps` IMU samples through `a.step` and `b.step_general` (the same loop
-/// twice); every result and the whole loop compared after every step (Debug strings: distinct
-/// floats print differently, so this is bit-for-bit up to NaN payloads).
-fn compare_run<T: Real>(mut a: LoopCore<T>, velocity_aid: bool, seed: u64, steps: u32) -> Visits {
-    let mut b = a;
-    let mut rng = Rng(seed);
-    let mut visits = Visits::default();
-    let mut now_us: u64 = 0;
-    let mut last_baro_us: u64 = 0;
-    let mut last_vel_us: u64 = 0;
-    let mut alt = 500.0_f64;
-    let mut vz = 0.0_f64;
-    // Phases: outages of an aid, baro outliers, a large specific-force bias.
-    let mut baro_out = 0u32;
-    let mut vel_out = 0u32;
-    let mut outlier_run = 0u32;
-    let mut push = 0u32;
-    for k in 0..steps {
-        // The IMU interval: mostly nominal, some jitter, some gaps, rarely a long gap or a
-        // stamp not after the loop's clock.
+/// The hostile inputs of a run: the seeded generator, the clocks and the truth it draws from,
+/// and the phases (outages of an aid, baro outliers, a large specific-force bias).
+struct Hostile {
+    rng: Rng,
+    velocity_aid: bool,
+    now_us: u64,
+    last_baro_us: u64,
+    last_vel_us: u64,
+    alt: f64,
+    vz: f64,
+    baro_out: u32,
+    vel_out: u32,
+    outlier_run: u32,
+    push: u32,
+}
+
+/// One step's inputs: the IMU sample (stamped `t_us`, µs) and the aid samples, if any.
+struct Inputs<T> {
+    t_us: u64,
+    imu: ImuSample<T>,
+    baro: Option<BaroSample<T>>,
+    vel: Option<VelocitySample<T>>,
+}
+
+impl Hostile {
+    fn new(seed: u64, velocity_aid: bool) -> Self {
+        Self {
+            rng: Rng(seed),
+            velocity_aid,
+            now_us: 0,
+            last_baro_us: 0,
+            last_vel_us: 0,
+            alt: 500.0,
+            vz: 0.0,
+            baro_out: 0,
+            vel_out: 0,
+            outlier_run: 0,
+            push: 0,
+        }
+    }
+
+    /// The IMU sample: the interval mostly nominal, some jitter, some gaps, rarely a long gap
+    /// or a stamp not after the loop's clock; the specific force sometimes NaN, out of range
+    /// or biased.
+    fn imu<T: Real>(&mut self) -> (u64, ImuSample<T>) {
+        let rng = &mut self.rng;
         let dt_us: i64 = match rng.unit() {
             u if u < 0.80 => 10_000,
             u if u < 0.90 => 10_000 + (rng.sym(4_000.0) as i64),
@@ -70,12 +96,12 @@ fn compare_run<T: Real>(mut a: LoopCore<T>, velocity_aid: bool, seed: u64, steps
             u if u < 0.96 => -((rng.next() % 20_000) as i64),
             _ => 10_000,
         };
-        let t_us = (now_us as i64 + dt_us).max(0) as u64;
-        if push == 0 && rng.chance(0.0005) {
-            push = 3_000;
+        let t_us = (self.now_us as i64 + dt_us).max(0) as u64;
+        if self.push == 0 && rng.chance(0.0005) {
+            self.push = 3_000;
         }
-        let bias = if push > 0 {
-            push -= 1;
+        let bias = if self.push > 0 {
+            self.push -= 1;
             150.0
         } else {
             0.0
@@ -89,20 +115,32 @@ fn compare_run<T: Real>(mut a: LoopCore<T>, velocity_aid: bool, seed: u64, steps
             time: Timestamp::from_micros(t_us),
             specific_force_up_m_s2: T::lit(f),
         };
-        vz += rng.sym(0.05);
-        alt += vz * 0.01;
-        if baro_out == 0 && rng.chance(0.002) {
-            baro_out = (rng.next() % 300) as u32;
+        (t_us, imu)
+    }
+
+    /// The truth's step and the phases' counters.
+    fn phases(&mut self) {
+        let rng = &mut self.rng;
+        self.vz += rng.sym(0.05);
+        self.alt += self.vz * 0.01;
+        if self.baro_out == 0 && rng.chance(0.002) {
+            self.baro_out = (rng.next() % 300) as u32;
         }
-        if vel_out == 0 && rng.chance(0.002) {
-            vel_out = (rng.next() % 300) as u32;
+        if self.vel_out == 0 && rng.chance(0.002) {
+            self.vel_out = (rng.next() % 300) as u32;
         }
-        if outlier_run == 0 && rng.chance(0.003) {
-            outlier_run = (rng.next() % 40) as u32;
+        if self.outlier_run == 0 && rng.chance(0.003) {
+            self.outlier_run = (rng.next() % 40) as u32;
         }
-        baro_out = baro_out.saturating_sub(1);
-        vel_out = vel_out.saturating_sub(1);
-        outlier_run = outlier_run.saturating_sub(1);
+        self.baro_out = self.baro_out.saturating_sub(1);
+        self.vel_out = self.vel_out.saturating_sub(1);
+        self.outlier_run = self.outlier_run.saturating_sub(1);
+    }
+
+    /// The next step's inputs.
+    fn next<T: Real>(&mut self) -> Inputs<T> {
+        let (t_us, imu) = self.imu::<T>();
+        self.phases();
         // A sample's stamp: mostly the IMU's or a little before; sometimes in the future, not
         // after the previous one, or too old.
         let stamp = |rng: &mut Rng, last: &mut u64| -> u64 {
@@ -115,7 +153,9 @@ fn compare_run<T: Real>(mut a: LoopCore<T>, velocity_aid: bool, seed: u64, steps
             *last = (*last).max(s);
             s
         };
-        let baro = (baro_out == 0 && rng.chance(0.3)).then(|| {
+        let (alt, vz, outlier_run) = (self.alt, self.vz, self.outlier_run);
+        let rng = &mut self.rng;
+        let baro = (self.baro_out == 0 && rng.chance(0.3)).then(|| {
             let value = match rng.unit() {
                 u if u < 0.01 => f64::NAN,
                 u if u < 0.02 => 70_000.0,
@@ -123,11 +163,11 @@ fn compare_run<T: Real>(mut a: LoopCore<T>, velocity_aid: bool, seed: u64, steps
                 _ => alt + rng.sym(1.0),
             };
             BaroSample {
-                time: Timestamp::from_micros(stamp(&mut rng, &mut last_baro_us)),
+                time: Timestamp::from_micros(stamp(rng, &mut self.last_baro_us)),
                 altitude_m: T::lit(value),
             }
         });
-        let vel = (velocity_aid && vel_out == 0 && rng.chance(0.12)).then(|| {
+        let vel = (self.velocity_aid && self.vel_out == 0 && rng.chance(0.12)).then(|| {
             let value = match rng.unit() {
                 u if u < 0.01 => f64::INFINITY,
                 u if u < 0.02 => 2_000.0,
@@ -135,10 +175,60 @@ fn compare_run<T: Real>(mut a: LoopCore<T>, velocity_aid: bool, seed: u64, steps
                 _ => vz + rng.sym(0.1),
             };
             VelocitySample {
-                time: Timestamp::from_micros(stamp(&mut rng, &mut last_vel_us)),
+                time: Timestamp::from_micros(stamp(rng, &mut self.last_vel_us)),
                 vz_up_m_s: T::lit(value),
             }
         });
+        Inputs {
+            t_us,
+            imu,
+            baro,
+            vel,
+        }
+    }
+}
+
+impl Visits {
+    /// Counts one step: through the nominal step (`fast`) or the general one, and what its
+    /// result `r` says.
+    fn count<T: Real>(&mut self, fast: bool, r: &Result<StepReports<T>, NavError>) {
+        if fast {
+            self.nominal += 1;
+        } else {
+            self.general += 1;
+        }
+        match r {
+            Err(_) => self.refused += 1,
+            Ok(r) => {
+                for rep in [&r.baro, &r.velocity] {
+                    if let Some(s) = rep.sample {
+                        if s.outcome == FusionOutcome::Rejected {
+                            self.rejected += 1;
+                        }
+                    }
+                    if !matches!(rep.reacquisition, Reacquisition::Tracking) {
+                        self.reacquired += 1;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// One hostile run of `steps` IMU samples through `a.step` and `b.step_general` (the same loop
+/// twice); every result and the whole loop compared after every step (Debug strings: distinct
+/// floats print differently, so this is bit-for-bit up to NaN payloads).
+fn compare_run<T: Real>(mut a: LoopCore<T>, velocity_aid: bool, seed: u64, steps: u32) -> Visits {
+    let mut b = a;
+    let mut hostile = Hostile::new(seed, velocity_aid);
+    let mut visits = Visits::default();
+    for k in 0..steps {
+        let Inputs {
+            t_us,
+            imu,
+            baro,
+            vel,
+        } = hostile.next::<T>();
         let fast = {
             let mut c = a;
             c.step_nominal(&imu, baro.as_ref(), vel.as_ref()).is_some()
@@ -155,26 +245,9 @@ fn compare_run<T: Real>(mut a: LoopCore<T>, velocity_aid: bool, seed: u64, steps
             format!("{b:?}"),
             "seed {seed} step {k}: loops differ"
         );
-        if fast {
-            visits.nominal += 1;
-        } else {
-            visits.general += 1;
-        }
-        match &ra {
-            Err(_) => visits.refused += 1,
-            Ok(r) => {
-                for rep in [&r.baro, &r.velocity] {
-                    if let Some(s) = rep.sample {
-                        if s.outcome == FusionOutcome::Rejected {
-                            visits.rejected += 1;
-                        }
-                    }
-                    if !matches!(rep.reacquisition, Reacquisition::Tracking) {
-                        visits.reacquired += 1;
-                    }
-                }
-                now_us = t_us;
-            }
+        visits.count(fast, &ra);
+        if ra.is_ok() {
+            hostile.now_us = t_us;
         }
     }
     visits

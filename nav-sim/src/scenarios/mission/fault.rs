@@ -6,15 +6,16 @@
 //! error against σ there: the largest ensemble RMS / σ of the position per axis, the mean NEES
 //! against its band, and the same for the baseline.
 
+use super::navigator_setup::Variant;
 use super::report::{reduce, FlightRecord, VariantStats};
-use super::run::{simulate_run, Variant};
+use super::run::simulate_run;
 use super::sensors::{MissionFaults, ValueWindow};
 use super::MissionScenario;
 use crate::consistency::nees_band_95;
 use crate::montecarlo::monte_carlo;
 use crate::output::sig;
 use crate::scenario::{Context, Kind};
-use crate::scenarios::seeker_ins::fault::{Clipping, FalseLock, Faults, Window};
+use crate::scenarios::seeker_ins::injection::{Clipping, FalseLock, Faults, Window};
 use anyhow::{anyhow, Result};
 use serde::Deserialize;
 use serde_json::{json, Map, Value};

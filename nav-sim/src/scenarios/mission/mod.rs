@@ -11,6 +11,7 @@
 
 pub mod config;
 pub mod fault;
+pub mod navigator_setup;
 pub mod profile;
 pub mod report;
 pub mod run;
@@ -23,8 +24,9 @@ use crate::plot::{render, Figure, Panel, Series};
 use crate::scenario::{Context, Kind};
 use anyhow::{anyhow, Result};
 use config::MissionConfig;
+use navigator_setup::{NavigatorSettings, Variant};
 use report::{reduce, PhaseTag, VariantStats};
-use run::{simulate_run, MissionRun, NavigatorSettings, Variant};
+use run::{simulate_run, MissionRun};
 use sensors::MissionFaults;
 use serde::Deserialize;
 use serde_json::{json, Map, Value};

@@ -23,11 +23,12 @@
 //! stream; both filters fly each run from the same stream.
 
 use super::config::{load_config, output_epochs, Config};
-use super::run::{simulate_run_with, FilterKind, RunOutput};
+use super::errors::RunOutput;
+use super::run::{simulate_run_with, FilterKind};
 use super::trajectory::{self, Shape};
 use crate::consistency::Consistency;
 use crate::rng::run_rng;
-use crate::scenarios::consistency_campaign::{Campaign, CampaignPlan, VariantResult};
+use crate::scenarios::campaign_plan::{Campaign, CampaignPlan, VariantResult};
 use anyhow::Result;
 use nav_core::seeker_ins::STATES;
 use rand::Rng;
@@ -189,7 +190,7 @@ fn fly_variant<T: nav_core::Real>(
     let truth = trajectory::generate(&cfg.trajectory, 1.0 / cfg.rates.imu_hz);
     let epochs = output_epochs(&truth, cfg);
     let t_s: Vec<f64> = epochs.iter().map(|&k| truth.t_s[k]).collect();
-    let none = super::fault::Faults::default();
+    let none = super::injection::Faults::default();
     let label = format!("seeker v{v}");
     let out = crate::montecarlo::monte_carlo(&label, runs, var.run_seed, progress, |_, rng| {
         let mut r = rng.clone();
@@ -257,7 +258,7 @@ fn run_f32(plan: &CampaignPlan) -> Result<Vec<VariantResult>> {
 mod tests {
     use super::*;
     use crate::consistency::nees_band_95;
-    use crate::scenarios::consistency_campaign::{MIN_FRAC_IN_BAND, NES_MAX};
+    use crate::scenarios::campaign_plan::{MIN_FRAC_IN_BAND, NES_MAX};
 
     /// Same seed, same numbers; the variants stay inside the drawn ranges.
     #[test]
@@ -271,7 +272,7 @@ mod tests {
         let a = run(&plan).unwrap();
         let b = run(&plan).unwrap();
         assert_eq!(a.len(), 4);
-        crate::scenarios::consistency_campaign::assert_same_results(&a, &b);
+        crate::scenarios::campaign_plan::assert_same_results(&a, &b);
         let other = run(&CampaignPlan { seed: 18, ..plan }).unwrap();
         assert_ne!(a[0].params, other[0].params);
         for r in &a {

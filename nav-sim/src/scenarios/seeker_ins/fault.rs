@@ -6,15 +6,14 @@
 //! per fault, the pre-fault error bound (largest ensemble RMS in a window before the fault),
 //! the peak, whether and when the RMS came back within the bound.
 
+use super::injection::{Clipping, FalseLock, Faults, Window};
 use super::{load_config, output_epochs, simulate_run_faulted, trajectory, RunOutput};
 use crate::output::{sig, write_csv};
 use crate::plot::{render, Figure, Panel, Series};
 use crate::scenario::{Context, Kind};
 use crate::stats::ensemble;
 use anyhow::{bail, Result};
-use nalgebra::Vector3;
 use nav_core::seeker_ins::ImuFaultPolicy;
-use nav_core::Real;
 use serde::Deserialize;
 use serde_json::{json, Value};
 
@@ -24,41 +23,6 @@ pub const KIND: Kind = Kind {
     about: "Seeker-aided INS under faults: loss of lock, false lock, IMU clipping and gaps",
     run,
 };
-
-/// A time window `[start_s, duration_s]`, s.
-pub type Window = [f64; 2];
-
-/// False lock: the seeker tracks a point `offset_deg` off the landmark (in gimbal yaw).
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FalseLock {
-    /// Start, s.
-    pub start_s: f64,
-    /// Duration, s.
-    pub duration_s: f64,
-    /// Offset of the tracked point from the landmark, gimbal yaw, deg.
-    pub offset_deg: f64,
-}
-
-/// A vibration burst along one body axis, `a(t) = A cos(2π f (t − t₀))` (whole cycles: no net
-/// velocity or displacement, so the trajectory truth is unchanged), sensed by an
-/// accelerometer of range ±`range_g` that clips each axis.
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Clipping {
-    /// Start, s.
-    pub start_s: f64,
-    /// Duration, s (rounded to whole vibration cycles).
-    pub duration_s: f64,
-    /// Body axis of the vibration, 0 = x, 1 = y, 2 = z.
-    pub axis: usize,
-    /// Vibration amplitude, g.
-    pub amplitude_g: f64,
-    /// Vibration frequency, Hz.
-    pub frequency_hz: f64,
-    /// Accelerometer range, ± g per axis.
-    pub range_g: f64,
-}
 
 /// The filter's IMU fault policy ([`ImuFaultPolicy`]), TOML table `[imu_policy]`.
 #[derive(Debug, Clone, Deserialize)]
@@ -123,94 +87,6 @@ pub struct FaultConfig {
 
 fn yes() -> bool {
     true
-}
-
-/// Faults as the run loop sees them.
-#[derive(Debug, Clone, Default)]
-pub struct Faults {
-    /// Loss of lock windows.
-    pub loss_of_lock: Vec<Window>,
-    /// False locks.
-    pub false_lock: Vec<FalseLock>,
-    /// Clipping bursts.
-    pub clipping: Vec<Clipping>,
-    /// Whether clipped samples are flagged to the filter.
-    pub flag_clipped: bool,
-    /// IMU gaps.
-    pub imu_gap: Vec<Window>,
-    /// Filter policy (f64 values).
-    pub policy: Option<ImuFaultPolicy<f64>>,
-}
-
-fn inside(w: &Window, t: f64) -> bool {
-    t >= w[0] - 1e-9 && t < w[0] + w[1] - 1e-9
-}
-
-/// The policy in the filter's precision.
-pub fn policy_cast<T: Real>(p: &ImuFaultPolicy<f64>) -> ImuFaultPolicy<T> {
-    ImuFaultPolicy {
-        max_gap_s: T::lit(p.max_gap_s),
-        gap_accel_sigma_m_s2: T::lit(p.gap_accel_sigma_m_s2),
-        gap_rate_sigma_rad_s: T::lit(p.gap_rate_sigma_rad_s),
-        clip_accel_sigma_m_s2: T::lit(p.clip_accel_sigma_m_s2),
-        clip_rate_sigma_rad_s: T::lit(p.clip_rate_sigma_rad_s),
-    }
-}
-
-impl Faults {
-    /// Whether the IMU sample at `t_s` (end of its interval) is lost.
-    pub fn in_imu_gap(&self, t_s: f64) -> bool {
-        self.imu_gap.iter().any(|w| inside(w, t_s))
-    }
-
-    /// Whether the seeker has lost lock at `t_s`.
-    pub fn loss_of_lock(&self, t_s: f64) -> bool {
-        self.loss_of_lock.iter().any(|w| inside(w, t_s))
-    }
-
-    /// The false-lock yaw offset at `t_s`, rad.
-    pub fn false_lock_yaw_rad(&self, t_s: f64) -> Option<f64> {
-        self.false_lock
-            .iter()
-            .find(|f| inside(&[f.start_s, f.duration_s], t_s))
-            .map(|f| f.offset_deg.to_radians())
-    }
-
-    /// The velocity increment the accelerometer senses over the interval ending at `t_s`
-    /// (before its scale factor, bias and noise) and whether it clipped: the true increment,
-    /// plus the vibration of a burst, each axis clipped at the range (32 sub-samples).
-    pub fn accel_increment(&self, t_s: f64, dt: f64, dv: &Vector3<f64>) -> (Vector3<f64>, bool) {
-        let Some(c) = self.clipping.iter().find(|c| {
-            let cycles = (c.duration_s * c.frequency_hz).round();
-            t_s > c.start_s && t_s - dt < c.start_s + cycles / c.frequency_hz
-        }) else {
-            return (*dv, false);
-        };
-        const M: usize = 32;
-        let g0 = 9.806_65;
-        let cycles = (c.duration_s * c.frequency_hz).round();
-        let end = c.start_s + cycles / c.frequency_hz;
-        let f_nom = dv / dt;
-        let range = c.range_g * g0;
-        let w = std::f64::consts::TAU * c.frequency_hz;
-        let mut sum = Vector3::zeros();
-        let mut clipped = false;
-        for m in 0..M {
-            let t = t_s - dt + (m as f64 + 0.5) * dt / M as f64;
-            let mut f = f_nom;
-            if t >= c.start_s && t < end {
-                f[c.axis.min(2)] += c.amplitude_g * g0 * (w * (t - c.start_s)).cos();
-            }
-            for v in f.iter_mut() {
-                if v.abs() > range {
-                    clipped = true;
-                    *v = v.signum() * range;
-                }
-            }
-            sum += f;
-        }
-        (sum * dt / M as f64, clipped)
-    }
 }
 
 /// Recovery from one fault.
@@ -334,20 +210,7 @@ pub fn analyse(fc: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Resu
         "f64" => false,
         p => bail!("precision `{p}`: must be \"f32\" or \"f64\""),
     };
-    let faults = Faults {
-        loss_of_lock: fc.loss_of_lock.clone(),
-        false_lock: fc.false_lock.clone(),
-        clipping: fc.clipping.clone(),
-        flag_clipped: fc.flag_clipped,
-        imu_gap: fc.imu_gap.clone(),
-        policy: fc.imu_policy.as_ref().map(|p| ImuFaultPolicy {
-            max_gap_s: p.max_gap_s,
-            gap_accel_sigma_m_s2: p.gap_accel_sigma_m_s2,
-            gap_rate_sigma_rad_s: p.gap_rate_sigma_rad_s,
-            clip_accel_sigma_m_s2: p.clip_accel_sigma_m_s2,
-            clip_rate_sigma_rad_s: p.clip_rate_sigma_rad_s,
-        }),
-    };
+    let faults = injected_faults(fc);
     let none = Faults {
         policy: faults.policy,
         ..Faults::default()
@@ -385,6 +248,63 @@ pub fn analyse(fc: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Resu
     let rms = rms_of(&fr);
     let baseline = rms_of(&br);
     let list = fault_list(fc);
+    let per_fault = per_fault_summary(fc, &t, &rms, &baseline, &list);
+    let of = |rs: &[RunOutput]| {
+        crate::consistency::Consistency::from_runs(
+            nav_core::seeker_ins::STATES,
+            &rs.iter().map(|r| r.consistency.clone()).collect::<Vec<_>>(),
+        )
+    };
+    let consistency = [of(&fr), of(&br)];
+    let summary = fault_summary(
+        fc,
+        &Flown {
+            faulted: &fr,
+            baseline: &br,
+            rms: &rms,
+            baseline_rms: &baseline,
+            consistency: &consistency,
+        },
+        per_fault,
+        per_fault_all(&t, &rms, &list, fc.bound_window_s),
+    );
+    Ok(FaultResult {
+        summary,
+        t_s: t,
+        rms,
+        baseline,
+        faults: list,
+        consistency,
+    })
+}
+
+/// The faults the configuration injects, with its IMU fault policy.
+fn injected_faults(fc: &FaultConfig) -> Faults {
+    Faults {
+        loss_of_lock: fc.loss_of_lock.clone(),
+        false_lock: fc.false_lock.clone(),
+        clipping: fc.clipping.clone(),
+        flag_clipped: fc.flag_clipped,
+        imu_gap: fc.imu_gap.clone(),
+        policy: fc.imu_policy.as_ref().map(|p| ImuFaultPolicy {
+            max_gap_s: p.max_gap_s,
+            gap_accel_sigma_m_s2: p.gap_accel_sigma_m_s2,
+            gap_rate_sigma_rad_s: p.gap_rate_sigma_rad_s,
+            clip_accel_sigma_m_s2: p.clip_accel_sigma_m_s2,
+            clip_rate_sigma_rad_s: p.clip_rate_sigma_rad_s,
+        }),
+    }
+}
+
+/// Per fault of `list` (name, start s, end s): the recovery of each metric's ensemble RMS
+/// (`rms`, with faults; `baseline`, the same runs without) at times `t` (s).
+fn per_fault_summary(
+    fc: &FaultConfig,
+    t: &[f64],
+    rms: &[Vec<f64>; 3],
+    baseline: &[Vec<f64>; 3],
+    list: &[(String, f64, f64)],
+) -> Vec<Value> {
     let mut per_fault = vec![];
     for (i, (name, start, end)) in list.iter().enumerate() {
         let next = list.get(i + 1).map_or(f64::INFINITY, |f| f.1);
@@ -393,9 +313,9 @@ pub fn analyse(fc: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Resu
         m.insert("start_s".into(), json!(start));
         m.insert("end_s".into(), json!(sig(*end, 6)));
         for (j, (metric, unit)) in METRICS.iter().enumerate() {
-            let r = recovery(&t, &rms[j], *start, *end, next, fc.bound_window_s);
-            let b = recovery(&t, &baseline[j], *start, *end, next, fc.bound_window_s);
-            let to_base = back_to_baseline(&t, &rms[j], &baseline[j], *end, next);
+            let r = recovery(t, &rms[j], *start, *end, next, fc.bound_window_s);
+            let b = recovery(t, &baseline[j], *start, *end, next, fc.bound_window_s);
+            let to_base = back_to_baseline(t, &rms[j], &baseline[j], *end, next);
             m.insert(
                 format!("{metric}_rms_{}", unit.replace('/', "_")),
                 json!({
@@ -411,22 +331,34 @@ pub fn analyse(fc: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Resu
         }
         per_fault.push(Value::Object(m));
     }
-    let sum = |f: fn(&RunOutput) -> u64| fr.iter().map(f).sum::<u64>();
-    let base_sum = |f: fn(&RunOutput) -> u64| br.iter().map(f).sum::<u64>();
+    per_fault
+}
+
+/// The runs flown with and without the faults, and what the analysis made of them.
+struct Flown<'a> {
+    faulted: &'a [RunOutput],
+    baseline: &'a [RunOutput],
+    rms: &'a [Vec<f64>; 3],
+    baseline_rms: &'a [Vec<f64>; 3],
+    consistency: &'a [crate::consistency::Consistency; 2],
+}
+
+/// The summary JSON of the analysis.
+fn fault_summary(
+    fc: &FaultConfig,
+    flown: &Flown<'_>,
+    per_fault: Vec<Value>,
+    all_recovered: bool,
+) -> Value {
+    let sum = |f: fn(&RunOutput) -> u64| flown.faulted.iter().map(f).sum::<u64>();
+    let base_sum = |f: fn(&RunOutput) -> u64| flown.baseline.iter().map(f).sum::<u64>();
     let last = |v: &[f64]| sig(v.last().copied().unwrap_or(f64::NAN), 4);
-    let of = |rs: &[RunOutput]| {
-        crate::consistency::Consistency::from_runs(
-            nav_core::seeker_ins::STATES,
-            &rs.iter().map(|r| r.consistency.clone()).collect::<Vec<_>>(),
-        )
-    };
-    let consistency = [of(&fr), of(&br)];
-    let summary = json!({
+    json!({
         "base": fc.base,
         "filter_precision": fc.precision,
         "consistency": {
-            "paper_with_faults": consistency[0].summary(),
-            "paper_without_faults": consistency[1].summary(),
+            "paper_with_faults": flown.consistency[0].summary(),
+            "paper_without_faults": flown.consistency[1].summary(),
         },
         "bound_window_s": fc.bound_window_s,
         "filter_did": {
@@ -446,20 +378,12 @@ pub fn analyse(fc: &FaultConfig, runs: usize, seed: u64, progress: bool) -> Resu
             "covariance_reinflations": base_sum(|r| u64::from(r.inflations)),
         },
         "faults": per_fault,
-        "all_recovered": per_fault_all(&t, &rms, &list, fc.bound_window_s),
+        "all_recovered": all_recovered,
         "final_rms": {
-            "position_m": last(&rms[0]), "velocity_m_s": last(&rms[1]), "attitude_deg": last(&rms[2]),
-            "baseline_position_m": last(&baseline[0]), "baseline_velocity_m_s": last(&baseline[1]),
-            "baseline_attitude_deg": last(&baseline[2]),
+            "position_m": last(&flown.rms[0]), "velocity_m_s": last(&flown.rms[1]), "attitude_deg": last(&flown.rms[2]),
+            "baseline_position_m": last(&flown.baseline_rms[0]), "baseline_velocity_m_s": last(&flown.baseline_rms[1]),
+            "baseline_attitude_deg": last(&flown.baseline_rms[2]),
         },
-    });
-    Ok(FaultResult {
-        summary,
-        t_s: t,
-        rms,
-        baseline,
-        faults: list,
-        consistency,
     })
 }
 
@@ -494,6 +418,18 @@ fn per_fault_all(t: &[f64], rms: &[Vec<f64>; 3], list: &[(String, f64, f64)], w:
 fn run(ctx: &Context) -> Result<Value> {
     let fc: FaultConfig = ctx.config()?;
     let r = analyse(&fc, ctx.runs, ctx.seed, ctx.progress)?;
+    write_errors_csv(ctx, &r)?;
+    errors_figure(ctx, &fc, &r)?;
+    consistency_figure(ctx, &fc, &r)?;
+    println!(
+        "  all faults recovered: {}",
+        r.summary["all_recovered"].as_bool().unwrap_or(false)
+    );
+    Ok(r.summary)
+}
+
+/// `errors.csv`: the ensemble RMS per metric with the faults and without (same runs).
+fn write_errors_csv(ctx: &Context, r: &FaultResult) -> Result<()> {
     write_csv(
         &ctx.out_dir.join("errors.csv"),
         &[
@@ -514,7 +450,11 @@ fn run(ctx: &Context) -> Result<Value> {
             &r.baseline[1],
             &r.baseline[2],
         ],
-    )?;
+    )
+}
+
+/// `errors.png`: the ensemble RMS per metric with and without the faults, fault windows marked.
+fn errors_figure(ctx: &Context, fc: &FaultConfig, r: &FaultResult) -> Result<()> {
     let mut panels = vec![];
     for (j, (metric, unit)) in METRICS.iter().enumerate() {
         let ymax = r.rms[j]
@@ -556,7 +496,11 @@ fn run(ctx: &Context) -> Result<Value> {
         &ctx.out_dir.join("errors.png"),
         1300,
         1100,
-    )?;
+    )
+}
+
+/// `consistency.png`: the NEES of the 17 states with and without the faults.
+fn consistency_figure(ctx: &Context, fc: &FaultConfig, r: &FaultResult) -> Result<()> {
     let mut nees_panels = vec![
         r.consistency[0].nees_panel("paper filter with the faults"),
         r.consistency[1].nees_panel("paper filter, same runs without faults"),
@@ -578,10 +522,5 @@ fn run(ctx: &Context) -> Result<Value> {
         &ctx.out_dir.join("consistency.png"),
         1200,
         800,
-    )?;
-    println!(
-        "  all faults recovered: {}",
-        r.summary["all_recovered"].as_bool().unwrap_or(false)
-    );
-    Ok(r.summary)
+    )
 }

@@ -15,7 +15,9 @@
 
 pub mod campaign;
 mod config;
+pub(crate) mod errors;
 pub mod fault;
+pub mod injection;
 mod report;
 pub(crate) mod run;
 pub(crate) mod sensors;
@@ -25,10 +27,11 @@ pub use config::{
     landmark_position, load_config, output_epochs, Config, FilterConfig, InitialErrorConfig,
     LandmarkConfig, RatesConfig, SensorConfig,
 };
+pub use errors::{ImuFaultTally, RunOutput, GROUPS};
 pub use report::{statistics, Stats, CHANNELS};
 pub use run::{
     monte_carlo_batches, monte_carlo_filters, simulate_run, simulate_run_faulted,
-    simulate_run_with, Batches, FilterKind, ImuFaultTally, RunOutput, GROUPS,
+    simulate_run_with, Batches, FilterKind,
 };
 
 use crate::output::sig;

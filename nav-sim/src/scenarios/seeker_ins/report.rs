@@ -1,7 +1,7 @@
 //! Ensemble statistics, consistency figures, summaries, CSV and plots of the Monte Carlo runs.
 
 use super::config::Config;
-use super::run::RunOutput;
+use super::errors::RunOutput;
 use super::trajectory::Truth;
 use crate::consistency::Consistency;
 use crate::output::{sig, write_csv};
@@ -9,17 +9,9 @@ use crate::plot::{render, Figure, Panel, Series};
 use crate::scenario::Context;
 use crate::stats::ensemble;
 use anyhow::Result;
-use nalgebra::{SMatrix, SVector};
 use nav_core::earth::radii_m;
 use nav_core::seeker_ins::STATES;
 use serde_json::json;
-
-pub(super) fn nees<const N: usize>(p: &SMatrix<f64, N, N>, e: &SVector<f64, N>) -> f64 {
-    match nalgebra::linalg::Cholesky::new(*p) {
-        Some(ch) => e.dot(&ch.solve(e)),
-        None => f64::NAN,
-    }
-}
 
 /// Ensemble statistics of a batch of runs.
 #[derive(Debug, Clone)]
@@ -48,7 +40,7 @@ pub struct Stats {
     pub errors: usize,
     /// Runs.
     pub runs: usize,
-    /// NEES of the 17 states against its band and per state group ([`super::run::GROUPS`]).
+    /// NEES of the 17 states against its band and per state group ([`super::errors::GROUPS`]).
     pub consistency: Consistency,
 }
 

@@ -4,7 +4,7 @@
 //! seeker).
 
 use super::config::{Config, SensorConfig, ARCSEC, G0};
-use super::fault::Faults;
+use super::injection::Faults;
 use super::trajectory::Truth;
 use crate::rng::{normal, SimRng};
 use nalgebra::{Matrix3, Vector2, Vector3};

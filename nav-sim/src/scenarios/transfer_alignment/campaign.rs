@@ -18,7 +18,7 @@ use super::truth::simulate;
 use crate::consistency::{Consistency, RunConsistency, SETTLE_S};
 use crate::montecarlo::monte_carlo;
 use crate::rng::run_rng;
-use crate::scenarios::consistency_campaign::{Campaign, CampaignPlan, VariantResult};
+use crate::scenarios::campaign_plan::{Campaign, CampaignPlan, VariantResult};
 use anyhow::Result;
 use rand::Rng;
 use serde_json::json;
@@ -203,9 +203,7 @@ fn run_campaign(plan: &CampaignPlan) -> Result<Vec<VariantResult>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scenarios::consistency_campaign::{
-        MAX_ACCURACY_LOSS, MIN_FRAC_IN_BAND, NES_MAX, NES_MIN,
-    };
+    use crate::scenarios::campaign_plan::{MAX_ACCURACY_LOSS, MIN_FRAC_IN_BAND, NES_MAX, NES_MIN};
 
     fn plan(variants: usize, runs: usize) -> CampaignPlan {
         CampaignPlan {

@@ -26,7 +26,7 @@ use super::{load_config, Config, Leg};
 use crate::consistency::{Consistency, RunConsistency};
 use crate::montecarlo::monte_carlo;
 use crate::rng::{run_rng, SimRng};
-use crate::scenarios::consistency_campaign::{Campaign, CampaignPlan, VariantResult};
+use crate::scenarios::campaign_plan::{Campaign, CampaignPlan, VariantResult};
 use anyhow::Result;
 use rand::Rng;
 use serde_json::{json, Value};
@@ -218,7 +218,7 @@ fn run(plan: &CampaignPlan) -> Result<Vec<VariantResult>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scenarios::consistency_campaign::{MIN_FRAC_IN_BAND, NES_MAX};
+    use crate::scenarios::campaign_plan::{MIN_FRAC_IN_BAND, NES_MAX};
 
     /// The same consistency with every σ scaled by `s` (NEES and e²/σ² by 1/s²).
     fn scaled(rc: &RunConsistency, s: f64) -> RunConsistency {
@@ -246,7 +246,7 @@ mod tests {
         };
         let a = run_classical(&plan).unwrap();
         let b = run_classical(&plan).unwrap();
-        crate::scenarios::consistency_campaign::assert_same_results(&a, &b);
+        crate::scenarios::campaign_plan::assert_same_results(&a, &b);
         let aided = run(&plan).unwrap();
         assert_eq!(a.len(), 1);
         assert_eq!(a[0].params, aided[0].params);
@@ -265,7 +265,7 @@ mod tests {
         let a = run(&plan).unwrap();
         let b = run(&plan).unwrap();
         assert_eq!(a.len(), 4);
-        crate::scenarios::consistency_campaign::assert_same_results(&a, &b);
+        crate::scenarios::campaign_plan::assert_same_results(&a, &b);
         // Another seed draws other variants.
         let (_, p0) = draw_variant(&load_config("vc-montecarlo").unwrap(), 78, 0);
         assert_ne!(p0, a[0].params);

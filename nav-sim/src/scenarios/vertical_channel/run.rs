@@ -150,6 +150,135 @@ fn ratio(a: f64, b: f64, what: &str) -> Result<usize> {
     Ok(n as usize)
 }
 
+/// The step counts of a run: the IMU interval (s), the IMU steps, the IMU steps per baro,
+/// velocity-aid and output sample, and the first step counted in the RMSE.
+struct Schedule {
+    dt: f64,
+    steps: usize,
+    baro_every: usize,
+    vel_every: usize,
+    out_every: usize,
+    rmse_from: usize,
+}
+
+impl Schedule {
+    fn of(cfg: &Config) -> Result<Self> {
+        let dt = 1.0 / cfg.imu_rate_hz;
+        Ok(Self {
+            dt,
+            steps: (cfg.duration_s / dt).round() as usize,
+            baro_every: ratio(cfg.imu_rate_hz, cfg.baro.rate_hz, "baro.rate_hz")?,
+            vel_every: ratio(
+                cfg.imu_rate_hz,
+                cfg.velocity_aid.rate_hz,
+                "velocity_aid.rate_hz",
+            )?,
+            out_every: ratio(cfg.output_interval_s, dt, "output_interval_s")?,
+            rmse_from: (cfg.rmse_after_s / dt).round() as usize,
+        })
+    }
+}
+
+/// IMU step `k` of a run: its time (s) and stamp, and the true altitude (m) and vertical
+/// velocity (m/s, up) at it.
+struct Epoch {
+    k: usize,
+    t: f64,
+    stamp: Timestamp,
+    h: f64,
+    v: f64,
+}
+
+/// The aid samples at `at`: the baro sample (its value kept
+/// in `last_baro`, m, in a dropout too) and the velocity-aid sample, each `None` when not due
+/// or in a dropout.
+fn aid_samples<T: Real>(
+    cfg: &Config,
+    sch: &Schedule,
+    sensors: &mut Sensors,
+    at: &Epoch,
+    last_baro: &mut f64,
+    rng: &mut SimRng,
+) -> (Option<BaroSample<T>>, Option<VelocitySample<T>>) {
+    let (k, t, stamp, v) = (at.k, at.t, at.stamp, at.v);
+    let baro = if k % sch.baro_every == 0 {
+        let z = sensors.baro(rng);
+        *last_baro = z;
+        (!in_dropout(cfg, "baro", t)).then_some(BaroSample {
+            time: stamp,
+            altitude_m: T::lit(z),
+        })
+    } else {
+        None
+    };
+    let vel = if k % sch.vel_every == 0 {
+        let z = sensors.velocity(v, rng);
+        (!in_dropout(cfg, "velocity", t)).then_some(VelocitySample {
+            time: stamp,
+            vz_up_m_s: T::lit(z),
+        })
+    } else {
+        None
+    };
+    (baro, vel)
+}
+
+impl RunOut {
+    /// The errors of the estimates `est` ([classical, aided] (altitude m, vz m/s)) against the
+    /// truth at `at`: the time after the last error over 1 m (`last_big`) and, from
+    /// step `rmse_from` on, the RMSE sums.
+    fn accumulate(
+        &mut self,
+        est: &[(f64, f64); 2],
+        at: &Epoch,
+        rmse_from: usize,
+        last_big: &mut [Option<f64>; 2],
+    ) {
+        for (l, (eh, ev)) in est.iter().enumerate() {
+            let (dh, dv) = (eh - at.h, ev - at.v);
+            if dh.abs() > 1.0 {
+                last_big[l] = None;
+            } else if last_big[l].is_none() {
+                last_big[l] = Some(at.t);
+            }
+            if at.k >= rmse_from {
+                self.sumsq[l][0] += dh * dh;
+                self.sumsq[l][1] += dv * dv;
+            }
+        }
+        if at.k >= rmse_from {
+            self.n += 1;
+        }
+    }
+
+    /// One output epoch at `at`: the truth, the latest baro sample (m), the estimates `est` and
+    /// the consistency samples of [`FILTERS`] (covariances of (h, V_z)).
+    fn push_output(
+        &mut self,
+        at: &Epoch,
+        last_baro: f64,
+        est: &[(f64, f64); 2],
+        covs: &[Matrix2<f64>; 3],
+    ) {
+        let (t, h, v) = (at.t, at.h, at.v);
+        self.t.push(t);
+        self.h_true.push(h);
+        self.vz_true.push(v);
+        self.h_baro.push(last_baro);
+        for (l, (eh, ev)) in est.iter().enumerate() {
+            self.h_est[l].push(*eh);
+            self.vz_est[l].push(*ev);
+            self.err_h[l].push(eh - h);
+            self.err_vz[l].push(ev - v);
+        }
+        let (ec, ea) = ((est[0].0 - h, est[0].1 - v), (est[1].0 - h, est[1].1 - v));
+        let covs = [(ec, covs[0]), (ea, covs[1]), (ea, covs[2])];
+        for (rc, ((eh, ev), p)) in self.consistency.iter_mut().zip(covs.iter()) {
+            push_consistency(rc, t, *eh, *ev, p);
+        }
+    }
+}
+
 /// Simulates one run of both loops. `init_err` = (altitude m, vz m/s) estimate − truth.
 pub fn simulate<T: Real>(
     cfg: &Config,
@@ -159,16 +288,8 @@ pub fn simulate<T: Real>(
     noise: Noise,
     rng: &mut SimRng,
 ) -> Result<RunOut> {
-    let dt = 1.0 / cfg.imu_rate_hz;
-    let steps = (cfg.duration_s / dt).round() as usize;
-    let baro_every = ratio(cfg.imu_rate_hz, cfg.baro.rate_hz, "baro.rate_hz")?;
-    let vel_every = ratio(
-        cfg.imu_rate_hz,
-        cfg.velocity_aid.rate_hz,
-        "velocity_aid.rate_hz",
-    )?;
-    let out_every = ratio(cfg.output_interval_s, dt, "output_interval_s")?;
-    let rmse_from = (cfg.rmse_after_s / dt).round() as usize;
+    let sch = Schedule::of(cfg)?;
+    let dt = sch.dt;
     let (ccfg, acfg) = loop_configs::<T>(cfg, tau_s);
     let (h0, v0, _) = profile.at(0.0);
     let init = InitialState {
@@ -180,7 +301,7 @@ pub fn simulate<T: Real>(
     let mut classical = ClassicalLoop::<T>::new(&ccfg, &init).map_err(|e| anyhow!("{e}"))?;
     let mut aided = AidedLoop::<T>::new(&acfg, &init).map_err(|e| anyhow!("{e}"))?;
 
-    let mut sensors = Sensors::new(cfg, noise, dt, baro_every, (h0, v0), rng);
+    let mut sensors = Sensors::new(cfg, noise, dt, sch.baro_every, (h0, v0), rng);
     let mut last_baro = f64::NAN;
 
     let mut out = RunOut {
@@ -194,33 +315,16 @@ pub fn simulate<T: Real>(
     let cov = |m: Matrix2<T>| m.map(|v| v.to_f64());
     let mut last_big = [Some(0.0f64); 2]; // time after the last |err| > 1 m
     let (mut h_prev, mut v_prev, _) = profile.at(0.0);
-    for k in 1..=steps {
+    for k in 1..=sch.steps {
         let t = k as f64 * dt;
         let stamp = Timestamp::from_secs_f64(t).map_err(|e| anyhow!("time stamp {t}: {e}"))?;
         let (h, v, _) = profile.at(t);
+        let at = Epoch { k, t, stamp, h, v };
         // Mean specific force over the interval: Δv/Δt + g at mid-interval altitude.
         let (h_mid, _, _) = profile.at(t - 0.5 * dt);
         let f = sensors.specific_force((v - v_prev) / dt, h_mid, rng);
         sensors.advance_baro_lag(h, h_prev);
-        let baro = if k % baro_every == 0 {
-            let z = sensors.baro(rng);
-            last_baro = z;
-            (!in_dropout(cfg, "baro", t)).then_some(BaroSample {
-                time: stamp,
-                altitude_m: T::lit(z),
-            })
-        } else {
-            None
-        };
-        let vel = if k % vel_every == 0 {
-            let z = sensors.velocity(v, rng);
-            (!in_dropout(cfg, "velocity", t)).then_some(VelocitySample {
-                time: stamp,
-                vz_up_m_s: T::lit(z),
-            })
-        } else {
-            None
-        };
+        let (baro, vel) = aid_samples::<T>(cfg, &sch, &mut sensors, &at, &mut last_baro, rng);
         let imu = ImuSample {
             time: stamp,
             specific_force_up_m_s2: T::lit(f),
@@ -238,41 +342,14 @@ pub fn simulate<T: Real>(
             ),
             (aided.altitude_m().to_f64(), aided.vz_up_m_s().to_f64()),
         ];
-        for (l, (eh, ev)) in est.iter().enumerate() {
-            let (dh, dv) = (eh - h, ev - v);
-            if dh.abs() > 1.0 {
-                last_big[l] = None;
-            } else if last_big[l].is_none() {
-                last_big[l] = Some(t);
-            }
-            if k >= rmse_from {
-                out.sumsq[l][0] += dh * dh;
-                out.sumsq[l][1] += dv * dv;
-            }
-        }
-        if k >= rmse_from {
-            out.n += 1;
-        }
-        if k % out_every == 0 {
-            out.t.push(t);
-            out.h_true.push(h);
-            out.vz_true.push(v);
-            out.h_baro.push(last_baro);
-            for (l, (eh, ev)) in est.iter().enumerate() {
-                out.h_est[l].push(*eh);
-                out.vz_est[l].push(*ev);
-                out.err_h[l].push(eh - h);
-                out.err_vz[l].push(ev - v);
-            }
-            let (ec, ea) = ((est[0].0 - h, est[0].1 - v), (est[1].0 - h, est[1].1 - v));
+        out.accumulate(&est, &at, sch.rmse_from, &mut last_big);
+        if k % sch.out_every == 0 {
             let covs = [
-                (ec, cov(classical.covariance_h_vz())),
-                (ea, cov(aided.covariance_h_vz())),
-                (ea, p_riccati),
+                cov(classical.covariance_h_vz()),
+                cov(aided.covariance_h_vz()),
+                p_riccati,
             ];
-            for (rc, ((eh, ev), p)) in out.consistency.iter_mut().zip(covs.iter()) {
-                push_consistency(rc, t, *eh, *ev, p);
-            }
+            out.push_output(&at, last_baro, &est, &covs);
         }
         h_prev = h;
         v_prev = v;

@@ -20,7 +20,7 @@
 use super::config::MissionConfig;
 use super::truth::MissionTruth;
 use crate::rng::SimRng;
-use crate::scenarios::seeker_ins::fault::{Faults, Window};
+use crate::scenarios::seeker_ins::injection::{Faults, Window};
 use anyhow::Result;
 use nalgebra::{Matrix3, Vector3};
 use nav_core::seeker_ins::{ClipFlags, ImuIncrement, LosSample, Position};
