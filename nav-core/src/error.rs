@@ -115,6 +115,18 @@ pub fn require_positive<T: crate::Real>(field: &'static str, v: T) -> Result<T, 
     }
 }
 
+/// An accepted range of a physical or configuration value, in the value's units (named ends
+/// instead of a `(low, high)` pair). Whether an end is included is said where a range is
+/// declared; the checks of the crate include both unless stated.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Bounds {
+    /// Lower end.
+    pub low: f64,
+    /// Upper end.
+    pub high: f64,
+}
+
 /// Checks a configuration value: finite and in [lo, hi] (`InvalidConfig` naming `field`).
 #[inline(never)]
 pub(crate) fn in_range<T: crate::Real>(

@@ -69,7 +69,7 @@ pub use contract::{
     AidCounters, DesignStamp, Estimator, FusionOutcome, FusionReport, Gate, Health, RecoveryAction,
     RecoveryPolicy,
 };
-pub use error::NavError;
+pub use error::{Bounds, NavError};
 pub use health::HealthState;
 pub use real::Real;
 pub use time::Timestamp;

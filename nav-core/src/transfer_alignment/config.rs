@@ -5,6 +5,7 @@ use super::model::AxisFlexure;
 use crate::contract::{Gate, RecoveryAction, RecoveryPolicy};
 use crate::error::{require_finite, require_non_negative, require_positive, ConfigIssue};
 use crate::time::seconds_to_micros;
+use crate::Bounds;
 use crate::{NavError, Real};
 use nalgebra::Vector3;
 
@@ -35,7 +36,10 @@ pub const MAX_ACCEL_BIAS_SIGMA_M_S2: f64 = 0.5;
 /// Largest |lever-arm component|, m.
 pub const MAX_LEVER_ARM_M: f64 = 100.0;
 /// Range of the χ²(1) NIS gate threshold ([`Gate::Nis`]), dimensionless.
-pub const NIS_GATE_RANGE: (f64, f64) = (1.0, 1.0e4);
+pub const NIS_GATE_RANGE: Bounds = Bounds {
+    low: 1.0,
+    high: 1.0e4,
+};
 /// Largest `max_gap_steps`: the most predictions one call can run (bounded work per call:
 /// see the README for the instruction count).
 pub const MAX_GAP_STEPS: u32 = 100;
@@ -245,8 +249,12 @@ impl<T: Real> TaConfig<T> {
         let dt_us = self.dt_us()?;
         for fl in self.flexure.iter() {
             let (s, tau) = (fl.sigma_rad, fl.tau_s);
-            let sigma_range = (MIN_FLEXURE_SIGMA_RAD, MAX_FLEXURE_SIGMA_RAD);
-            positive_within("flexure.sigma_rad", s, sigma_range.0, sigma_range.1)?;
+            positive_within(
+                "flexure.sigma_rad",
+                s,
+                MIN_FLEXURE_SIGMA_RAD,
+                MAX_FLEXURE_SIGMA_RAD,
+            )?;
             positive_within("flexure.tau_s", tau, MIN_FLEXURE_TAU_S, MAX_FLEXURE_TAU_S)?;
             if tau < T::lit(MIN_TAU_STEPS) * self.dt_s {
                 return Err(out_of_range("flexure.tau_s"));
@@ -305,7 +313,7 @@ impl<T: Real> TaConfig<T> {
 pub(super) fn validate_gate<T: Real>(gate: &Gate<T>) -> Result<(), NavError> {
     match *gate {
         Gate::Off => Ok(()),
-        Gate::Nis(g) => positive_within("gate", g, NIS_GATE_RANGE.0, NIS_GATE_RANGE.1),
+        Gate::Nis(g) => positive_within("gate", g, NIS_GATE_RANGE.low, NIS_GATE_RANGE.high),
     }
 }
 

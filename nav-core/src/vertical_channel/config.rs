@@ -7,6 +7,7 @@ use super::MAX_TIMEOUT_S;
 use crate::contract::{Gate, RecoveryAction, RecoveryPolicy};
 use crate::error::{require_non_negative, require_positive, ConfigIssue};
 use crate::math::checks::{first_outside, LowerBound, RangeCheck};
+use crate::Bounds;
 use crate::{NavError, Real};
 
 /// Configuration of the classical loop (SI units; the design is computed from it in `f64`).
@@ -133,9 +134,15 @@ pub struct AidModel<T> {
 }
 
 /// Accepted χ² threshold of [`Gate::Nis`]: `[low, high)`.
-pub const NIS_THRESHOLD_RANGE: (f64, f64) = (1.0e-3, 1.0e4);
+pub const NIS_THRESHOLD_RANGE: Bounds = Bounds {
+    low: 1.0e-3,
+    high: 1.0e4,
+};
 /// Accepted range of the aid model's σ values: `[low, high)` (σ_v0 and σ_a0 may be 0).
-pub const AID_SIGMA_RANGE: (f64, f64) = (1.0e-6, 1.0e6);
+pub const AID_SIGMA_RANGE: Bounds = Bounds {
+    low: 1.0e-6,
+    high: 1.0e6,
+};
 
 impl<T: Real> AidModel<T> {
     /// The model of the papers' configuration (and of the firmware images): σ₀ 30 m baro,
@@ -169,9 +176,9 @@ impl<T: Real> AidModel<T> {
             field,
             value,
             low,
-            high: T::lit(AID_SIGMA_RANGE.1),
+            high: T::lit(AID_SIGMA_RANGE.high),
         };
-        let min = T::lit(AID_SIGMA_RANGE.0);
+        let min = T::lit(AID_SIGMA_RANGE.low);
         let checks = [
             sigma(
                 "aid_model.baro_sigma_m",
@@ -212,7 +219,7 @@ impl<T: Real> AidModel<T> {
 pub(crate) fn validate_gate<T: Real>(gate: &Gate<T>) -> Result<(), NavError> {
     if let Gate::Nis(thr) = *gate {
         require_positive("gate", thr)?;
-        if !(thr >= T::lit(NIS_THRESHOLD_RANGE.0) && thr < T::lit(NIS_THRESHOLD_RANGE.1)) {
+        if !(thr >= T::lit(NIS_THRESHOLD_RANGE.low) && thr < T::lit(NIS_THRESHOLD_RANGE.high)) {
             return Err(NavError::InvalidConfig {
                 field: "gate",
                 issue: ConfigIssue::OutOfRange,

@@ -19,6 +19,7 @@ use super::{
 };
 use crate::contract::Health;
 use crate::time::{micros_to_seconds, Timestamp};
+use crate::Bounds;
 use crate::{HealthState, NavError, Real};
 use nalgebra::{Matrix3x2, Vector2, Vector3};
 
@@ -229,7 +230,10 @@ impl<T: Real> LoopCore<T> {
             Some(s) => {
                 let rule = SampleRule {
                     value_name: "vz_up_m_s",
-                    range: (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S),
+                    range: Bounds {
+                        low: -MAX_VERTICAL_SPEED_M_S,
+                        high: MAX_VERTICAL_SPEED_M_S,
+                    },
                     lost_after_s: self.velocity_timeouts.lost_after_s,
                 };
                 match self
@@ -267,7 +271,7 @@ impl<T: Real> LoopCore<T> {
         if x.x.abs() > T::lit(RECENTRE_M) {
             h_ref_new = h_ref + x.x;
             x.x = T::zero();
-            let (lo, hi) = (T::lit(ESTIMATE_RANGE_M.0), T::lit(ESTIMATE_RANGE_M.1));
+            let (lo, hi) = (T::lit(ESTIMATE_RANGE_M.low), T::lit(ESTIMATE_RANGE_M.high));
             if h_ref_new < lo || h_ref_new > hi {
                 h_ref_new = if h_ref_new < lo { lo } else { hi };
                 limited = true;

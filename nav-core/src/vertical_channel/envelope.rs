@@ -13,7 +13,7 @@ use nalgebra::{Matrix2x3, Matrix3, Matrix3x2, RowVector3, Vector2};
 #[inline(never)]
 pub(crate) fn check_imu_dt<T: Real>(imu_dt_s: T) -> Result<(), NavError> {
     require_positive("imu_dt_s", imu_dt_s)?;
-    if !(imu_dt_s >= T::lit(IMU_DT_RANGE_S.0) && imu_dt_s <= T::lit(IMU_DT_RANGE_S.1)) {
+    if !(imu_dt_s >= T::lit(IMU_DT_RANGE_S.low) && imu_dt_s <= T::lit(IMU_DT_RANGE_S.high)) {
         return Err(NavError::InvalidConfig {
             field: "imu_dt_s",
             issue: ConfigIssue::OutOfRange,

@@ -158,6 +158,7 @@ mod riccati;
 mod samples;
 mod sigma;
 
+use crate::Bounds;
 pub use aided::{AidedLoop, AidedReport};
 pub use classical::{ClassicalLoop, ClassicalReport};
 pub use config::{
@@ -183,13 +184,19 @@ pub use sigma::{
 /// Largest accepted |specific force|, m/s² (20 g).
 pub const MAX_SPECIFIC_FORCE_M_S2: f64 = 196.0;
 /// Accepted altitude range of the estimate and the baro, m.
-pub const ALTITUDE_RANGE_M: (f64, f64) = (-2_000.0, 60_000.0);
+pub const ALTITUDE_RANGE_M: Bounds = Bounds {
+    low: -2_000.0,
+    high: 60_000.0,
+};
 /// Range the altitude **estimate** is kept in, m (wider than [`ALTITUDE_RANGE_M`] so a loop
 /// coasting through a long outage keeps running and can re-acquire). An estimate that leaves
 /// it is held at the limit (the step is not refused): the loop has diverged, its health is
 /// `NeedsReinitialisation` and the next aid samples are accepted outside the gate and re-anchor
 /// the measured states (see [`AidModel`]).
-pub const ESTIMATE_RANGE_M: (f64, f64) = (-50_000.0, 500_000.0);
+pub const ESTIMATE_RANGE_M: Bounds = Bounds {
+    low: -50_000.0,
+    high: 500_000.0,
+};
 /// Largest |vertical velocity| of the **estimate**, m/s; held at the limit like the altitude.
 pub const MAX_ESTIMATE_SPEED_M_S: f64 = 10_000.0;
 /// Largest |accelerometer bias| of the **estimate**, m/s² (= the specific-force range); held
@@ -219,7 +226,10 @@ pub const INTERVAL_ACCURACY: f64 = 1.0e-4;
 /// they differ by more than this, m (f32 resolution 2⁻¹⁶ m here).
 pub const RECENTRE_M: f64 = 256.0;
 /// Accepted range of the configured IMU interval `imu_dt_s`, s (10 kHz … 1 Hz).
-pub const IMU_DT_RANGE_S: (f64, f64) = (1.0e-4, 1.0);
+pub const IMU_DT_RANGE_S: Bounds = Bounds {
+    low: 1.0e-4,
+    high: 1.0,
+};
 /// Largest accepted classical time constant `tau_s`, s.
 pub const MAX_TAU_S: f64 = 1.0e4;
 /// Accepted range of the aided design's PSDs and periods (squares of the noise densities,

@@ -18,6 +18,7 @@ use super::samples::{AidChannel, AidStatus, AidTimeouts, BaroSample, ImuSample, 
 use super::{Reacquisition, ALTITUDE_RANGE_M, MAX_SPECIFIC_FORCE_M_S2, MAX_VERTICAL_SPEED_M_S};
 use crate::contract::{FusionOutcome, FusionReport};
 use crate::time::Timestamp;
+use crate::Bounds;
 use crate::{HealthState, Real};
 use nalgebra::{Vector2, Vector3};
 
@@ -42,14 +43,14 @@ fn fresh<'a, T: Real>(
     time: &'a Timestamp,
     value: T,
     now: Timestamp,
-    range: (f64, f64),
+    range: Bounds,
     limits: &AgeLimits,
 ) -> Option<Fresh<'a, T>> {
     // In range (false for NaN); one test of the magnitude for a range symmetric about 0.
-    let valid = if range.0 == -range.1 {
-        value.abs() <= T::lit(range.1)
+    let valid = if range.low == -range.high {
+        value.abs() <= T::lit(range.high)
     } else {
-        value >= T::lit(range.0) && value <= T::lit(range.1)
+        value >= T::lit(range.low) && value <= T::lit(range.high)
     };
     if !(ch.tracking && valid) {
         return None;
@@ -242,7 +243,7 @@ impl<T: Real> LoopCore<T> {
         );
         let (new_velocity, nu_v, use_vel, vel_age, vel_verdict) = channel_step!(
             self.velocity, velocity_limits, velocity_timeouts;
-            velocity, vz_up_m_s, (-MAX_VERTICAL_SPEED_M_S, MAX_VERTICAL_SPEED_M_S);
+            velocity, vz_up_m_s, Bounds { low: -MAX_VERTICAL_SPEED_M_S, high: MAX_VERTICAL_SPEED_M_S };
             now, threshold, vel_nu
         );
         let mode = self.modes.select(use_baro, use_vel);

@@ -5,6 +5,7 @@ use super::{ALTITUDE_RANGE_M, MAX_ESTIMATE_BIAS_M_S2, MAX_ESTIMATE_SPEED_M_S};
 use super::{MAX_SPECIFIC_FORCE_M_S2, MAX_TIMEOUT_S};
 use crate::error::{require_positive, ConfigIssue};
 use crate::time::{micros_to_seconds, Timestamp};
+use crate::Bounds;
 use crate::{NavError, Real};
 
 /// One IMU sample: the vertical component of the specific force, averaged over the interval
@@ -171,7 +172,7 @@ pub(crate) struct AidChannel<T> {
 /// What one aid's sample is checked against: its name, physical range and timeouts.
 pub(crate) struct SampleRule<T> {
     pub(crate) value_name: &'static str,
-    pub(crate) range: (f64, f64),
+    pub(crate) range: Bounds,
     pub(crate) lost_after_s: T,
 }
 
@@ -224,7 +225,7 @@ impl<T: Real> AidChannel<T> {
                 input: rule.value_name,
             });
         }
-        if value < T::lit(rule.range.0) || value > T::lit(rule.range.1) {
+        if value < T::lit(rule.range.low) || value > T::lit(rule.range.high) {
             return Err(NavError::InputOutOfRange {
                 input: rule.value_name,
             });
@@ -304,7 +305,8 @@ pub(crate) fn check_initial<T: Real>(init: &InitialState<T>) -> Result<(), NavEr
             return Err(NavError::NonFiniteInput { input: name });
         }
     }
-    if init.altitude_m < T::lit(ALTITUDE_RANGE_M.0) || init.altitude_m > T::lit(ALTITUDE_RANGE_M.1)
+    if init.altitude_m < T::lit(ALTITUDE_RANGE_M.low)
+        || init.altitude_m > T::lit(ALTITUDE_RANGE_M.high)
     {
         return Err(NavError::InputOutOfRange {
             input: "initial altitude_m",

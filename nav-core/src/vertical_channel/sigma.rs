@@ -116,8 +116,8 @@ impl<T: Real> ErrorModel<T> {
             require_non_negative(field, v)?;
         }
         let (low, high) = (
-            T::lit(super::AID_SIGMA_RANGE.0),
-            T::lit(super::AID_SIGMA_RANGE.1),
+            T::lit(super::AID_SIGMA_RANGE.low),
+            T::lit(super::AID_SIGMA_RANGE.high),
         );
         let at_least = |field, value| RangeCheck {
             field,
