@@ -229,15 +229,6 @@ fn symmetrised<T: Real>(b: &Matrix3<T>) -> Matrix3<T> {
 }
 
 impl<T: Real> NavBlocks<T> {
-    /// The 9 × 9 navigation block `[δr, δv, φ]` of P0 (zero cross blocks).
-    pub(crate) fn nav9(&self) -> SMatrix<T, 9, 9> {
-        let mut p = SMatrix::<T, 9, 9>::zeros();
-        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&self.pos);
-        p.fixed_view_mut::<3, 3>(3, 3).copy_from(&self.vel);
-        p.fixed_view_mut::<3, 3>(6, 6).copy_from(&self.att);
-        p
-    }
-
     /// `true` when the P0 of these blocks and `priors` ([`Self::write_p0`]) passes the
     /// covariance checks of the EKF's constructor — finite, variances within
     /// [`VARIANCE_CEILING`], symmetric, PSD — checked on its blocks (P0 is block diagonal):

@@ -17,26 +17,59 @@ use super::{
 use crate::contract::{Estimator, FusionOutcome, FusionReport};
 use crate::earth::{earth_rate_ned, transport_rate_ned};
 use crate::math::rotation::exp_so3;
-use crate::seeker_ins::{Ins, SeekerIns, SeekerInsInitial};
+use crate::seeker_ins::{validate_increment, Ins, SeekerIns, SeekerInsInitial};
 use crate::time::Timestamp;
 use crate::transfer_alignment::{
-    compensate_lever_arm, MasterSample, SlaveSample, TransferAlignment,
+    compensate_lever_arm, GapOutcome, MasterSample, SlaveSample, TransferAlignment,
 };
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
-/// The scaling of [`super::nav_block_to_ned`] on a 9 × 9 navigation block, rows then columns by
-/// the factors `d` of the position states.
-fn nav9_to_ned<T: Real>(mut out: SMatrix<T, 9, 9>, d: [T; 3]) -> SMatrix<T, 9, 9> {
-    for (i, di) in d.iter().enumerate() {
-        for v in out.row_mut(i).iter_mut() {
-            *v *= *di;
-        }
-        for v in out.column_mut(i).iter_mut() {
-            *v *= *di;
+/// The hand-over's 9 × 9 navigation block `[δr, δv, φ]` (zero cross blocks) in the carry
+/// solution's NED convention, written in place into `out` (no 9 × 9 temporary, no copy through
+/// the stack). The numbers of scaling the block-diagonal matrix's rows then columns
+/// i = 0, 1, 2 by the factors `d` of the position states ([`super::nav_block_to_ned`]'s
+/// scheme: element (r, c) times the factor of each position index among r, c, the smaller
+/// first), written from its structure: the position block `P_rc d_min(r,c) d_max(r,c)`, the
+/// zeros beside it in row or column i `0 · d_i` (signed as the product gives), the velocity
+/// and attitude blocks and the other zeros unscaled.
+fn write_nav9_ned<T: Real>(blocks: &NavBlocks<T>, d: [T; 3], out: &mut SMatrix<T, 9, 9>) {
+    let zero = T::zero();
+    let scaled_zero = d.map(|di| zero * di);
+    for (c, dst) in out.as_mut_slice().chunks_exact_mut(9).enumerate() {
+        let (rows_pos, rows_rest) = dst.split_at_mut(3);
+        match (c, scaled_zero.get(c)) {
+            // A position column: the position block scaled, zeros scaled by its factor below.
+            (_, Some(&zc)) => {
+                for (r, o) in rows_pos.iter_mut().enumerate() {
+                    let x = blocks.pos.get((r, c)).copied().unwrap_or(zero);
+                    let (lo, hi) = (d.get(r.min(c)), d.get(r.max(c)));
+                    *o = match (lo, hi) {
+                        (Some(&lo), Some(&hi)) => x * lo * hi,
+                        _ => x,
+                    };
+                }
+                rows_rest.fill(zc);
+            }
+            // A velocity or attitude column: zeros in the position rows scaled by theirs,
+            // its own block unscaled, zeros elsewhere.
+            _ => {
+                rows_pos.copy_from_slice(&scaled_zero);
+                let (block, at) = if c < 6 {
+                    (&blocks.vel, 0)
+                } else {
+                    (&blocks.att, 3)
+                };
+                for (r, o) in rows_rest.iter_mut().enumerate() {
+                    *o = if r / 3 == at / 3 {
+                        block.get((r % 3, c % 3)).copied().unwrap_or(zero)
+                    } else {
+                        zero
+                    };
+                }
+            }
         }
     }
-    out
 }
 
 /// The master's quality and motion in the hand-over's shape. Its body-rate 1σ is not on the
@@ -101,7 +134,7 @@ fn slave_to<T: Real, const K: usize, const N: usize>(
         &corr.phi_rad,
     )?;
     // Commit (nothing below fails).
-    *out.carry_cov = nav9_to_ned(nav.blocks.nav9(), ned_factors(&nav.state));
+    write_nav9_ned(&nav.blocks, ned_factors(&nav.state), out.carry_cov);
     *out.handover = Some(nav.blocks);
     *out.snapshot_fix = Some(SnapshotFix {
         correction: corr,
@@ -133,21 +166,26 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         out: &mut TickReport<T>,
     ) -> Result<(), NavError> {
         let inc = &imu.increment;
-        let mut ins = self.ins;
-        ins.step(inc)?;
-        let dt = ins.last_interval_s();
+        // The interval the INS step integrates (`Ins::step` takes the same), so that the slave
+        // sample is checked before the INS steps in place (no copy of the INS).
+        let dt = self.ins.interval_to(inc.time)?;
+        // The step's own checks, in its order: finite increments within their bounds over an
+        // interval of at least 1 µs make the slave's rates finite (what the history checks).
+        validate_increment(inc)?;
         let slave = SlaveSample {
             time: inc.time,
             angular_rate_rad_s: inc.delta_theta_rad / dt,
             specific_force_m_s2: inc.delta_v_m_s / dt,
         };
-        slave.validate()?;
         if self.history.newest().is_some_and(|s| s.time >= inc.time) {
             return Err(NavError::TimeNotIncreasing);
         }
-        // Commit the IMU part (nothing below fails the tick).
+        // Atomic: refused, the INS is unchanged.
+        self.ins.step(inc)?;
+        // Commit the IMU part (nothing below fails the tick: the history's refusals — a
+        // non-finite or not later sample — were checked above, and a full history drops its
+        // oldest first).
         self.history.push(&slave)?;
-        self.ins = ins;
         self.time = inc.time;
         self.apply_snapshot_fix();
         if self.snapshots.is_full() {
@@ -155,7 +193,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         }
         let _ = self.snapshots.push_back(Snapshot {
             time: inc.time,
-            state: *ins.state(),
+            state: *self.ins.state(),
         });
         let mut master_state = AidState::Waiting;
         if let Some(m) = aids.master {
@@ -388,8 +426,15 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             };
             slave_to(config, ta, &at, &snap, now, out)
         })?;
-        // After the first epoch (nothing predicted) the next sample needs at least one.
-        self.master_steps = report.predictions.max(1);
+        // What the next sample will likely need: as many predictions as this one; after the
+        // first epoch (nothing predicted, the master's interval not known yet) as many as a
+        // tick runs ahead, so that the next master tick predicts nothing itself (predictions
+        // run ahead but not needed are discarded by the step: the cost is that of today's).
+        self.master_steps = if report.gap == GapOutcome::Started {
+            MAX_AHEAD_PER_TICK
+        } else {
+            report.predictions.max(1)
+        };
         let f_m = compensate_lever_arm(&ms, &self.config.lever_arm.nominal_m);
         let c_m_s: Matrix3<T> = exp_so3(&(-self.ta.theta()));
         self.last_master = Some(MasterRecord {
