@@ -11,7 +11,7 @@ use super::types::{
 use crate::contract::{AidCounters, Estimator, FusionReport};
 use crate::earth::radii_m;
 use crate::math::rotation::{
-    log_so3, quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm,
+    exp_so3, log_so3, quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm,
 };
 use crate::seeker_ins::{Ins, InsState, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES};
 use crate::time::Timestamp;
@@ -20,7 +20,7 @@ use crate::vertical_channel::{ClassicalDesign, ClassicalLoop};
 use crate::{HealthState, NavError, Real};
 use heapless::Deque;
 use nalgebra::Quaternion;
-use nalgebra::{SMatrix, Vector3};
+use nalgebra::{Matrix3, SMatrix, Vector3};
 
 mod carry_phase;
 mod flight_phase;
@@ -32,11 +32,24 @@ struct Snapshot<T> {
     state: InsState<T>,
 }
 
-/// What separation is judged against, from the last fused master sample.
+/// What separation is judged against, from the last fused master sample: its specific force
+/// and the alignment's misalignment after it, from which the force in slave axes is formed
+/// when needed (a signalled release, the EKF's start), not on every master tick.
 #[derive(Debug, Clone, Copy)]
 struct MasterRecord<T> {
-    /// Its lever-arm-compensated specific force in slave axes, m/s².
-    f_slave_m_s2: Vector3<T>,
+    /// Its lever-arm-compensated specific force in master axes, m/s².
+    f_master_m_s2: Vector3<T>,
+    /// The alignment's total misalignment θ̂ after it, rad.
+    theta_rad: Vector3<T>,
+}
+
+impl<T: Real> MasterRecord<T> {
+    /// The sample's lever-arm-compensated specific force in slave axes, m/s²:
+    /// `exp(−[θ̂×]) f̃_m`.
+    fn f_slave_m_s2(&self) -> Vector3<T> {
+        let c_m_s: Matrix3<T> = exp_so3(&(-self.theta_rad));
+        c_m_s * self.f_master_m_s2
+    }
 }
 
 /// What the baro-inertial loop did with this tick's baro sample.

@@ -109,33 +109,40 @@ impl<T: Real, const H: usize> SlaveHistory<T, H> {
         if time > newest.time {
             return Err(out);
         }
-        // Mid-points (µs, doubled to stay integer) of consecutive samples, newest first.
-        let mids = self
+        // Mid-points (µs, doubled to stay integer) of consecutive samples, each with the later
+        // sample of its pair, newest first (the master is late by a few samples: the search
+        // starts where the match is; strictly increasing stamps, so the mid-points too).
+        let t2 = time.as_micros().saturating_mul(2);
+        let mut mids = self
             .samples
             .iter()
-            .zip(self.samples.iter().skip(1))
-            .map(|(a, b)| (a.time.as_micros() + b.time.as_micros(), *b));
-        let t2 = time.as_micros().saturating_mul(2);
-        let mut later: Option<(u64, SlaveSample<T>)> = None;
-        let mut last_two: [Option<(u64, SlaveSample<T>)>; 2] = [None, None];
-        for (m2, s) in mids {
-            if m2 >= t2 && later.is_none() {
-                later = Some((m2, s));
-                break;
+            .rev()
+            .zip(self.samples.iter().rev().skip(1))
+            .map(|(b, a)| (a.time.as_micros() + b.time.as_micros(), b));
+        let newest_mid = mids.next().ok_or(out)?;
+        // (a, b): the mid-points either side of `time` (b the first at or after it), or the
+        // newest two when `time` is after the newest mid-point.
+        let (a, b) = if newest_mid.0 < t2 {
+            (mids.next().ok_or(out)?, newest_mid)
+        } else {
+            let mut b = newest_mid;
+            loop {
+                let m = mids.next().ok_or(out)?;
+                if m.0 < t2 {
+                    break (m, b);
+                }
+                b = m;
             }
-            last_two = [last_two[1], Some((m2, s))];
-        }
-        let (a, b) = match (last_two, later) {
-            ([_, Some(a)], Some(b)) => (a, b),
-            ([Some(a), Some(b)], None) => (a, b),
-            _ => return Err(out),
         };
         let span = b.0.saturating_sub(a.0);
         if span == 0 {
             return Err(out);
         }
-        // w = (t − m_a) / (m_b − m_a), in [0, 1] or up to 1.5 when extrapolating.
-        let w = T::lit((t2 as f64 - a.0 as f64) / span as f64);
+        // w = (t − m_a) / (m_b − m_a), in [0, 1] or up to 1.5 when extrapolating; t > m_a, and
+        // the differences are formed in integers (exact, as the f64 difference of the two
+        // stamps below 2⁵³ µs was), converted from 32 bits when they fit.
+        let to_f64 = |n: u64| u32::try_from(n).map_or(n as f64, f64::from);
+        let w = T::lit(to_f64(t2.saturating_sub(a.0)) / to_f64(span));
         let (sa, sb) = (a.1, b.1);
         Ok(SlaveSample {
             time,

@@ -16,14 +16,13 @@ use super::{
 };
 use crate::contract::{Estimator, FusionOutcome, FusionReport};
 use crate::earth::{earth_rate_ned, transport_rate_ned};
-use crate::math::rotation::exp_so3;
 use crate::seeker_ins::{validate_increment, Ins, SeekerIns, SeekerInsInitial};
 use crate::time::Timestamp;
 use crate::transfer_alignment::{
     compensate_lever_arm, GapOutcome, MasterSample, SlaveSample, TransferAlignment,
 };
 use crate::{NavError, Real};
-use nalgebra::{Matrix3, SMatrix, Vector3};
+use nalgebra::{SMatrix, Vector3};
 
 /// The hand-over's 9 × 9 navigation block `[δr, δv, φ]` (zero cross blocks) in the carry
 /// solution's NED convention, written in place into `out` (no 9 × 9 temporary, no copy through
@@ -247,18 +246,22 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 self.separation = SeparationStatus::AwaitingConfirmation;
             }
         }
-        let imu_sees = self.last_master.is_some_and(|lm| {
-            (f_s_m_s2 - lm.f_slave_m_s2).norm() > self.config.separation.specific_force_jump_m_s2
-        });
         let falling_s = self.free_fall.update(
             self.time,
             f_s_m_s2,
             self.config.separation.specific_force_jump_m_s2,
         );
         let mut release = None;
+        let mut f_reference = None;
         match (self.separation, self.signal) {
             (SeparationStatus::AwaitingConfirmation, Some(sig)) => {
                 let age = elapsed::<T>(self.time, sig);
+                // The IMU's confirmation against the last master's force in slave axes
+                // (formed only when a signalled release awaits it; the EKF's start reuses it).
+                f_reference = self.last_master.map(|lm| lm.f_slave_m_s2());
+                let imu_sees = f_reference.is_some_and(|f| {
+                    (f_s_m_s2 - f).norm() > self.config.separation.specific_force_jump_m_s2
+                });
                 if imu_sees {
                     release = Some((
                         SeparationStatus::Confirmed,
@@ -278,7 +281,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             }
         }
         if let Some((status, cause)) = release {
-            if self.hand_over_now() {
+            if self.hand_over_now(f_reference) {
                 self.enter_released(status, cause);
                 *transition = self.pending.take();
             }
@@ -304,8 +307,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// navigation blocks kept from that tick: the alignment has not changed since, so the
     /// hand-over would give them again bit for bit), written in place into the new EKF, its
     /// accelerometer-bias states referred to the carry's specific force ([`refer_to_carry`]).
+    /// `f_reference`: the last master's specific force in slave axes when already formed
+    /// ([`MasterRecord::f_slave_m_s2`]).
     #[inline(never)]
-    fn hand_over_now(&mut self) -> bool {
+    fn hand_over_now(&mut self, f_reference: Option<Vector3<T>>) -> bool {
         let (Some(lm), Some(blocks)) = (self.last_master, self.handover) else {
             return false;
         };
@@ -323,7 +328,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
             self.hand_over_dense(&blocks)
         };
-        started && refer_to_carry(&mut self.ekf, &lm.f_slave_m_s2)
+        let f_slave = f_reference.unwrap_or_else(|| lm.f_slave_m_s2());
+        started && refer_to_carry(&mut self.ekf, &f_slave)
     }
 
     /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.
@@ -435,10 +441,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         } else {
             report.predictions.max(1)
         };
-        let f_m = compensate_lever_arm(&ms, &self.config.lever_arm.nominal_m);
-        let c_m_s: Matrix3<T> = exp_so3(&(-self.ta.theta()));
         self.last_master = Some(MasterRecord {
-            f_slave_m_s2: c_m_s * f_m,
+            f_master_m_s2: compensate_lever_arm(&ms, &self.config.lever_arm.nominal_m),
+            theta_rad: self.ta.theta(),
         });
         Ok(self.record_master(&report.updates))
     }
