@@ -16,7 +16,7 @@ use super::{
 };
 use crate::contract::{Estimator, FusionOutcome, FusionReport};
 use crate::earth::{earth_rate_ned, transport_rate_ned};
-use crate::seeker_ins::{validate_increment, Ins, SeekerIns, SeekerInsInitial};
+use crate::seeker_ins::{validate_increment, ImuIncrement, Ins, SeekerIns, SeekerInsInitial};
 use crate::time::Timestamp;
 use crate::transfer_alignment::{
     compensate_lever_arm, GapOutcome, MasterSample, SlaveSample, TransferAlignment,
@@ -164,7 +164,37 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         transition: &mut Option<Transition>,
         out: &mut TickReport<T>,
     ) -> Result<(), NavError> {
-        let inc = &imu.increment;
+        let f_s_m_s2 = self.carry_imu(&imu.increment)?;
+        let mut master_state = AidState::Waiting;
+        if let Some(m) = aids.master {
+            master_state = match self.fuse_master(m) {
+                Ok(s) => s,
+                Err(e) => {
+                    self.master.counters.record_refused();
+                    AidState::Refused(e)
+                }
+            };
+        } else {
+            self.run_ahead();
+        }
+        let master_lost = self.master_availability() == AidAvailability::TimedOut;
+        if master_lost && master_state == AidState::Waiting {
+            master_state = AidState::TimedOut;
+        }
+        self.separation_check(aids.separation, &f_s_m_s2, master_lost, transition);
+        // The aid reports, written into the caller's report (nothing above failed).
+        self.master.write(master_state, &mut out.master);
+        self.baro.write(AidState::NotUsedInPhase, &mut out.baro);
+        self.seeker.write(AidState::NotUsedInPhase, &mut out.seeker);
+        Ok(())
+    }
+
+    /// The carry tick's IMU part, in a frame of its own (not under the master's step): the INS
+    /// stepped in place, the slave's sample into the history, the INS snapshot stored (the
+    /// last master's correction of the snapshots applied first). Returns the slave's specific
+    /// force, m/s². Refused (`Err`): nothing changed.
+    #[inline(never)]
+    fn carry_imu(&mut self, inc: &ImuIncrement<T>) -> Result<Vector3<T>, NavError> {
         // The interval the INS step integrates (`Ins::step` takes the same), so that the slave
         // sample is checked before the INS steps in place (no copy of the INS).
         let dt = self.ins.interval_to(inc.time)?;
@@ -194,39 +224,15 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             time: inc.time,
             state: *self.ins.state(),
         });
-        let mut master_state = AidState::Waiting;
-        if let Some(m) = aids.master {
-            master_state = match self.fuse_master(m) {
-                Ok(s) => s,
-                Err(e) => {
-                    self.master.counters.record_refused();
-                    AidState::Refused(e)
-                }
-            };
-        } else {
-            self.run_ahead();
-        }
-        let master_lost = self.master_availability() == AidAvailability::TimedOut;
-        if master_lost && master_state == AidState::Waiting {
-            master_state = AidState::TimedOut;
-        }
-        self.separation_check(
-            aids.separation,
-            &slave.specific_force_m_s2,
-            master_lost,
-            transition,
-        );
-        // The aid reports, written into the caller's report (nothing above failed).
-        self.master.write(master_state, &mut out.master);
-        self.baro.write(AidState::NotUsedInPhase, &mut out.baro);
-        self.seeker.write(AidState::NotUsedInPhase, &mut out.seeker);
-        Ok(())
+        Ok(slave.specific_force_m_s2)
     }
 
     /// The carry tick's separation logic: a release `signal` (its time) recorded, then the
     /// IMU's confirmation (the slave's specific force `f_s_m_s2`, m/s², against the last
     /// master's) within the window, or an unsignalled release (the master lost and the IMU
-    /// falling); a release confirmed starts the EKF and reports the transition.
+    /// falling); a release confirmed starts the EKF and reports the transition. In a frame of
+    /// its own (not above the master's step).
+    #[inline(never)]
     fn separation_check(
         &mut self,
         signal: Option<Timestamp>,
@@ -369,11 +375,23 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     }
 
     /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic: the
-    /// cheap checks first, then the alignment steps in place and is undone
-    /// ([`TransferAlignment::step_then`]) when the hand-over or the slaving fails (no copy of
-    /// the filter).
+    /// cheap checks first ([`Self::prepare_master`], in a frame of its own), then the alignment
+    /// steps in place and is undone ([`TransferAlignment::step_then`]) when the hand-over or
+    /// the slaving fails (no copy of the filter). The matched epoch is the navigator's
+    /// scratch ([`MasterEpoch`]), so that the step and the hand-over run under a small frame.
     #[inline(never)]
     fn fuse_master(&mut self, m: &MasterNav<T>) -> Result<AidState, NavError> {
+        if !self.prepare_master(m)? {
+            return Ok(AidState::NotUsedInPhase);
+        }
+        self.step_master()
+    }
+
+    /// The checks and the matching of a master sample `m` before the alignment steps (a bad
+    /// sample touches no state: only the scratch `self.epoch`, written in place);
+    /// `Ok(false)`: not fused now.
+    #[inline(never)]
+    fn prepare_master(&mut self, m: &MasterNav<T>) -> Result<bool, NavError> {
         // A separation signalled at `s` and awaiting the IMU's confirmation: a master sample
         // whose slave interpolation reaches past `s` (epoch later than one IMU interval before
         // it) would pair the aircraft on the lever arm with the missile already dropping (the
@@ -386,33 +404,39 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 .signal
                 .is_some_and(|s| m.time.as_micros().saturating_add(imu_dt_us) > s.as_micros())
         {
-            return Ok(AidState::NotUsedInPhase);
+            return Ok(false);
         }
         let tol = self.ta_tolerance_us();
-        let snap = self
+        let e = &mut self.epoch;
+        e.snap = *self
             .snapshots
             .iter()
             .rev()
             .find(|s| s.time.as_micros().abs_diff(m.time.as_micros()) <= tol)
-            .copied()
             .ok_or(NavError::MeasurementTimeOutOfWindow)?;
-        let ms = MasterSample {
+        e.sample = MasterSample {
             time: m.time,
             angular_rate_rad_s: m.angular_rate_rad_s,
             angular_accel_rad_s2: m.angular_accel_rad_s2,
             specific_force_m_s2: m.specific_force_m_s2,
         };
-        ms.validate()?;
+        e.sample.validate()?;
         // The hand-over's checks of the master before the alignment steps: a bad master
         // sample does not touch the alignment.
-        let at = at_release(m, self.config.alignment.rate_noise_sigma_rad_s);
-        validate_master(&at, &self.config.lever_arm, &self.config.priors)?;
+        e.at = at_release(m, self.config.alignment.rate_noise_sigma_rad_s);
+        validate_master(&e.at, &self.config.lever_arm, &self.config.priors)?;
         // The slave's interval means interpolated at the master's (instantaneous) epoch; the
         // end-stamped sample of that epoch when they cannot be (the first tick).
-        let slave = self
+        e.slave = self
             .history
             .at_time(m.time)
             .or_else(|_| self.history.find(m.time, tol))?;
+        Ok(true)
+    }
+
+    /// The alignment's step on the epoch [`Self::prepare_master`] wrote (`self.epoch`), the
+    /// hand-over and the slaving in its `then`, the master's records.
+    fn step_master(&mut self) -> Result<AidState, NavError> {
         let now = self.time;
         let Self {
             ta,
@@ -421,16 +445,18 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             carry_cov,
             handover,
             snapshot_fix,
+            epoch,
             ..
         } = self;
-        let (report, ()) = ta.step_then(&ms, &slave, |ta| {
+        let e = &*epoch;
+        let (report, ()) = ta.step_then(&e.sample, &e.slave, |ta| {
             let out = CarryTargets {
                 ins,
                 carry_cov,
                 handover,
                 snapshot_fix,
             };
-            slave_to(config, ta, &at, &snap, now, out)
+            slave_to(config, ta, &e.at, &e.snap, now, out)
         })?;
         // What the next sample will likely need: as many predictions as this one; after the
         // first epoch (nothing predicted, the master's interval not known yet) as many as a
@@ -442,7 +468,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             report.predictions.max(1)
         };
         self.last_master = Some(MasterRecord {
-            f_master_m_s2: compensate_lever_arm(&ms, &self.config.lever_arm.nominal_m),
+            f_master_m_s2: compensate_lever_arm(&e.sample, &self.config.lever_arm.nominal_m),
             theta_rad: self.ta.theta(),
         });
         Ok(self.record_master(&report.updates))
