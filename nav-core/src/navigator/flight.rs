@@ -67,8 +67,8 @@ struct MasterEpoch<T> {
     slave: SlaveSample<T>,
     /// The master in the hand-over's shape (checked).
     at: MasterAtRelease<T>,
-    /// The INS state stored nearest the master's epoch.
-    snap: Snapshot<T>,
+    /// The stamp of the INS snapshot nearest the master's epoch.
+    snap_time: Timestamp,
 }
 
 impl<T> core::fmt::Debug for MasterEpoch<T> {
@@ -109,14 +109,7 @@ impl<T: Real> MasterEpoch<T> {
                 position_sigma_m: zero3,
                 rate_sigma_rad_s: T::zero(),
             },
-            snap: Snapshot {
-                time,
-                state: InsState {
-                    position,
-                    vel_ned_m_s: zero3,
-                    q_b_n: Quaternion::identity(),
-                },
-            },
+            snap_time: time,
         }
     }
 }

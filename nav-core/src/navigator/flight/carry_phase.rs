@@ -71,23 +71,21 @@ fn write_nav9_ned<T: Real>(blocks: &NavBlocks<T>, d: [T; 3], out: &mut SMatrix<T
     }
 }
 
-/// The master's quality and motion in the hand-over's shape. Its body-rate 1σ is not on the
-/// bus: the alignment's rate-difference noise (master and slave gyro noise per sample) bounds
-/// it.
-fn at_release<T: Real>(m: &MasterNav<T>, rate_sigma_rad_s: T) -> MasterAtRelease<T> {
+/// The master's quality and motion in the hand-over's shape, written field by field into
+/// `out` (no temporary). Its body-rate 1σ is not on the bus: the alignment's rate-difference
+/// noise (master and slave gyro noise per sample) bounds it.
+fn write_at_release<T: Real>(m: &MasterNav<T>, rate_sigma_rad_s: T, out: &mut MasterAtRelease<T>) {
     let lat = T::lit(m.position.lat_rad);
     let alt = T::lit(m.position.alt_m);
     let w_in = earth_rate_ned(lat) + transport_rate_ned(lat, alt, &m.vel_ned_m_s);
-    MasterAtRelease {
-        c_m_n: m.c_m_n,
-        vel_ned_m_s: m.vel_ned_m_s,
-        position: m.position,
-        rate_nm_rad_s: m.angular_rate_rad_s - m.c_m_n.transpose() * w_in,
-        attitude_sigma_rad: m.attitude_sigma_rad,
-        velocity_sigma_m_s: m.velocity_sigma_m_s,
-        position_sigma_m: m.position_sigma_m,
-        rate_sigma_rad_s,
-    }
+    out.c_m_n = m.c_m_n;
+    out.vel_ned_m_s = m.vel_ned_m_s;
+    out.position = m.position;
+    out.rate_nm_rad_s = m.angular_rate_rad_s - m.c_m_n.transpose() * w_in;
+    out.attitude_sigma_rad = m.attitude_sigma_rad;
+    out.velocity_sigma_m_s = m.velocity_sigma_m_s;
+    out.position_sigma_m = m.position_sigma_m;
+    out.rate_sigma_rad_s = rate_sigma_rad_s;
 }
 
 /// Where a master sample's hand-over is committed: the navigator's carry fields.
@@ -408,12 +406,13 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         }
         let tol = self.ta_tolerance_us();
         let e = &mut self.epoch;
-        e.snap = *self
+        e.snap_time = self
             .snapshots
             .iter()
             .rev()
             .find(|s| s.time.as_micros().abs_diff(m.time.as_micros()) <= tol)
-            .ok_or(NavError::MeasurementTimeOutOfWindow)?;
+            .ok_or(NavError::MeasurementTimeOutOfWindow)?
+            .time;
         e.sample = MasterSample {
             time: m.time,
             angular_rate_rad_s: m.angular_rate_rad_s,
@@ -423,7 +422,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         e.sample.validate()?;
         // The hand-over's checks of the master before the alignment steps: a bad master
         // sample does not touch the alignment.
-        e.at = at_release(m, self.config.alignment.rate_noise_sigma_rad_s);
+        write_at_release(m, self.config.alignment.rate_noise_sigma_rad_s, &mut e.at);
         validate_master(&e.at, &self.config.lever_arm, &self.config.priors)?;
         // The slave's interval means interpolated at the master's (instantaneous) epoch; the
         // end-stamped sample of that epoch when they cannot be (the first tick).
@@ -446,9 +445,16 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             handover,
             snapshot_fix,
             epoch,
+            snapshots,
             ..
         } = self;
         let e = &*epoch;
+        // The snapshot the checks found (read in place, not copied).
+        let snap = snapshots
+            .iter()
+            .rev()
+            .find(|s| s.time == e.snap_time)
+            .ok_or(NavError::MeasurementTimeOutOfWindow)?;
         let (report, ()) = ta.step_then(&e.sample, &e.slave, |ta| {
             let out = CarryTargets {
                 ins,
@@ -456,7 +462,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 handover,
                 snapshot_fix,
             };
-            slave_to(config, ta, &e.at, &e.snap, now, out)
+            slave_to(config, ta, &e.at, snap, now, out)
         })?;
         // What the next sample will likely need: as many predictions as this one; after the
         // first epoch (nothing predicted, the master's interval not known yet) as many as a
