@@ -239,4 +239,77 @@ mod tests {
             Err(NavError::MeasurementTimeOutOfWindow)
         );
     }
+
+    /// The search from the newest sample gives what a scan from the oldest gives (the pair of
+    /// mid-points around `time`, the newest two beyond the newest mid-point, the same refusals),
+    /// bit for bit, over irregular stamps and every query time around them.
+    #[test]
+    fn newest_first_search_matches_an_oldest_first_scan() {
+        fn reference(
+            h: &SlaveHistory<f32, 6>,
+            time: Timestamp,
+        ) -> Result<SlaveSample<f32>, NavError> {
+            let out = NavError::MeasurementTimeOutOfWindow;
+            let newest = h.newest().ok_or(out)?;
+            if time > newest.time {
+                return Err(out);
+            }
+            let s: std::vec::Vec<SlaveSample<f32>> = h.samples.iter().copied().collect();
+            let mids: std::vec::Vec<(u64, SlaveSample<f32>)> = s
+                .windows(2)
+                .map(|w| (w[0].time.as_micros() + w[1].time.as_micros(), w[1]))
+                .collect();
+            let t2 = time.as_micros() * 2;
+            let (a, b) = match mids.iter().position(|m| m.0 >= t2) {
+                Some(0) => return Err(out),
+                Some(i) => (mids[i - 1], mids[i]),
+                None if mids.len() >= 2 => (mids[mids.len() - 2], mids[mids.len() - 1]),
+                None => return Err(out),
+            };
+            let w = ((t2 as f64 - a.0 as f64) / (b.0 - a.0) as f64) as f32;
+            Ok(SlaveSample {
+                time,
+                angular_rate_rad_s: a.1.angular_rate_rad_s
+                    + (b.1.angular_rate_rad_s - a.1.angular_rate_rad_s) * w,
+                specific_force_m_s2: a.1.specific_force_m_s2
+                    + (b.1.specific_force_m_s2 - a.1.specific_force_m_s2) * w,
+            })
+        }
+        let mut h = SlaveHistory::<f32, 6>::new();
+        let mut seed = 0x2545_f491_u64;
+        let mut next = |m: u64| {
+            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            (seed >> 33) % m
+        };
+        let mut t = 1_000_000u64;
+        let mut checked = 0;
+        for _ in 0..40 {
+            // Even steps: every mid-point a whole µs.
+            t += 2 * (3_500 + next(3_000));
+            let v = |k: u64| (k as f32) * 0.37 - 1.1;
+            h.push(&SlaveSample {
+                time: Timestamp::from_micros(t),
+                angular_rate_rad_s: Vector3::new(v(next(50)), v(next(50)), v(next(50))),
+                specific_force_m_s2: Vector3::new(v(next(90)), v(next(90)), v(next(90))),
+            })
+            .unwrap();
+            let oldest = h.oldest().map_or(t, |s| s.time.as_micros());
+            // Every stamp, every mid-point (even sums: the stamps are whole µs) and times
+            // between them.
+            let stamps: std::vec::Vec<u64> = h.samples.iter().map(|s| s.time.as_micros()).collect();
+            let mut queries: std::vec::Vec<u64> = stamps.clone();
+            queries.extend(stamps.windows(2).map(|w| (w[0] + w[1]) / 2));
+            let mut q = oldest.saturating_sub(3_000);
+            while q <= t + 2_000 {
+                queries.push(q);
+                q += 250 + next(500);
+            }
+            for q in queries {
+                let time = Timestamp::from_micros(q);
+                assert_eq!(h.at_time(time), reference(&h, time), "at {q} µs");
+                checked += 1;
+            }
+        }
+        assert!(checked > 1_000);
+    }
 }
