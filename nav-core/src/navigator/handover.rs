@@ -180,6 +180,29 @@ fn diag_var<T: Real>(sigma: &Vector3<T>) -> Matrix3<T> {
     Matrix3::from_diagonal(&sigma.component_mul(sigma))
 }
 
+/// `A D` for the diagonal `D = diag(d)`: column j of `A` times `d_j` (the product's one
+/// non-zero term per entry; what the full product sums to, up to the sign of an exact zero).
+fn times_diag<T: Real>(a: &Matrix3<T>, d: &Vector3<T>) -> Matrix3<T> {
+    let mut out = *a;
+    for (col, dj) in out.column_iter_mut().zip(d.iter()) {
+        for v in col {
+            *v *= *dj;
+        }
+    }
+    out
+}
+
+/// `D A` for the diagonal `D = diag(d)`: row i of `A` times `d_i` (as [`times_diag`]).
+fn diag_times<T: Real>(d: &Vector3<T>, a: &Matrix3<T>) -> Matrix3<T> {
+    let mut out = *a;
+    for (row, di) in out.row_iter_mut().zip(d.iter()) {
+        for v in row {
+            *v *= *di;
+        }
+    }
+    out
+}
+
 /// The INS state and the 17-state P0 of the free-flight EKF at separation.
 ///
 /// Errors (nothing computed): `NonFiniteInput` for a non-finite input, `InputOutOfRange` for a
@@ -340,10 +363,14 @@ pub(crate) fn hand_over_checked_master<T: Real>(
     let l0 = lever.nominal_m;
     let l = l0 + alignment.flexure_rad.cross(&l0);
     let l_n = c_m_n * l;
-    let p_phi_m = diag_var(&master.attitude_sigma_rad);
-    let lever_n = c_m_n * diag_var(&lever.sigma_m) * c_m_n.transpose();
+    // The products with diagonal covariances as scaled columns (`times_diag`).
+    let att_var = master
+        .attitude_sigma_rad
+        .component_mul(&master.attitude_sigma_rad);
+    let lever_var = lever.sigma_m.component_mul(&lever.sigma_m);
+    let lever_n = times_diag(&c_m_n, &lever_var) * c_m_n.transpose();
     let p_r_ned = diag_var(&master.position_sigma_m)
-        + skew(&l_n) * p_phi_m * skew(&l_n).transpose()
+        + times_diag(&skew(&l_n), &att_var) * skew(&l_n).transpose()
         + lever_n;
     let w = master.rate_nm_rad_s;
     let rel_m = w.cross(&l) + alignment.flexure_rate_rad_s.cross(&l0);
@@ -355,9 +382,9 @@ pub(crate) fn hand_over_checked_master<T: Real>(
     let c_w = c_m_n * skew(&w);
     let c_l0 = c_m_n * skew(&l0);
     let p_v = diag_var(&master.velocity_sigma_m_s)
-        + skew(&rel_n) * p_phi_m * skew(&rel_n).transpose()
+        + times_diag(&skew(&rel_n), &att_var) * skew(&rel_n).transpose()
         + c_l * c_l.transpose() * rate_var
-        + c_w * diag_var(&lever.sigma_m) * c_w.transpose()
+        + times_diag(&c_w, &lever_var) * c_w.transpose()
         + c_l0 * alignment.flexure_rate_covariance * c_l0.transpose();
     // Position of the slave (first order in |l|/R: metres over the ellipsoid, in f64).
     // The radii in `T`: the offset is metres (|l| ≪ R), so their working precision is ample
@@ -379,8 +406,7 @@ pub(crate) fn hand_over_checked_master<T: Real>(
     }
     // NED metres → (δL, δl, δh): rad, rad, m (δh = −δD).
     let d = Vector3::new(T::one() / r_north, T::one() / r_east, -T::one());
-    let dm = Matrix3::from_diagonal(&d);
-    let p_pos = dm * p_r_ned * dm;
+    let p_pos = times_diag(&diag_times(&d, &p_r_ned), &d);
     Ok(NavHandover {
         state: InsState {
             position,
