@@ -192,6 +192,22 @@ fn times_diag<T: Real>(a: &Matrix3<T>, d: &Vector3<T>) -> Matrix3<T> {
     out
 }
 
+/// `A [v×]`: the product's non-zero terms in its order (the full product's numbers up to the
+/// sign of an exact zero). `[v×]ᵀ = [(−v)×]` entry for entry, so `A [v×]ᵀ` is
+/// `times_skew(A, −v)`.
+fn times_skew<T: Real>(a: &Matrix3<T>, v: &Vector3<T>) -> Matrix3<T> {
+    // The columns of [v×]: (0, v_z, −v_y), (−v_z, 0, v_x), (v_y, −v_x, 0).
+    let (x, y, z) = (v.x, v.y, v.z);
+    Matrix3::from_fn(|i, j| {
+        let (a0, a1, a2) = (a[(i, 0)], a[(i, 1)], a[(i, 2)]);
+        match j {
+            0 => a1 * z + a2 * (-y),
+            1 => a0 * (-z) + a2 * x,
+            _ => a0 * y + a1 * (-x),
+        }
+    })
+}
+
 /// `D A` for the diagonal `D = diag(d)`: row i of `A` times `d_i` (as [`times_diag`]).
 fn diag_times<T: Real>(d: &Vector3<T>, a: &Matrix3<T>) -> Matrix3<T> {
     let mut out = *a;
@@ -370,7 +386,7 @@ pub(crate) fn hand_over_checked_master<T: Real>(
     let lever_var = lever.sigma_m.component_mul(&lever.sigma_m);
     let lever_n = times_diag(&c_m_n, &lever_var) * c_m_n.transpose();
     let p_r_ned = diag_var(&master.position_sigma_m)
-        + times_diag(&skew(&l_n), &att_var) * skew(&l_n).transpose()
+        + times_skew(&times_diag(&skew(&l_n), &att_var), &(-l_n))
         + lever_n;
     let w = master.rate_nm_rad_s;
     let rel_m = w.cross(&l) + alignment.flexure_rate_rad_s.cross(&l0);
@@ -378,11 +394,11 @@ pub(crate) fn hand_over_checked_master<T: Real>(
     let vel = master.vel_ned_m_s + rel_n;
     // δv from δφ_m, δω, δl and δθ̇_f: [(C rel)×] φ_m, −C [l×] δω, C [ω×] δl, −C [l₀×] δθ̇_f.
     let rate_var = master.rate_sigma_rad_s * master.rate_sigma_rad_s;
-    let c_l = c_m_n * skew(&l);
-    let c_w = c_m_n * skew(&w);
-    let c_l0 = c_m_n * skew(&l0);
+    let c_l = times_skew(&c_m_n, &l);
+    let c_w = times_skew(&c_m_n, &w);
+    let c_l0 = times_skew(&c_m_n, &l0);
     let p_v = diag_var(&master.velocity_sigma_m_s)
-        + times_diag(&skew(&rel_n), &att_var) * skew(&rel_n).transpose()
+        + times_skew(&times_diag(&skew(&rel_n), &att_var), &(-rel_n))
         + c_l * c_l.transpose() * rate_var
         + times_diag(&c_w, &lever_var) * c_w.transpose()
         + c_l0 * alignment.flexure_rate_covariance * c_l0.transpose();

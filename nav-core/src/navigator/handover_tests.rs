@@ -480,8 +480,8 @@ fn p0_is_positive_definite_and_bad_inputs_are_named() {
     assert!(i32.covariance.cast::<f64>().cholesky().is_some());
 }
 
-/// The products with a diagonal matrix as scaled columns or rows give what the full products
-/// give, bit for bit (entries without exact zeros), in f32 and f64.
+/// The products with a diagonal or a skew-symmetric matrix as written in the hand-over give
+/// what the full products give, bit for bit (entries without exact zeros), in f32 and f64.
 fn diagonal_products_are_the_full_products<T: Real>() {
     let mut seed = 0x9e37_79b9_u64;
     let mut next = || {
@@ -495,6 +495,10 @@ fn diagonal_products_are_the_full_products<T: Real>() {
         assert_eq!(times_diag(&a, &d), a * dm);
         assert_eq!(diag_times(&d, &a), dm * a);
         assert_eq!(times_diag(&diag_times(&d, &a), &d), dm * a * dm);
+        assert_eq!(times_skew(&a, &d), a * skew(&d));
+        assert_eq!(times_skew(&a, &(-d)), a * skew(&d).transpose());
+        let sd = times_diag(&skew(&d), &d);
+        assert_eq!(times_skew(&sd, &(-d)), skew(&d) * dm * skew(&d).transpose());
     }
 }
 
