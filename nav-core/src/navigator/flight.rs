@@ -2,7 +2,7 @@
 
 use super::baro::BaroState;
 use super::design::NavigatorDesign;
-use super::handover::{MasterAtRelease, NavBlocks};
+use super::handover::NavBlocks;
 use super::types::{
     AidAvailability, AidState, AidStatus, Aids, BaroDamping, Degradation, ImuTick, NavSolution,
     NavigatorConfig, NavigatorInitial, Phase, SeparationStatus, TickReport, Transition,
@@ -15,9 +15,7 @@ use crate::math::rotation::{
 };
 use crate::seeker_ins::{Ins, InsState, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES};
 use crate::time::Timestamp;
-use crate::transfer_alignment::{
-    MasterSample, SlaveHistory, SlaveSample, TaInitial, TransferAlignment,
-};
+use crate::transfer_alignment::{SlaveHistory, TaInitial, TransferAlignment};
 use crate::vertical_channel::{ClassicalDesign, ClassicalLoop};
 use crate::{HealthState, NavError, Real};
 use heapless::Deque;
@@ -26,6 +24,8 @@ use nalgebra::{Matrix3, SMatrix, Vector3};
 
 mod carry_phase;
 mod flight_phase;
+
+use carry_phase::MasterEpoch;
 
 /// One INS state of the carry phase at a tick time (for the master's late epochs).
 #[derive(Debug, Clone, Copy)]
@@ -51,66 +51,6 @@ impl<T: Real> MasterRecord<T> {
     fn f_slave_m_s2(&self) -> Vector3<T> {
         let c_m_s: Matrix3<T> = exp_so3(&(-self.theta_rad));
         c_m_s * self.f_master_m_s2
-    }
-}
-
-/// Scratch of a master tick: the master sample checked and matched for the alignment's step
-/// (what the step and the hand-over read), written in place by the checks and read by the
-/// step of the same tick only — no state: stale between master ticks and after a refused
-/// sample, never read then (its `Debug` shows nothing). Held in the navigator so that the step
-/// runs under a small frame and nothing is copied into it.
-#[derive(Clone, Copy)]
-struct MasterEpoch<T> {
-    /// The master's sample for the alignment.
-    sample: MasterSample<T>,
-    /// The slave's sample at the master's epoch.
-    slave: SlaveSample<T>,
-    /// The master in the hand-over's shape (checked).
-    at: MasterAtRelease<T>,
-    /// The stamp of the INS snapshot nearest the master's epoch.
-    snap_time: Timestamp,
-}
-
-impl<T> core::fmt::Debug for MasterEpoch<T> {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_struct("MasterEpoch").finish_non_exhaustive()
-    }
-}
-
-impl<T: Real> MasterEpoch<T> {
-    /// Blank scratch (zeros; the first master tick overwrites it before reading).
-    fn blank() -> Self {
-        let zero3 = Vector3::zeros();
-        let position = crate::seeker_ins::Position {
-            lat_rad: 0.0,
-            lon_rad: 0.0,
-            alt_m: 0.0,
-        };
-        let time = Timestamp::from_micros(0);
-        Self {
-            sample: MasterSample {
-                time,
-                angular_rate_rad_s: zero3,
-                angular_accel_rad_s2: zero3,
-                specific_force_m_s2: zero3,
-            },
-            slave: SlaveSample {
-                time,
-                angular_rate_rad_s: zero3,
-                specific_force_m_s2: zero3,
-            },
-            at: MasterAtRelease {
-                c_m_n: Matrix3::identity(),
-                vel_ned_m_s: zero3,
-                position,
-                rate_nm_rad_s: zero3,
-                attitude_sigma_rad: zero3,
-                velocity_sigma_m_s: zero3,
-                position_sigma_m: zero3,
-                rate_sigma_rad_s: T::zero(),
-            },
-            snap_time: time,
-        }
     }
 }
 

@@ -22,7 +22,7 @@ use crate::transfer_alignment::{
     compensate_lever_arm, GapOutcome, MasterSample, SlaveSample, TransferAlignment,
 };
 use crate::{NavError, Real};
-use nalgebra::{SMatrix, Vector3};
+use nalgebra::{Matrix3, SMatrix, Vector3};
 
 /// The hand-over's 9 × 9 navigation block `[δr, δv, φ]` (zero cross blocks) in the carry
 /// solution's NED convention, written in place into `out` (no 9 × 9 temporary, no copy through
@@ -86,6 +86,66 @@ fn write_at_release<T: Real>(m: &MasterNav<T>, rate_sigma_rad_s: T, out: &mut Ma
     out.velocity_sigma_m_s = m.velocity_sigma_m_s;
     out.position_sigma_m = m.position_sigma_m;
     out.rate_sigma_rad_s = rate_sigma_rad_s;
+}
+
+/// Scratch of a master tick: the master sample checked and matched for the alignment's step
+/// (what the step and the hand-over read), written in place by the checks and read by the
+/// step of the same tick only — no state: stale between master ticks and after a refused
+/// sample, never read then (its `Debug` shows nothing). Held in the navigator so that the step
+/// runs under a small frame and nothing is copied into it.
+#[derive(Clone, Copy)]
+pub(super) struct MasterEpoch<T> {
+    /// The master's sample for the alignment.
+    sample: MasterSample<T>,
+    /// The slave's sample at the master's epoch.
+    slave: SlaveSample<T>,
+    /// The master in the hand-over's shape (checked).
+    at: MasterAtRelease<T>,
+    /// The stamp of the INS snapshot nearest the master's epoch.
+    snap_time: Timestamp,
+}
+
+impl<T> core::fmt::Debug for MasterEpoch<T> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("MasterEpoch").finish_non_exhaustive()
+    }
+}
+
+impl<T: Real> MasterEpoch<T> {
+    /// Blank scratch (zeros; the first master tick overwrites it before reading).
+    pub(super) fn blank() -> Self {
+        let zero3 = Vector3::zeros();
+        let position = crate::seeker_ins::Position {
+            lat_rad: 0.0,
+            lon_rad: 0.0,
+            alt_m: 0.0,
+        };
+        let time = Timestamp::from_micros(0);
+        Self {
+            sample: MasterSample {
+                time,
+                angular_rate_rad_s: zero3,
+                angular_accel_rad_s2: zero3,
+                specific_force_m_s2: zero3,
+            },
+            slave: SlaveSample {
+                time,
+                angular_rate_rad_s: zero3,
+                specific_force_m_s2: zero3,
+            },
+            at: MasterAtRelease {
+                c_m_n: Matrix3::identity(),
+                vel_ned_m_s: zero3,
+                position,
+                rate_nm_rad_s: zero3,
+                attitude_sigma_rad: zero3,
+                velocity_sigma_m_s: zero3,
+                position_sigma_m: zero3,
+                rate_sigma_rad_s: T::zero(),
+            },
+            snap_time: time,
+        }
+    }
 }
 
 /// Where a master sample's hand-over is committed: the navigator's carry fields.
