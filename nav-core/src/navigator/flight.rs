@@ -11,7 +11,7 @@ use super::types::{
 use crate::contract::{AidCounters, Estimator, FusionReport};
 use crate::earth::radii_m;
 use crate::math::rotation::{
-    log_so3, quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm,
+    exp_so3, log_so3, quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm,
 };
 use crate::seeker_ins::{Ins, InsState, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES};
 use crate::time::Timestamp;
@@ -20,10 +20,12 @@ use crate::vertical_channel::{ClassicalDesign, ClassicalLoop};
 use crate::{HealthState, NavError, Real};
 use heapless::Deque;
 use nalgebra::Quaternion;
-use nalgebra::{SMatrix, Vector3};
+use nalgebra::{Matrix3, SMatrix, Vector3};
 
 mod carry_phase;
 mod flight_phase;
+
+use carry_phase::MasterEpoch;
 
 /// One INS state of the carry phase at a tick time (for the master's late epochs).
 #[derive(Debug, Clone, Copy)]
@@ -32,11 +34,24 @@ struct Snapshot<T> {
     state: InsState<T>,
 }
 
-/// What separation is judged against, from the last fused master sample.
+/// What separation is judged against, from the last fused master sample: its specific force
+/// and the alignment's misalignment after it, from which the force in slave axes is formed
+/// when needed (a signalled release, the EKF's start), not on every master tick.
 #[derive(Debug, Clone, Copy)]
 struct MasterRecord<T> {
-    /// Its lever-arm-compensated specific force in slave axes, m/s².
-    f_slave_m_s2: Vector3<T>,
+    /// Its lever-arm-compensated specific force in master axes, m/s².
+    f_master_m_s2: Vector3<T>,
+    /// The alignment's total misalignment θ̂ after it, rad.
+    theta_rad: Vector3<T>,
+}
+
+impl<T: Real> MasterRecord<T> {
+    /// The sample's lever-arm-compensated specific force in slave axes, m/s²:
+    /// `exp(−[θ̂×]) f̃_m`.
+    fn f_slave_m_s2(&self) -> Vector3<T> {
+        let c_m_s: Matrix3<T> = exp_so3(&(-self.theta_rad));
+        c_m_s * self.f_master_m_s2
+    }
 }
 
 /// What the baro-inertial loop did with this tick's baro sample.
@@ -103,6 +118,8 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     /// need: the ticks before it run them ahead).
     master_steps: u32,
     last_master: Option<MasterRecord<T>>,
+    /// Scratch of the master tick's step ([`MasterEpoch`]: no state).
+    epoch: MasterEpoch<T>,
     /// The IMU's own free-fall evidence (unsignalled release).
     free_fall: super::carry::FreeFall,
     separation: SeparationStatus,
@@ -318,6 +335,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             snapshot_fix: None,
             master_steps: 0,
             last_master: None,
+            epoch: MasterEpoch::blank(),
             free_fall: super::carry::FreeFall::default(),
             separation: SeparationStatus::NotSignalled,
             signal: None,

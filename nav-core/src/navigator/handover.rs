@@ -180,6 +180,45 @@ fn diag_var<T: Real>(sigma: &Vector3<T>) -> Matrix3<T> {
     Matrix3::from_diagonal(&sigma.component_mul(sigma))
 }
 
+/// `A D` for the diagonal `D = diag(d)`: column j of `A` times `d_j` (the product's one
+/// non-zero term per entry; what the full product sums to, up to the sign of an exact zero).
+fn times_diag<T: Real>(a: &Matrix3<T>, d: &Vector3<T>) -> Matrix3<T> {
+    let mut out = *a;
+    for (col, dj) in out.column_iter_mut().zip(d.iter()) {
+        for v in col {
+            *v *= *dj;
+        }
+    }
+    out
+}
+
+/// `A [v×]`: the product's non-zero terms in its order (the full product's numbers up to the
+/// sign of an exact zero). `[v×]ᵀ = [(−v)×]` entry for entry, so `A [v×]ᵀ` is
+/// `times_skew(A, −v)`.
+fn times_skew<T: Real>(a: &Matrix3<T>, v: &Vector3<T>) -> Matrix3<T> {
+    // The columns of [v×]: (0, v_z, −v_y), (−v_z, 0, v_x), (v_y, −v_x, 0).
+    let (x, y, z) = (v.x, v.y, v.z);
+    Matrix3::from_fn(|i, j| {
+        let (a0, a1, a2) = (a[(i, 0)], a[(i, 1)], a[(i, 2)]);
+        match j {
+            0 => a1 * z + a2 * (-y),
+            1 => a0 * (-z) + a2 * x,
+            _ => a0 * y + a1 * (-x),
+        }
+    })
+}
+
+/// `D A` for the diagonal `D = diag(d)`: row i of `A` times `d_i` (as [`times_diag`]).
+fn diag_times<T: Real>(d: &Vector3<T>, a: &Matrix3<T>) -> Matrix3<T> {
+    let mut out = *a;
+    for (row, di) in out.row_iter_mut().zip(d.iter()) {
+        for v in row {
+            *v *= *di;
+        }
+    }
+    out
+}
+
 /// The INS state and the 17-state P0 of the free-flight EKF at separation.
 ///
 /// Errors (nothing computed): `NonFiniteInput` for a non-finite input, `InputOutOfRange` for a
@@ -229,15 +268,6 @@ fn symmetrised<T: Real>(b: &Matrix3<T>) -> Matrix3<T> {
 }
 
 impl<T: Real> NavBlocks<T> {
-    /// The 9 × 9 navigation block `[δr, δv, φ]` of P0 (zero cross blocks).
-    pub(crate) fn nav9(&self) -> SMatrix<T, 9, 9> {
-        let mut p = SMatrix::<T, 9, 9>::zeros();
-        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&self.pos);
-        p.fixed_view_mut::<3, 3>(3, 3).copy_from(&self.vel);
-        p.fixed_view_mut::<3, 3>(6, 6).copy_from(&self.att);
-        p
-    }
-
     /// `true` when the P0 of these blocks and `priors` ([`Self::write_p0`]) passes the
     /// covariance checks of the EKF's constructor — finite, variances within
     /// [`VARIANCE_CEILING`], symmetric, PSD — checked on its blocks (P0 is block diagonal):
@@ -349,10 +379,14 @@ pub(crate) fn hand_over_checked_master<T: Real>(
     let l0 = lever.nominal_m;
     let l = l0 + alignment.flexure_rad.cross(&l0);
     let l_n = c_m_n * l;
-    let p_phi_m = diag_var(&master.attitude_sigma_rad);
-    let lever_n = c_m_n * diag_var(&lever.sigma_m) * c_m_n.transpose();
+    // The products with diagonal covariances as scaled columns (`times_diag`).
+    let att_var = master
+        .attitude_sigma_rad
+        .component_mul(&master.attitude_sigma_rad);
+    let lever_var = lever.sigma_m.component_mul(&lever.sigma_m);
+    let lever_n = times_diag(&c_m_n, &lever_var) * c_m_n.transpose();
     let p_r_ned = diag_var(&master.position_sigma_m)
-        + skew(&l_n) * p_phi_m * skew(&l_n).transpose()
+        + times_skew(&times_diag(&skew(&l_n), &att_var), &(-l_n))
         + lever_n;
     let w = master.rate_nm_rad_s;
     let rel_m = w.cross(&l) + alignment.flexure_rate_rad_s.cross(&l0);
@@ -360,13 +394,13 @@ pub(crate) fn hand_over_checked_master<T: Real>(
     let vel = master.vel_ned_m_s + rel_n;
     // δv from δφ_m, δω, δl and δθ̇_f: [(C rel)×] φ_m, −C [l×] δω, C [ω×] δl, −C [l₀×] δθ̇_f.
     let rate_var = master.rate_sigma_rad_s * master.rate_sigma_rad_s;
-    let c_l = c_m_n * skew(&l);
-    let c_w = c_m_n * skew(&w);
-    let c_l0 = c_m_n * skew(&l0);
+    let c_l = times_skew(&c_m_n, &l);
+    let c_w = times_skew(&c_m_n, &w);
+    let c_l0 = times_skew(&c_m_n, &l0);
     let p_v = diag_var(&master.velocity_sigma_m_s)
-        + skew(&rel_n) * p_phi_m * skew(&rel_n).transpose()
+        + times_skew(&times_diag(&skew(&rel_n), &att_var), &(-rel_n))
         + c_l * c_l.transpose() * rate_var
-        + c_w * diag_var(&lever.sigma_m) * c_w.transpose()
+        + times_diag(&c_w, &lever_var) * c_w.transpose()
         + c_l0 * alignment.flexure_rate_covariance * c_l0.transpose();
     // Position of the slave (first order in |l|/R: metres over the ellipsoid, in f64).
     // The radii in `T`: the offset is metres (|l| ≪ R), so their working precision is ample
@@ -388,8 +422,7 @@ pub(crate) fn hand_over_checked_master<T: Real>(
     }
     // NED metres → (δL, δl, δh): rad, rad, m (δh = −δD).
     let d = Vector3::new(T::one() / r_north, T::one() / r_east, -T::one());
-    let dm = Matrix3::from_diagonal(&d);
-    let p_pos = dm * p_r_ned * dm;
+    let p_pos = times_diag(&diag_times(&d, &p_r_ned), &d);
     Ok(NavHandover {
         state: InsState {
             position,

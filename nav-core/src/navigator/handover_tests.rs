@@ -479,3 +479,31 @@ fn p0_is_positive_definite_and_bad_inputs_are_named() {
     assert!(dv < 1e-4, "{dv}");
     assert!(i32.covariance.cast::<f64>().cholesky().is_some());
 }
+
+/// The products with a diagonal or a skew-symmetric matrix as written in the hand-over give
+/// what the full products give, bit for bit (entries without exact zeros), in f32 and f64.
+fn diagonal_products_are_the_full_products<T: Real>() {
+    let mut seed = 0x9e37_79b9_u64;
+    let mut next = || {
+        seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        T::lit(((seed >> 11) as f64 / (1u64 << 53) as f64) * 4.0 - 2.0)
+    };
+    for _ in 0..200 {
+        let a = Matrix3::from_fn(|_, _| next());
+        let d = Vector3::new(next(), next(), next());
+        let dm = Matrix3::from_diagonal(&d);
+        assert_eq!(times_diag(&a, &d), a * dm);
+        assert_eq!(diag_times(&d, &a), dm * a);
+        assert_eq!(times_diag(&diag_times(&d, &a), &d), dm * a * dm);
+        assert_eq!(times_skew(&a, &d), a * skew(&d));
+        assert_eq!(times_skew(&a, &(-d)), a * skew(&d).transpose());
+        let sd = times_diag(&skew(&d), &d);
+        assert_eq!(times_skew(&sd, &(-d)), skew(&d) * dm * skew(&d).transpose());
+    }
+}
+
+#[test]
+fn diagonal_products_are_the_full_products_f32_f64() {
+    diagonal_products_are_the_full_products::<f32>();
+    diagonal_products_are_the_full_products::<f64>();
+}

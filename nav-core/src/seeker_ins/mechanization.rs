@@ -452,8 +452,9 @@ impl<T: Real> Ins<T> {
 }
 
 /// The increments of a sample: finite, |Δθ| ≤ [`MAX_DELTA_THETA_RAD`], |Δv| ≤
-/// [`MAX_DELTA_V_M_S`].
-fn validate_increment<T: Real>(inc: &ImuIncrement<T>) -> Result<(), NavError> {
+/// [`MAX_DELTA_V_M_S`]. The checks of [`Ins::step`] on its input, for a caller that has to
+/// check what it derives from the sample before the INS steps in place.
+pub(crate) fn validate_increment<T: Real>(inc: &ImuIncrement<T>) -> Result<(), NavError> {
     let (dth, dv) = (&inc.delta_theta_rad, &inc.delta_v_m_s);
     if !dth.iter().all(|v| v.is_finite()) {
         return Err(NavError::NonFiniteInput {

@@ -189,6 +189,7 @@ pub use measurement::{
     validate_gimbal, GimbalAngles, Landmark, LosModel, LosModel3, MAX_GIMBAL_PITCH_RAD,
     MIN_LANDMARK_RANGE_M,
 };
+pub(crate) use mechanization::validate_increment;
 pub use mechanization::{
     continuous_derivative, ImuIncrement, Ins, InsDerivative, InsState, Position, MAX_ALT_M,
     MAX_DELTA_THETA_RAD, MAX_DELTA_V_M_S, MAX_INTERVAL_S, MAX_LAT_RAD,

@@ -109,33 +109,40 @@ impl<T: Real, const H: usize> SlaveHistory<T, H> {
         if time > newest.time {
             return Err(out);
         }
-        // Mid-points (µs, doubled to stay integer) of consecutive samples, newest first.
-        let mids = self
+        // Mid-points (µs, doubled to stay integer) of consecutive samples, each with the later
+        // sample of its pair, newest first (the master is late by a few samples: the search
+        // starts where the match is; strictly increasing stamps, so the mid-points too).
+        let t2 = time.as_micros().saturating_mul(2);
+        let mut mids = self
             .samples
             .iter()
-            .zip(self.samples.iter().skip(1))
-            .map(|(a, b)| (a.time.as_micros() + b.time.as_micros(), *b));
-        let t2 = time.as_micros().saturating_mul(2);
-        let mut later: Option<(u64, SlaveSample<T>)> = None;
-        let mut last_two: [Option<(u64, SlaveSample<T>)>; 2] = [None, None];
-        for (m2, s) in mids {
-            if m2 >= t2 && later.is_none() {
-                later = Some((m2, s));
-                break;
+            .rev()
+            .zip(self.samples.iter().rev().skip(1))
+            .map(|(b, a)| (a.time.as_micros() + b.time.as_micros(), b));
+        let newest_mid = mids.next().ok_or(out)?;
+        // (a, b): the mid-points either side of `time` (b the first at or after it), or the
+        // newest two when `time` is after the newest mid-point.
+        let (a, b) = if newest_mid.0 < t2 {
+            (mids.next().ok_or(out)?, newest_mid)
+        } else {
+            let mut b = newest_mid;
+            loop {
+                let m = mids.next().ok_or(out)?;
+                if m.0 < t2 {
+                    break (m, b);
+                }
+                b = m;
             }
-            last_two = [last_two[1], Some((m2, s))];
-        }
-        let (a, b) = match (last_two, later) {
-            ([_, Some(a)], Some(b)) => (a, b),
-            ([Some(a), Some(b)], None) => (a, b),
-            _ => return Err(out),
         };
         let span = b.0.saturating_sub(a.0);
         if span == 0 {
             return Err(out);
         }
-        // w = (t − m_a) / (m_b − m_a), in [0, 1] or up to 1.5 when extrapolating.
-        let w = T::lit((t2 as f64 - a.0 as f64) / span as f64);
+        // w = (t − m_a) / (m_b − m_a), in [0, 1] or up to 1.5 when extrapolating; t > m_a, and
+        // the differences are formed in integers (exact, as the f64 difference of the two
+        // stamps below 2⁵³ µs was), converted from 32 bits when they fit.
+        let to_f64 = |n: u64| u32::try_from(n).map_or(n as f64, f64::from);
+        let w = T::lit(to_f64(t2.saturating_sub(a.0)) / to_f64(span));
         let (sa, sb) = (a.1, b.1);
         Ok(SlaveSample {
             time,
@@ -231,5 +238,78 @@ mod tests {
             SlaveHistory::<f64, 4>::new().at_time(Timestamp::ZERO),
             Err(NavError::MeasurementTimeOutOfWindow)
         );
+    }
+
+    /// The search from the newest sample gives what a scan from the oldest gives (the pair of
+    /// mid-points around `time`, the newest two beyond the newest mid-point, the same refusals),
+    /// bit for bit, over irregular stamps and every query time around them.
+    #[test]
+    fn newest_first_search_matches_an_oldest_first_scan() {
+        fn reference(
+            h: &SlaveHistory<f32, 6>,
+            time: Timestamp,
+        ) -> Result<SlaveSample<f32>, NavError> {
+            let out = NavError::MeasurementTimeOutOfWindow;
+            let newest = h.newest().ok_or(out)?;
+            if time > newest.time {
+                return Err(out);
+            }
+            let s: std::vec::Vec<SlaveSample<f32>> = h.samples.iter().copied().collect();
+            let mids: std::vec::Vec<(u64, SlaveSample<f32>)> = s
+                .windows(2)
+                .map(|w| (w[0].time.as_micros() + w[1].time.as_micros(), w[1]))
+                .collect();
+            let t2 = time.as_micros() * 2;
+            let (a, b) = match mids.iter().position(|m| m.0 >= t2) {
+                Some(0) => return Err(out),
+                Some(i) => (mids[i - 1], mids[i]),
+                None if mids.len() >= 2 => (mids[mids.len() - 2], mids[mids.len() - 1]),
+                None => return Err(out),
+            };
+            let w = ((t2 as f64 - a.0 as f64) / (b.0 - a.0) as f64) as f32;
+            Ok(SlaveSample {
+                time,
+                angular_rate_rad_s: a.1.angular_rate_rad_s
+                    + (b.1.angular_rate_rad_s - a.1.angular_rate_rad_s) * w,
+                specific_force_m_s2: a.1.specific_force_m_s2
+                    + (b.1.specific_force_m_s2 - a.1.specific_force_m_s2) * w,
+            })
+        }
+        let mut h = SlaveHistory::<f32, 6>::new();
+        let mut seed = 0x2545_f491_u64;
+        let mut next = |m: u64| {
+            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            (seed >> 33) % m
+        };
+        let mut t = 1_000_000u64;
+        let mut checked = 0;
+        for _ in 0..40 {
+            // Even steps: every mid-point a whole µs.
+            t += 2 * (3_500 + next(3_000));
+            let v = |k: u64| (k as f32) * 0.37 - 1.1;
+            h.push(&SlaveSample {
+                time: Timestamp::from_micros(t),
+                angular_rate_rad_s: Vector3::new(v(next(50)), v(next(50)), v(next(50))),
+                specific_force_m_s2: Vector3::new(v(next(90)), v(next(90)), v(next(90))),
+            })
+            .unwrap();
+            let oldest = h.oldest().map_or(t, |s| s.time.as_micros());
+            // Every stamp, every mid-point (even sums: the stamps are whole µs) and times
+            // between them.
+            let stamps: std::vec::Vec<u64> = h.samples.iter().map(|s| s.time.as_micros()).collect();
+            let mut queries: std::vec::Vec<u64> = stamps.clone();
+            queries.extend(stamps.windows(2).map(|w| (w[0] + w[1]) / 2));
+            let mut q = oldest.saturating_sub(3_000);
+            while q <= t + 2_000 {
+                queries.push(q);
+                q += 250 + next(500);
+            }
+            for q in queries {
+                let time = Timestamp::from_micros(q);
+                assert_eq!(h.at_time(time), reference(&h, time), "at {q} µs");
+                checked += 1;
+            }
+        }
+        assert!(checked > 1_000);
     }
 }

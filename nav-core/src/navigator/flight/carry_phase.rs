@@ -16,45 +16,135 @@ use super::{
 };
 use crate::contract::{Estimator, FusionOutcome, FusionReport};
 use crate::earth::{earth_rate_ned, transport_rate_ned};
-use crate::math::rotation::exp_so3;
-use crate::seeker_ins::{Ins, SeekerIns, SeekerInsInitial};
+use crate::seeker_ins::{validate_increment, ImuIncrement, Ins, SeekerIns, SeekerInsInitial};
 use crate::time::Timestamp;
 use crate::transfer_alignment::{
-    compensate_lever_arm, MasterSample, SlaveSample, TransferAlignment,
+    compensate_lever_arm, GapOutcome, MasterSample, SlaveSample, TransferAlignment,
 };
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
-/// The scaling of [`super::nav_block_to_ned`] on a 9 × 9 navigation block, rows then columns by
-/// the factors `d` of the position states.
-fn nav9_to_ned<T: Real>(mut out: SMatrix<T, 9, 9>, d: [T; 3]) -> SMatrix<T, 9, 9> {
-    for (i, di) in d.iter().enumerate() {
-        for v in out.row_mut(i).iter_mut() {
-            *v *= *di;
-        }
-        for v in out.column_mut(i).iter_mut() {
-            *v *= *di;
+/// The hand-over's 9 × 9 navigation block `[δr, δv, φ]` (zero cross blocks) in the carry
+/// solution's NED convention, written in place into `out` (no 9 × 9 temporary, no copy through
+/// the stack). The numbers of scaling the block-diagonal matrix's rows then columns
+/// i = 0, 1, 2 by the factors `d` of the position states ([`super::nav_block_to_ned`]'s
+/// scheme: element (r, c) times the factor of each position index among r, c, the smaller
+/// first), written from its structure: the position block `P_rc d_min(r,c) d_max(r,c)`, the
+/// zeros beside it in row or column i `0 · d_i` (signed as the product gives), the velocity
+/// and attitude blocks and the other zeros unscaled.
+fn write_nav9_ned<T: Real>(blocks: &NavBlocks<T>, d: [T; 3], out: &mut SMatrix<T, 9, 9>) {
+    let zero = T::zero();
+    let scaled_zero = d.map(|di| zero * di);
+    for (c, dst) in out.as_mut_slice().chunks_exact_mut(9).enumerate() {
+        let (rows_pos, rows_rest) = dst.split_at_mut(3);
+        match (c, scaled_zero.get(c)) {
+            // A position column: the position block scaled, zeros scaled by its factor below.
+            (_, Some(&zc)) => {
+                for (r, o) in rows_pos.iter_mut().enumerate() {
+                    let x = blocks.pos.get((r, c)).copied().unwrap_or(zero);
+                    let (lo, hi) = (d.get(r.min(c)), d.get(r.max(c)));
+                    *o = match (lo, hi) {
+                        (Some(&lo), Some(&hi)) => x * lo * hi,
+                        _ => x,
+                    };
+                }
+                rows_rest.fill(zc);
+            }
+            // A velocity or attitude column: zeros in the position rows scaled by theirs,
+            // its own block unscaled, zeros elsewhere.
+            _ => {
+                rows_pos.copy_from_slice(&scaled_zero);
+                let (block, at) = if c < 6 {
+                    (&blocks.vel, 0)
+                } else {
+                    (&blocks.att, 3)
+                };
+                for (r, o) in rows_rest.iter_mut().enumerate() {
+                    *o = if r / 3 == at / 3 {
+                        block.get((r % 3, c % 3)).copied().unwrap_or(zero)
+                    } else {
+                        zero
+                    };
+                }
+            }
         }
     }
-    out
 }
 
-/// The master's quality and motion in the hand-over's shape. Its body-rate 1σ is not on the
-/// bus: the alignment's rate-difference noise (master and slave gyro noise per sample) bounds
-/// it.
-fn at_release<T: Real>(m: &MasterNav<T>, rate_sigma_rad_s: T) -> MasterAtRelease<T> {
+/// The master's quality and motion in the hand-over's shape, written field by field into
+/// `out` (no temporary). Its body-rate 1σ is not on the bus: the alignment's rate-difference
+/// noise (master and slave gyro noise per sample) bounds it.
+fn write_at_release<T: Real>(m: &MasterNav<T>, rate_sigma_rad_s: T, out: &mut MasterAtRelease<T>) {
     let lat = T::lit(m.position.lat_rad);
     let alt = T::lit(m.position.alt_m);
     let w_in = earth_rate_ned(lat) + transport_rate_ned(lat, alt, &m.vel_ned_m_s);
-    MasterAtRelease {
-        c_m_n: m.c_m_n,
-        vel_ned_m_s: m.vel_ned_m_s,
-        position: m.position,
-        rate_nm_rad_s: m.angular_rate_rad_s - m.c_m_n.transpose() * w_in,
-        attitude_sigma_rad: m.attitude_sigma_rad,
-        velocity_sigma_m_s: m.velocity_sigma_m_s,
-        position_sigma_m: m.position_sigma_m,
-        rate_sigma_rad_s,
+    out.c_m_n = m.c_m_n;
+    out.vel_ned_m_s = m.vel_ned_m_s;
+    out.position = m.position;
+    out.rate_nm_rad_s = m.angular_rate_rad_s - m.c_m_n.transpose() * w_in;
+    out.attitude_sigma_rad = m.attitude_sigma_rad;
+    out.velocity_sigma_m_s = m.velocity_sigma_m_s;
+    out.position_sigma_m = m.position_sigma_m;
+    out.rate_sigma_rad_s = rate_sigma_rad_s;
+}
+
+/// Scratch of a master tick: the master sample checked and matched for the alignment's step
+/// (what the step and the hand-over read), written in place by the checks and read by the
+/// step of the same tick only — no state: stale between master ticks and after a refused
+/// sample, never read then (its `Debug` shows nothing). Held in the navigator so that the step
+/// runs under a small frame and nothing is copied into it.
+#[derive(Clone, Copy)]
+pub(super) struct MasterEpoch<T> {
+    /// The master's sample for the alignment.
+    sample: MasterSample<T>,
+    /// The slave's sample at the master's epoch.
+    slave: SlaveSample<T>,
+    /// The master in the hand-over's shape (checked).
+    at: MasterAtRelease<T>,
+    /// The stamp of the INS snapshot nearest the master's epoch.
+    snap_time: Timestamp,
+}
+
+impl<T> core::fmt::Debug for MasterEpoch<T> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("MasterEpoch").finish_non_exhaustive()
+    }
+}
+
+impl<T: Real> MasterEpoch<T> {
+    /// Blank scratch (zeros; the first master tick overwrites it before reading).
+    pub(super) fn blank() -> Self {
+        let zero3 = Vector3::zeros();
+        let position = crate::seeker_ins::Position {
+            lat_rad: 0.0,
+            lon_rad: 0.0,
+            alt_m: 0.0,
+        };
+        let time = Timestamp::from_micros(0);
+        Self {
+            sample: MasterSample {
+                time,
+                angular_rate_rad_s: zero3,
+                angular_accel_rad_s2: zero3,
+                specific_force_m_s2: zero3,
+            },
+            slave: SlaveSample {
+                time,
+                angular_rate_rad_s: zero3,
+                specific_force_m_s2: zero3,
+            },
+            at: MasterAtRelease {
+                c_m_n: Matrix3::identity(),
+                vel_ned_m_s: zero3,
+                position,
+                rate_nm_rad_s: zero3,
+                attitude_sigma_rad: zero3,
+                velocity_sigma_m_s: zero3,
+                position_sigma_m: zero3,
+                rate_sigma_rad_s: T::zero(),
+            },
+            snap_time: time,
+        }
     }
 }
 
@@ -101,7 +191,7 @@ fn slave_to<T: Real, const K: usize, const N: usize>(
         &corr.phi_rad,
     )?;
     // Commit (nothing below fails).
-    *out.carry_cov = nav9_to_ned(nav.blocks.nav9(), ned_factors(&nav.state));
+    write_nav9_ned(&nav.blocks, ned_factors(&nav.state), out.carry_cov);
     *out.handover = Some(nav.blocks);
     *out.snapshot_fix = Some(SnapshotFix {
         correction: corr,
@@ -132,31 +222,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         transition: &mut Option<Transition>,
         out: &mut TickReport<T>,
     ) -> Result<(), NavError> {
-        let inc = &imu.increment;
-        let mut ins = self.ins;
-        ins.step(inc)?;
-        let dt = ins.last_interval_s();
-        let slave = SlaveSample {
-            time: inc.time,
-            angular_rate_rad_s: inc.delta_theta_rad / dt,
-            specific_force_m_s2: inc.delta_v_m_s / dt,
-        };
-        slave.validate()?;
-        if self.history.newest().is_some_and(|s| s.time >= inc.time) {
-            return Err(NavError::TimeNotIncreasing);
-        }
-        // Commit the IMU part (nothing below fails the tick).
-        self.history.push(&slave)?;
-        self.ins = ins;
-        self.time = inc.time;
-        self.apply_snapshot_fix();
-        if self.snapshots.is_full() {
-            let _ = self.snapshots.pop_front();
-        }
-        let _ = self.snapshots.push_back(Snapshot {
-            time: inc.time,
-            state: *ins.state(),
-        });
+        let f_s_m_s2 = self.carry_imu(&imu.increment)?;
         let mut master_state = AidState::Waiting;
         if let Some(m) = aids.master {
             master_state = match self.fuse_master(m) {
@@ -173,12 +239,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         if master_lost && master_state == AidState::Waiting {
             master_state = AidState::TimedOut;
         }
-        self.separation_check(
-            aids.separation,
-            &slave.specific_force_m_s2,
-            master_lost,
-            transition,
-        );
+        self.separation_check(aids.separation, &f_s_m_s2, master_lost, transition);
         // The aid reports, written into the caller's report (nothing above failed).
         self.master.write(master_state, &mut out.master);
         self.baro.write(AidState::NotUsedInPhase, &mut out.baro);
@@ -186,10 +247,50 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         Ok(())
     }
 
+    /// The carry tick's IMU part, in a frame of its own (not under the master's step): the INS
+    /// stepped in place, the slave's sample into the history, the INS snapshot stored (the
+    /// last master's correction of the snapshots applied first). Returns the slave's specific
+    /// force, m/s². Refused (`Err`): nothing changed.
+    #[inline(never)]
+    fn carry_imu(&mut self, inc: &ImuIncrement<T>) -> Result<Vector3<T>, NavError> {
+        // The interval the INS step integrates (`Ins::step` takes the same), so that the slave
+        // sample is checked before the INS steps in place (no copy of the INS).
+        let dt = self.ins.interval_to(inc.time)?;
+        // The step's own checks, in its order: finite increments within their bounds over an
+        // interval of at least 1 µs make the slave's rates finite (what the history checks).
+        validate_increment(inc)?;
+        let slave = SlaveSample {
+            time: inc.time,
+            angular_rate_rad_s: inc.delta_theta_rad / dt,
+            specific_force_m_s2: inc.delta_v_m_s / dt,
+        };
+        if self.history.newest().is_some_and(|s| s.time >= inc.time) {
+            return Err(NavError::TimeNotIncreasing);
+        }
+        // Atomic: refused, the INS is unchanged.
+        self.ins.step(inc)?;
+        // Commit the IMU part (nothing below fails the tick: the history's refusals — a
+        // non-finite or not later sample — were checked above, and a full history drops its
+        // oldest first).
+        self.history.push(&slave)?;
+        self.time = inc.time;
+        self.apply_snapshot_fix();
+        if self.snapshots.is_full() {
+            let _ = self.snapshots.pop_front();
+        }
+        let _ = self.snapshots.push_back(Snapshot {
+            time: inc.time,
+            state: *self.ins.state(),
+        });
+        Ok(slave.specific_force_m_s2)
+    }
+
     /// The carry tick's separation logic: a release `signal` (its time) recorded, then the
     /// IMU's confirmation (the slave's specific force `f_s_m_s2`, m/s², against the last
     /// master's) within the window, or an unsignalled release (the master lost and the IMU
-    /// falling); a release confirmed starts the EKF and reports the transition.
+    /// falling); a release confirmed starts the EKF and reports the transition. In a frame of
+    /// its own (not above the master's step).
+    #[inline(never)]
     fn separation_check(
         &mut self,
         signal: Option<Timestamp>,
@@ -209,18 +310,22 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 self.separation = SeparationStatus::AwaitingConfirmation;
             }
         }
-        let imu_sees = self.last_master.is_some_and(|lm| {
-            (f_s_m_s2 - lm.f_slave_m_s2).norm() > self.config.separation.specific_force_jump_m_s2
-        });
         let falling_s = self.free_fall.update(
             self.time,
             f_s_m_s2,
             self.config.separation.specific_force_jump_m_s2,
         );
         let mut release = None;
+        let mut f_reference = None;
         match (self.separation, self.signal) {
             (SeparationStatus::AwaitingConfirmation, Some(sig)) => {
                 let age = elapsed::<T>(self.time, sig);
+                // The IMU's confirmation against the last master's force in slave axes
+                // (formed only when a signalled release awaits it; the EKF's start reuses it).
+                f_reference = self.last_master.map(|lm| lm.f_slave_m_s2());
+                let imu_sees = f_reference.is_some_and(|f| {
+                    (f_s_m_s2 - f).norm() > self.config.separation.specific_force_jump_m_s2
+                });
                 if imu_sees {
                     release = Some((
                         SeparationStatus::Confirmed,
@@ -240,7 +345,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             }
         }
         if let Some((status, cause)) = release {
-            if self.hand_over_now() {
+            if self.hand_over_now(f_reference) {
                 self.enter_released(status, cause);
                 *transition = self.pending.take();
             }
@@ -266,8 +371,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// navigation blocks kept from that tick: the alignment has not changed since, so the
     /// hand-over would give them again bit for bit), written in place into the new EKF, its
     /// accelerometer-bias states referred to the carry's specific force ([`refer_to_carry`]).
+    /// `f_reference`: the last master's specific force in slave axes when already formed
+    /// ([`MasterRecord::f_slave_m_s2`]).
     #[inline(never)]
-    fn hand_over_now(&mut self) -> bool {
+    fn hand_over_now(&mut self, f_reference: Option<Vector3<T>>) -> bool {
         let (Some(lm), Some(blocks)) = (self.last_master, self.handover) else {
             return false;
         };
@@ -285,7 +392,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
             self.hand_over_dense(&blocks)
         };
-        started && refer_to_carry(&mut self.ekf, &lm.f_slave_m_s2)
+        let f_slave = f_reference.unwrap_or_else(|| lm.f_slave_m_s2());
+        started && refer_to_carry(&mut self.ekf, &f_slave)
     }
 
     /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.
@@ -325,11 +433,23 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     }
 
     /// Alignment step at the master's epoch, hand-over and the INS slaved to it; atomic: the
-    /// cheap checks first, then the alignment steps in place and is undone
-    /// ([`TransferAlignment::step_then`]) when the hand-over or the slaving fails (no copy of
-    /// the filter).
+    /// cheap checks first ([`Self::prepare_master`], in a frame of its own), then the alignment
+    /// steps in place and is undone ([`TransferAlignment::step_then`]) when the hand-over or
+    /// the slaving fails (no copy of the filter). The matched epoch is the navigator's
+    /// scratch ([`MasterEpoch`]), so that the step and the hand-over run under a small frame.
     #[inline(never)]
     fn fuse_master(&mut self, m: &MasterNav<T>) -> Result<AidState, NavError> {
+        if !self.prepare_master(m)? {
+            return Ok(AidState::NotUsedInPhase);
+        }
+        self.step_master()
+    }
+
+    /// The checks and the matching of a master sample `m` before the alignment steps (a bad
+    /// sample touches no state: only the scratch `self.epoch`, written in place);
+    /// `Ok(false)`: not fused now.
+    #[inline(never)]
+    fn prepare_master(&mut self, m: &MasterNav<T>) -> Result<bool, NavError> {
         // A separation signalled at `s` and awaiting the IMU's confirmation: a master sample
         // whose slave interpolation reaches past `s` (epoch later than one IMU interval before
         // it) would pair the aircraft on the lever arm with the missile already dropping (the
@@ -342,33 +462,40 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 .signal
                 .is_some_and(|s| m.time.as_micros().saturating_add(imu_dt_us) > s.as_micros())
         {
-            return Ok(AidState::NotUsedInPhase);
+            return Ok(false);
         }
         let tol = self.ta_tolerance_us();
-        let snap = self
+        let e = &mut self.epoch;
+        e.snap_time = self
             .snapshots
             .iter()
             .rev()
             .find(|s| s.time.as_micros().abs_diff(m.time.as_micros()) <= tol)
-            .copied()
-            .ok_or(NavError::MeasurementTimeOutOfWindow)?;
-        let ms = MasterSample {
+            .ok_or(NavError::MeasurementTimeOutOfWindow)?
+            .time;
+        e.sample = MasterSample {
             time: m.time,
             angular_rate_rad_s: m.angular_rate_rad_s,
             angular_accel_rad_s2: m.angular_accel_rad_s2,
             specific_force_m_s2: m.specific_force_m_s2,
         };
-        ms.validate()?;
+        e.sample.validate()?;
         // The hand-over's checks of the master before the alignment steps: a bad master
         // sample does not touch the alignment.
-        let at = at_release(m, self.config.alignment.rate_noise_sigma_rad_s);
-        validate_master(&at, &self.config.lever_arm, &self.config.priors)?;
+        write_at_release(m, self.config.alignment.rate_noise_sigma_rad_s, &mut e.at);
+        validate_master(&e.at, &self.config.lever_arm, &self.config.priors)?;
         // The slave's interval means interpolated at the master's (instantaneous) epoch; the
         // end-stamped sample of that epoch when they cannot be (the first tick).
-        let slave = self
+        e.slave = self
             .history
             .at_time(m.time)
             .or_else(|_| self.history.find(m.time, tol))?;
+        Ok(true)
+    }
+
+    /// The alignment's step on the epoch [`Self::prepare_master`] wrote (`self.epoch`), the
+    /// hand-over and the slaving in its `then`, the master's records.
+    fn step_master(&mut self) -> Result<AidState, NavError> {
         let now = self.time;
         let Self {
             ta,
@@ -377,23 +504,38 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             carry_cov,
             handover,
             snapshot_fix,
+            epoch,
+            snapshots,
             ..
         } = self;
-        let (report, ()) = ta.step_then(&ms, &slave, |ta| {
+        let e = &*epoch;
+        // The snapshot the checks found (read in place, not copied).
+        let snap = snapshots
+            .iter()
+            .rev()
+            .find(|s| s.time == e.snap_time)
+            .ok_or(NavError::MeasurementTimeOutOfWindow)?;
+        let (report, ()) = ta.step_then(&e.sample, &e.slave, |ta| {
             let out = CarryTargets {
                 ins,
                 carry_cov,
                 handover,
                 snapshot_fix,
             };
-            slave_to(config, ta, &at, &snap, now, out)
+            slave_to(config, ta, &e.at, snap, now, out)
         })?;
-        // After the first epoch (nothing predicted) the next sample needs at least one.
-        self.master_steps = report.predictions.max(1);
-        let f_m = compensate_lever_arm(&ms, &self.config.lever_arm.nominal_m);
-        let c_m_s: Matrix3<T> = exp_so3(&(-self.ta.theta()));
+        // What the next sample will likely need: as many predictions as this one; after the
+        // first epoch (nothing predicted, the master's interval not known yet) as many as a
+        // tick runs ahead, so that the next master tick predicts nothing itself (predictions
+        // run ahead but not needed are discarded by the step: the cost is that of today's).
+        self.master_steps = if report.gap == GapOutcome::Started {
+            MAX_AHEAD_PER_TICK
+        } else {
+            report.predictions.max(1)
+        };
         self.last_master = Some(MasterRecord {
-            f_slave_m_s2: c_m_s * f_m,
+            f_master_m_s2: compensate_lever_arm(&e.sample, &self.config.lever_arm.nominal_m),
+            theta_rad: self.ta.theta(),
         });
         Ok(self.record_master(&report.updates))
     }
