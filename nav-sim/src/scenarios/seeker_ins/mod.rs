@@ -16,6 +16,7 @@
 pub mod campaign;
 mod config;
 pub mod fault;
+mod model_reduction;
 mod report;
 pub(crate) mod run;
 pub(crate) mod sensors;
