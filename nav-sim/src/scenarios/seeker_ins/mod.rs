@@ -18,6 +18,7 @@ mod config;
 pub(crate) mod errors;
 pub mod fault;
 pub mod injection;
+mod model_reduction;
 mod report;
 pub(crate) mod run;
 pub(crate) mod sensors;

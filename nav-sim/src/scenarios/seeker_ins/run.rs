@@ -113,6 +113,15 @@ fn initial_covariance(cfg: &Config, c0: &Matrix3<f64>) -> SMatrix<f64, STATES, S
     )
 }
 
+/// [`initial_covariance`] for the model-reduction measurement.
+#[cfg(test)]
+pub(crate) fn initial_covariance_for_tests(
+    cfg: &Config,
+    c0: &Matrix3<f64>,
+) -> SMatrix<f64, STATES, STATES> {
+    initial_covariance(cfg, c0)
+}
+
 /// P0 of the 17 states: the Table 4 σ of `ie` (the Euler-angle σ mapped to the misalignment
 /// φ at the attitude `c0`) and the bias σ (accelerometer m/s², gyro rad/s, gimbal rad);
 /// shared with the mission scenario.
