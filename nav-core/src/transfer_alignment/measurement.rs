@@ -235,6 +235,9 @@ pub fn h_row_total<T: Real, const K: usize, const M: usize>(
 /// In level flight these vanish; in a 1.5 g roll-in (ω ≈ 0.5 rad/s, ω̇ ≈ 1 rad/s²) with 0.5° of
 /// flexure σ and τ 0.5 s at a 4 m lever arm they reach 0.03-0.07 m/s², thirty and more times
 /// the accelerometer-matching noise. At most 12 entries per df row (`M` ≥ 12).
+/// (Tests and documentation: the filter builds this row with [`h_row_flight_df_with`] from
+/// the epoch's [`ManoeuvreTerms`].)
+#[cfg(any(test, doc))]
 #[inline(always)]
 pub fn h_row_flight<T: Real, const K: usize, const M: usize>(
     row: usize,
@@ -300,6 +303,9 @@ pub fn bounded_misalignment<T: Real>(theta: &Vector3<T>) -> Vector3<T> {
 /// The flexure terms of a manoeuvre are linear and as in [`h_row_flight`]. Entries in
 /// ascending order per axis chain `[θ, θ_f, θ̇_f, θ̈_f, b]` (`K` = 5): per axis θ, θ_f, θ̇_f,
 /// then θ̈_f (a ≠ i) or b_i (a = i): 12 entries.
+/// (Tests and documentation: the filter builds this row with [`h_row_flight_df_with`] from
+/// the epoch's [`ManoeuvreTerms`].)
+#[cfg(any(test, doc))]
 #[inline(always)]
 pub fn h_row_flight_df<T: Real, const K: usize>(
     i: usize,
@@ -309,16 +315,61 @@ pub fn h_row_flight_df<T: Real, const K: usize>(
     f_s: &Vector3<T>,
     lever_arm_m: &Vector3<T>,
 ) -> SparseRow<T, 12> {
+    let terms = ManoeuvreTerms::new(omega_m, omega_dot_m, lever_arm_m);
+    h_row_flight_df_with::<T, K>(i, theta, f_s, lever_arm_m, &terms)
+}
+
+/// The flexure terms of a manoeuvre in the flight configuration's df rows (the same for the
+/// three rows, and for the linear row and the Jacobian at θ̂: computed once per epoch).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct ManoeuvreTerms<T: Real> {
+    /// `([ω̇×] + [ω×]²) [L_0×]`: m/s² per rad of θ_f.
+    a_theta_f: nalgebra::Matrix3<T>,
+    /// `2 [ω×] [L_0×]`: m/s² per rad/s of θ̇_f.
+    a_rate: nalgebra::Matrix3<T>,
+}
+
+impl<T: Real> ManoeuvreTerms<T> {
+    /// From the master's angular rate (rad/s) and acceleration (rad/s²) and the lever arm (m).
+    #[inline(always)]
+    pub(super) fn new(
+        omega_m: &Vector3<T>,
+        omega_dot_m: &Vector3<T>,
+        lever_arm_m: &Vector3<T>,
+    ) -> Self {
+        let l_x = crate::math::rotation::skew(lever_arm_m);
+        let w_x = crate::math::rotation::skew(omega_m);
+        Self {
+            a_theta_f: (crate::math::rotation::skew(omega_dot_m) + w_x * w_x) * l_x,
+            a_rate: w_x * l_x * T::lit(2.0),
+        }
+    }
+
+    /// No manoeuvre terms (the paper filters, which have no such rows).
+    #[inline(always)]
+    pub(super) fn zero() -> Self {
+        Self {
+            a_theta_f: nalgebra::Matrix3::zeros(),
+            a_rate: nalgebra::Matrix3::zeros(),
+        }
+    }
+}
+
+/// [`h_row_flight_df`] with the manoeuvre terms computed by the caller (same expressions).
+#[inline(always)]
+pub(super) fn h_row_flight_df_with<T: Real, const K: usize>(
+    i: usize,
+    theta: &Vector3<T>,
+    f_s: &Vector3<T>,
+    lever_arm_m: &Vector3<T>,
+    terms: &ManoeuvreTerms<T>,
+) -> SparseRow<T, 12> {
     let mut h = SparseRow::<T, 12>::new();
     let half = T::lit(0.5);
     let limit = T::lit(MAX_MISALIGNMENT_RAD);
     let c = bounded_misalignment(theta);
     let s = skew_row(f_s, i);
     let lever = skew_row(lever_arm_m, i);
-    let l_x = crate::math::rotation::skew(lever_arm_m);
-    let w_x = crate::math::rotation::skew(omega_m);
-    let a_theta_f = (crate::math::rotation::skew(omega_dot_m) + w_x * w_x) * l_x;
-    let a_rate = w_x * l_x * T::lit(2.0);
     let c_dot_f = c.dot(f_s);
     let (c_i, f_i) = (
         c.get(i).copied().unwrap_or_else(T::zero),
@@ -342,11 +393,11 @@ pub fn h_row_flight_df<T: Real, const K: usize>(
         let _ = h.push(K * a, d - v);
         let _ = h.push(
             K * a + 1,
-            a_theta_f.get((i, a)).copied().unwrap_or_else(T::zero),
+            terms.a_theta_f.get((i, a)).copied().unwrap_or_else(T::zero),
         );
         let _ = h.push(
             K * a + 2,
-            a_rate.get((i, a)).copied().unwrap_or_else(T::zero),
+            terms.a_rate.get((i, a)).copied().unwrap_or_else(T::zero),
         );
         if a != i {
             let _ = h.push(K * a + 3, l);

@@ -137,6 +137,7 @@ mod history;
 mod measurement;
 mod model;
 mod observability;
+mod rows;
 mod step;
 #[cfg(test)]
 mod tests;
