@@ -10,7 +10,7 @@ use crate::Real;
 use nalgebra::{Matrix3, SMatrix, SVector};
 
 /// One scalar update divides a variance by at most this ratio (`r ≥ hᵀPh / ratio`): keeps the
-/// Joseph update's subtraction within f32's digits (chosen by the stress campaign).
+/// scalar update's subtraction within f32's digits (chosen by the stress campaign).
 pub const MAX_VARIANCE_REDUCTION: f64 = 1.0e4;
 /// Every committed covariance gets `P_ii ← P_ii (1 + PSD_LOADING_EPS · ε)` (ε the float type's
 /// machine epsilon: ≈ 1.5e-5 in f32, 2.8e-14 in f64): a PSD diagonal that keeps the
