@@ -272,7 +272,20 @@ pub fn h_row_flight<T: Real, const K: usize, const M: usize>(
 #[inline(always)]
 pub fn bounded_misalignment<T: Real>(theta: &Vector3<T>) -> Vector3<T> {
     let l = T::lit(MAX_MISALIGNMENT_RAD);
-    theta.map(|v| v.max(-l).min(l))
+    theta.map(|v| clamp_symmetric(v, l))
+}
+
+/// `v.max(−l).min(l)` for a limit `l > 0`, bit for bit (NaN → −l, as `max` returns its other
+/// operand; ±∞ → ±l; −0 kept), by two compares: `max` and `min` are library calls on the
+/// target.
+#[inline(always)]
+pub(super) fn clamp_symmetric<T: Real>(v: T, l: T) -> T {
+    let a = if v >= -l { v } else { -l };
+    if a <= l {
+        a
+    } else {
+        l
+    }
 }
 
 /// Row `i` (0-2: df_X..Z) of the flight configuration's specific-force Jacobian at the
@@ -440,6 +453,43 @@ pub fn h_matrix<T: Real, const K: usize, const N: usize>(
 
 #[cfg(test)]
 mod tests {
+
+    /// `clamp_symmetric` is `max(−l).min(l)` bit for bit, NaN, ±∞, ±0 and the limits included.
+    #[test]
+    fn clamp_symmetric_is_max_then_min() {
+        fn check<T: Real>(values: &[f64]) {
+            for &l in &[1e-3, 0.5, 3.0] {
+                let l = T::lit(l);
+                for &v in values {
+                    let v = T::lit(v);
+                    let ours = clamp_symmetric(v, l).to_f64().to_bits();
+                    let theirs = v.max(-l).min(l).to_f64().to_bits();
+                    assert_eq!(ours, theirs, "{v:?} {l:?}");
+                }
+                let nan = clamp_symmetric(T::lit(f64::NAN), l);
+                assert_eq!(nan.to_f64().to_bits(), (-l).to_f64().to_bits());
+            }
+        }
+        let values = [
+            f64::NEG_INFINITY,
+            -4.0,
+            -3.0,
+            -0.5,
+            -1e-3,
+            -1e-30,
+            -0.0,
+            0.0,
+            1e-30,
+            1e-3,
+            0.5,
+            0.7,
+            3.0,
+            1e30,
+            f64::INFINITY,
+        ];
+        check::<f32>(&values);
+        check::<f64>(&values);
+    }
     use super::*;
 
     #[test]

@@ -4,7 +4,9 @@
 //! rank-one update of [`super::fusion`]).
 use super::config::MAX_ANGULAR_RATE_RAD_S;
 use super::covariance::fuse_bounded;
-use super::measurement::{bounded_misalignment, h_row_flight_df_with, h_row_total, ManoeuvreTerms};
+use super::measurement::{
+    bounded_misalignment, clamp_symmetric, h_row_flight_df_with, h_row_total, ManoeuvreTerms,
+};
 use super::model::{has_accel_bias, FlexureModel};
 use crate::math::kalman::{covariance_times_row, FusionOutcome, FusionReport, Gate, SparseRow};
 use crate::Real;
@@ -52,7 +54,7 @@ pub(super) fn second_order_measurement<T: Real, const K: usize, const N: usize>(
     let theta = bounded_theta::<T, K, N>(x);
     let g = |i: usize, lim: f64| {
         let l = T::lit(lim);
-        x.get(i).copied().unwrap_or_else(T::zero).max(-l).min(l)
+        clamp_symmetric(x.get(i).copied().unwrap_or_else(T::zero), l)
     };
     let w = MAX_ANGULAR_RATE_RAD_S;
     let rate = Vector3::new(g(2, w), g(K + 2, w), g(2 * K + 2, w));
