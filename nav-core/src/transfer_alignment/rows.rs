@@ -5,7 +5,8 @@
 use super::config::MAX_ANGULAR_RATE_RAD_S;
 use super::covariance::fuse_bounded;
 use super::measurement::{
-    bounded_misalignment, clamp_symmetric, h_row_flight_df_with, h_row_total, ManoeuvreTerms,
+    bounded_misalignment, clamp_symmetric, h_row_flight_df_with, h_row_total, linear_df_dot,
+    ManoeuvreTerms,
 };
 use super::model::{has_accel_bias, FlexureModel};
 use crate::math::kalman::{covariance_times_row, FusionOutcome, FusionReport, Gate, SparseRow};
@@ -153,9 +154,7 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
                 // Innovation z − h(x̂): the ½ term is already out of z, the linear row (the
                 // Jacobian at θ̂ = 0) predicts the rest; gain and covariance from the Jacobian
                 // at θ̂.
-                let zero = Vector3::zeros();
-                let linear = h_row_flight_df_with::<T, K>($row - 3, &zero, &f_h, &lever, &terms);
-                let innovation = zi - linear.dot(x);
+                let innovation = zi - linear_df_dot::<T, K, N>($row - 3, &f_h, &lever, &terms, x);
                 let h = h_row_flight_df_with::<T, K>($row - 3, &theta_hat, &f_h, &lever, &terms);
                 *rep = fuse_sparse(x, p, &h, innovation, r_accel, gate);
             }
