@@ -2,15 +2,15 @@
 //! `K` states per chain, `N = 3 K`): the transformation of the design, the structured
 //! prediction, the conditioning of every committed covariance, and the flexure
 //! re-initialisation after a long gap.
-use super::fusion::fuse_scalar_once;
+use super::fusion::fuse_rank_one;
 use super::model::{flexure_chain_len, AxisChain};
 use crate::math::checks::set_block_diagonal;
-use crate::math::kalman::{fuse_scalar_prepared, FusionOutcome, FusionReport, Gate};
+use crate::math::kalman::{FusionOutcome, FusionReport, Gate};
 use crate::Real;
 use nalgebra::{Matrix3, SMatrix, SVector};
 
 /// One scalar update divides a variance by at most this ratio (`r ≥ hᵀPh / ratio`): keeps the
-/// Joseph update's subtraction within f32's digits (chosen by the stress campaign).
+/// scalar update's subtraction within f32's digits (chosen by the stress campaign).
 pub const MAX_VARIANCE_REDUCTION: f64 = 1.0e4;
 /// Every committed covariance gets `P_ii ← P_ii (1 + PSD_LOADING_EPS · ε)` (ε the float type's
 /// machine epsilon: ≈ 1.5e-5 in f32, 2.8e-14 in f64): a PSD diagonal that keeps the
@@ -259,20 +259,13 @@ pub(super) fn fuse_bounded<T: Real, const N: usize>(
     r: T,
     gate: Gate<T>,
 ) -> FusionReport<T> {
-    let r_eff = r.max(hph * T::lit(1.0 / MAX_VARIANCE_REDUCTION));
-    // The paper filters (N ≤ 12) use the form that computes P⁺'s diagonal once (bit-identical,
-    // measured cheaper); the flight filter (N = 15) keeps the shared kernel, which measured
-    // cheaper there (15 896 against 15 081 instructions per step on the M4F; cause not traced).
-    if N <= 12 {
-        match fuse_scalar_once(x, p, b, hph, innovation, r_eff, gate) {
-            Ok(rep) => rep,
-            Err(s) => skipped_report(innovation, s),
-        }
-    } else {
-        match fuse_scalar_prepared(x, p, b, hph, innovation, r_eff, gate) {
-            Ok(rep) => rep,
-            Err(_) => skipped_report(innovation, hph + r_eff),
-        }
+    // max(r, floor) without the library call: r is finite and positive (validated at
+    // construction), so a NaN floor keeps r as `max` would.
+    let floor = hph * T::lit(1.0 / MAX_VARIANCE_REDUCTION);
+    let r_eff = if floor > r { floor } else { r };
+    match fuse_rank_one(x, p, b, hph, innovation, r_eff, gate) {
+        Ok(rep) => rep,
+        Err(s) => skipped_report(innovation, s),
     }
 }
 
@@ -305,22 +298,8 @@ pub(super) fn reinit_flexure<T: Real, const K: usize, const N: usize>(
 #[inline(never)]
 fn reinit_flexure_slices<T: Real>(k: usize, p0: [&[T]; 3], x: &mut [T], p: &mut [T]) {
     let n = x.len();
-    // Element (r, c) of a column-major d × d matrix; 0 outside it (as `SMatrix::get`).
-    let flat = |d: usize, r: usize, c: usize| {
-        (r < d && c < d)
-            .then(|| c.checked_mul(d).and_then(|o| o.checked_add(r)))
-            .flatten()
-    };
-    let g = |m: &[T], r: usize, c: usize| {
-        flat(n, r, c)
-            .and_then(|i| m.get(i).copied())
-            .unwrap_or_else(T::zero)
-    };
-    let at0 = |m: &[T], r: usize, c: usize| {
-        flat(k, r, c)
-            .and_then(|i| m.get(i).copied())
-            .unwrap_or_else(T::zero)
-    };
+    let g = |m: &[T], r: usize, c: usize| flat_get(m, n, r, c);
+    let at0 = |m: &[T], r: usize, c: usize| flat_get(m, k, r, c);
     // θ_m covariance across axes: P_θθ − P_θf − P_fθ + P_ff.
     let mut c = Matrix3::<T>::zeros();
     for a in 0..3 {
@@ -361,27 +340,49 @@ fn reinit_flexure_slices<T: Real>(k: usize, p0: [&[T]; 3], x: &mut [T], p: &mut 
             }
         }
     }
-    // To the θ parametrisation: row/column θ_a += row/column θ_f,a.
-    for a in 0..3 {
-        let (t, f) = (k * a, k * a + 1);
-        for col in 0..n {
-            let v = g(p, t, col) + g(p, f, col);
-            if let Some(e) = flat(n, t, col).and_then(|i| p.get_mut(i)) {
-                *e = v;
-            }
-        }
-        for row in 0..n {
-            let v = g(p, row, t) + g(p, row, f);
-            if let Some(e) = flat(n, row, t).and_then(|i| p.get_mut(i)) {
-                *e = v;
-            }
-        }
-    }
+    to_theta_slices(k, n, p);
     // x ← [θ_m,X, 0 …, θ_m,Y, 0 …, θ_m,Z, 0 …]: θ = θ_m, the flexure states at their prior mean.
     for (a, m) in mount.iter().enumerate() {
         for d in 0..k {
             if let Some(e) = x.get_mut(k * a + d) {
                 *e = if d == 0 { *m } else { T::zero() };
+            }
+        }
+    }
+}
+
+/// Index of element (r, c) of a column-major d × d matrix; `None` outside it.
+#[inline(always)]
+fn flat(d: usize, r: usize, c: usize) -> Option<usize> {
+    (r < d && c < d)
+        .then(|| c.checked_mul(d).and_then(|o| o.checked_add(r)))
+        .flatten()
+}
+
+/// Element (r, c) of the column-major d × d matrix `m`; 0 outside it (as `SMatrix::get`).
+#[inline(always)]
+fn flat_get<T: Real>(m: &[T], d: usize, r: usize, c: usize) -> T {
+    flat(d, r, c)
+        .and_then(|i| m.get(i).copied())
+        .unwrap_or_else(T::zero)
+}
+
+/// The n × n covariance `p` (column-major, `k` states per axis chain) from the θ_m to the θ
+/// parametrisation: row/column θ_a += row/column θ_f,a.
+#[inline(always)]
+fn to_theta_slices<T: Real>(k: usize, n: usize, p: &mut [T]) {
+    for a in 0..3 {
+        let (t, f) = (k * a, k * a + 1);
+        for col in 0..n {
+            let v = flat_get(p, n, t, col) + flat_get(p, n, f, col);
+            if let Some(e) = flat(n, t, col).and_then(|i| p.get_mut(i)) {
+                *e = v;
+            }
+        }
+        for row in 0..n {
+            let v = flat_get(p, n, row, t) + flat_get(p, n, row, f);
+            if let Some(e) = flat(n, row, t).and_then(|i| p.get_mut(i)) {
+                *e = v;
             }
         }
     }

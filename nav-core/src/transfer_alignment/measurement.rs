@@ -235,6 +235,9 @@ pub fn h_row_total<T: Real, const K: usize, const M: usize>(
 /// In level flight these vanish; in a 1.5 g roll-in (ω ≈ 0.5 rad/s, ω̇ ≈ 1 rad/s²) with 0.5° of
 /// flexure σ and τ 0.5 s at a 4 m lever arm they reach 0.03-0.07 m/s², thirty and more times
 /// the accelerometer-matching noise. At most 12 entries per df row (`M` ≥ 12).
+/// (Tests and documentation: the filter builds this row with [`h_row_flight_df_with`] from
+/// the epoch's [`ManoeuvreTerms`].)
+#[cfg(any(test, doc))]
 #[inline(always)]
 pub fn h_row_flight<T: Real, const K: usize, const M: usize>(
     row: usize,
@@ -269,7 +272,20 @@ pub fn h_row_flight<T: Real, const K: usize, const M: usize>(
 #[inline(always)]
 pub fn bounded_misalignment<T: Real>(theta: &Vector3<T>) -> Vector3<T> {
     let l = T::lit(MAX_MISALIGNMENT_RAD);
-    theta.map(|v| v.max(-l).min(l))
+    theta.map(|v| clamp_symmetric(v, l))
+}
+
+/// `v.max(−l).min(l)` for a limit `l > 0`, bit for bit (NaN → −l, as `max` returns its other
+/// operand; ±∞ → ±l; −0 kept), by two compares: `max` and `min` are library calls on the
+/// target.
+#[inline(always)]
+pub(super) fn clamp_symmetric<T: Real>(v: T, l: T) -> T {
+    let a = if v >= -l { v } else { -l };
+    if a <= l {
+        a
+    } else {
+        l
+    }
 }
 
 /// Row `i` (0-2: df_X..Z) of the flight configuration's specific-force Jacobian at the
@@ -300,6 +316,9 @@ pub fn bounded_misalignment<T: Real>(theta: &Vector3<T>) -> Vector3<T> {
 /// The flexure terms of a manoeuvre are linear and as in [`h_row_flight`]. Entries in
 /// ascending order per axis chain `[θ, θ_f, θ̇_f, θ̈_f, b]` (`K` = 5): per axis θ, θ_f, θ̇_f,
 /// then θ̈_f (a ≠ i) or b_i (a = i): 12 entries.
+/// (Tests and documentation: the filter builds this row with [`h_row_flight_df_with`] from
+/// the epoch's [`ManoeuvreTerms`].)
+#[cfg(any(test, doc))]
 #[inline(always)]
 pub fn h_row_flight_df<T: Real, const K: usize>(
     i: usize,
@@ -309,16 +328,91 @@ pub fn h_row_flight_df<T: Real, const K: usize>(
     f_s: &Vector3<T>,
     lever_arm_m: &Vector3<T>,
 ) -> SparseRow<T, 12> {
+    let terms = ManoeuvreTerms::new(omega_m, omega_dot_m, lever_arm_m);
+    h_row_flight_df_with::<T, K>(i, theta, f_s, lever_arm_m, &terms)
+}
+
+/// The flexure terms of a manoeuvre in the flight configuration's df rows (the same for the
+/// three rows, and for the linear row and the Jacobian at θ̂: computed once per epoch).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct ManoeuvreTerms<T: Real> {
+    /// `([ω̇×] + [ω×]²) [L_0×]`: m/s² per rad of θ_f.
+    a_theta_f: nalgebra::Matrix3<T>,
+    /// `2 [ω×] [L_0×]`: m/s² per rad/s of θ̇_f.
+    a_rate: nalgebra::Matrix3<T>,
+}
+
+impl<T: Real> ManoeuvreTerms<T> {
+    /// From the master's angular rate (rad/s) and acceleration (rad/s²) and the lever arm (m).
+    #[inline(always)]
+    pub(super) fn new(
+        omega_m: &Vector3<T>,
+        omega_dot_m: &Vector3<T>,
+        lever_arm_m: &Vector3<T>,
+    ) -> Self {
+        let l_x = crate::math::rotation::skew(lever_arm_m);
+        let w_x = crate::math::rotation::skew(omega_m);
+        Self {
+            a_theta_f: (crate::math::rotation::skew(omega_dot_m) + w_x * w_x) * l_x,
+            a_rate: w_x * l_x * T::lit(2.0),
+        }
+    }
+
+    /// No manoeuvre terms (the paper filters, which have no such rows).
+    #[inline(always)]
+    pub(super) fn zero() -> Self {
+        Self {
+            a_theta_f: nalgebra::Matrix3::zeros(),
+            a_rate: nalgebra::Matrix3::zeros(),
+        }
+    }
+}
+
+/// `hᵀ x` of the flight configuration's linear df row `i` (the Jacobian at θ̂ = 0, what
+/// [`h_row_flight_df_with`] builds with θ = 0), without building the row: the same products
+/// summed in the same (ascending index) order as [`SparseRow::dot`], so the same bits (its θ
+/// entries `0 − v` equal `−v`, or are zeros of either sign, which add to a sum started at +0
+/// alike).
+#[inline(always)]
+pub(super) fn linear_df_dot<T: Real, const K: usize, const N: usize>(
+    i: usize,
+    f_s: &Vector3<T>,
+    lever_arm_m: &Vector3<T>,
+    terms: &ManoeuvreTerms<T>,
+    x: &SVector<T, N>,
+) -> T {
+    let s = skew_row(f_s, i);
+    let lever = skew_row(lever_arm_m, i);
+    let xg = |j: usize| x.get(j).copied().unwrap_or_else(T::zero);
+    let mut acc = T::zero();
+    for (a, (&v, &l)) in s.iter().zip(lever.iter()).enumerate() {
+        acc += -v * xg(K * a);
+        acc += terms.a_theta_f.get((i, a)).copied().unwrap_or_else(T::zero) * xg(K * a + 1);
+        acc += terms.a_rate.get((i, a)).copied().unwrap_or_else(T::zero) * xg(K * a + 2);
+        if a != i {
+            acc += l * xg(K * a + 3);
+        } else if has_accel_bias::<K>() {
+            acc += T::one() * xg(K * a + BIAS_STATE);
+        }
+    }
+    acc
+}
+
+/// [`h_row_flight_df`] with the manoeuvre terms computed by the caller (same expressions).
+#[inline(always)]
+pub(super) fn h_row_flight_df_with<T: Real, const K: usize>(
+    i: usize,
+    theta: &Vector3<T>,
+    f_s: &Vector3<T>,
+    lever_arm_m: &Vector3<T>,
+    terms: &ManoeuvreTerms<T>,
+) -> SparseRow<T, 12> {
     let mut h = SparseRow::<T, 12>::new();
     let half = T::lit(0.5);
     let limit = T::lit(MAX_MISALIGNMENT_RAD);
     let c = bounded_misalignment(theta);
     let s = skew_row(f_s, i);
     let lever = skew_row(lever_arm_m, i);
-    let l_x = crate::math::rotation::skew(lever_arm_m);
-    let w_x = crate::math::rotation::skew(omega_m);
-    let a_theta_f = (crate::math::rotation::skew(omega_dot_m) + w_x * w_x) * l_x;
-    let a_rate = w_x * l_x * T::lit(2.0);
     let c_dot_f = c.dot(f_s);
     let (c_i, f_i) = (
         c.get(i).copied().unwrap_or_else(T::zero),
@@ -342,11 +436,11 @@ pub fn h_row_flight_df<T: Real, const K: usize>(
         let _ = h.push(K * a, d - v);
         let _ = h.push(
             K * a + 1,
-            a_theta_f.get((i, a)).copied().unwrap_or_else(T::zero),
+            terms.a_theta_f.get((i, a)).copied().unwrap_or_else(T::zero),
         );
         let _ = h.push(
             K * a + 2,
-            a_rate.get((i, a)).copied().unwrap_or_else(T::zero),
+            terms.a_rate.get((i, a)).copied().unwrap_or_else(T::zero),
         );
         if a != i {
             let _ = h.push(K * a + 3, l);
@@ -388,148 +482,4 @@ pub fn h_matrix<T: Real, const K: usize, const N: usize>(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn h_blocks_as_printed() {
-        let w = Vector3::new(0.1, -0.2, 0.3);
-        let f = Vector3::new(2.0, 1.0, -9.8);
-        let l0 = Vector3::new(0.0, 5.0, 0.0);
-        let h = h_matrix::<f64, 4, 12>(&w, &f, &l0).unwrap();
-        let sk = crate::math::rotation::skew;
-        let wx = sk(&w);
-        let fx = sk(&f);
-        let lx = sk(&l0);
-        assert_eq!(h.fixed_view::<3, 3>(0, 0).into_owned(), -wx);
-        assert_eq!(h.fixed_view::<3, 3>(0, 3).into_owned(), -wx);
-        assert_eq!(
-            h.fixed_view::<3, 3>(0, 6).into_owned(),
-            -nalgebra::Matrix3::identity()
-        );
-        assert_eq!(h.fixed_view::<3, 3>(3, 3).into_owned(), -fx);
-        assert_eq!(h.fixed_view::<3, 3>(3, 9).into_owned(), lx);
-        assert!(h.fixed_view::<3, 3>(3, 6).iter().all(|v| *v == 0.0));
-        // L_0 × θ̈_f = [l θ̈_Z, 0, −l θ̈_X]
-        let th = Vector3::new(1.0, 2.0, 3.0);
-        assert_eq!(lx * th, Vector3::new(5.0 * 3.0, 0.0, -5.0 * 1.0));
-        let h9 = h_matrix::<f64, 3, 9>(&w, &f, &l0).unwrap();
-        assert_eq!(h9.fixed_view::<3, 3>(3, 0).into_owned(), -fx);
-        assert!(h_matrix::<f64, 3, 12>(&w, &f, &l0).is_err());
-        // The filters' rows are the dense rows in axis-major order with θ_m replaced by the
-        // total θ = θ_m + θ_f: z depends on both through their sum (equal columns), so the
-        // θ column keeps that value and the θ_f column vanishes.
-        let l1 = Vector3::new(0.3, 5.0, -0.2);
-        fn expected<const K: usize, const N: usize>(mut d: SVector<f64, N>) -> SVector<f64, N> {
-            for a in 0..3 {
-                assert_eq!(d[K * a], d[K * a + 1], "θ_m and θ_f columns differ");
-                d[K * a + 1] = 0.0;
-            }
-            d
-        }
-        for row in 0..6 {
-            let d: SVector<f64, 12> = h_row(FlexureModel::Proposed, row, &w, &f, &l1, |d, a| {
-                super::super::model::axis_index::<4>(d, a)
-            });
-            let sp = h_row_total::<f64, 4, 4>(FlexureModel::Proposed, row, &w, &f, &l1);
-            assert_eq!(sp.to_dense::<12>(), expected::<4, 12>(d));
-            let d9: SVector<f64, 9> =
-                h_row(FlexureModel::Conventional, row, &w, &f, &l1, |d, a| {
-                    super::super::model::axis_index::<3>(d, a)
-                });
-            let sp9 = h_row_total::<f64, 3, 4>(FlexureModel::Conventional, row, &w, &f, &l1);
-            assert_eq!(sp9.to_dense::<9>(), expected::<3, 9>(d9));
-        }
-    }
-
-    /// The flight df rows are the Jacobian of the second-order model at θ̂ (central finite
-    /// differences of h in every state it depends on), and equal the linear rows at θ̂ = 0.
-    #[test]
-    fn flight_df_rows_are_the_jacobian_of_the_second_order_model() {
-        use super::super::model::FLIGHT_CHAIN as K;
-        let f = Vector3::new(3.0, -2.0, -9.8);
-        let l0 = Vector3::new(0.3, 5.0, -0.2);
-        let model = |x: &SVector<f64, 15>| -> Vector3<f64> {
-            let th = Vector3::new(x[0], x[K], x[2 * K]);
-            let acc = Vector3::new(x[3], x[K + 3], x[2 * K + 3]);
-            let b = Vector3::new(x[4], x[K + 4], x[2 * K + 4]);
-            -f.cross(&th) + th.cross(&th.cross(&f)) * 0.5 + l0.cross(&acc) + b
-        };
-        let mut x = SVector::<f64, 15>::zeros();
-        for (j, v) in x.iter_mut().enumerate() {
-            *v = 0.01 * ((j as f64) * 0.7).sin() + if j % K == 0 { 0.012 } else { 0.0 };
-        }
-        let theta = Vector3::new(x[0], x[K], x[2 * K]);
-        let eps = 1e-6;
-        for i in 0..3 {
-            let z = Vector3::zeros();
-            let row = h_row_flight_df::<f64, K>(i, &theta, &z, &z, &f, &l0).to_dense::<15>();
-            for j in 0..15 {
-                let (mut xp, mut xm) = (x, x);
-                xp[j] += eps;
-                xm[j] -= eps;
-                let fd = (model(&xp)[i] - model(&xm)[i]) / (2.0 * eps);
-                assert!(
-                    (fd - row[j]).abs() < 1e-8,
-                    "row {i} col {j}: {fd} vs {}",
-                    row[j]
-                );
-            }
-            // Beyond the small-angle bound the model's ½ term is built from the bounded θ̂
-            // (constant in that axis): the Jacobian is that model's derivative, so its θ column
-            // of that axis is the linear row's.
-            let lim = MAX_MISALIGNMENT_RAD;
-            let bounded_model = |x: &SVector<f64, 15>| -> Vector3<f64> {
-                let th = Vector3::new(x[0], x[K], x[2 * K]);
-                let c = bounded_misalignment(&th);
-                -f.cross(&th) + c.cross(&c.cross(&f)) * 0.5
-            };
-            let mut xo = x;
-            xo[K] = 1.5 * lim; // θ_Y beyond the bound
-            xo[2 * K] = -1.2 * lim; // θ_Z beyond it on the other side
-            let th_out = Vector3::new(xo[0], xo[K], xo[2 * K]);
-            let row = h_row_flight_df::<f64, K>(i, &th_out, &z, &z, &f, &l0).to_dense::<15>();
-            let linear0 = h_row_flight::<f64, K, 12>(3 + i, &z, &z, &f, &l0).to_dense::<15>();
-            for a in 0..3 {
-                let j = a * K;
-                let (mut xp, mut xm) = (xo, xo);
-                xp[j] += eps;
-                xm[j] -= eps;
-                let fd = (bounded_model(&xp)[i] - bounded_model(&xm)[i]) / (2.0 * eps);
-                assert!(
-                    (fd - row[j]).abs() < 1e-8,
-                    "beyond the bound, row {i} θ axis {a}: {fd} vs {}",
-                    row[j]
-                );
-                if a > 0 {
-                    assert_eq!(row[j], linear0[j], "row {i} θ axis {a} beyond the bound");
-                } else {
-                    assert_ne!(row[j], linear0[j], "row {i} θ_X inside the bound");
-                }
-            }
-            // At θ̂ = 0 the Jacobian is the linear row, manoeuvre terms included.
-            let (w, wd) = (Vector3::new(0.1, -0.4, 0.3), Vector3::new(-0.5, 0.2, 0.9));
-            let linear = h_row_flight::<f64, K, 12>(3 + i, &w, &wd, &f, &l0);
-            let at_zero = h_row_flight_df::<f64, K>(i, &Vector3::zeros(), &w, &wd, &f, &l0);
-            assert_eq!(at_zero.to_dense::<15>(), linear.to_dense::<15>());
-        }
-    }
-
-    #[test]
-    fn lever_arm_compensation_is_rigid_body_kinematics() {
-        let m = MasterSample {
-            time: Timestamp::ZERO,
-            angular_rate_rad_s: Vector3::new(0.0, 0.0, 0.5),
-            angular_accel_rad_s2: Vector3::new(0.0, 0.0, 2.0),
-            specific_force_m_s2: Vector3::new(0.0, 0.0, -9.8),
-        };
-        let l0 = Vector3::new(0.0, 5.0, 0.0);
-        let f = compensate_lever_arm(&m, &l0);
-        // Yaw acceleration 2 rad/s² at 5 m right: −10 m/s² along X; centripetal −0.25·5 along Y.
-        assert!((f - Vector3::new(-10.0, -1.25, -9.8)).norm() < 1e-12);
-        let mut bad = m;
-        bad.angular_accel_rad_s2.y = f64::NAN;
-        assert!(bad.validate().is_err());
-        assert!(m.validate().is_ok());
-    }
-}
+mod tests;

@@ -9,8 +9,8 @@
 //! &design, &initial)` with [`TaInitial`], what the coarse alignment hands over. Each
 //! [`TransferAlignment::step`] takes a time-stamped master sample and the slave IMU sample of
 //! the same epoch, compensates the lever arm, predicts the state to the epoch and fuses the six
-//! scalar measurements `dω_X, dω_Y, dω_Z, df_X, df_Y, df_Z` ([`Channel`]) sequentially (Joseph
-//! form) through the configured [`Gate`](crate::Gate), returning one
+//! scalar measurements `dω_X, dω_Y, dω_Z, df_X, df_Y, df_Z` ([`Channel`]) sequentially
+//! (rank-one form `P − k bᵀ` on the upper triangle) through the configured [`Gate`](crate::Gate), returning one
 //! [`FusionReport`](crate::FusionReport) per update; [`TransferAlignment::aid_counters`] and
 //! `health()` count what happened.
 //!
@@ -101,7 +101,7 @@
 //!
 //! Each scalar update is fused with a measurement variance of at least
 //! `hᵀ P h / MAX_VARIANCE_REDUCTION` ([`MAX_VARIANCE_REDUCTION`]): one update never divides a
-//! variance by more than that ratio, so the Joseph update never subtracts two numbers that agree
+//! variance by more than that ratio, so the update never subtracts two numbers that agree
 //! to more digits than f32 has. An update that still cannot be fused (innovation variance not
 //! positive, a variance that would turn negative) is skipped
 //! ([`FusionOutcome::Skipped`](crate::FusionOutcome::Skipped)): the step goes on with its
@@ -114,8 +114,9 @@
 //!   e₁) and `P ← Φ P Φᵀ + Q_d` is done per 3×3 pair of axis blocks, upper triangle only,
 //!   mirrored;
 //! - H rows are sparse: each of the six rows is built with a constant row number, so its
-//!   pattern (at most 4 of the N columns) folds to constants; `b = P h` and the Joseph update
-//!   are shared, one out-of-line copy per N;
+//!   pattern (at most 4 of the N columns; 12 in the flight configuration's df rows) folds to
+//!   constants; `b = P h` and the rank-one update (`P⁺ = P − k bᵀ`, k = b / s, on the upper
+//!   triangle and mirrored, P⁺'s diagonal checked first) are shared, one out-of-line copy per N;
 //! - all work is done on copies and committed at the end: an error leaves the estimate
 //!   untouched (the covariance is double-buffered).
 //!
@@ -125,7 +126,8 @@
 //! and the per-axis exact discretisation), `design` ([`TaDesign`]), `measurement` (samples,
 //! lever arm, H rows), `history` ([`SlaveHistory`]), `covariance` (the numerics above),
 //! `health` ([`Channel`], counters, health rules), `filter` (the estimator value and its
-//! outputs), `step` (the per-epoch work), `observability` (observability matrices and their
+//! outputs), `step` (the per-epoch work), `rows` (the six scalar rows of an epoch), `fusion`
+//! (the rank-one scalar update), `observability` (observability matrices and their
 //! numerical rank, for analysis).
 mod config;
 mod covariance;
@@ -137,6 +139,7 @@ mod history;
 mod measurement;
 mod model;
 mod observability;
+mod rows;
 mod step;
 #[cfg(test)]
 mod tests;

@@ -3,22 +3,18 @@
 //! [`TransferAlignment::step_delayed`] (match with the slave history).
 use super::config::{MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_SPECIFIC_FORCE_M_S2};
 use super::covariance::{
-    condition, fuse_bounded, initial_covariance, predict_cov, predict_state, reinit_flexure,
-    set_mount_only,
+    condition, initial_covariance, predict_cov, predict_state, reinit_flexure, set_mount_only,
 };
 use super::filter::{Ahead, TransferAlignment};
 use super::health::Channel;
 use super::history::SlaveHistory;
-use super::measurement::{
-    bounded_misalignment, h_row_flight, h_row_flight_df, h_row_total, measurement, MasterSample,
-    SlaveSample,
-};
-use super::model::{has_accel_bias, FlexureModel};
+use super::measurement::{measurement, MasterSample, SlaveSample};
+use super::model::FlexureModel;
+use super::rows::{fuse_rows, RowInputs};
 use crate::contract::Health;
 #[allow(unused_imports)] // doc links
 use crate::math::kalman::fuse_scalar;
-use crate::math::kalman::SparseRow;
-use crate::math::kalman::{covariance_times_row, FusionOutcome, FusionReport};
+use crate::math::kalman::FusionReport;
 use crate::time::Timestamp;
 use crate::{NavError, Real};
 use nalgebra::{SMatrix, SVector, Vector3};
@@ -123,65 +119,6 @@ fn check_ranges<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> Re
         "slave.specific_force_m_s2",
         &slave.specific_force_m_s2,
         force,
-    )
-}
-
-/// θ̂ of the state `x`, each axis bounded to the small-angle range: the second-order terms
-/// built from it stay bounded (and finite) when the estimate has left the model (the filter
-/// then reports `NeedsReinitialisation`); without the bound the quadratic term feeds back on
-/// itself. (θ̇̂ is bounded to the gyro range the same way.)
-#[inline(always)]
-pub(super) fn bounded_theta<T: Real, const K: usize, const N: usize>(
-    x: &SVector<T, N>,
-) -> Vector3<T> {
-    bounded_misalignment(&theta_of::<T, K, N>(x))
-}
-
-/// θ̂ of the state `x` (unbounded).
-#[inline(always)]
-pub(super) fn theta_of<T: Real, const K: usize, const N: usize>(x: &SVector<T, N>) -> Vector3<T> {
-    let g = |i: usize| x.get(i).copied().unwrap_or_else(T::zero);
-    Vector3::new(g(0), g(K), g(2 * K))
-}
-
-/// The measurement with the second-order terms of the exact kinematics removed, so that the
-/// linear model `H x` predicts it to second order in θ (flight configuration). With
-/// `C_m^s = exp(−[θ×]) = I − [θ×] + ½[θ×]² − …` and the slave gyro seeing `J_r(θ) θ̇_f`
-/// (`J_r = I − ½[θ×] + …`):
-///
-/// ```text
-/// dω = [θ×] ω_m − θ̇_f + ½ θ × θ̇_f − ½ θ × (θ × ω_m) + O(θ³ ω_m, θ² θ̇_f)
-/// df = L_0 × θ̈_f − [f_s×] θ + ½ θ × (θ × f_s) + O(θ³ f)   (H uses f_s = C (f̃ − L_0 × θ̈_f))
-/// ```
-///
-/// The linear rows carry everything but the ½ terms; they are evaluated at the predicted θ̂,
-/// θ̇̂ and subtracted from z (five cross products). Beside an accelerometer bias, these
-/// terms (θ_X θ_Z g / 2 ≈ 0.5 mm/s² with the paper's 0.5° mounting σ) are the largest
-/// constant errors of the linear model.
-#[inline(always)]
-pub(super) fn second_order_measurement<T: Real, const K: usize, const N: usize>(
-    z: &SVector<T, 6>,
-    x: &SVector<T, N>,
-    f_s: &Vector3<T>,
-    omega_m: &Vector3<T>,
-) -> SVector<T, 6> {
-    let theta = bounded_theta::<T, K, N>(x);
-    let g = |i: usize, lim: f64| {
-        let l = T::lit(lim);
-        x.get(i).copied().unwrap_or_else(T::zero).max(-l).min(l)
-    };
-    let w = MAX_ANGULAR_RATE_RAD_S;
-    let rate = Vector3::new(g(2, w), g(K + 2, w), g(2 * K + 2, w));
-    let half = T::lit(0.5);
-    let cw = (theta.cross(&rate) - theta.cross(&theta.cross(omega_m))) * half;
-    let cf = theta.cross(&theta.cross(f_s)) * half;
-    SVector::<T, 6>::new(
-        z.x - cw.x,
-        z.y - cw.y,
-        z.z - cw.z,
-        z.w - cf.x,
-        z.a - cf.y,
-        z.b - cf.z,
     )
 }
 
@@ -344,7 +281,13 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             .add_micros(self.dt_us / 2)
             .micros_since(grid)
             .unwrap_or(0);
-        let steps = ahead / self.dt_us.max(1);
+        let dt = self.dt_us.max(1);
+        // A gap below 2³² µs (71 min) divides in 32 bits (a single instruction on the target;
+        // the 64-bit division is a library call): the same quotient.
+        let steps = match (u32::try_from(ahead), u32::try_from(dt)) {
+            (Ok(a), Ok(d)) => u64::from(a / d),
+            _ => ahead / dt,
+        };
         let grid = grid.add_micros(steps.saturating_mul(self.dt_us));
         match u32::try_from(steps) {
             Ok(n) if n <= self.cfg.max_gap_steps => Ok(Plan {
@@ -439,102 +382,19 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             FlexureModel::Conventional => f_comp,
             FlexureModel::Proposed => slave.specific_force_m_s2,
         };
-        let (gate, lever) = (self.cfg.gate, self.cfg.lever_arm_m);
-        let (r_rate, r_accel) = (self.r_rate, self.r_accel);
+        let inputs = RowInputs {
+            omega_m: master.angular_rate_rad_s,
+            omega_dot_m: master.angular_accel_rad_s2,
+            f_h,
+            lever_arm_m: self.cfg.lever_arm_m,
+            r_rate: self.r_rate,
+            r_accel: self.r_accel,
+            gate: self.cfg.gate,
+        };
         let mut x = self.x;
         self.advance_to_scratch(&mut x, &plan);
-        // The flight configuration predicts the measurement to second order in θ (the paper's
-        // filters are linear in θ: exactly as specified).
-        let z = if has_accel_bias::<K>() {
-            second_order_measurement::<T, K, N>(&z, &x, &f_h, &master.angular_rate_rad_s)
-        } else {
-            z
-        };
-        // The df rows' gain and covariance use the same second-order model's Jacobian at this
-        // θ̂ ([`h_row_flight_df`]; flight configuration only). It takes θ̂ unbounded: on an axis
-        // beyond the small-angle bound the predicted ½ term no longer depends on θ, and neither
-        // may the gain (a gain from the slope at the bound let a filter thrown out of its model
-        // run away to non-finite values).
-        let theta_hat = theta_of::<T, K, N>(&x);
         let (_, p) = self.buffers();
-        let empty = FusionReport {
-            innovation: T::zero(),
-            innovation_variance: T::zero(),
-            nis: T::zero(),
-            test_ratio: T::zero(),
-            outcome: FusionOutcome::Rejected,
-        };
-        let mut updates = [empty; 6];
-        // The six rows are written out with constant row indices (and the model follows from K
-        // at compile time), so each row's sparsity pattern is known to the compiler: the
-        // index-driven loops of the sparse update become straight-line code.
-        let model_k = if K >= 4 {
-            FlexureModel::Proposed
-        } else {
-            FlexureModel::Conventional
-        };
-        let omega_m = master.angular_rate_rad_s;
-        let omega_dot_m = master.angular_accel_rad_s2;
-        // Row capacity: the flight configuration's df rows 12 entries (the bias and the flexure
-        // terms of a manoeuvre, `h_row_flight`; gain from the Jacobian at θ̂,
-        // `h_row_flight_df`), its rate rows 5, the paper filters' rows 4.
-        macro_rules! fuse_row {
-            ($row:literal) => {
-                if has_accel_bias::<K>() && $row >= 3 {
-                    fuse_row!($row, flight_df);
-                } else if has_accel_bias::<K>() {
-                    fuse_row!(
-                        $row,
-                        5,
-                        h_row_total::<T, K, 5>(model_k, $row, &omega_m, &f_h, &lever)
-                    );
-                } else {
-                    fuse_row!(
-                        $row,
-                        4,
-                        h_row_total::<T, K, 4>(model_k, $row, &omega_m, &f_h, &lever)
-                    );
-                }
-            };
-            ($row:literal, flight_df) => {
-                if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
-                    // Innovation z − h(x̂): the ½ term is already out of z, the linear row
-                    // predicts the rest; gain and covariance from the Jacobian at θ̂.
-                    let linear =
-                        h_row_flight::<T, K, 12>($row, &omega_m, &omega_dot_m, &f_h, &lever);
-                    let innovation = zi - linear.dot(&x);
-                    let h = h_row_flight_df::<T, K>(
-                        $row % 3,
-                        &theta_hat,
-                        &omega_m,
-                        &omega_dot_m,
-                        &f_h,
-                        &lever,
-                    );
-                    let b = covariance_times_row(p, &h);
-                    let hph = h.dot(&b);
-                    *rep = fuse_bounded(&mut x, p, &b, hph, innovation, r_accel, gate);
-                }
-            };
-            ($row:literal, $m:literal, $h:expr) => {
-                if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
-                    let h: SparseRow<T, $m> = $h;
-                    let r = if $row < 3 { r_rate } else { r_accel };
-                    let innovation = zi - h.dot(&x);
-                    // Built from validated, range-checked inputs with in-range ascending
-                    // indices by construction (tested): no per-entry validation.
-                    let b = covariance_times_row(p, &h);
-                    let hph = h.dot(&b);
-                    *rep = fuse_bounded(&mut x, p, &b, hph, innovation, r, gate);
-                }
-            };
-        }
-        fuse_row!(0);
-        fuse_row!(1);
-        fuse_row!(2);
-        fuse_row!(3);
-        fuse_row!(4);
-        fuse_row!(5);
+        let updates = fuse_rows::<T, K, N>(&mut x, p, &z, &inputs);
         self.commit_epoch(x, &plan, &updates);
         self.last = Some(slave.time);
         Ok(StepReport {

@@ -185,7 +185,7 @@ fn flight_covers_bias_f32_f64() {
 #[test]
 fn second_order_prediction_matches_exact_kinematics() {
     use super::measurement::h_row_total;
-    use super::step::second_order_measurement;
+    use super::rows::second_order_measurement;
     use crate::math::rotation::{exp_so3, skew};
     use nalgebra::Matrix3;
     const K: usize = FLIGHT_CHAIN;
