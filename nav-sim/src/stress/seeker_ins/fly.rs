@@ -2,6 +2,7 @@
 //! computer would, every call and every covariance checked.
 
 use super::*;
+use crate::scenarios::seeker_ins::injection::policy_cast;
 use nav_core::seeker_ins::LosReport;
 use nav_core::NavError;
 

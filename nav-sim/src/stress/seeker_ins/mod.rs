@@ -276,14 +276,3 @@ fn recovery_cast<T: Real>(r: &RecoveryPolicy<f64>) -> RecoveryPolicy<T> {
         },
     }
 }
-
-/// The IMU fault policy in the filter's precision.
-fn policy_cast<T: Real>(p: &ImuFaultPolicy<f64>) -> ImuFaultPolicy<T> {
-    ImuFaultPolicy {
-        max_gap_s: T::lit(p.max_gap_s),
-        gap_accel_sigma_m_s2: T::lit(p.gap_accel_sigma_m_s2),
-        gap_rate_sigma_rad_s: T::lit(p.gap_rate_sigma_rad_s),
-        clip_accel_sigma_m_s2: T::lit(p.clip_accel_sigma_m_s2),
-        clip_rate_sigma_rad_s: T::lit(p.clip_rate_sigma_rad_s),
-    }
-}
