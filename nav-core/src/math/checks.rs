@@ -32,6 +32,19 @@ pub fn all_finite_inline<T: Real>(v: &[T]) -> bool {
     z == T::zero()
 }
 
+/// `Ok` when every value of the input named `input` is finite, else
+/// `NonFiniteInput { input }`: the check of a vector input (a sample's rate, force, velocity).
+pub fn require_finite_input<T: Real>(
+    input: &'static str,
+    values: &[T],
+) -> Result<(), crate::NavError> {
+    if all_finite(values) {
+        Ok(())
+    } else {
+        Err(crate::NavError::NonFiniteInput { input })
+    }
+}
+
 /// `true` when every value is finite (not NaN or ±∞): `values.iter().all(|v| v.is_finite())`.
 /// Computed without a branch per value (it also runs on step paths, on 17 × 17 covariances):
 /// `v · 0` is NaN exactly when `v` is ±∞ or NaN (±0 otherwise), and a sum with a NaN term is

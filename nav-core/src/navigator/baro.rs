@@ -91,7 +91,9 @@ impl<T: Real> BaroState<T> {
     }
 }
 
-/// The updated blocks of one baro fusion (before they are applied).
+/// The updated blocks of one baro fusion (before they are applied; the reference the
+/// navigator's in-place update is tested against).
+#[cfg(test)]
 #[derive(Debug, Clone, Copy)]
 pub struct BaroUpdate<T> {
     /// The report.
@@ -210,6 +212,7 @@ fn gain_from<T: Real>(
 /// P after a baro gain: `P − u kᵀ` (upper triangle, mirrored), then `P_ii + P_ii δ` — the
 /// numbers `SeekerIns::update_rank_one` writes in place. `None`: a variance negative or an
 /// entry not finite.
+#[cfg(test)]
 pub(crate) fn rank_one_p<T: Real>(
     p: &SMatrix<T, STATES, STATES>,
     u: &SVector<T, STATES>,
@@ -244,6 +247,7 @@ pub(crate) fn rank_one_p<T: Real>(
 /// The joint scalar update in its blocks (module doc), P included (the reference of the
 /// navigator's in-place update). `None` when the sample cannot be fused numerically
 /// (skipped); a gate rejection returns the report with `Rejected` and the blocks unchanged.
+#[cfg(test)]
 pub fn baro_update<T: Real>(
     p: &SMatrix<T, STATES, STATES>,
     st: &BaroState<T>,

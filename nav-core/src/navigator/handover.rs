@@ -39,7 +39,7 @@
 
 use crate::earth::radii_m;
 use crate::error::{input_finite, NavError};
-use crate::math::checks::all_finite;
+use crate::math::checks::{all_finite, require_finite_input};
 use crate::math::kalman::is_psd;
 use crate::math::rotation::{dcm_to_quat, exp_so3, skew};
 use crate::seeker_ins::{
@@ -145,11 +145,7 @@ pub fn right_jacobian<T: Real>(theta: &Vector3<T>) -> Matrix3<T> {
 }
 
 fn finite3<T: Real>(v: &Vector3<T>, input: &'static str) -> Result<(), NavError> {
-    if all_finite(v.as_slice()) {
-        Ok(())
-    } else {
-        Err(NavError::NonFiniteInput { input })
-    }
+    require_finite_input(input, v.as_slice())
 }
 
 fn sigma3<T: Real>(v: &Vector3<T>, input: &'static str) -> Result<(), NavError> {

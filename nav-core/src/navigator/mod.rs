@@ -1,10 +1,10 @@
 //! The flight navigator's building blocks: the three estimators flown as one chain (spec
 //! `flight-navigator.md`). An estimator module never uses another; this module composes them.
 //!
-//! * [`Navigator`] (`flight`, `types`, [`baro`]): the phase state machine carry → released →
+//! * [`Navigator`] (`flight`, `types`, `baro`): the phase state machine carry → released →
 //!   midcourse → terminal around one missile INS, with the transfer alignment under the wing
 //!   and the 17-state EKF after release (see "Flight navigator" below).
-//! * [`handover`]: the launch hand-over from the transfer alignment under the wing to the
+//! * [`hand_over`] (`handover`): the launch hand-over from the transfer alignment under the wing to the
 //!   free-flight INS and its 17-state EKF — attitude, velocity and position carried through
 //!   the lever arm, with their covariance mapped into the EKF's error state.
 //!
@@ -86,7 +86,7 @@
 //! gyro and gimbal biases from their priors. The flight alignment's estimate of the
 //! specific-force-difference bias is **not** handed over: the EKF's accelerometer bias starts
 //! from its prior (`priors.accel_bias_sigma_m_s2`), zero estimate, but with the attitude–bias
-//! cross-covariance the alignment's joint estimate of θ and that bias implies ([`handover`]).
+//! cross-covariance the alignment's joint estimate of θ and that bias implies ([`hand_over`]).
 //! While a signalled separation awaits the IMU's confirmation, master samples whose epoch is
 //! within one IMU interval of the signal's or later are not fused (`NotUsedInPhase`): the
 //! slave interpolated at that epoch is already the dropping missile, no longer the wing's
@@ -95,7 +95,7 @@
 //!
 //! **Released → midcourse** after `coast_s`. **Midcourse**: [`BaroDamping::Ekf`] fuses the
 //! baro altitude as a scalar EKF measurement with its correlated error as an 18th state kept
-//! beside the 17 (module [`baro`]); [`BaroDamping::InertialLoop`] runs the classical
+//! beside the 17 ([`BaroState`]); [`BaroDamping::InertialLoop`] runs the classical
 //! baro-inertial loop around the INS's vertical channel and gives the EKF its σ;
 //! [`BaroDamping::Off`] leaves the vertical channel free. **Terminal** from the first fused
 //! LOS component; the seeker is `TimedOut` after `timeouts.seeker_s` without one (the phase
@@ -185,11 +185,11 @@
 //! ```
 
 // Flight navigator: see the section above.
-pub mod baro;
+mod baro;
 mod carry;
 mod design;
 mod flight;
-pub mod handover;
+mod handover;
 #[cfg(test)]
 mod tests;
 mod types;

@@ -10,15 +10,10 @@
 //! and `P` untouched), one update never divides a variance by more than
 //! [`super::MAX_VARIANCE_REDUCTION`] (`fuse_bounded`), and every committed covariance is
 //! loaded and conditioned ([`super::covariance::condition`]).
+use crate::math::checks::finite;
 use crate::math::kalman::{gate_scalar, FusionOutcome, FusionReport, Gate};
 use crate::Real;
 use nalgebra::{SMatrix, SVector};
-
-/// `true` for a finite value (NaN fails the comparison).
-#[inline(always)]
-fn finite<T: Real>(v: T) -> bool {
-    v.abs() < T::lit(f64::INFINITY)
-}
 
 /// One scalar update of `x`, `P` given `b = P h` and `hph = hᵀ P h` (`r` the measurement
 /// variance, in the measurement's unit squared). `Ok(report)` when fused or rejected by the
