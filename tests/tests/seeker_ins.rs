@@ -7,8 +7,8 @@ use nav_core::contract::{Estimator, Gate};
 use nav_core::earth::radii_m;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
-    gimbal_angles_of, landmark_vector_ned, GimbalAngles, ImuIncrement, Ins, InsState, Landmark,
-    LosSample, Position, SeekerIns, SeekerInsConfig, SeekerInsInitial,
+    gimbal_angles_of, landmark_vector_ned, paper_initial_covariance, GimbalAngles, ImuIncrement,
+    Ins, InsState, Landmark, LosSample, Position, SeekerIns, SeekerInsConfig, SeekerInsInitial,
 };
 use nav_core::time::Timestamp;
 use nav_core::FusionOutcome;
@@ -162,20 +162,8 @@ fn filter_at_start() -> (SeekerIns<f32>, LosSample<f32>) {
     })
     .unwrap();
     let c = euler_to_dcm(0.0f32, 0.0, std::f32::consts::FRAC_PI_2);
-    let cfg = SeekerInsConfig {
-        accel_noise_density_m_s2_rt_hz: 5e-5,
-        gyro_noise_density_rad_s_rt_hz: 3e-6,
-        seeker_noise_rad: 0.003,
-        ..SeekerInsConfig::paper(lm)
-    };
-    let mut p0 = SMatrix::<f32, 17, 17>::zeros();
-    let sig = [
-        6e-6, 6e-6, 40.0, 10.0, 10.0, 10.0, 0.017, 0.017, 0.087, 1e-3, 1e-3, 1e-3, 5e-8, 5e-8,
-        5e-8, 7e-4, 7e-4,
-    ];
-    for (i, s) in sig.iter().enumerate() {
-        p0[(i, i)] = s * s;
-    }
+    let cfg = SeekerInsConfig::paper(lm);
+    let p0 = paper_initial_covariance::<f32>();
     let initial = SeekerInsInitial {
         state: InsState {
             position: pos,

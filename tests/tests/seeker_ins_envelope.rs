@@ -57,12 +57,7 @@ fn offset(north_m: f64, east_m: f64, alt_m: f64) -> Position {
 }
 
 fn config<T: Real>(landmark: Position) -> SeekerInsConfig<T> {
-    SeekerInsConfig {
-        accel_noise_density_m_s2_rt_hz: T::lit(5e-5),
-        gyro_noise_density_rad_s_rt_hz: T::lit(3e-6),
-        seeker_noise_rad: T::lit(0.003),
-        ..SeekerInsConfig::paper(Landmark::new(landmark).unwrap())
-    }
+    SeekerInsConfig::paper(Landmark::new(landmark).unwrap())
 }
 
 /// The paper's initial covariance (Table 4, diagonal).

@@ -106,12 +106,7 @@ fn config<T: Real>() -> SeekerInsConfig<T> {
         lon_rad: start.lon_rad + 70_000.0 / (6.378e6 * 37f64.to_radians().cos()),
         alt_m: 0.0,
     };
-    SeekerInsConfig {
-        accel_noise_density_m_s2_rt_hz: T::lit(5e-5),
-        gyro_noise_density_rad_s_rt_hz: T::lit(3e-6),
-        seeker_noise_rad: T::lit(0.003),
-        ..SeekerInsConfig::paper(Landmark::new(lm).unwrap())
-    }
+    SeekerInsConfig::paper(Landmark::new(lm).unwrap())
 }
 
 fn initial<T: Real>() -> SeekerInsInitial<T> {

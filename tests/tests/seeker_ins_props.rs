@@ -42,12 +42,7 @@ fn config<T: Real>(lm_north_m: f64, lm_east_m: f64) -> SeekerInsConfig<T> {
         alt_m: 0.0,
     })
     .unwrap();
-    SeekerInsConfig {
-        accel_noise_density_m_s2_rt_hz: T::lit(5e-5),
-        gyro_noise_density_rad_s_rt_hz: T::lit(3e-6),
-        seeker_noise_rad: T::lit(0.003),
-        ..SeekerInsConfig::paper(lm)
-    }
+    SeekerInsConfig::paper(lm)
 }
 
 /// The paper's initial covariance (Table 4, diagonal).

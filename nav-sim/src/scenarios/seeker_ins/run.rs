@@ -12,13 +12,13 @@ use crate::rng::{normal, SimRng};
 use anyhow::{bail, Result};
 use nalgebra::{Matrix3, SMatrix, Vector3};
 use nav_core::contract::{Estimator, Gate};
-use nav_core::math::kalman::FusionOutcome;
 use nav_core::math::rotation::{dcm_to_euler, dcm_to_quat, euler_to_dcm};
 use nav_core::seeker_ins::{
     default_recovery, gimbal_angles_of, landmark_vector_ned, ClipFlags, GimbalAngles,
     ImuFaultPolicy, ImuIncrement, InsState, InstrumentErrors, Landmark, LosResidual, LosSample,
     Position, SeekerAid, SeekerIns, SeekerInsConfig, SeekerInsInitial, STATES,
 };
+use nav_core::FusionOutcome;
 use nav_core::Real;
 
 /// Which filter a run flies.
