@@ -5,7 +5,7 @@ use super::config::{MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_SPECIF
 use super::covariance::{
     condition, initial_covariance, predict_cov, predict_state, reinit_flexure, set_mount_only,
 };
-use super::filter::{Ahead, TransferAlignment};
+use super::filter::{Ahead, TransferAlignment, Undo};
 use super::health::Channel;
 use super::history::SlaveHistory;
 use super::measurement::{measurement, MasterSample, SlaveSample};
@@ -243,18 +243,33 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         slave: &SlaveSample<T>,
         then: impl FnOnce(&Self) -> Result<R, NavError>,
     ) -> Result<(StepReport<T>, R), NavError> {
-        let (x, grid, last, monitor, second) =
-            (self.x, self.grid, self.last, self.monitor, self.second);
+        self.undo = Undo {
+            x: self.x,
+            grid: self.grid,
+            last: self.last,
+            monitor: self.monitor,
+            second: self.second,
+        };
         let report = self.step(master, slave)?;
         match then(self) {
             Ok(r) => Ok((report, r)),
             Err(e) => {
-                self.x = x;
-                self.grid = grid;
-                self.last = last;
-                self.monitor = monitor;
-                self.second = second;
-                self.ahead = None;
+                let Self {
+                    undo,
+                    x,
+                    grid,
+                    last,
+                    monitor,
+                    second,
+                    ahead,
+                    ..
+                } = self;
+                *x = undo.x;
+                *grid = undo.grid;
+                *last = undo.last;
+                *monitor = undo.monitor;
+                *second = undo.second;
+                *ahead = None;
                 Err(e)
             }
         }
