@@ -92,11 +92,12 @@ pub(super) struct RowInputs<T: Real> {
 }
 
 /// Fuses the six scalar measurements `z` (dω_X..Z, df_X..Z) into the predicted `x`, `P` in
-/// order; one report per row, written into `updates` (the caller's slot). The rows are written out with constant row indices (and the
-/// model follows from K at compile time), so each row's sparsity pattern is known to the
-/// compiler. Row capacity: the flight configuration's df rows 12 entries (the bias and the
-/// flexure terms of a manoeuvre; innovation from the linear row, gain from the Jacobian at θ̂),
-/// its rate rows 5, the paper filters' rows 4.
+/// order; one report per row, written into `updates` (the caller's slot). The rows are
+/// written out with constant row indices (and the model follows from K at compile time), so
+/// each row's sparsity pattern is known to the compiler. Row capacity: the flight
+/// configuration's df rows 12 entries (the bias and the flexure terms of a manoeuvre;
+/// innovation from the linear row, gain from the Jacobian at θ̂), its rate rows 5, the paper
+/// filters' rows 4.
 #[inline(always)]
 pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     x: &mut SVector<T, N>,
