@@ -104,6 +104,21 @@ pub struct TransferAlignment<T: Real, const K: usize, const N: usize> {
     /// Predictions run from the current epoch ahead of the next one, their covariance in the
     /// scratch buffer ([`Self::predict_ahead`]); `None`: nothing prepared.
     pub(super) ahead: Option<Ahead<T, N>>,
+    /// What [`TransferAlignment::step_then`] restores when its continuation fails (kept in the
+    /// filter, not on the stack: the step's frame is the deepest of a master tick). Read only
+    /// there, between the step and its continuation.
+    pub(super) undo: Undo<T, N>,
+}
+
+/// The part of the filter a step changes besides the scratch covariance buffer: the state,
+/// clock, counters and which buffer is current ([`TransferAlignment::step_then`]).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Undo<T: Real, const N: usize> {
+    pub(super) x: SVector<T, N>,
+    pub(super) grid: Option<Timestamp>,
+    pub(super) last: Option<Timestamp>,
+    pub(super) monitor: Monitor,
+    pub(super) second: bool,
 }
 
 /// Predictions run ahead of the next epoch ([`TransferAlignment::predict_ahead`]).
@@ -207,6 +222,13 @@ impl<T: Real, const K: usize, const N: usize> Estimator for TransferAlignment<T,
             last: None,
             monitor: Monitor::new(),
             ahead: None,
+            undo: Undo {
+                x,
+                grid: None,
+                last: None,
+                monitor: Monitor::new(),
+                second: false,
+            },
         })
     }
 

@@ -92,18 +92,20 @@ pub(super) struct RowInputs<T: Real> {
 }
 
 /// Fuses the six scalar measurements `z` (dω_X..Z, df_X..Z) into the predicted `x`, `P` in
-/// order; one report per row. The rows are written out with constant row indices (and the
-/// model follows from K at compile time), so each row's sparsity pattern is known to the
-/// compiler. Row capacity: the flight configuration's df rows 12 entries (the bias and the
-/// flexure terms of a manoeuvre; innovation from the linear row, gain from the Jacobian at θ̂),
-/// its rate rows 5, the paper filters' rows 4.
+/// order; one report per row, written into `updates` (the caller's slot). The rows are
+/// written out with constant row indices (and the model follows from K at compile time), so
+/// each row's sparsity pattern is known to the compiler. Row capacity: the flight
+/// configuration's df rows 12 entries (the bias and the flexure terms of a manoeuvre;
+/// innovation from the linear row, gain from the Jacobian at θ̂), its rate rows 5, the paper
+/// filters' rows 4.
 #[inline(always)]
 pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     x: &mut SVector<T, N>,
     p: &mut SMatrix<T, N, N>,
     z: &SVector<T, 6>,
     inputs: &RowInputs<T>,
-) -> [FusionReport<T>; 6] {
+    updates: &mut [FusionReport<T>; 6],
+) {
     let RowInputs {
         omega_m,
         omega_dot_m,
@@ -131,7 +133,7 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     } else {
         ManoeuvreTerms::zero()
     };
-    let mut updates = [not_fused(); 6];
+    *updates = [not_fused(); 6];
     let model_k = model_of::<K>();
     macro_rules! fuse_row {
         ($row:literal) => {
@@ -173,7 +175,6 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     fuse_row!(3);
     fuse_row!(4);
     fuse_row!(5);
-    updates
 }
 
 /// One scalar update with the sparse row `h` (built from validated, range-checked inputs with
@@ -195,7 +196,7 @@ fn fuse_sparse<T: Real, const N: usize, const M: usize>(
 
 /// The placeholder report of a row not yet fused.
 #[inline(always)]
-fn not_fused<T: Real>() -> FusionReport<T> {
+pub(super) fn not_fused<T: Real>() -> FusionReport<T> {
     FusionReport {
         innovation: T::zero(),
         innovation_variance: T::zero(),

@@ -5,12 +5,12 @@ use super::config::{MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_SPECIF
 use super::covariance::{
     condition, initial_covariance, predict_cov, predict_state, reinit_flexure, set_mount_only,
 };
-use super::filter::{Ahead, TransferAlignment};
+use super::filter::{Ahead, TransferAlignment, Undo};
 use super::health::Channel;
 use super::history::SlaveHistory;
 use super::measurement::{measurement, MasterSample, SlaveSample};
 use super::model::FlexureModel;
-use super::rows::{fuse_rows, RowInputs};
+use super::rows::{fuse_rows, not_fused, RowInputs};
 use crate::contract::Health;
 #[allow(unused_imports)] // doc links
 use crate::math::kalman::fuse_scalar;
@@ -58,6 +58,19 @@ pub struct StepReport<T> {
     /// One report per scalar update, in the order of [`Channel::ALL`] (dω_X, dω_Y, dω_Z, df_X,
     /// df_Y, df_Z). Every number is finite.
     pub updates: [FusionReport<T>; 6],
+}
+
+impl<T: Real> StepReport<T> {
+    /// A report slot before its first step (for [`TransferAlignment::step_then`]'s caller):
+    /// stamped `time`, nothing predicted, every update a zero `Rejected` placeholder.
+    pub fn blank(time: Timestamp) -> Self {
+        Self {
+            time,
+            predictions: 0,
+            gap: GapOutcome::Started,
+            updates: [not_fused(); 6],
+        }
+    }
 }
 
 impl<T: Copy> StepReport<T> {
@@ -233,28 +246,56 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
 
     /// [`Self::step`], then `then` on the stepped filter; when `then` fails the step is undone
     /// (the estimate, its covariance, time and every counter as before the call — the step
-    /// wrote the other covariance buffer only, so nothing larger than the state is saved) and
-    /// its error returned. For a caller whose own commit depends on the updated estimate
-    /// (the navigator's hand-over), without a copy of the filter. Errors: those of
+    /// wrote the other covariance buffer only, so nothing larger than the state is saved, and
+    /// that in the filter's own undo record, not on the stack) and its error returned. For a
+    /// caller whose own commit depends on the updated estimate (the navigator's hand-over),
+    /// without a copy of the filter. The step's report is written into `report` (the caller's
+    /// slot, not returned by value): untouched when the step refuses the sample, written when
+    /// it ran (also when `then` then fails and the step is undone). Errors: those of
     /// [`Self::step`] (nothing changed), then those of `then` (step undone).
     pub fn step_then<R>(
         &mut self,
         master: &MasterSample<T>,
         slave: &SlaveSample<T>,
+        report: &mut StepReport<T>,
         then: impl FnOnce(&Self) -> Result<R, NavError>,
-    ) -> Result<(StepReport<T>, R), NavError> {
-        let (x, grid, last, monitor, second) =
-            (self.x, self.grid, self.last, self.monitor, self.second);
-        let report = self.step(master, slave)?;
-        match then(self) {
-            Ok(r) => Ok((report, r)),
+    ) -> Result<R, NavError> {
+        self.undo = Undo {
+            x: self.x,
+            grid: self.grid,
+            last: self.last,
+            monitor: self.monitor,
+            second: self.second,
+        };
+        let plan = match self.try_step_into(master, slave, &mut report.updates) {
+            Ok(plan) => plan,
             Err(e) => {
-                self.x = x;
-                self.grid = grid;
-                self.last = last;
-                self.monitor = monitor;
-                self.second = second;
-                self.ahead = None;
+                Health::bump(&mut self.monitor.health.imu_refused);
+                return Err(e);
+            }
+        };
+        report.time = slave.time;
+        report.predictions = plan.predictions;
+        report.gap = plan.gap;
+        match then(self) {
+            Ok(r) => Ok(r),
+            Err(e) => {
+                let Self {
+                    undo,
+                    x,
+                    grid,
+                    last,
+                    monitor,
+                    second,
+                    ahead,
+                    ..
+                } = self;
+                *x = undo.x;
+                *grid = undo.grid;
+                *last = undo.last;
+                *monitor = undo.monitor;
+                *second = undo.second;
+                *ahead = None;
                 Err(e)
             }
         }
@@ -324,11 +365,19 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         master: &MasterSample<T>,
         slave: &SlaveSample<T>,
     ) -> Result<StepReport<T>, NavError> {
-        let result = self.try_step(master, slave);
-        if result.is_err() {
-            Health::bump(&mut self.monitor.health.imu_refused);
+        let mut updates = [not_fused(); 6];
+        match self.try_step_into(master, slave, &mut updates) {
+            Ok(plan) => Ok(StepReport {
+                time: slave.time,
+                predictions: plan.predictions,
+                gap: plan.gap,
+                updates,
+            }),
+            Err(e) => {
+                Health::bump(&mut self.monitor.health.imu_refused);
+                Err(e)
+            }
         }
-        result
     }
 
     /// Checks of [`Self::step`] that need no prediction: the plan, or the refusal.
@@ -360,12 +409,15 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         self.plan(slave.time)
     }
 
-    #[inline(always)] // the report is built in the caller's return slot
-    fn try_step(
+    /// [`Self::step`]'s work: the six reports written into `updates` (the caller's slot);
+    /// returns the time plan it ran. Refused: `updates` untouched, nothing changed.
+    #[inline(always)]
+    fn try_step_into(
         &mut self,
         master: &MasterSample<T>,
         slave: &SlaveSample<T>,
-    ) -> Result<StepReport<T>, NavError> {
+        updates: &mut [FusionReport<T>; 6],
+    ) -> Result<Plan, NavError> {
         let plan = self.check_epoch(master, slave)?;
         let matching = measurement(master, slave, &self.cfg.lever_arm_m);
         let (z, f_comp) = (matching.z, matching.master_force_compensated_m_s2);
@@ -394,15 +446,10 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         let mut x = self.x;
         self.advance_to_scratch(&mut x, &plan);
         let (_, p) = self.buffers();
-        let updates = fuse_rows::<T, K, N>(&mut x, p, &z, &inputs);
-        self.commit_epoch(x, &plan, &updates);
+        fuse_rows::<T, K, N>(&mut x, p, &z, &inputs, updates);
+        self.commit_epoch(x, &plan, updates);
         self.last = Some(slave.time);
-        Ok(StepReport {
-            time: slave.time,
-            predictions: plan.predictions,
-            gap: plan.gap,
-            updates,
-        })
+        Ok(plan)
     }
 
     /// Commits an epoch's updates: counters, recovery, conditioning, state, buffer swap, grid

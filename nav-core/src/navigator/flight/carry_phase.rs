@@ -19,7 +19,7 @@ use crate::earth::{earth_rate_ned, transport_rate_ned};
 use crate::seeker_ins::{validate_increment, ImuIncrement, Ins, SeekerIns, SeekerInsInitial};
 use crate::time::Timestamp;
 use crate::transfer_alignment::{
-    compensate_lever_arm, GapOutcome, MasterSample, SlaveSample, TransferAlignment,
+    compensate_lever_arm, GapOutcome, MasterSample, SlaveSample, StepReport, TransferAlignment,
 };
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, Vector3};
@@ -103,6 +103,8 @@ pub(super) struct MasterEpoch<T> {
     at: MasterAtRelease<T>,
     /// The stamp of the INS snapshot nearest the master's epoch.
     snap_time: Timestamp,
+    /// The alignment's report of the step on this epoch (written in place by the step).
+    report: StepReport<T>,
 }
 
 impl<T> core::fmt::Debug for MasterEpoch<T> {
@@ -144,6 +146,7 @@ impl<T: Real> MasterEpoch<T> {
                 rate_sigma_rad_s: T::zero(),
             },
             snap_time: time,
+            report: StepReport::blank(time),
         }
     }
 }
@@ -508,44 +511,53 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             snapshots,
             ..
         } = self;
-        let e = &*epoch;
+        let MasterEpoch {
+            sample,
+            slave,
+            at,
+            snap_time,
+            report,
+        } = epoch;
         // The snapshot the checks found (read in place, not copied).
         let snap = snapshots
             .iter()
             .rev()
-            .find(|s| s.time == e.snap_time)
+            .find(|s| s.time == *snap_time)
             .ok_or(NavError::MeasurementTimeOutOfWindow)?;
-        let (report, ()) = ta.step_then(&e.sample, &e.slave, |ta| {
+        // The report written into the navigator's scratch epoch (not returned by value).
+        ta.step_then(sample, slave, report, |ta| {
             let out = CarryTargets {
                 ins,
                 carry_cov,
                 handover,
                 snapshot_fix,
             };
-            slave_to(config, ta, &e.at, snap, now, out)
+            slave_to(config, ta, at, snap, now, out)
         })?;
+        let e = &self.epoch;
         // What the next sample will likely need: as many predictions as this one; after the
         // first epoch (nothing predicted, the master's interval not known yet) as many as a
         // tick runs ahead, so that the next master tick predicts nothing itself (predictions
         // run ahead but not needed are discarded by the step: the cost is that of today's).
-        self.master_steps = if report.gap == GapOutcome::Started {
+        self.master_steps = if e.report.gap == GapOutcome::Started {
             MAX_AHEAD_PER_TICK
         } else {
-            report.predictions.max(1)
+            e.report.predictions.max(1)
         };
         self.last_master = Some(MasterRecord {
             f_master_m_s2: compensate_lever_arm(&e.sample, &self.config.lever_arm.nominal_m),
             theta_rad: self.ta.theta(),
         });
-        Ok(self.record_master(&report.updates))
+        Ok(self.record_master())
     }
 
-    /// The master track after a fused sample's `updates`: counters, the component with the
-    /// largest NIS, the time of the last fusion; `Fused` when one component was.
-    fn record_master(&mut self, updates: &[FusionReport<T>]) -> AidState {
+    /// The master track after a fused sample's updates (the step's report in the scratch
+    /// epoch): counters, the component with the largest NIS, the time of the last fusion;
+    /// `Fused` when one component was.
+    fn record_master(&mut self) -> AidState {
         let mut worst: Option<FusionReport<T>> = None;
         let mut any_fused = false;
-        for u in updates {
+        for u in &self.epoch.report.updates {
             self.master.counters.record(u.outcome);
             any_fused |= u.outcome == FusionOutcome::Fused;
             if worst.is_none_or(|w| u.nis > w.nis) {

@@ -270,7 +270,8 @@ fn step_then_undoes<T: Real, const K: usize, const N: usize>() {
     assert!(f.predict_ahead());
     let before = format!("{f:?}");
     let (m, s) = samples::<T>(0.02);
-    let undone = f.step_then(&m, &s, |g| {
+    let mut report = StepReport::blank(m.time);
+    let undone = f.step_then(&m, &s, &mut report, |g| {
         assert_ne!(
             format!("{g:?}"),
             before,
@@ -281,18 +282,23 @@ fn step_then_undoes<T: Real, const K: usize, const N: usize>() {
     assert_eq!(undone, Err(NavError::InputOutOfRange { input: "test" }));
     assert_eq!(format!("{f:?}"), before);
     assert_eq!(f.covariance(), twin.covariance());
-    let (report, theta) = f.step_then(&m, &s, |g| Ok(g.theta())).unwrap();
+    let theta = f.step_then(&m, &s, &mut report, |g| Ok(g.theta())).unwrap();
     assert_eq!(Ok(report), twin.step(&m, &s));
     assert_eq!(theta, twin.theta());
     assert_eq!(format!("{f:?}"), format!("{twin:?}"));
     // Refused (same time again): the continuation is not called.
     let mut called = false;
-    let refused = f.step_then(&m, &s, |_| {
+    let written = report;
+    let refused = f.step_then(&m, &s, &mut report, |_| {
         called = true;
         Ok(())
     });
     assert_eq!(refused, Err(NavError::TimeNotIncreasing));
     assert!(!called);
+    assert_eq!(
+        report, written,
+        "a refused sample leaves the report slot untouched"
+    );
     let (m, s) = samples::<T>(0.03);
     assert_eq!(f.step(&m, &s), twin.step(&m, &s));
     assert_eq!(
