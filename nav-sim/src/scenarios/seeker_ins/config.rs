@@ -1,8 +1,8 @@
 //! The scenario file: configuration structs, loading, the landmark and the output epochs.
 
 use super::trajectory::{TrajectoryConfig, Truth};
+use crate::truth::radii_of_curvature_m as radii_m;
 use anyhow::Result;
-use nav_core::earth::radii_m;
 use nav_core::seeker_ins::Position;
 use serde::Deserialize;
 

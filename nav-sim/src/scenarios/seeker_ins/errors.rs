@@ -4,8 +4,8 @@
 
 use super::trajectory::Truth;
 use crate::consistency::RunConsistency;
+use crate::truth::radii_of_curvature_m as radii_m;
 use nalgebra::{Matrix3, SMatrix, SVector, Vector2, Vector3};
-use nav_core::earth::radii_m;
 use nav_core::math::rotation::{dcm_to_euler, euler_to_dcm, log_so3, quat_to_dcm};
 use nav_core::seeker_ins::{SeekerIns, STATES};
 use nav_core::Real;

@@ -8,8 +8,8 @@ use crate::output::{sig, write_csv};
 use crate::plot::{render, Figure, Panel, Series};
 use crate::scenario::Context;
 use crate::stats::ensemble;
+use crate::truth::radii_of_curvature_m as radii_m;
 use anyhow::Result;
-use nav_core::earth::radii_m;
 use nav_core::seeker_ins::STATES;
 use serde_json::json;
 
