@@ -10,7 +10,7 @@
 #[cfg(test)]
 mod tests {
     use super::super::config::load_config;
-    use super::super::run::initial_covariance_for_tests;
+    use super::super::run::initial_covariance;
     use super::super::sensors::Sensors;
     use super::super::trajectory::generate;
     use crate::rng::run_rng;
@@ -69,7 +69,7 @@ mod tests {
             let dt = truth.dt_s * steps as f64;
             let sensors = Sensors::draw(&cfg, truth.dt_s, &mut run_rng(1, 0));
             let (qa, qg) = (sensors.vrw * sensors.vrw, sensors.arw * sensors.arw);
-            let p0: P = initial_covariance_for_tests(&cfg, &truth.c_b_n[0]);
+            let p0: P = initial_covariance(&cfg, &truth.c_b_n[0]);
             for (label, keep) in [
                 ("everything", everything as Keep),
                 ("kinematic", kinematic),

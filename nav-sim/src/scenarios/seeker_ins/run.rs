@@ -102,7 +102,7 @@ pub(crate) fn table4_state<T: Real>(
 }
 
 /// The filter's P0: Table 4 and the bias σ of the filter configuration.
-fn initial_covariance(cfg: &Config, c0: &Matrix3<f64>) -> SMatrix<f64, STATES, STATES> {
+pub(super) fn initial_covariance(cfg: &Config, c0: &Matrix3<f64>) -> SMatrix<f64, STATES, STATES> {
     let fc = &cfg.filter;
     table4_covariance(
         &cfg.initial_error,
@@ -111,15 +111,6 @@ fn initial_covariance(cfg: &Config, c0: &Matrix3<f64>) -> SMatrix<f64, STATES, S
         fc.gyro_bias_sigma_deg_h.to_radians() / 3600.0,
         fc.gimbal_bias_sigma_deg.to_radians(),
     )
-}
-
-/// [`initial_covariance`] for the model-reduction measurement.
-#[cfg(test)]
-pub(crate) fn initial_covariance_for_tests(
-    cfg: &Config,
-    c0: &Matrix3<f64>,
-) -> SMatrix<f64, STATES, STATES> {
-    initial_covariance(cfg, c0)
 }
 
 /// P0 of the 17 states: the Table 4 σ of `ie` (the Euler-angle σ mapped to the misalignment
