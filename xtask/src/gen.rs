@@ -252,8 +252,7 @@ fn predict_source() -> String {
             let _ = writeln!(
                 s,
                 "    // Columns {LOOP_FROM}..{N}: one body, looped (P exactly symmetric: whole columns);\n\
-                 \x20   // the columns from {NAV} on are results, probed as they are made.\n\
-                 \x20   let mut probe = z;\n\
+                 \x20   // the columns from {NAV} on are results (probed below).\n\
                  \x20   let ul: [[T; 9]; {}] = core::array::from_fn(|k| {{\n\
                  \x20       let Some(col) = p.get(k + {LOOP_FROM}) else {{\n\
                  \x20           return [z; 9];\n\
@@ -321,12 +320,6 @@ fn predict_source() -> String {
             );
         }
         if looped {
-            let probes: Vec<String> = (0..NAV).map(|i| format!(" + u{i} * z")).collect();
-            let _ = writeln!(
-                s,
-                "        if k + {LOOP_FROM} >= {NAV} {{\n            probe = probe{};\n        }}",
-                probes.concat()
-            );
             let all: Vec<String> = (0..NAV).map(|i| format!("u{i}")).collect();
             let _ = writeln!(s, "        [{}]\n    }});", all.join(", "));
         }
@@ -334,6 +327,16 @@ fn predict_source() -> String {
     // Row by row of U (rows 0..9): Y[i][m] = Σ_k U[i][k] G[m][k] for m ≥ i, then the corner's
     // row i, P'[i][j] (j ≥ i), which needs U and Y of row i only: each row of U is read while
     // its values are at hand, and every result is probed as it is made.
+    // The results U[i][j], j ≥ NAV, that no corner entry reads: a non-finite U[i][j] with
+    // G[r][j] structurally non-zero for some r ≥ i makes Y[i][r] and so P'[i][r] non-finite
+    // (a product or sum with a non-finite operand is never finite), which the corner's probe
+    // sees; only the others are probed here.
+    let uncovered: Vec<String> = (NAV..N)
+        .flat_map(|j| (0..NAV).map(move |i| (i, j)))
+        .filter(|&(i, j)| !g.iter().any(|x| x.col == j && x.row >= i))
+        .map(|(i, j)| format!(" + {} * z", uref(j, i)))
+        .collect();
+    let _ = writeln!(s, "    let mut probe = z{};", uncovered.concat());
     s.push_str("    // Y = U Gᵀ and the corner P'[i][j], j ≥ i, row by row of U.\n");
     for i in 0..NAV {
         for m in i..NAV {

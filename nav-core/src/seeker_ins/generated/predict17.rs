@@ -183,8 +183,7 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
     let u1_0 = p[1][0] + (w0 + h0_3 * w3);
     let u1_1 = p[1][1] + (w1 + h1_4 * w4);
     // Columns 2..17: one body, looped (P exactly symmetric: whole columns);
-    // the columns from 9 on are results, probed as they are made.
-    let mut probe = z;
+    // the columns from 9 on are results (probed below).
     let ul: [[T; 9]; 15] = core::array::from_fn(|k| {
         let Some(col) = p.get(k + 2) else {
             return [z; 9];
@@ -243,20 +242,36 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
         let u6 = col[6] + w6;
         let u7 = col[7] + w7;
         let u8 = col[8] + w8;
-        if k + 2 >= 9 {
-            probe = probe
-                + u0 * z
-                + u1 * z
-                + u2 * z
-                + u3 * z
-                + u4 * z
-                + u5 * z
-                + u6 * z
-                + u7 * z
-                + u8 * z;
-        }
         [u0, u1, u2, u3, u4, u5, u6, u7, u8]
     });
+    let mut probe = z
+        + ul[7][6] * z
+        + ul[7][7] * z
+        + ul[7][8] * z
+        + ul[8][6] * z
+        + ul[8][7] * z
+        + ul[8][8] * z
+        + ul[9][6] * z
+        + ul[9][7] * z
+        + ul[9][8] * z
+        + ul[13][0] * z
+        + ul[13][1] * z
+        + ul[13][2] * z
+        + ul[13][3] * z
+        + ul[13][4] * z
+        + ul[13][5] * z
+        + ul[13][6] * z
+        + ul[13][7] * z
+        + ul[13][8] * z
+        + ul[14][0] * z
+        + ul[14][1] * z
+        + ul[14][2] * z
+        + ul[14][3] * z
+        + ul[14][4] * z
+        + ul[14][5] * z
+        + ul[14][6] * z
+        + ul[14][7] * z
+        + ul[14][8] * z;
     // Y = U Gᵀ and the corner P'[i][j], j ≥ i, row by row of U.
     let y0_0 = u0_0 * g0_0 + ul[0][0] * g0_2 + ul[1][0] * g0_3;
     let y0_1 = u0_0 * g1_0 + ul[0][0] * g1_2 + ul[2][0] * g1_4;
