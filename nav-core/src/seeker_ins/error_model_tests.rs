@@ -176,6 +176,86 @@ fn generated_step_reads_whole_columns_of_the_symmetric_p() {
     assert_eq!(asymmetry(&clean), 0.0);
 }
 
+/// Every single non-finite input the step reads refuses it and leaves P bit for bit as it
+/// was: each symmetric pair of P in a row or column 0..15 (the rows G reads; rows 15 and 16
+/// are read only as their own results) and each entry of F, as NaN, +∞ and −∞, in f64 and
+/// f32. The kernel probes only the results no corner entry reads (a non-finite result that
+/// a corner entry reads makes that entry non-finite): a probe left out where it is needed
+/// lets one of these through.
+#[test]
+fn every_non_finite_input_refuses_the_step_and_leaves_p_unchanged() {
+    fn check<T: Real + core::fmt::Debug>() {
+        let p0 = physical_p().map(T::lit);
+        let sf = test_f::<T>();
+        let (qa, qg) = (T::lit(2.4e-9), T::lit(8.5e-13));
+        let dt = T::lit(0.1);
+        let bad = [
+            T::lit(f64::NAN),
+            T::lit(f64::INFINITY),
+            T::lit(f64::NEG_INFINITY),
+        ];
+        let same = |a: &SMatrix<T, 17, 17>, b: &SMatrix<T, 17, 17>| {
+            a.iter()
+                .zip(b.iter())
+                .all(|(x, y)| x.to_f64().to_bits() == y.to_f64().to_bits())
+        };
+        for j in 0..17 {
+            for i in 0..=j.min(14) {
+                for v in bad {
+                    let mut p = p0;
+                    p[(i, j)] = v;
+                    p[(j, i)] = v;
+                    let before = p;
+                    assert!(
+                        propagate_covariance_sparse(&mut p, &sf, dt, qa, qg).is_err(),
+                        "P[{i},{j}] = {v:?} accepted"
+                    );
+                    assert!(same(&p, &before), "P[{i},{j}] = {v:?}: P changed");
+                }
+            }
+        }
+        let fields = sparse_f_entries(&mut sf.clone()).len();
+        assert_eq!(fields, 46);
+        for k in 0..fields {
+            for v in bad {
+                let mut f = sf;
+                if let Some(entry) = sparse_f_entries(&mut f).into_iter().nth(k) {
+                    *entry = v;
+                }
+                let mut p = p0;
+                assert!(
+                    propagate_covariance_sparse(&mut p, &f, dt, qa, qg).is_err(),
+                    "F entry {k} = {v:?} accepted"
+                );
+                assert!(same(&p, &p0), "F entry {k} = {v:?}: P changed");
+            }
+        }
+    }
+    check::<f64>();
+    check::<f32>();
+}
+
+/// The 46 scalars of `f` (every field; `f25` is the constant −1 of δḣ = −δV_D).
+fn sparse_f_entries<T: Real>(f: &mut SparseF<T>) -> std::vec::Vec<&mut T> {
+    let mut v: std::vec::Vec<&mut T> = std::vec![
+        &mut f.f00, &mut f.f02, &mut f.f03, &mut f.f10, &mut f.f12, &mut f.f14, &mut f.f25,
+    ];
+    for vec3 in [
+        &mut f.vel_lat,
+        &mut f.vel_h,
+        &mut f.f_ned,
+        &mut f.att_lat,
+        &mut f.att_h,
+        &mut f.att_v,
+        &mut f.w_in,
+    ] {
+        v.extend(vec3.iter_mut());
+    }
+    v.extend(f.vel_vel.iter_mut());
+    v.extend(f.c_b_n.iter_mut());
+    v
+}
+
 /// Error bound of the f32 step against the same step in f64, on a covariance of physical
 /// size, over 100 steps of 0.1 s: every element within 5e-6 of √(P_ii P_jj) (measured 2.2e-6;
 /// f32 ε is 1.2e-7, sums of up to 14 terms per step, 100 steps).
