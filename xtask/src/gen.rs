@@ -330,13 +330,13 @@ fn predict_source() -> String {
     // The results U[i][j], j ≥ NAV, that no corner entry reads: a non-finite U[i][j] with
     // G[r][j] structurally non-zero for some r ≥ i makes Y[i][r] and so P'[i][r] non-finite
     // (a product or sum with a non-finite operand is never finite), which the corner's probe
-    // sees; only the others are probed here.
+    // sees; only the others are probed (last, before the commit that reads them).
     let uncovered: Vec<String> = (NAV..N)
         .flat_map(|j| (0..NAV).map(move |i| (i, j)))
         .filter(|&(i, j)| !g.iter().any(|x| x.col == j && x.row >= i))
         .map(|(i, j)| format!(" + {} * z", uref(j, i)))
         .collect();
-    let _ = writeln!(s, "    let mut probe = z{};", uncovered.concat());
+    s.push_str("    let mut probe = z;\n");
     s.push_str("    // Y = U Gᵀ and the corner P'[i][j], j ≥ i, row by row of U.\n");
     for i in 0..NAV {
         for m in i..NAV {
@@ -381,6 +381,7 @@ fn predict_source() -> String {
         }
     }
     // Every result finite (a non-finite entry times zero is NaN), else nothing is written.
+    let _ = writeln!(s, "    probe = probe{};", uncovered.concat());
     s.push_str("    if probe != z {\n        return false;\n    }\n");
     for j in 0..NAV {
         for i in 0..=j {

@@ -244,34 +244,7 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
         let u8 = col[8] + w8;
         [u0, u1, u2, u3, u4, u5, u6, u7, u8]
     });
-    let mut probe = z
-        + ul[7][6] * z
-        + ul[7][7] * z
-        + ul[7][8] * z
-        + ul[8][6] * z
-        + ul[8][7] * z
-        + ul[8][8] * z
-        + ul[9][6] * z
-        + ul[9][7] * z
-        + ul[9][8] * z
-        + ul[13][0] * z
-        + ul[13][1] * z
-        + ul[13][2] * z
-        + ul[13][3] * z
-        + ul[13][4] * z
-        + ul[13][5] * z
-        + ul[13][6] * z
-        + ul[13][7] * z
-        + ul[13][8] * z
-        + ul[14][0] * z
-        + ul[14][1] * z
-        + ul[14][2] * z
-        + ul[14][3] * z
-        + ul[14][4] * z
-        + ul[14][5] * z
-        + ul[14][6] * z
-        + ul[14][7] * z
-        + ul[14][8] * z;
+    let mut probe = z;
     // Y = U Gᵀ and the corner P'[i][j], j ≥ i, row by row of U.
     let y0_0 = u0_0 * g0_0 + ul[0][0] * g0_2 + ul[1][0] * g0_3;
     let y0_1 = u0_0 * g1_0 + ul[0][0] * g1_2 + ul[2][0] * g1_4;
@@ -591,6 +564,34 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
         - ul[12][8] * g8_14;
     let c8_8 = ul[6][8] + y8_8 + qg2;
     probe += c8_8 * z;
+    probe = probe
+        + ul[7][6] * z
+        + ul[7][7] * z
+        + ul[7][8] * z
+        + ul[8][6] * z
+        + ul[8][7] * z
+        + ul[8][8] * z
+        + ul[9][6] * z
+        + ul[9][7] * z
+        + ul[9][8] * z
+        + ul[13][0] * z
+        + ul[13][1] * z
+        + ul[13][2] * z
+        + ul[13][3] * z
+        + ul[13][4] * z
+        + ul[13][5] * z
+        + ul[13][6] * z
+        + ul[13][7] * z
+        + ul[13][8] * z
+        + ul[14][0] * z
+        + ul[14][1] * z
+        + ul[14][2] * z
+        + ul[14][3] * z
+        + ul[14][4] * z
+        + ul[14][5] * z
+        + ul[14][6] * z
+        + ul[14][7] * z
+        + ul[14][8] * z;
     if probe != z {
         return false;
     }
