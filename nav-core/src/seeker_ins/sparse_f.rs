@@ -75,7 +75,10 @@ impl<T: Real> SparseF<T> {
         let mut vel_h = vx * dwen_dh;
         let rho = k.w_ie * T::lit(2.0) + k.w_en;
         // Gravity gradient (module earth: g = g0(L)(1 − (c1 + c1' sin²L) h + c2 h²)).
-        let (dg_dlat, dg_dh) = gravity_gradient(k.sin_lat, k.cos_lat, k.alt_m);
+        // 1/√(1 − e² sin²L) = R_N / a from the radius the kinematics already has (one square
+        // root fewer; R_N = (R_N + h) − h to 1e-7).
+        let inv_sqrt_d = (k.rn_h - k.alt_m) * T::lit(1.0 / crate::earth::SEMI_MAJOR_AXIS_M);
+        let (dg_dlat, dg_dh) = gravity_gradient(k.sin_lat, k.cos_lat, k.alt_m, inv_sqrt_d);
         vel_lat.z += dg_dlat;
         vel_h.z += dg_dh;
         Self {
@@ -179,8 +182,9 @@ fn set<T: Real, const R: usize, const C: usize>(
 
 /// `(∂g/∂L, ∂g/∂h)` of the normal gravity model in [`crate::earth::normal_gravity_m_s2`]
 /// (`g = g0(L) (1 − (c1 + c1' sin²L) h + c2 h²)`, `g0` Somigliana), in closed form:
-/// m/s² per rad and 1/s².
-fn gravity_gradient<T: Real>(s: T, c: T, h: T) -> (T, T) {
+/// m/s² per rad and 1/s². `s`, `c`: sin and cos of the latitude; `h`: height, m;
+/// `inv_sqrt_d`: `1/√(1 − e² s²)` (dimensionless; the caller has it from R_N).
+fn gravity_gradient<T: Real>(s: T, c: T, h: T, inv_sqrt_d: T) -> (T, T) {
     use crate::earth::{
         EARTH_RATE_RAD_S, ECCENTRICITY_SQ, FLATTENING, GM_M3_S2, GRAVITY_EQUATOR_M_S2,
         SEMI_MAJOR_AXIS_M, SEMI_MINOR_AXIS_M, SOMIGLIANA_K,
@@ -194,10 +198,9 @@ fn gravity_gradient<T: Real>(s: T, c: T, h: T) -> (T, T) {
     let k = T::lit(SOMIGLIANA_K);
     let e2 = T::lit(ECCENTRICITY_SQ);
     let d = T::one() - e2 * s2;
-    let sd = d.sqrt();
     let ge = T::lit(GRAVITY_EQUATOR_M_S2);
-    let g0 = ge * (T::one() + k * s2) / sd;
-    let dg0 = ge * s * c * (T::lit(2.0) * k + (T::one() + k * s2) * e2 / d) / sd;
+    let g0 = ge * (T::one() + k * s2) * inv_sqrt_d;
+    let dg0 = ge * s * c * (T::lit(2.0) * k + (T::one() + k * s2) * e2 / d) * inv_sqrt_d;
     let alt_factor = T::one() - (c1 + c1_lat * s2) * h + c2 * h * h;
     (
         dg0 * alt_factor - g0 * c1_lat * T::lit(2.0) * s * c * h,
