@@ -293,7 +293,8 @@ pub(super) fn condition<T: Real, const N: usize>(
     // The loading and the comparison in one pass (scaling row and column i changes no other
     // diagonal element, so each comparison sees what it saw after a separate loading pass).
     let mut above = false;
-    for (i, (col, &c)) in p.data.0.iter_mut().zip(ceiling.iter()).enumerate() {
+    let [ceil] = &ceiling.data.0;
+    for (i, (col, &c)) in p.data.0.iter_mut().zip(ceil.iter()).enumerate() {
         if let Some(d) = col.get_mut(i) {
             *d *= load;
             above |= *d > c;
