@@ -130,29 +130,28 @@ pub(super) fn symmetric_from_upper<T: Real, const N: usize>(
     SMatrix::<T, N, N>::from_fn(|r, c| upper_at(p, r, c))
 }
 
-/// Element (m, n) of the K×K block at rows `r0..`, columns `c0..` of a covariance stored as
-/// its upper triangle (`c0 ≥ r0`): an off-diagonal block (`DIAG` false, c0 > r0) lies in the
-/// upper triangle, a diagonal one (c0 = r0) is read from its upper half (m, n constant after
-/// unrolling: the choice folds, the offsets stay run-time).
+/// The K×K block at rows `r0..`, columns `c0..` of a covariance stored as its upper
+/// triangle (`c0 ≥ r0`), column-major `[col][row]`: an off-diagonal block (`DIAG` false,
+/// c0 > r0) lies in the upper triangle; of a diagonal one (c0 = r0) only the upper half is
+/// read (`DIAG`: the caller reads element (m, n), m > n, at (n, m)). One bounds check per
+/// column (the offsets are run-time).
 #[inline(always)]
-fn block_at<T: Real, const N: usize, const DIAG: bool>(
+fn block_of<T: Real, const K: usize, const N: usize>(
     p: &SMatrix<T, N, N>,
     r0: usize,
     c0: usize,
-    m: usize,
-    n: usize,
-) -> T {
-    let (m, n) = if DIAG && m > n { (n, m) } else { (m, n) };
-    p.data
-        .0
-        .get(c0 + n)
-        .and_then(|col| col.get(r0 + m))
-        .copied()
-        .unwrap_or_else(T::zero)
+) -> [[T; K]; K] {
+    let mut blk = [[T::zero(); K]; K];
+    for (n, dst) in blk.iter_mut().enumerate() {
+        if let Some(src) = p.data.0.get(c0 + n).and_then(|col| col.get(r0..r0 + K)) {
+            dst.copy_from_slice(src);
+        }
+    }
+    blk
 }
 
 /// `S Φ_bᵀ` of the block `S = P_ab` (rows `r0..`, columns `c0..` of the covariance `p`, stored
-/// as its upper triangle; see [`block_at`]), using Φ's first column e₁ (θ_m is a random
+/// as its upper triangle; see [`block_of`]), using Φ's first column e₁ (θ_m is a random
 /// constant, so in either parametrisation nothing feeds the first state but itself) and, in a
 /// flight chain, the bias's unit row and column (a bias state, the last of a flight chain,
 /// index ≥ kf, is a random constant: its row and column of Φ are unit vectors, so its products
@@ -165,7 +164,14 @@ fn block_times_phi_t<T: Real, const K: usize, const N: usize, const DIAG: bool>(
     pb: &SMatrix<T, K, K>,
 ) -> SMatrix<T, K, K> {
     let kf = flexure_chain_len::<K>();
-    let s = |m: usize, n: usize| block_at::<T, N, DIAG>(p, r0, c0, m, n);
+    let blk = block_of::<T, K, N>(p, r0, c0);
+    let s = |m: usize, n: usize| {
+        let (m, n) = if DIAG && m > n { (n, m) } else { (m, n) };
+        blk.get(n)
+            .and_then(|col| col.get(m))
+            .copied()
+            .unwrap_or_else(T::zero)
+    };
     // t_mj = Σ_n S_mn Φb_jn = S_m0 δ_j0 + Σ_{n≥1} S_mn Φb_jn.
     let mut t = SMatrix::<T, K, K>::zeros();
     for j in 0..K {
@@ -200,7 +206,12 @@ fn write_phi_times<T: Real, const K: usize, const N: usize, const DIAG: bool>(
     let kf = flexure_chain_len::<K>();
     // d_ij = Σ_m Φa_im t_mj = t_0j δ_i0 + Σ_{m≥1} Φa_im t_mj.
     for j in 0..K {
-        let Some(col) = p.data.0.get_mut(c0 + j) else {
+        let Some(col) = p
+            .data
+            .0
+            .get_mut(c0 + j)
+            .and_then(|col| col.get_mut(r0..r0 + K))
+        else {
             continue;
         };
         let i_end = if DIAG { j + 1 } else { K };
@@ -217,7 +228,7 @@ fn write_phi_times<T: Real, const K: usize, const N: usize, const DIAG: bool>(
             if DIAG {
                 acc += at(q, i, j);
             }
-            if let Some(e) = col.get_mut(r0 + i) {
+            if let Some(e) = col.get_mut(i) {
                 *e = acc;
             }
         }
@@ -225,8 +236,11 @@ fn write_phi_times<T: Real, const K: usize, const N: usize, const DIAG: bool>(
 }
 
 /// One block of [`predict_cov`]: `P_ab ← Φ_a P_ab Φ_bᵀ (+ Q_d,a if DIAG, a = b)`, the block at
-/// rows `K a`, columns `K b`, reading `src` (or `dst` when `None`).
-#[inline(always)]
+/// rows `K a`, columns `K b`, reading `src` (or `dst` when `None`). Out of line, two copies
+/// per N (diagonal and off-diagonal block): measured against six inlined blocks, +25
+/// instructions per prediction (12 and 15 states) for 4.3 KB less flash in the filters' image
+/// and 48 B less stack.
+#[inline(never)]
 fn predict_block<T: Real, const K: usize, const N: usize, const DIAG: bool>(
     phi: &[SMatrix<T, K, K>; 3],
     q_d: &[SMatrix<T, K, K>; 3],
