@@ -238,7 +238,7 @@ fn write_phi_times<T: Real, const K: usize, const N: usize, const DIAG: bool>(
 /// One block of [`predict_cov`]: `P_ab ← Φ_a P_ab Φ_bᵀ (+ Q_d,a if DIAG, a = b)`, the block at
 /// rows `K a`, columns `K b`, reading `src` (or `dst` when `None`). Out of line, two copies
 /// per N (diagonal and off-diagonal block): measured against six inlined blocks, +25
-/// instructions per prediction (12 and 15 states) for 4.3 KB less flash in the filters' image
+/// instructions per prediction (12 and 15 states) for 3.3 KB less flash in the filters' image
 /// and 48 B less stack.
 #[inline(never)]
 fn predict_block<T: Real, const K: usize, const N: usize, const DIAG: bool>(
