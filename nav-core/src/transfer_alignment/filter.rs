@@ -2,7 +2,10 @@
 //! run-time setters, and what a flight program reads (θ, σ, state, covariance, health).
 //! The per-epoch work is in `step.rs`.
 use super::config::{validate_gate, validate_recovery, TaConfig, MAX_MISALIGNMENT_RAD};
-use super::covariance::{ceilings, initial_covariance, set_mount_only, to_total_cov, to_total_phi};
+use super::covariance::{
+    ceilings, initial_covariance, set_mount_only, symmetric_from_upper, to_total_cov, to_total_phi,
+    upper_at,
+};
 use super::design::TaDesign;
 use super::health::{Channel, Monitor};
 use super::model::{
@@ -87,7 +90,9 @@ pub struct TransferAlignment<T: Real, const K: usize, const N: usize> {
     pub(super) ceiling: SVector<T, N>,
     /// State, axis-major, θ parametrisation.
     pub(super) x: SVector<T, N>,
-    /// Covariance, axis-major: `p[second]` is current, the other one scratch.
+    /// Covariance, axis-major, stored as its upper triangle (the lower triangle is not kept
+    /// up to date: read through `covariance::upper_at`): `p[second]` is current, the other
+    /// one scratch.
     pub(super) p: [SMatrix<T, N, N>; 2],
     pub(super) second: bool,
     pub(super) r_rate: T,
@@ -140,7 +145,7 @@ impl<T: Real, const K: usize, const N: usize> core::fmt::Debug for TransferAlign
             .field("q_d", &self.q_d)
             .field("ceiling", &self.ceiling)
             .field("x", &self.x)
-            .field("p", self.p_cur())
+            .field("p", &symmetric_from_upper(self.p_cur()))
             .field("r_rate", &self.r_rate)
             .field("r_accel", &self.r_accel)
             .field("dt_us", &self.dt_us)
@@ -337,6 +342,8 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         self.dt_us
     }
 
+    /// The current covariance, stored as its upper triangle (column-major `p[col][row]`,
+    /// rows `0..=col`; the lower triangle is not kept): read it through `upper_at`.
     pub(super) fn p_cur(&self) -> &SMatrix<T, N, N> {
         let [a, b] = &self.p;
         if self.second {
@@ -396,7 +403,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     }
 
     fn p_at(&self, r: usize, c: usize) -> T {
-        self.p_cur().get((r, c)).copied().unwrap_or_else(T::zero)
+        upper_at(self.p_cur(), r, c)
     }
 
     /// Covariance of θ = θ_m + θ_f (rad², the filter's own θ block).
@@ -465,7 +472,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
 
     /// Covariance of [`Self::state`], in its ordering.
     pub fn covariance(&self) -> SMatrix<T, N, N> {
-        to_spec_order::<T, K, N>(self.p_cur())
+        to_spec_order::<T, K, N>(&symmetric_from_upper(self.p_cur()))
     }
 
     /// Estimated slave attitude `C_n^s = C_m^s C_n^m` given the master's `C_n^m`, with

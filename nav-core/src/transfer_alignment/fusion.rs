@@ -1,7 +1,7 @@
 //! The scalar update of the transfer-alignment filters in rank-one form: with `b = P h`,
 //! `s = hᵀPh + r` and the gain `k = b / s`, `P⁺ = P − k bᵀ`, computed on the upper triangle
-//! only (each value also written to its mirror: exactly symmetric) and one multiply-subtract
-//! per element. The gate, report and refusals are those of
+//! only (the filters store P as its upper triangle: the lower one is neither read nor
+//! written), one multiply-subtract per element. The gate, report and refusals are those of
 //! [`crate::math::kalman::fuse_scalar_prepared`] (the shared Joseph form); the arithmetic
 //! differs by rounding only: for the optimal gain the Joseph form's expansion
 //! `P − k bᵀ − b kᵀ + s k kᵀ` is `P − k bᵀ` plus a rounding-size term. What the Joseph form
@@ -10,14 +10,13 @@
 //! and `P` untouched), one update never divides a variance by more than
 //! [`super::MAX_VARIANCE_REDUCTION`] (`fuse_bounded`), and every committed covariance is
 //! loaded and conditioned ([`super::covariance::condition`]).
-use crate::math::checks::finite;
 use crate::math::kalman::{gate_scalar, FusionOutcome, FusionReport, Gate};
 use crate::Real;
 use nalgebra::{SMatrix, SVector};
 
-/// One scalar update of `x`, `P` given `b = P h` and `hph = hᵀ P h` (`r` the measurement
-/// variance, in the measurement's unit squared). `Ok(report)` when fused or rejected by the
-/// gate; `Err(s)` (with `s = hph + r`, the innovation variance) when the update cannot be
+/// One scalar update of `x`, `P` (P stored as its upper triangle) given `b = P h` and
+/// `hph = hᵀ P h` (`r` the measurement variance, in the measurement's unit squared).
+/// `Ok(report)` when fused or rejected by the gate; `Err(s)` (with `s = hph + r`, the innovation variance) when the update cannot be
 /// fused numerically: a non-finite innovation or `r`, `r ≤ 0`, an innovation variance that is
 /// not finite and positive, `hph < 0`, a diagonal element of `P⁺` negative or non-finite, or a
 /// non-finite state correction. Nothing is written unless the update is fused.
@@ -35,7 +34,9 @@ pub(super) fn fuse_rank_one<T: Real, const N: usize>(
     gate: Gate<T>,
 ) -> Result<FusionReport<T>, T> {
     let s = hph + r;
-    if !finite(innovation) || !finite(r) || r <= T::zero() {
+    // Finite innovation and r: `v·0` is ±0 for finite v, NaN for ±∞ and NaN (one multiply-add
+    // and one compare instead of two classifications on the target).
+    if innovation * T::zero() + r * T::zero() != T::zero() || r <= T::zero() {
         return Err(s);
     }
     let Some((report, inv_s)) = gate_scalar(innovation, hph, s, gate) else {
@@ -50,38 +51,36 @@ pub(super) fn fuse_rank_one<T: Real, const N: usize>(
         *ki = bi * inv_s;
     }
     // P⁺'s diagonal, checked before anything is written: one compare per element; ±∞ and NaN
-    // make the sum non-finite.
-    let mut d = [T::zero(); N];
+    // make the sum non-finite. (Not kept: the update pass computes each again, the same
+    // expression, where it writes it.)
     let mut negative = false;
     let mut sum = T::zero();
-    for (i, ((di, &ki), &bi)) in d.iter_mut().zip(k.iter()).zip(bs.iter()).enumerate() {
+    for (i, (&ki, &bi)) in k.iter().zip(bs.iter()).enumerate() {
         if let Some(&pii) = p.data.0.get(i).and_then(|col| col.get(i)) {
             let v = pii - ki * bi;
             // `v < 0` misses NaN, but NaN also makes `sum` non-finite.
             negative |= v < T::zero();
             sum += v;
-            *di = v;
         }
     }
     if negative || sum * T::zero() != T::zero() {
         return Err(s);
     }
-    let mut dx = [T::zero(); N];
+    // The state correction k·innovation, checked finite (computed again where it is added).
     let mut probe = T::zero();
-    for (dxi, &ki) in dx.iter_mut().zip(k.iter()) {
-        *dxi = ki * innovation;
-        probe += *dxi * T::zero();
+    for &ki in k.iter() {
+        probe += ki * innovation * T::zero();
     }
     if probe != T::zero() {
         return Err(s);
     }
     if N <= UNROLLED_MAX_N {
-        downdate_unrolled(&mut p.data.0, &k, bs, &d);
+        downdate_unrolled(&mut p.data.0, &k, bs);
     } else {
-        downdate_loop(&mut p.data.0, &k, bs, &d);
+        downdate_loop(&mut p.data.0, &k, bs);
     }
-    for (xi, &di) in x.as_mut_slice().iter_mut().zip(dx.iter()) {
-        *xi += di;
+    for (xi, &ki) in x.as_mut_slice().iter_mut().zip(k.iter()) {
+        *xi += ki * innovation;
     }
     Ok(report)
 }
@@ -91,73 +90,48 @@ const UNROLLED_MAX_N: usize = 15;
 
 /// The loop form of [`downdate_unrolled`] (any N; same expressions in the same order).
 #[inline(always)]
-fn downdate_loop<T: Real, const N: usize>(p: &mut [[T; N]; N], k: &[T; N], b: &[T; N], d: &[T; N]) {
-    for (j, (&bj, &dj)) in b.iter().zip(d.iter()).enumerate() {
-        for (i, &ki) in k.iter().enumerate().take(j) {
-            if let Some(pij) = p.get_mut(j).and_then(|col| col.get_mut(i)) {
-                let nv = *pij - ki * bj;
-                *pij = nv;
-                if let Some(pji) = p.get_mut(i).and_then(|col| col.get_mut(j)) {
-                    *pji = nv;
-                }
-            }
-        }
-        if let Some(pjj) = p.get_mut(j).and_then(|col| col.get_mut(j)) {
-            *pjj = dj;
+fn downdate_loop<T: Real, const N: usize>(p: &mut [[T; N]; N], k: &[T; N], b: &[T; N]) {
+    for (j, (col, &bj)) in p.iter_mut().zip(b.iter()).enumerate() {
+        for (pij, &ki) in col.iter_mut().zip(k.iter()).take(j + 1) {
+            *pij -= ki * bj;
         }
     }
 }
 
-/// `P⁺_ij = P_ij − k_i b_j` for i < j, written to (i, j) and (j, i); `P⁺_jj = d_j`. Straight-line
-/// code for N ≤ 15, column by column (`b_j` and the gains held in registers; the guards are
-/// constants after monomorphisation; every filter of this module has N ≤ 15), column-major
-/// `p[col][row]`.
+/// `P⁺_ij = P_ij − k_i b_j` for i ≤ j, on the upper triangle only (column-major
+/// `p[col][row]`, rows `0..=col`; the lower triangle is neither read nor written).
+/// Straight-line code for N ≤ 15, column by column (`b_j` and the gains held in registers;
+/// the guards are constants after monomorphisation; every filter of this module has N ≤ 15).
 #[inline(always)]
-fn downdate_unrolled<T: Real, const N: usize>(
-    p: &mut [[T; N]; N],
-    k: &[T; N],
-    b: &[T; N],
-    d: &[T; N],
-) {
+fn downdate_unrolled<T: Real, const N: usize>(p: &mut [[T; N]; N], k: &[T; N], b: &[T; N]) {
     macro_rules! column {
         ($j:literal: $($i:literal)*) => {
             if $j < N {
-                if let (Some(&bj), Some(&dj)) = (b.get($j), d.get($j)) {
+                if let (Some(&bj), Some(col)) = (b.get($j), p.get_mut($j)) {
                     $(
-                        if let (Some(&ki), Some(pij)) =
-                            (k.get($i), p.get_mut($j).and_then(|col| col.get_mut($i)))
-                        {
-                            let nv = *pij - ki * bj;
-                            *pij = nv;
-                            if let Some(pji) = p.get_mut($i).and_then(|col| col.get_mut($j)) {
-                                *pji = nv;
-                            }
+                        if let (Some(&ki), Some(pij)) = (k.get($i), col.get_mut($i)) {
+                            *pij -= ki * bj;
                         }
                     )*
-                    if let Some(pjj) = p.get_mut($j).and_then(|col| col.get_mut($j)) {
-                        *pjj = dj;
-                    }
                 }
             }
         };
     }
-    if let (Some(&d0), Some(p00)) = (d.first(), p.first_mut().and_then(|col| col.first_mut())) {
-        *p00 = d0;
-    }
-    column!(1: 0);
-    column!(2: 0 1);
-    column!(3: 0 1 2);
-    column!(4: 0 1 2 3);
-    column!(5: 0 1 2 3 4);
-    column!(6: 0 1 2 3 4 5);
-    column!(7: 0 1 2 3 4 5 6);
-    column!(8: 0 1 2 3 4 5 6 7);
-    column!(9: 0 1 2 3 4 5 6 7 8);
-    column!(10: 0 1 2 3 4 5 6 7 8 9);
-    column!(11: 0 1 2 3 4 5 6 7 8 9 10);
-    column!(12: 0 1 2 3 4 5 6 7 8 9 10 11);
-    column!(13: 0 1 2 3 4 5 6 7 8 9 10 11 12);
-    column!(14: 0 1 2 3 4 5 6 7 8 9 10 11 12 13);
+    column!(0: 0);
+    column!(1: 0 1);
+    column!(2: 0 1 2);
+    column!(3: 0 1 2 3);
+    column!(4: 0 1 2 3 4);
+    column!(5: 0 1 2 3 4 5);
+    column!(6: 0 1 2 3 4 5 6);
+    column!(7: 0 1 2 3 4 5 6 7);
+    column!(8: 0 1 2 3 4 5 6 7 8);
+    column!(9: 0 1 2 3 4 5 6 7 8 9);
+    column!(10: 0 1 2 3 4 5 6 7 8 9 10);
+    column!(11: 0 1 2 3 4 5 6 7 8 9 10 11);
+    column!(12: 0 1 2 3 4 5 6 7 8 9 10 11 12);
+    column!(13: 0 1 2 3 4 5 6 7 8 9 10 11 12 13);
+    column!(14: 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14);
 }
 
 #[cfg(test)]
@@ -277,6 +251,8 @@ mod tests {
                 fuse_scalar_prepared(&mut xr, &mut pr, &br, hph_r, innovation.to_f64(), r, gate_r);
             match (ours, same_type) {
                 (Ok(o), Ok(s)) => {
+                    // Ours keeps the upper triangle: the full matrix it stands for.
+                    pa = SMatrix::from_fn(|r, c| pa[(r.min(c), r.max(c))]);
                     assert_eq!(o, s, "seed {seed}");
                     assert!(reference.is_ok(), "seed {seed}");
                     if o.outcome == FusionOutcome::Fused {
@@ -326,10 +302,9 @@ mod tests {
             let b = p * h;
             let s = h.dot(&b) + 0.5;
             let k = b.map(|v| v / s);
-            let d = SVector::<f32, 15>::from_fn(|i, _| p[(i, i)] - k[i] * b[i]);
             let (mut pu, mut pl) = (p, p);
-            downdate_unrolled(&mut pu.data.0, &k.data.0[0], &b.data.0[0], &d.data.0[0]);
-            downdate_loop(&mut pl.data.0, &k.data.0[0], &b.data.0[0], &d.data.0[0]);
+            downdate_unrolled(&mut pu.data.0, &k.data.0[0], &b.data.0[0]);
+            downdate_loop(&mut pl.data.0, &k.data.0[0], &b.data.0[0]);
             assert_eq!(bits(pu.as_slice()), bits(pl.as_slice()), "seed {seed}");
             assert_ne!(bits(pu.as_slice()), bits(p.as_slice()), "seed {seed}");
         }

@@ -111,12 +111,17 @@
 //!
 //! Structure used for the target:
 //! - the state is stored axis-major, so Φ = blockdiag(Φ_X, Φ_Y, Φ_Z) (K×K each, first column
-//!   e₁) and `P ← Φ P Φᵀ + Q_d` is done per 3×3 pair of axis blocks, upper triangle only,
-//!   mirrored;
+//!   e₁) and `P ← Φ P Φᵀ + Q_d` is done per pair of axis blocks a ≤ b;
+//! - P is stored as its upper triangle only (column-major, rows `0..=col` of each column): the
+//!   prediction, the six updates and the conditioning read and write nothing else, and the
+//!   outputs read `P_ij` from the stored one of `(i, j)`, `(j, i)` (`covariance()` builds the
+//!   full matrix); the rare paths written for a full matrix (the ceiling scaling, the gap
+//!   reset) mirror it in place first;
 //! - H rows are sparse: each of the six rows is built with a constant row number, so its
 //!   pattern (at most 4 of the N columns; 12 in the flight configuration's df rows) folds to
-//!   constants; `b = P h` and the rank-one update (`P⁺ = P − k bᵀ`, k = b / s, on the upper
-//!   triangle and mirrored, P⁺'s diagonal checked first) are shared, one out-of-line copy per N;
+//!   constants; `b = P h` is written out per row (its indices fold), the rank-one update
+//!   (`P⁺ = P − k bᵀ`, k = b / s, on the upper triangle, P⁺'s diagonal checked first) is
+//!   shared, one out-of-line copy per N;
 //! - all work is done on copies and committed at the end: an error leaves the estimate
 //!   untouched (the covariance is double-buffered).
 //!

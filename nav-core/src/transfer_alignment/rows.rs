@@ -9,7 +9,7 @@ use super::measurement::{
     ManoeuvreTerms,
 };
 use super::model::{has_accel_bias, FlexureModel};
-use crate::math::kalman::{covariance_times_row, FusionOutcome, FusionReport, Gate, SparseRow};
+use crate::math::kalman::{FusionOutcome, FusionReport, Gate, SparseRow};
 use crate::Real;
 use nalgebra::{SMatrix, SVector, Vector3};
 
@@ -177,9 +177,42 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     fuse_row!(5);
 }
 
+/// `b = P h` of a covariance stored as its upper triangle (column-major `p[col][row]`, rows
+/// `0..=col` of each column; the lower triangle is not read): `P_ij` is read from column
+/// `max(i, j)`, row `min(i, j)`. Summed as [`crate::math::kalman::covariance_times_row`]
+/// sums (entries in the row's order, from 0): the same bits for a symmetric P. The entries
+/// are written out one by one (at most 12, the flight configuration's df rows), so that with
+/// the rows built from constant indices (the callers below) every index and branch folds.
+#[inline(always)]
+pub(super) fn upper_times_row<T: Real, const N: usize, const M: usize>(
+    p: &SMatrix<T, N, N>,
+    h: &SparseRow<T, M>,
+) -> SVector<T, N> {
+    let cols = &p.data.0;
+    let mut b = [T::zero(); N];
+    macro_rules! entry {
+        ($($t:literal)*) => {
+            $(
+                if $t < h.len {
+                    if let (Some(&j), Some(&hj)) = (h.index.get($t), h.value.get($t)) {
+                        for (i, bi) in b.iter_mut().enumerate() {
+                            let (c, r) = if i <= j { (j, i) } else { (i, j) };
+                            if let Some(&pij) = cols.get(c).and_then(|col| col.get(r)) {
+                                *bi += hj * pij;
+                            }
+                        }
+                    }
+                }
+            )*
+        };
+    }
+    entry!(0 1 2 3 4 5 6 7 8 9 10 11);
+    SVector::<T, N>::from_array_storage(nalgebra::ArrayStorage([b]))
+}
+
 /// One scalar update with the sparse row `h` (built from validated, range-checked inputs with
 /// in-range ascending indices by construction, tested: no per-entry validation): `b = P h`
-/// from the row's columns of P, `hᵀ P h`, then [`fuse_bounded`].
+/// from the row's columns of P (upper triangle), `hᵀ P h`, then [`fuse_bounded`].
 #[inline(always)]
 fn fuse_sparse<T: Real, const N: usize, const M: usize>(
     x: &mut SVector<T, N>,
@@ -189,7 +222,7 @@ fn fuse_sparse<T: Real, const N: usize, const M: usize>(
     r: T,
     gate: Gate<T>,
 ) -> FusionReport<T> {
-    let b = covariance_times_row(p, h);
+    let b = upper_times_row(p, h);
     let hph = h.dot(&b);
     fuse_bounded(x, p, &b, hph, innovation, r, gate)
 }

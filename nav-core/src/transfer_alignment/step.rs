@@ -146,11 +146,13 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         }
     }
 
-    /// One prediction on (x, P) in place (tests).
+    /// One prediction on (x, P) in place (tests): P full and symmetric in and out (the
+    /// prediction reads and writes its upper triangle).
     #[cfg(test)]
     pub(super) fn predict_into(&self, x: &mut SVector<T, N>, p: &mut SMatrix<T, N, N>) {
         predict_state(&self.phi, x);
         predict_cov(&self.phi, &self.q_d, None, p);
+        *p = super::covariance::symmetric_from_upper(p);
     }
 
     /// Runs the time plan from the current covariance into the scratch buffer: `n`
