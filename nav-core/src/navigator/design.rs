@@ -4,7 +4,7 @@
 //! flight image built with [`Navigator::from_design`](super::Navigator::from_design) links
 //! none of the design code (discretisation, Riccati solver, f64 gravity fit).
 
-use super::types::{BaroDamping, NavigatorConfig};
+use super::types::{BaroDamping, NavigatorConfig, INERTIAL_LOOP};
 use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
 use crate::seeker_ins::{design_stamp, SeekerInsDesign};
 use crate::transfer_alignment::TaDesign;
@@ -49,8 +49,10 @@ impl<T: Real, const K: usize> NavigatorDesign<T, K> {
     /// superfluous), `InvalidConfig { field: "design", issue: DesignMismatch }` (stamp).
     pub(super) fn check_baro_loop(&self, config: &NavigatorConfig<T>) -> Result<(), NavError> {
         match (&config.baro, &self.baro_loop) {
-            (BaroDamping::InertialLoop(c), Some(d)) => d.stamp().check(&classical_stamp(c)),
-            (BaroDamping::InertialLoop(_), None)
+            (BaroDamping::InertialLoop(c), Some(d)) if INERTIAL_LOOP => {
+                d.stamp().check(&classical_stamp(c))
+            }
+            (BaroDamping::InertialLoop(_), _)
             | (BaroDamping::Off | BaroDamping::Ekf(_), Some(_)) => Err(NavError::InvalidConfig {
                 field: "design.baro_loop",
                 issue: crate::error::ConfigIssue::DesignMismatch,
@@ -102,7 +104,9 @@ impl<T: Real, const K: usize> DesignValues for NavigatorDesign<T, K> {
             .ok_or(BAD_VALUES)?;
         let (flag, lp) = rest.split_at_checked(1).ok_or(BAD_VALUES)?;
         let flag = ValueReader::new(flag, 1)?.value()?;
-        let baro_loop = if flag == 1.0 {
+        // Without the feature `baro-inertial-loop` a design with a loop is refused here (its
+        // reading not linked).
+        let baro_loop = if flag == 1.0 && INERTIAL_LOOP {
             Some(ClassicalDesign::read_values(lp)?)
         } else if flag == 0.0 {
             None

@@ -306,7 +306,9 @@ impl<T: Real> NavBlocks<T> {
 
     /// Writes the whole 17-state P0 into `p0` (every entry): these blocks, the priors'
     /// variances on the bias and gimbal states, zero elsewhere. In place: a P0 is built once,
-    /// where it is used.
+    /// where it is used. Out of line: the hand-over's two paths (the EKF started in place, or
+    /// through its public constructor) share one copy; it runs once per flight.
+    #[inline(never)]
     pub(crate) fn write_p0(&self, priors: &HandoverPriors<T>, p0: &mut SMatrix<T, STATES, STATES>) {
         p0.fill(T::zero());
         p0.fixed_view_mut::<3, 3>(POS, POS).copy_from(&self.pos);

@@ -59,6 +59,8 @@ pub enum BaroDamping<T> {
     /// block replaced by the loop's σ covariance. Its `imu_dt_s` must be the navigator's. The
     /// loop owns the vertical channel: a LOS update's correction of h and V_D is replaced by
     /// the loop's at the next tick, and the loop's accelerometer-bias estimate is not fed back.
+    /// Needs the crate feature `baro-inertial-loop` (default); without it the configuration
+    /// is refused (`InvalidConfig { field: "baro", issue: OutOfRange }`).
     InertialLoop(ClassicalConfig<T>),
 }
 
@@ -344,6 +346,9 @@ impl<T: Real> NavigatorConfig<T> {
             require_non_negative("baro.lag_s", m.lag_s)?;
         }
         if let BaroDamping::InertialLoop(c) = &self.baro {
+            if !INERTIAL_LOOP {
+                return Err(out_of_range("baro"));
+            }
             if !same(c.imu_dt_s) {
                 return Err(out_of_range("baro.imu_dt_s"));
             }
@@ -351,6 +356,12 @@ impl<T: Real> NavigatorConfig<T> {
         Ok(())
     }
 }
+
+/// `true` when the crate is built with the feature `baro-inertial-loop` (default): the
+/// navigator carries [`BaroDamping::InertialLoop`]. Without it the configuration check refuses
+/// that damping, and every path to the loop is tested against this constant first, so a flight
+/// image links none of the loop's code.
+pub(crate) const INERTIAL_LOOP: bool = cfg!(feature = "baro-inertial-loop");
 
 fn out_of_range(field: &'static str) -> NavError {
     NavError::InvalidConfig {

@@ -25,7 +25,9 @@ pub(crate) struct AgeLimits {
 
 impl AgeLimits {
     /// The limit of `timeouts` (validated: positive, so an age of 0 is within it) with the aid
-    /// model `aid` (validated, refreshed whenever it changes).
+    /// model `aid` (validated, refreshed whenever it changes). Out of line: construction and
+    /// the run-time setters share one copy.
+    #[inline(never)]
     pub(crate) fn new<T: Real>(timeouts: &AidTimeouts<T>, aid: &AidGate<T>) -> Self {
         let lost_us = last_micros_within(timeouts.lost_after_s);
         // The model variance does not decrease with the gap when its terms are not negative

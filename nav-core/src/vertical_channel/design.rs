@@ -197,6 +197,8 @@ fn read_modes<T: Real>(r: &mut ValueReader<'_>) -> Result<Modes<T>, NavError> {
     Ok(m)
 }
 
+/// Out of line: both designs' checks share one copy.
+#[inline(never)]
 fn modes_finite<T: Real>(m: &Modes<T>) -> bool {
     all_finite_parts(&[
         m.phi_baro.as_slice(),

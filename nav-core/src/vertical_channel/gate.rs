@@ -79,7 +79,9 @@ pub(crate) struct GateParams<T> {
 }
 
 impl<T: Real> GateParams<T> {
-    /// Validates the run-time configuration and compiles it.
+    /// Validates the run-time configuration and compiles it. Out of line: both loops'
+    /// construction and the run-time setter share one copy.
+    #[inline(never)]
     pub(crate) fn compile(rt: &RunTime<T>) -> Result<Self, NavError> {
         rt.validate()?;
         let m = &rt.aid_model;

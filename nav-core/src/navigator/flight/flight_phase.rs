@@ -5,7 +5,7 @@
 use super::super::baro::{baro_age_s, baro_gain, BaroState};
 use super::super::types::{
     AidAvailability, AidState, Aids, BaroDamping, ImuTick, Phase, TickReport, Transition,
-    TransitionCause,
+    TransitionCause, INERTIAL_LOOP,
 };
 use super::{elapsed, LoopBaro, Navigator};
 use crate::contract::{Estimator, FusionOutcome};
@@ -39,7 +39,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     ) -> Result<(), NavError> {
         let inc = &imu.increment;
         let clip = (imu.clipped.accel || imu.clipped.gyro).then_some(imu.clipped);
-        let loop_baro = if self.vloop.is_some() {
+        let loop_baro = if INERTIAL_LOOP && self.vloop.is_some() {
             Some(self.loop_imu(inc, clip, aids.baro)?)
         } else {
             self.ekf_imu(inc, clip)?;
@@ -143,6 +143,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     #[cold]
     #[inline(never)]
     fn start_loop(&mut self) {
+        if !INERTIAL_LOOP {
+            return;
+        }
         let (BaroDamping::InertialLoop(cfg), Some(design), Some(ekf)) =
             (&self.config.baro, &self.loop_design, &self.ekf)
         else {

@@ -138,6 +138,7 @@ fn baro_column_prediction_keeps_the_joint_covariance_pd() {
     assert!(ekf.steps_pending() == 5);
 }
 
+#[cfg_attr(not(feature = "baro-inertial-loop"), allow(dead_code))]
 fn chain_with_inertial_loop<T: Real>() {
     let mut vc = crate::vertical_channel::ClassicalConfig::<T>::paper();
     vc.baro_lag_s = T::zero();
@@ -165,11 +166,13 @@ fn chain_with_inertial_loop<T: Real>() {
     );
 }
 
+#[cfg(feature = "baro-inertial-loop")]
 #[test]
 fn chain_with_inertial_loop_f64() {
     chain_with_inertial_loop::<f64>();
 }
 
+#[cfg(feature = "baro-inertial-loop")]
 #[test]
 fn chain_with_inertial_loop_f32() {
     chain_with_inertial_loop::<f32>();

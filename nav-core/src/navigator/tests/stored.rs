@@ -46,11 +46,30 @@ fn stored_design_is_new<T: Real>() {
     let mut other = cfg;
     other.alignment.mount_sigma_rad *= T::lit(2.0);
     assert!(FlightNavigator::<T, 32>::from_design(&other, &loaded, &init).is_err());
+    // A bad flag value.
+    values[TaDesignCount::<T>::N + 4] = 0.5;
+    assert!(NavigatorDesign::<T, 5>::read_values(&values).is_err());
     // The loop asked for, no loop design stored.
     let mut vc = crate::vertical_channel::ClassicalConfig::<T>::paper();
     vc.baro_lag_s = T::zero();
     vc.latitude_rad = T::lit(START.lat_rad);
     let lp = config::<T>(BaroDamping::InertialLoop(vc));
+    if !cfg!(feature = "baro-inertial-loop") {
+        // A build without the loop refuses it by name, with or without a design.
+        let refused = NavError::InvalidConfig {
+            field: "baro",
+            issue: crate::error::ConfigIssue::OutOfRange,
+        };
+        assert_eq!(
+            FlightNavigator::<T, 32>::new(&lp, &init).unwrap_err(),
+            refused
+        );
+        assert_eq!(
+            FlightNavigator::<T, 32>::from_design(&lp, &loaded, &init).unwrap_err(),
+            refused
+        );
+        return;
+    }
     assert!(FlightNavigator::<T, 32>::new(&lp, &init).is_ok());
     assert_eq!(
         FlightNavigator::<T, 32>::from_design(&lp, &loaded, &init).unwrap_err(),
@@ -59,9 +78,6 @@ fn stored_design_is_new<T: Real>() {
             issue: crate::error::ConfigIssue::DesignMismatch
         }
     );
-    // A bad flag value.
-    values[TaDesignCount::<T>::N + 4] = 0.5;
-    assert!(NavigatorDesign::<T, 5>::read_values(&values).is_err());
 }
 
 struct TaDesignCount<T>(core::marker::PhantomData<T>);
