@@ -2,6 +2,7 @@
 //! the covariance steps.
 
 use super::config::VARIANCE_CEILING;
+use super::covariance_health::psd_lift;
 use super::error_model::{propagate_covariance_sparse, transition_times, ATT, STATES, VEL};
 use super::filter::SeekerIns;
 use super::flight_noise::flight_noise_step;
@@ -11,23 +12,6 @@ use crate::contract::Health;
 use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
 use crate::{NavError, Real};
 use nalgebra::Vector3;
-
-/// Relative variance added to every state after each covariance step, in units of ε of the
-/// working precision: `P ← P + δ diag(P)`, `δ = 4 ε` (4.8e-7 in f32, 8.9e-16 in f64). The
-/// rounding of a step moves the smallest eigenvalue of P's correlation matrix by a few ε in
-/// either direction; over a long run without a precise fused LOS update (whose own stabilising
-/// noise, up to [`super::STABILISING_EPS`], otherwise restores the margin) that random walk
-/// crossed zero (the stress campaign: correlation eigenvalues of −1.3e-4 after 10⁵ covariance
-/// steps with the position out of range or every LOS rejected). 4 ε per step outpaces it (the
-/// 10⁶-step unaided test and the full stress campaign stay PSD); it inflates a variance
-/// nothing else changes by 0.5 % per 10⁴ steps (17 min at 10 Hz) in f32. Along the directions
-/// the seeker observes it acts as process noise: 16 ε made the f32 flight configuration
-/// conservative (seeker-straight NEES 15.6 against 16.8 in f64; 4 ε: 16.3). Over the
-/// consistency campaign's 30 variants (f32) 0, 1, 2 and 4 ε give a mean NEES per state of
-/// 1.021 (f64's), 1.002, 0.988 and 0.970; the short stress campaign commits 1 403, 0, 321 and
-/// 0 non-PSD covariances (precise-seeker cases: 1 ε is clean there by its draws, not by a
-/// margin), so 4 ε stays and its 5 % of NEES is the price of a P that stays PSD.
-pub const PROPAGATION_STABILISING_EPS: f64 = 4.0;
 
 /// Which sensor of an IMU sample is clipped ([`SeekerIns::propagate_clipped`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -490,6 +474,8 @@ impl<T: Real> SeekerIns<T> {
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
     ) -> Result<(), NavError> {
+        // The PSD check runs on the steps of IMU samples, not on a step flushed by an update.
+        let on_imu_sample = ins.is_some();
         let ins = ins.unwrap_or(&self.ins);
         let repairs = propagate_covariance_sparse(
             &mut self.p,
@@ -507,7 +493,7 @@ impl<T: Real> SeekerIns<T> {
             dv_ned_m_s,
             dt_total_s,
         );
-        self.after_covariance_step(repairs);
+        self.after_covariance_step(repairs, on_imu_sample);
         Ok(())
     }
 
@@ -547,14 +533,20 @@ impl<T: Real> SeekerIns<T> {
         }
     }
 
-    /// Counts the repairs of a covariance step, adds the propagation's stabilising noise
-    /// ([`PROPAGATION_STABILISING_EPS`]) and limits the variances.
-    fn after_covariance_step(&mut self, repairs: u32) {
+    /// Counts the repairs of a covariance step and limits the variances. On a step of an IMU
+    /// sample (`check_margin`; not on a step an update flushes, whose own stabilising noise
+    /// follows) P's PSD margin is checked first and lifted when small
+    /// ([`super::covariance_health::PSD_MARGIN_EPS`]): `P ← P + δ diag(P)` only then.
+    fn after_covariance_step(&mut self, repairs: u32, check_margin: bool) {
         self.health.limits_hit = self.health.limits_hit.saturating_add(repairs);
-        let delta = T::lit(PROPAGATION_STABILISING_EPS) * T::EPS;
-        for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
-            if let Some(v) = col.get_mut(j) {
-                *v += *v * delta;
+        if check_margin {
+            let delta = psd_lift(&mut self.p);
+            if delta > T::zero() {
+                for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
+                    if let Some(v) = col.get_mut(j) {
+                        *v += *v * delta;
+                    }
+                }
             }
         }
         self.limit_variances();
