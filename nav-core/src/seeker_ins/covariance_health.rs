@@ -25,52 +25,66 @@ pub const PSD_MARGIN_EPS: f64 = 16.0;
 
 /// The relative variance to add to every state of the exactly symmetric P
 /// (`P ← P + δ diag(P)`) so that its LDLᵀ pivots relative to the diagonal reach
-/// [`PSD_MARGIN_EPS`] ε: 0 when they already do (dimensionless). P is factored in place in
-/// its lower triangle (no copy of P on the stack, no scratch in the filter) and restored from
-/// the upper triangle and the saved diagonal, bit for bit. A state of zero variance (a row
-/// and column the repairs zeroed) is skipped; a non-positive pivot of a state with a positive
-/// variance ends the factorisation (P is not positive definite) and its relative value sets δ.
+/// [`PSD_MARGIN_EPS`] ε: 0 when they already do (dimensionless). P is factored in place in its
+/// strict upper triangle (left-looking: column j holds row j of L, every product a dot
+/// product of two contiguous columns; no copy of P on the stack, no scratch in the filter)
+/// and restored from the lower triangle, bit for bit; the diagonal is only read. A state of
+/// zero variance (a row and column the repairs zeroed) is skipped; a non-positive pivot of a
+/// state with a positive variance ends the factorisation (P is not positive definite) and
+/// its relative value sets δ.
 #[inline(never)]
 pub(super) fn psd_lift<T: Real>(p: &mut SMatrix<T, STATES, STATES>) -> T {
     let margin = T::lit(PSD_MARGIN_EPS) * T::EPS;
     let zero = T::zero();
-    let diag: [T; STATES] = core::array::from_fn(|i| p.get((i, i)).copied().unwrap_or(zero));
     let mut min_rel = margin;
-    {
-        // Column-major: `cols[c][r]` is P(r, c); the lower triangle of column c is r > c.
-        let cols = &mut p.data.0;
-        for (k, pkk) in diag.iter().enumerate() {
-            if *pkk <= zero {
-                continue;
-            }
-            let Some(col_k) = cols.get(k).copied() else {
+    // 1 / d_k of the pivots so far (0 for a skipped state: its row of L is zero).
+    let mut inv_d = [zero; STATES];
+    // Column-major: `cols[c][r]` is P(r, c); the strict upper triangle of column j is r < j.
+    let cols = &mut p.data.0;
+    for j in 0..STATES {
+        let Some((done, rest)) = cols.split_at_mut_checked(j) else {
+            break;
+        };
+        let Some(col_j) = rest.first_mut() else {
+            break;
+        };
+        let pjj = col_j.get(j).copied().unwrap_or(zero);
+        if pjj <= zero {
+            continue;
+        }
+        // w_i = P(i, j) − Σ_{k<i} w_k L(i, k), kept in column j; L(i, k) in column i.
+        for (i, col_i) in done.iter().enumerate() {
+            let Some((w_done, w_rest)) = col_j.split_at_mut_checked(i) else {
                 break;
             };
-            let d = col_k.get(k).copied().unwrap_or(zero);
-            let rel = d / *pkk;
-            if rel < min_rel {
-                min_rel = rel;
-            }
-            if d <= zero {
+            let Some(w_i) = w_rest.first_mut() else {
                 break;
-            }
-            let inv_d = T::one() / d;
-            // Schur complement of the trailing block, lower triangle only:
-            // A(i, j) −= A(j, k) / d · A(i, k) for i ≥ j > k.
-            for (j, col_j) in cols.iter_mut().enumerate().skip(k + 1) {
-                let l = col_k.get(j).copied().unwrap_or(zero) * inv_d;
-                for (a_ij, a_ik) in col_j.iter_mut().zip(col_k.iter()).skip(j) {
-                    *a_ij -= l * *a_ik;
-                }
-            }
+            };
+            let dot = w_done
+                .iter()
+                .zip(col_i.iter())
+                .fold(zero, |s, (w, l)| s + *w * *l);
+            *w_i -= dot;
+        }
+        // L(j, i) = w_i / d_i and d_j = P(j, j) − Σ w_i L(j, i).
+        let mut d = pjj;
+        for (w, inv) in col_j.iter_mut().zip(inv_d.iter()).take(j) {
+            let l = *w * *inv;
+            d -= *w * l;
+            *w = l;
+        }
+        let rel = d / pjj;
+        if rel < min_rel {
+            min_rel = rel;
+        }
+        if d <= zero {
+            break;
+        }
+        if let Some(v) = inv_d.get_mut(j) {
+            *v = T::one() / d;
         }
     }
-    p.fill_lower_triangle_with_upper_triangle();
-    for (i, d) in diag.iter().enumerate() {
-        if let Some(v) = p.get_mut((i, i)) {
-            *v = *d;
-        }
-    }
+    p.fill_upper_triangle_with_lower_triangle();
     margin - min_rel
 }
 

@@ -199,7 +199,7 @@ pub use mechanization::{
 pub use paper::{
     paper_initial_covariance, PAPER_COVARIANCE_INTERVAL_STEPS, PAPER_IMU_DT_S, PAPER_IMU_DT_US,
 };
-pub use propagation::ClipFlags;
+pub use propagation::{ClipFlags, PROPAGATION_STABILISING_EPS};
 pub use sparse_f::{FBlock, SparseF};
 pub(crate) use update::CrossColumn;
 pub use update::{LosReport, LosSample, LosSkipReason};
