@@ -39,6 +39,8 @@ pub struct ClipFlags {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum CovarianceSchedule {
     Interval,
+    /// As `Interval`, without the PSD check (the flight navigator's steps: its tick budget).
+    Unchecked,
     Deferred,
     /// As `Interval`, with an external column propagated by the same Φ
     /// ([`SeekerIns::propagate_cross`]; regular, unclipped samples only).
@@ -104,13 +106,15 @@ impl<T: Real> SeekerIns<T> {
 
     /// [`SeekerIns::propagate`] / [`SeekerIns::propagate_clipped`] (`clip`) without counting
     /// a refused sample in `Health::imu_refused` (the flight navigator's refused tick changes
-    /// nothing). Atomic without a copy of the filter on the regular path.
+    /// nothing) and without the PSD check (the navigator's tick budget; the constant
+    /// [`PROPAGATION_STABILISING_EPS`] instead). Atomic without a copy of the filter on the
+    /// regular path.
     pub(crate) fn propagate_uncounted(
         &mut self,
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
     ) -> Result<(), NavError> {
-        self.propagate_sample(sample, clip, CovarianceSchedule::Interval)
+        self.propagate_sample(sample, clip, CovarianceSchedule::Unchecked)
     }
 
     /// IMU samples integrated since the last covariance step.
@@ -440,7 +444,10 @@ impl<T: Real> SeekerIns<T> {
             let dt_total = self.pending_interval_s(steps, pending_us);
             match cross {
                 Some(c) => self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c)?,
-                None => self.covariance_step_at(Some(&ins), dt_total, &dv_pending)?,
+                None => {
+                    let check = schedule == CovarianceSchedule::Interval;
+                    self.covariance_step_at(Some(&ins), dt_total, &dv_pending, check)?;
+                }
             }
             stepped = Some(dt_total);
             self.steps_pending = 0;
@@ -460,20 +467,20 @@ impl<T: Real> SeekerIns<T> {
 
     /// The covariance step over `dt_total_s` at the INS `ins` with the velocity increment
     /// `dv_ned_m_s` (m/s) of the interval: `Φ P Φᵀ + Q`, the flight configuration's
-    /// instrument-error noise, repairs, stabilising noise and ceilings. The pending counters
-    /// are the caller's. Atomic (P unchanged on error).
+    /// instrument-error noise, repairs, stabilising noise (the PSD check with `check_psd`) and
+    /// ceilings. The pending counters are the caller's. Atomic (P unchanged on error).
     fn covariance_step_at(
         &mut self,
         ins: Option<&Ins<T>>,
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
+        check_psd: bool,
     ) -> Result<(), NavError> {
         let f_ned = dv_ned_m_s / dt_total_s;
         let at = ins.unwrap_or(&self.ins);
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
-        // The PSD check on the step of an IMU sample, not on a step an update flushes.
-        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s, ins.is_some())
+        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s, check_psd)
     }
 
     /// [`Self::covariance_step_at`] with F given. Not inlined: one copy serves every
@@ -575,7 +582,7 @@ impl<T: Real> SeekerIns<T> {
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
         let dv = self.dv_ned_pending_m_s;
-        self.covariance_step_at(None, dt_total, &dv)?;
+        self.covariance_step_at(None, dt_total, &dv, false)?;
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
