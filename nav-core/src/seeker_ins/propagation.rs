@@ -2,6 +2,7 @@
 //! the covariance steps.
 
 use super::config::VARIANCE_CEILING;
+use super::covariance_health::psd_lift;
 use super::error_model::{propagate_covariance_sparse, transition_times, ATT, STATES, VEL};
 use super::filter::SeekerIns;
 use super::flight_noise::flight_noise_step;
@@ -12,21 +13,15 @@ use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
 use crate::{NavError, Real};
 use nalgebra::Vector3;
 
-/// Relative variance added to every state after each covariance step, in units of ε of the
-/// working precision: `P ← P + δ diag(P)`, `δ = 4 ε` (4.8e-7 in f32, 8.9e-16 in f64). The
-/// rounding of a step moves the smallest eigenvalue of P's correlation matrix by a few ε in
-/// either direction; over a long run without a precise fused LOS update (whose own stabilising
-/// noise, up to [`super::STABILISING_EPS`], otherwise restores the margin) that random walk
-/// crossed zero (the stress campaign: correlation eigenvalues of −1.3e-4 after 10⁵ covariance
-/// steps with the position out of range or every LOS rejected). 4 ε per step outpaces it (the
-/// 10⁶-step unaided test and the full stress campaign stay PSD); it inflates a variance
-/// nothing else changes by 0.5 % per 10⁴ steps (17 min at 10 Hz) in f32. Along the directions
-/// the seeker observes it acts as process noise: 16 ε made the f32 flight configuration
-/// conservative (seeker-straight NEES 15.6 against 16.8 in f64; 4 ε: 16.3). Over the
-/// consistency campaign's 30 variants (f32) 0, 1, 2 and 4 ε give a mean NEES per state of
-/// 1.021 (f64's), 1.002, 0.988 and 0.970; the short stress campaign commits 1 403, 0, 321 and
-/// 0 non-PSD covariances (precise-seeker cases: 1 ε is clean there by its draws, not by a
-/// margin), so 4 ε stays and its 5 % of NEES is the price of a P that stays PSD.
+/// Relative variance added to every state after a covariance step that runs without the PSD
+/// check ([`super::PSD_MARGIN_EPS`]): a step flushed by an update on the same tick or by
+/// [`SeekerIns::predict_covariance`], and every step of the flight navigator; in units of ε of
+/// the working precision: `P ← P + δ diag(P)`, `δ = 4 ε` (4.8e-7 in f32). The check costs
+/// ≈ 8 800 instructions on the M4F (the navigator's released tick 13 303 → 22 087 with it),
+/// which the update's path and the navigator's 20 000-instruction tick cannot carry; 4 ε
+/// outpaces the few ε a step's rounding moves the smallest correlation eigenvalue by. Along the directions the seeker observes it acts as process noise: as the
+/// only stabilising noise of every step it made the f32 flight configuration conservative
+/// (mean NEES per state 0.970 against f64's 1.021 over the consistency campaign).
 pub const PROPAGATION_STABILISING_EPS: f64 = 4.0;
 
 /// Which sensor of an IMU sample is clipped ([`SeekerIns::propagate_clipped`]).
@@ -44,6 +39,8 @@ pub struct ClipFlags {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum CovarianceSchedule {
     Interval,
+    /// As `Interval`, without the PSD check (the flight navigator's steps: its tick budget).
+    Unchecked,
     Deferred,
     /// As `Interval`, with an external column propagated by the same Φ
     /// ([`SeekerIns::propagate_cross`]; regular, unclipped samples only).
@@ -109,13 +106,15 @@ impl<T: Real> SeekerIns<T> {
 
     /// [`SeekerIns::propagate`] / [`SeekerIns::propagate_clipped`] (`clip`) without counting
     /// a refused sample in `Health::imu_refused` (the flight navigator's refused tick changes
-    /// nothing). Atomic without a copy of the filter on the regular path.
+    /// nothing) and without the PSD check (the navigator's tick budget; the constant
+    /// [`PROPAGATION_STABILISING_EPS`] instead). Atomic without a copy of the filter on the
+    /// regular path.
     pub(crate) fn propagate_uncounted(
         &mut self,
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
     ) -> Result<(), NavError> {
-        self.propagate_sample(sample, clip, CovarianceSchedule::Interval)
+        self.propagate_sample(sample, clip, CovarianceSchedule::Unchecked)
     }
 
     /// IMU samples integrated since the last covariance step.
@@ -445,7 +444,10 @@ impl<T: Real> SeekerIns<T> {
             let dt_total = self.pending_interval_s(steps, pending_us);
             match cross {
                 Some(c) => self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c)?,
-                None => self.covariance_step_at(Some(&ins), dt_total, &dv_pending)?,
+                None => {
+                    let check = schedule == CovarianceSchedule::Interval;
+                    self.covariance_step_at(Some(&ins), dt_total, &dv_pending, check)?;
+                }
             }
             stepped = Some(dt_total);
             self.steps_pending = 0;
@@ -465,19 +467,20 @@ impl<T: Real> SeekerIns<T> {
 
     /// The covariance step over `dt_total_s` at the INS `ins` with the velocity increment
     /// `dv_ned_m_s` (m/s) of the interval: `Φ P Φᵀ + Q`, the flight configuration's
-    /// instrument-error noise, repairs, stabilising noise and ceilings. The pending counters
-    /// are the caller's. Atomic (P unchanged on error).
+    /// instrument-error noise, repairs, stabilising noise (the PSD check with `check_psd`) and
+    /// ceilings. The pending counters are the caller's. Atomic (P unchanged on error).
     fn covariance_step_at(
         &mut self,
         ins: Option<&Ins<T>>,
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
+        check_psd: bool,
     ) -> Result<(), NavError> {
         let f_ned = dv_ned_m_s / dt_total_s;
         let at = ins.unwrap_or(&self.ins);
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
-        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s)
+        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s, check_psd)
     }
 
     /// [`Self::covariance_step_at`] with F given. Not inlined: one copy serves every
@@ -489,6 +492,7 @@ impl<T: Real> SeekerIns<T> {
         ins: Option<&Ins<T>>,
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
+        check_psd: bool,
     ) -> Result<(), NavError> {
         let ins = ins.unwrap_or(&self.ins);
         let repairs = propagate_covariance_sparse(
@@ -507,7 +511,7 @@ impl<T: Real> SeekerIns<T> {
             dv_ned_m_s,
             dt_total_s,
         );
-        self.after_covariance_step(repairs);
+        self.after_covariance_step(repairs, check_psd);
         Ok(())
     }
 
@@ -526,7 +530,8 @@ impl<T: Real> SeekerIns<T> {
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
         let limits_before = self.health.limits_hit;
-        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s)?;
+        // The flight navigator's steps: no PSD check (its tick budget), the constant noise.
+        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s, false)?;
         // Φ c after the step (Φ is finite: the step succeeded), in a frame of its own beside
         // the kernel's; a column that overflows is forgotten as after a repair.
         if self.health.limits_hit == limits_before {
@@ -547,14 +552,23 @@ impl<T: Real> SeekerIns<T> {
         }
     }
 
-    /// Counts the repairs of a covariance step, adds the propagation's stabilising noise
-    /// ([`PROPAGATION_STABILISING_EPS`]) and limits the variances.
-    fn after_covariance_step(&mut self, repairs: u32) {
+    /// Counts the repairs of a covariance step, then the PSD margin: with `check_psd` (the
+    /// stand-alone filter's step on an IMU sample) P is checked and lifted only when the margin
+    /// is small ([`super::PSD_MARGIN_EPS`]); otherwise (a step flushed by an update or by
+    /// [`Self::predict_covariance`], and every step of the flight navigator) every variance
+    /// gains [`PROPAGATION_STABILISING_EPS`] ε. Then the variances are limited.
+    fn after_covariance_step(&mut self, repairs: u32, check_psd: bool) {
         self.health.limits_hit = self.health.limits_hit.saturating_add(repairs);
-        let delta = T::lit(PROPAGATION_STABILISING_EPS) * T::EPS;
-        for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
-            if let Some(v) = col.get_mut(j) {
-                *v += *v * delta;
+        let delta = if check_psd {
+            psd_lift(&mut self.p)
+        } else {
+            T::lit(PROPAGATION_STABILISING_EPS) * T::EPS
+        };
+        if delta > T::zero() {
+            for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
+                if let Some(v) = col.get_mut(j) {
+                    *v += *v * delta;
+                }
             }
         }
         self.limit_variances();
@@ -568,7 +582,7 @@ impl<T: Real> SeekerIns<T> {
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
         let dv = self.dv_ned_pending_m_s;
-        self.covariance_step_at(None, dt_total, &dv)?;
+        self.covariance_step_at(None, dt_total, &dv, false)?;
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();

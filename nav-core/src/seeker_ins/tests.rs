@@ -151,8 +151,9 @@ fn min_correlation_eigenvalue(p: &SMatrix<f32, 17, 17>) -> f64 {
 /// A long run on the IMU alone in f32 (no LOS update, whose stabilising noise would restore
 /// the margin), with a vertical accelerometer error that drives the unaided vertical channel
 /// out of the model range: after every covariance step the correlation matrix of P stays
-/// PSD to the stress campaign's tolerance (17 · 64 ε). Without the propagation's stabilising
-/// noise the rounding of 10⁵ covariance steps drove its smallest eigenvalue to −1.3e-4.
+/// PSD to the stress campaign's tolerance (17 · 64 ε). Without the covariance health check
+/// (and without any other stabilising noise) the rounding of 10⁵ covariance steps drove its
+/// smallest eigenvalue to −1.3e-4.
 #[test]
 fn p_stays_psd_over_a_long_unaided_run_in_f32() {
     let (cfg, mut init) = setup(LosResidual::Projected2d);

@@ -83,7 +83,7 @@ impl<T: Real> SeekerIns<T> {
     /// (the usual case at the seeker rate) the update works in place with no copy of P, the
     /// two scalar updates computed as rank-one terms `P⁺ = P − k₁K₁ᵀ − k₂K₂ᵀ`, checked
     /// (variances stay ≥ 0, all finite, feedback valid) and only then applied; the
-    /// stabilising noise (`STABILISING_EPS`) and the conditioned r keep P PSD in f32 (module
+    /// stabilising noise (`ρ ε`) and the conditioned r keep P PSD in f32 (module
     /// doc of [`super`]). With IMU samples pending, P is first propagated on a copy of the
     /// filter (more stack) and committed with the update.
     pub fn update_los(&mut self, sample: &LosSample<T>) -> Result<LosReport<T>, NavError> {
