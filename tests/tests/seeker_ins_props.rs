@@ -118,8 +118,8 @@ fn min_corr_eigen<T: Real>(p: &SMatrix<T, 17, 17>) -> f64 {
 
 /// Health of P: symmetric, PSD in correlation form, finite, variances within physical bounds
 /// (navigation block below (10⁴ km)², 10⁴ m/s, π rad; bias and gimbal variances random
-/// constants: never above their initial values but for the stabilising noise, 256 ε per fused
-/// update, < 25 % over these runs).
+/// constants: never above their initial values but for the stabilising noise, ρ ε per fused
+/// update of information ratio ρ (at most 10⁻³), < 25 % over these runs).
 fn check_health<T: Real>(f: &SeekerIns<T>, tol_eig: f64) -> Result<(), String> {
     let p = f.covariance();
     if p.iter().any(|v| !v.is_finite()) {
@@ -237,7 +237,7 @@ fn f32_and_f64_agree_over_a_long_run() {
     let de = (pa.lon_rad - pb.lon_rad) * 6.39e6 * LAT0.cos();
     let dh = pa.alt_m - pb.alt_m;
     let dpos = (dn * dn + de * de + dh * dh).sqrt();
-    // 15 m: the f32 filter carries the stabilising noise (256 ε per update), f64 in effect not.
+    // 15 m: the f32 filter carries the stabilising noise (ρ ε per update), f64 in effect not.
     assert!(dpos < 15.0, "position difference {dpos} m");
     let dv = (a.state().vel_ned_m_s - b.state().vel_ned_m_s.cast::<f64>()).norm();
     assert!(dv < 0.15, "velocity difference {dv} m/s");
