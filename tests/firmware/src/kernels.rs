@@ -123,6 +123,12 @@ pub static KERNELS: &[Kernel] = &[
         check: seeker_check,
     },
     Kernel {
+        name: "eskf17_sample_psd_checked",
+        setup: seeker_setup_sample_step,
+        run: eskf_sample_step,
+        check: seeker_check,
+    },
+    Kernel {
         name: "eskf17_los_update",
         setup: seeker_setup_predicted,
         run: eskf_los_update,
@@ -686,21 +692,34 @@ fn ins_check() -> bool {
 }
 
 fn seeker_setup() {
-    seeker_setup_with(SeekerInsConfig::paper);
+    seeker_setup_with(SeekerInsConfig::paper, 100, 10);
 }
 
 /// As [`seeker_setup`] with the flight configuration (the IMU's scale-factor and
 /// misalignment σ charged after the covariance step).
 fn seeker_setup_flight() {
-    seeker_setup_with(SeekerInsConfig::flight);
+    seeker_setup_with(SeekerInsConfig::flight, 100, 10);
 }
 
-fn seeker_setup_with(make: fn(Landmark<f32>) -> SeekerInsConfig<f32>) {
+/// The stand-alone flight configuration one IMU sample before its covariance step (every 10
+/// samples): the measured call is the sample whose arrival runs the step, with the INS step,
+/// ΦPΦᵀ + Q, the instrument-error charge and the LDLᵀ check of P's PSD margin.
+fn seeker_setup_sample_step() {
+    seeker_setup_with(SeekerInsConfig::flight, 10, 9);
+}
+
+/// A seeker INS built from `make`, its covariance step every `interval_steps` IMU samples,
+/// after `samples` samples.
+fn seeker_setup_with(
+    make: fn(Landmark<f32>) -> SeekerInsConfig<f32>,
+    interval_steps: u16,
+    samples: usize,
+) {
     let state = landmark().and_then(|lm| {
-        // The filter with the covariance step deferred: the kernels measure the prediction
-        // and the update separately.
+        // With an interval of 100 the covariance step stays deferred: the kernels measure the
+        // prediction and the update separately.
         let cfg = SeekerInsConfig {
-            covariance_interval_steps: 100,
+            covariance_interval_steps: interval_steps,
             ..make(lm)
         };
         let initial = SeekerInsInitial {
@@ -711,7 +730,7 @@ fn seeker_setup_with(make: fn(Landmark<f32>) -> SeekerInsConfig<f32>) {
     });
     let mut state = state.map(|filter| Seeker { filter, ok: true });
     if let Some(s) = state.as_mut() {
-        for _ in 0..10 {
+        for _ in 0..samples {
             let inc = ins_increment(s.filter.ins());
             s.ok &= s.filter.propagate(&inc).is_ok();
         }
@@ -729,6 +748,15 @@ fn seeker_setup_predicted() {
 fn eskf_predict() {
     with_state(&SEEKER, |s| {
         s.ok &= s.filter.predict_covariance().is_ok();
+    });
+}
+
+/// One IMU sample into the stand-alone filter (the increment formed in the call, as
+/// `ins_mech_step` does).
+fn eskf_sample_step() {
+    with_state(&SEEKER, |s| {
+        let inc = ins_increment(s.filter.ins());
+        s.ok &= s.filter.propagate(&inc).is_ok();
     });
 }
 
