@@ -24,6 +24,17 @@ use nalgebra::Vector3;
 /// (mean NEES per state 0.970 against f64's 1.021 over the consistency campaign).
 pub const PROPAGATION_STABILISING_EPS: f64 = 4.0;
 
+/// How a covariance step keeps P's PSD margin.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PsdMargin {
+    /// The LDLᵀ check of the margin, every variance lifted only when it is small
+    /// ([`super::PSD_MARGIN_EPS`]): the stand-alone filter's step on an IMU sample.
+    Checked,
+    /// Every variance gains [`PROPAGATION_STABILISING_EPS`] ε: a step flushed by an update or
+    /// by [`SeekerIns::predict_covariance`], and every step of the flight navigator.
+    Constant,
+}
+
 /// Which sensor of an IMU sample is clipped ([`SeekerIns::propagate_clipped`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -445,8 +456,12 @@ impl<T: Real> SeekerIns<T> {
             match cross {
                 Some(c) => self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c)?,
                 None => {
-                    let check = schedule == CovarianceSchedule::Interval;
-                    self.covariance_step_at(Some(&ins), dt_total, &dv_pending, check)?;
+                    let margin = if schedule == CovarianceSchedule::Interval {
+                        PsdMargin::Checked
+                    } else {
+                        PsdMargin::Constant
+                    };
+                    self.covariance_step_at(Some(&ins), dt_total, &dv_pending, margin)?;
                 }
             }
             stepped = Some(dt_total);
@@ -467,20 +482,20 @@ impl<T: Real> SeekerIns<T> {
 
     /// The covariance step over `dt_total_s` at the INS `ins` with the velocity increment
     /// `dv_ned_m_s` (m/s) of the interval: `Φ P Φᵀ + Q`, the flight configuration's
-    /// instrument-error noise, repairs, stabilising noise (the PSD check with `check_psd`) and
+    /// instrument-error noise, repairs, stabilising noise (`margin`) and
     /// ceilings. The pending counters are the caller's. Atomic (P unchanged on error).
     fn covariance_step_at(
         &mut self,
         ins: Option<&Ins<T>>,
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
-        check_psd: bool,
+        margin: PsdMargin,
     ) -> Result<(), NavError> {
         let f_ned = dv_ned_m_s / dt_total_s;
         let at = ins.unwrap_or(&self.ins);
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
-        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s, check_psd)
+        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s, margin)
     }
 
     /// [`Self::covariance_step_at`] with F given. Not inlined: one copy serves every
@@ -492,7 +507,7 @@ impl<T: Real> SeekerIns<T> {
         ins: Option<&Ins<T>>,
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
-        check_psd: bool,
+        margin: PsdMargin,
     ) -> Result<(), NavError> {
         let ins = ins.unwrap_or(&self.ins);
         let repairs = propagate_covariance_sparse(
@@ -511,7 +526,7 @@ impl<T: Real> SeekerIns<T> {
             dv_ned_m_s,
             dt_total_s,
         );
-        self.after_covariance_step(repairs, check_psd);
+        self.after_covariance_step(repairs, margin);
         Ok(())
     }
 
@@ -531,7 +546,7 @@ impl<T: Real> SeekerIns<T> {
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
         let limits_before = self.health.limits_hit;
         // The flight navigator's steps: no PSD check (its tick budget), the constant noise.
-        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s, false)?;
+        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s, PsdMargin::Constant)?;
         // Φ c after the step (Φ is finite: the step succeeded), in a frame of its own beside
         // the kernel's; a column that overflows is forgotten as after a repair.
         if self.health.limits_hit == limits_before {
@@ -552,17 +567,16 @@ impl<T: Real> SeekerIns<T> {
         }
     }
 
-    /// Counts the repairs of a covariance step, then the PSD margin: with `check_psd` (the
-    /// stand-alone filter's step on an IMU sample) P is checked and lifted only when the margin
-    /// is small ([`super::PSD_MARGIN_EPS`]); otherwise (a step flushed by an update or by
+    /// Counts the repairs of a covariance step, then the PSD margin: with
+    /// [`PsdMargin::Checked`] (the stand-alone filter's step on an IMU sample) P is checked and lifted only when the margin
+    /// is small ([`super::PSD_MARGIN_EPS`]); with [`PsdMargin::Constant`] (a step flushed by an update or by
     /// [`Self::predict_covariance`], and every step of the flight navigator) every variance
     /// gains [`PROPAGATION_STABILISING_EPS`] ε. Then the variances are limited.
-    fn after_covariance_step(&mut self, repairs: u32, check_psd: bool) {
+    fn after_covariance_step(&mut self, repairs: u32, margin: PsdMargin) {
         self.health.limits_hit = self.health.limits_hit.saturating_add(repairs);
-        let delta = if check_psd {
-            psd_lift(&mut self.p)
-        } else {
-            T::lit(PROPAGATION_STABILISING_EPS) * T::EPS
+        let delta = match margin {
+            PsdMargin::Checked => psd_lift(&mut self.p),
+            PsdMargin::Constant => T::lit(PROPAGATION_STABILISING_EPS) * T::EPS,
         };
         if delta > T::zero() {
             for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
@@ -582,7 +596,7 @@ impl<T: Real> SeekerIns<T> {
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
         let dv = self.dv_ned_pending_m_s;
-        self.covariance_step_at(None, dt_total, &dv, false)?;
+        self.covariance_step_at(None, dt_total, &dv, PsdMargin::Constant)?;
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
