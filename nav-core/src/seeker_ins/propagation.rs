@@ -477,18 +477,17 @@ impl<T: Real> SeekerIns<T> {
         let at = ins.unwrap_or(&self.ins);
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
-        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s)
+        self.covariance_step_f(&f, ins, dt_total_s)
     }
 
-    /// [`Self::covariance_step_at`] with F given. Not inlined: one copy serves every
-    /// covariance step.
+    /// [`Self::covariance_step_at`] with F given (its mean specific force is the interval's
+    /// `dv / Δt`). Not inlined: one copy serves every covariance step.
     #[inline(never)]
     fn covariance_step_f(
         &mut self,
         f: &SparseF<T>,
         ins: Option<&Ins<T>>,
         dt_total_s: T,
-        dv_ned_m_s: &Vector3<T>,
     ) -> Result<(), NavError> {
         let ins = ins.unwrap_or(&self.ins);
         let repairs = propagate_covariance_sparse(
@@ -504,7 +503,7 @@ impl<T: Real> SeekerIns<T> {
             &mut self.bias_charge,
             &self.config.instrument_errors,
             ins,
-            dv_ned_m_s,
+            f,
             dt_total_s,
         );
         self.after_covariance_step(repairs);
@@ -526,7 +525,7 @@ impl<T: Real> SeekerIns<T> {
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
         let limits_before = self.health.limits_hit;
-        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s)?;
+        self.covariance_step_f(&f, ins, dt_total_s)?;
         // Φ c after the step (Φ is finite: the step succeeded), in a frame of its own beside
         // the kernel's; a column that overflows is forgotten as after a repair.
         if self.health.limits_hit == limits_before {
