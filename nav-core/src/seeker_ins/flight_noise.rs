@@ -78,6 +78,7 @@
 
 use super::error_model::{ACC_BIAS, ATT, STATES, VEL};
 use super::mechanization::Ins;
+use super::sparse_f::SparseF;
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
@@ -323,9 +324,10 @@ pub(crate) fn add_instrument_noise<T: Real>(
     next
 }
 
-/// The hook the covariance steps call after `P ← Φ P Φᵀ + Q_d` over `dt_total_s`, with
-/// `dv_ned_m_s` the NED velocity increment of the interval's samples and `ins` the INS at its
-/// end: the mean body specific force is `C_n^b dv / Δt` (attitude at the end of the
+/// The hook the covariance steps call after `P ← Φ P Φᵀ + Q_d` over `dt_total_s`, with `ins`
+/// the INS at the end of the interval and `f` the step's F at that INS (its C_b^n and its
+/// mean NED specific force `dv / Δt`, m/s², of the interval's samples: neither formed
+/// again): the mean body specific force is `C_n^b dv / Δt` (attitude at the end of the
 /// interval), the body rotation the last IMU increment scaled to the interval. Without a
 /// reference yet, level flight's `C_n^b (−g)` becomes it (module doc). Nothing (not
 /// even a multiplication) when every σ is zero.
@@ -335,13 +337,13 @@ pub(super) fn flight_noise_step<T: Real>(
     charge: &mut EquivalentBiasCharge<T>,
     errors: &InstrumentErrors<T>,
     ins: &Ins<T>,
-    dv_ned_m_s: &Vector3<T>,
+    f: &SparseF<T>,
     dt_total_s: T,
 ) {
     if errors.is_zero() || dt_total_s <= T::zero() {
         return;
     }
-    let c_b_n = ins.c_b_n();
+    let c_b_n = &f.c_b_n;
     if charge.reference_f_b_m_s2.is_none() {
         // No reference set: unaccelerated level flight at this attitude, `C_n^b (−g)`.
         let s = ins.state();
@@ -350,13 +352,13 @@ pub(super) fn flight_noise_step<T: Real>(
             *charge = first;
         }
     }
-    let f_b = c_b_n.transpose() * (dv_ned_m_s / dt_total_s);
+    let f_b = c_b_n.transpose() * f.f_ned;
     let last_s = ins.last_interval_s();
     let dtheta = match ins.last_increment() {
         Some(inc) if last_s > T::zero() => inc.delta_theta_rad * (dt_total_s / last_s),
         _ => Vector3::zeros(),
     };
-    *charge = add_instrument_noise(p, charge, errors, &c_b_n, &f_b, &dtheta, dt_total_s);
+    *charge = add_instrument_noise(p, charge, errors, c_b_n, &f_b, &dtheta, dt_total_s);
 }
 
 #[cfg(test)]

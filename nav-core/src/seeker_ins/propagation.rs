@@ -495,18 +495,17 @@ impl<T: Real> SeekerIns<T> {
         let at = ins.unwrap_or(&self.ins);
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
-        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s, margin)
+        self.covariance_step_f(&f, ins, dt_total_s, margin)
     }
 
-    /// [`Self::covariance_step_at`] with F given. Not inlined: one copy serves every
-    /// covariance step.
+    /// [`Self::covariance_step_at`] with F given (its mean specific force is the interval's
+    /// `dv / Δt`). Not inlined: one copy serves every covariance step.
     #[inline(never)]
     fn covariance_step_f(
         &mut self,
         f: &SparseF<T>,
         ins: Option<&Ins<T>>,
         dt_total_s: T,
-        dv_ned_m_s: &Vector3<T>,
         margin: PsdMargin,
     ) -> Result<(), NavError> {
         let ins = ins.unwrap_or(&self.ins);
@@ -523,7 +522,7 @@ impl<T: Real> SeekerIns<T> {
             &mut self.bias_charge,
             &self.config.instrument_errors,
             ins,
-            dv_ned_m_s,
+            f,
             dt_total_s,
         );
         self.after_covariance_step(repairs, margin);
@@ -546,7 +545,7 @@ impl<T: Real> SeekerIns<T> {
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
         let limits_before = self.health.limits_hit;
         // The flight navigator's steps: no PSD check (its tick budget), the constant noise.
-        self.covariance_step_f(&f, ins, dt_total_s, dv_ned_m_s, PsdMargin::Constant)?;
+        self.covariance_step_f(&f, ins, dt_total_s, PsdMargin::Constant)?;
         // Φ c after the step (Φ is finite: the step succeeded), in a frame of its own beside
         // the kernel's; a column that overflows is forgotten as after a repair.
         if self.health.limits_hit == limits_before {
