@@ -20,7 +20,7 @@ pub fn max_information_ratio<T: Real>() -> T {
 /// Largest relative variance added to every state after a fused baro update of the flight
 /// navigator, in units of ε of the working precision: `min(ρ, this) ε` for an update of
 /// information ratio `ρ`. The LOS update's noise is `ρ ε` up to the conditioning limit
-/// ([`max_information_ratio`], [`stabilise`]).
+/// ([`max_information_ratio`], `stabilise`).
 pub const STABILISING_EPS: f64 = 256.0;
 
 /// The two components of a 2-D update, computed against P without changing it.

@@ -175,7 +175,7 @@ pub use config::{
     MAX_GAP_ATTITUDE_SIGMA_RAD, MAX_GAP_S, MAX_GAP_SAMPLES, MAX_GAP_VELOCITY_SIGMA_M_S,
     MAX_INFLATION_FACTOR, MAX_STARVED_AFTER_S, VARIANCE_CEILING,
 };
-pub use covariance_health::PSD_MARGIN_EPS;
+pub use covariance_health::{PROPAGATION_STABILISING_EPS, PSD_MARGIN_EPS};
 #[cfg(test)]
 pub(crate) use error_model::transition_times as transition_times_for_tests;
 pub use error_model::{
@@ -199,7 +199,7 @@ pub use mechanization::{
 pub use paper::{
     paper_initial_covariance, PAPER_COVARIANCE_INTERVAL_STEPS, PAPER_IMU_DT_S, PAPER_IMU_DT_US,
 };
-pub use propagation::{ClipFlags, PROPAGATION_STABILISING_EPS};
+pub use propagation::ClipFlags;
 pub use sparse_f::{FBlock, SparseF};
 pub(crate) use update::CrossColumn;
 pub use update::{LosReport, LosSample, LosSkipReason};

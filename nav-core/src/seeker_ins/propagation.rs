@@ -2,7 +2,7 @@
 //! the covariance steps.
 
 use super::config::VARIANCE_CEILING;
-use super::covariance_health::psd_lift;
+use super::covariance_health::{psd_lift, PsdMargin, PROPAGATION_STABILISING_EPS};
 use super::error_model::{propagate_covariance_sparse, transition_times, ATT, STATES, VEL};
 use super::filter::SeekerIns;
 use super::flight_noise::flight_noise_step;
@@ -12,28 +12,6 @@ use crate::contract::Health;
 use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
 use crate::{NavError, Real};
 use nalgebra::Vector3;
-
-/// Relative variance added to every state after a covariance step that runs without the PSD
-/// check ([`super::PSD_MARGIN_EPS`]): a step flushed by an update on the same tick or by
-/// [`SeekerIns::predict_covariance`], and every step of the flight navigator; in units of ε of
-/// the working precision: `P ← P + δ diag(P)`, `δ = 4 ε` (4.8e-7 in f32). The check costs
-/// ≈ 8 800 instructions on the M4F (the navigator's released tick 13 303 → 22 087 with it),
-/// which the update's path and the navigator's 20 000-instruction tick cannot carry; 4 ε
-/// outpaces the few ε a step's rounding moves the smallest correlation eigenvalue by. Along the directions the seeker observes it acts as process noise: as the
-/// only stabilising noise of every step it made the f32 flight configuration conservative
-/// (mean NEES per state 0.970 against f64's 1.021 over the consistency campaign).
-pub const PROPAGATION_STABILISING_EPS: f64 = 4.0;
-
-/// How a covariance step keeps P's PSD margin.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-enum PsdMargin {
-    /// The LDLᵀ check of the margin, every variance lifted only when it is small
-    /// ([`super::PSD_MARGIN_EPS`]): the stand-alone filter's step on an IMU sample.
-    Checked,
-    /// Every variance gains [`PROPAGATION_STABILISING_EPS`] ε: a step flushed by an update or
-    /// by [`SeekerIns::predict_covariance`], and every step of the flight navigator.
-    Constant,
-}
 
 /// Which sensor of an IMU sample is clipped ([`SeekerIns::propagate_clipped`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
