@@ -29,10 +29,13 @@
 //!   joint covariance stays PSD (block diagonal of two PSD blocks) and the correlation between
 //!   the baro error and the INS errors is forgotten.
 
+use crate::contract::Estimator;
 use crate::contract::{FusionOutcome, FusionReport, Gate};
 use crate::math::kalman::gate_scalar;
 use crate::seeker_ins::{max_information_ratio, SeekerIns, POS, STABILISING_EPS, STATES, VEL};
-use crate::vertical_channel::BaroSample;
+use crate::vertical_channel::{
+    BaroSample, ClassicalConfig, ClassicalDesign, ClassicalLoop, InitialState,
+};
 use crate::{NavError, Real};
 use nalgebra::{SMatrix, SVector};
 
@@ -89,6 +92,59 @@ impl<T: Real> BaroState<T> {
         let s = ekf.state();
         T::lit(s.position.alt_m) + tau_s * s.vel_ned_m_s.z + self.bias_m
     }
+}
+
+/// The baro-inertial loop's vertical input on a vehicle moving over the earth, m/s² (up):
+/// the INS's upward specific force `−f_D` plus the vertical part of its Coriolis and
+/// transport-rate acceleration,
+/// `[(2ω_ie + ω_en) × v]_D = (2Ω cos L + V_E/(R_N + h)) V_E + V_N²/(R_M + h)`
+/// (`state`: the INS's position and NED velocity, m/s; `f_ned_m_s2`: its specific force in
+/// NED, m/s²). The loop integrates `V̇_z = input − g(ĥ)`; the INS's vertical velocity obeys
+/// `V̇_up = −f_D − g + [(2ω_ie + ω_en) × v]_D`. Fed the specific force alone, the loop misses
+/// that term — at 200 m/s east at 37° latitude 0.028 m/s² (2.9 mg), thirteen times the
+/// accelerometer error its σ is designed for — and its V̂_z runs off until its bias state has
+/// absorbed it (0.5 m/s, thirty seconds after the start, on the mission).
+pub(crate) fn loop_vertical_input_m_s2<T: Real>(
+    state: &crate::seeker_ins::InsState<T>,
+    f_ned_m_s2: &nalgebra::Vector3<T>,
+) -> T {
+    let lat = T::lit(state.position.lat_rad);
+    let alt = T::lit(state.position.alt_m);
+    let v = &state.vel_ned_m_s;
+    let (r_m, r_n) = crate::earth::radii_m(lat);
+    let two_omega_cos = T::lit(2.0 * crate::earth::EARTH_RATE_RAD_S) * crate::math::trig::cos(lat);
+    let coriolis_d = (two_omega_cos + v.y / (r_n + alt)) * v.y + v.x * v.x / (r_m + alt);
+    coriolis_d - f_ned_m_s2.z
+}
+
+/// The baro-inertial loop at the start of midcourse: its state from the INS's (ĥ, V̂_z), its
+/// (h, V_z) covariance from the EKF's (δh, δV_D) block (`δV_z = −δV_D`) — what is known of
+/// that state's error at the start, not the error model's assumed initial σ (the
+/// configuration's, which stays the loop's start wherever no filter seeds it). `None`: the
+/// design refuses to start the loop there (an INS altitude outside its range). A block the
+/// loop refuses (not PSD) leaves the error model's initial σ.
+pub(crate) fn start_inertial_loop<T: Real>(
+    config: &ClassicalConfig<T>,
+    design: &ClassicalDesign<T>,
+    ekf: &SeekerIns<T>,
+    time: crate::time::Timestamp,
+) -> Option<ClassicalLoop<T>> {
+    let s = ekf.state();
+    let init = InitialState {
+        time,
+        altitude_m: T::lit(s.position.alt_m),
+        vz_up_m_s: -s.vel_ned_m_s.z,
+        accel_bias_m_s2: T::zero(),
+    };
+    let mut lp = ClassicalLoop::from_design(config, design, &init).ok()?;
+    let p = ekf.covariance();
+    let at = |i: usize, j: usize| p.get((i, j)).copied().unwrap_or_else(T::zero);
+    let (ih, iv) = (POS + 2, VEL + 2);
+    let h_vz = -(at(ih, iv) + at(iv, ih)) * T::lit(0.5);
+    let c = nalgebra::Matrix2::new(at(ih, ih), h_vz, h_vz, at(iv, iv));
+    // Refused (not PSD): the loop keeps the error model's initial σ.
+    lp.set_covariance_h_vz(&c).unwrap_or(());
+    Some(lp)
 }
 
 /// The updated blocks of one baro fusion (before they are applied; the reference the

@@ -75,6 +75,33 @@ macro_rules! loop_common_methods {
         pub fn covariance_h_vz(&self) -> nalgebra::Matrix2<T> {
             self.core.sigma.covariance_h_vz()
         }
+        /// Replaces the covariance of (altitude m, vertical velocity m/s) — m², m²/s,
+        /// (m/s)², [`Self::covariance_h_vz`]'s layout — with what is known of the state's
+        /// error, e.g. at the start from the filter the initial state comes from (the error
+        /// model's initial σ is the design's assumption). The bias and baro-error parts keep
+        /// their covariance, their cross terms with altitude and velocity become zero; σ then
+        /// propagates from there. Refused (nothing changes): an entry not finite
+        /// (`NonFiniteInput`), not symmetric, a negative variance or a correlation beyond ±1
+        /// (`InputOutOfRange`).
+        pub fn set_covariance_h_vz(
+            &mut self,
+            covariance: &nalgebra::Matrix2<T>,
+        ) -> Result<(), NavError> {
+            let c = covariance;
+            let input = "covariance_h_vz";
+            if !crate::math::checks::all_finite(c.as_slice()) {
+                return Err(NavError::NonFiniteInput { input });
+            }
+            let valid = c.m12 == c.m21
+                && c.m11 >= T::zero()
+                && c.m22 >= T::zero()
+                && c.m12 * c.m12 <= c.m11 * c.m22;
+            if !valid {
+                return Err(NavError::InputOutOfRange { input });
+            }
+            self.core.sigma.set_covariance_h_vz(c);
+            Ok(())
+        }
         /// The steady-state σ the design implies (what [`Self::sigma`] settles to).
         pub fn steady_sigma(&self) -> super::VerticalSigma<T> {
             self.core.sigma.design.steady_sigma()

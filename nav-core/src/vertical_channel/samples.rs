@@ -15,7 +15,10 @@ use crate::{NavError, Real};
 pub struct ImuSample<T> {
     /// End of the IMU interval (the flight computer's clock).
     pub time: Timestamp,
-    /// Vertical specific force, up positive, m/s² (≈ +g at rest).
+    /// Vertical specific force, up positive, m/s² (≈ +g at rest). The loops integrate
+    /// `V̇_z = specific_force_up_m_s2 − g(ĥ)`: on a vehicle moving over the earth add the
+    /// vertical Coriolis and transport-rate acceleration `[(2ω_ie + ω_en) × v]_D` (≈ 3 mg at
+    /// 200 m/s east), as the flight navigator does.
     pub specific_force_up_m_s2: T,
 }
 

@@ -397,6 +397,22 @@ impl<T: Real> SigmaTrack<T> {
         self.settled = false;
     }
 
+    /// Replaces the (altitude, vertical velocity) block of P by `c` (m², m²/s, (m/s)²; checked
+    /// by the caller: symmetric, PSD, finite) and zeroes its cross terms with the bias and the
+    /// baro's correlated error: P stays PSD (block diagonal of two PSD blocks).
+    pub(crate) fn set_covariance_h_vz(&mut self, c: &Matrix2<T>) {
+        let mut p = self.p;
+        let zero = T::zero();
+        p.m11 = c.m11;
+        p.m12 = c.m12;
+        p.m21 = c.m12;
+        p.m22 = c.m22;
+        (p.m13, p.m14, p.m23, p.m24) = (zero, zero, zero, zero);
+        (p.m31, p.m41, p.m32, p.m42) = (zero, zero, zero, zero);
+        self.p = p;
+        self.settled = false;
+    }
+
     /// Covariance of (altitude m, vertical velocity m/s): m², m²/s, (m/s)².
     pub(crate) fn covariance_h_vz(&self) -> Matrix2<T> {
         Matrix2::new(self.p.m11, self.p.m12, self.p.m21, self.p.m22)

@@ -11,7 +11,7 @@ use super::{elapsed, LoopBaro, Navigator};
 use crate::contract::{Estimator, FusionOutcome};
 use crate::seeker_ins::{ClipFlags, CrossColumn, ImuIncrement, LosSample, SeekerIns, STATES};
 use crate::time::Timestamp;
-use crate::vertical_channel::{BaroSample, ClassicalLoop, ImuSample as VerticalImu, InitialState};
+use crate::vertical_channel::{BaroSample, ClassicalLoop, ImuSample as VerticalImu};
 use crate::{NavError, Real};
 
 impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
@@ -151,14 +151,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         else {
             return;
         };
-        let s = ekf.state();
-        let init = InitialState {
-            time: self.time,
-            altitude_m: T::lit(s.position.alt_m),
-            vz_up_m_s: -s.vel_ned_m_s.z,
-            accel_bias_m_s2: T::zero(),
-        };
-        self.vloop = ClassicalLoop::from_design(cfg, design, &init).ok();
+        self.vloop = super::super::baro::start_inertial_loop(cfg, design, ekf, self.time);
     }
 
     /// One step of the baro-inertial loop on the INS's vertical specific force, then ĥ, V̂_D
@@ -176,7 +169,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     ) -> Result<LoopBaro<T>, NavError> {
         let imu = VerticalImu {
             time,
-            specific_force_up_m_s2: -ekf.ins().specific_force_ned_m_s2().z,
+            specific_force_up_m_s2: super::super::baro::loop_vertical_input_m_s2(
+                ekf.state(),
+                &ekf.ins().specific_force_ned_m_s2(),
+            ),
         };
         let mut next = *lp;
         let outcome = match next.step(&imu, baro) {

@@ -569,5 +569,7 @@ fn release_at_truth<T: Real>(
 }
 
 mod baro_ekf;
+#[cfg(feature = "baro-inertial-loop")]
+mod baro_loop;
 mod chain;
 mod stored;

@@ -287,3 +287,75 @@ fn sigma_settles_to_the_steady_state_and_stays_there() {
     assert!(lp.core().sigma.p == lp.core().sigma.design.p_steady);
     assert!((prev - lp.steady_sigma().altitude_m).abs() < 1e-6);
 }
+
+/// `set_covariance_h_vz`: a bad block is refused with the loop unchanged; a good one replaces
+/// the (h, V_z) block, zeroes its cross terms with the bias and the baro error, keeps theirs,
+/// and σ propagates from it to the same steady state.
+#[test]
+fn covariance_h_vz_set_from_outside() {
+    let cfg = ClassicalConfig::<f64>::paper();
+    let mut lp = ClassicalLoop::new(
+        &cfg,
+        &InitialState {
+            time: Timestamp::ZERO,
+            altitude_m: 500.0,
+            vz_up_m_s: 0.0,
+            accel_bias_m_s2: 0.0,
+        },
+    )
+    .unwrap();
+    let g = GravityModel::at_latitude(cfg.latitude_rad).unwrap();
+    let step = |lp: &mut ClassicalLoop<f64>, k: u64| {
+        let time = Timestamp::from_micros(k * 10_000);
+        let imu = ImuSample {
+            time,
+            specific_force_up_m_s2: g.gravity_m_s2(500.0),
+        };
+        let baro = (k % 4 == 0).then_some(BaroSample {
+            time,
+            altitude_m: 500.0,
+        });
+        lp.step(&imu, baro.as_ref()).unwrap();
+    };
+    for k in 1..=50 {
+        step(&mut lp, k);
+    }
+    let before = lp;
+    let m = nalgebra::Matrix2::new;
+    for (bad, err) in [
+        (m(f64::NAN, 0.0, 0.0, 1.0), "NonFiniteInput"),
+        (m(4.0, 0.1, 0.2, 1.0), "InputOutOfRange"),
+        (m(-4.0, 0.0, 0.0, 1.0), "InputOutOfRange"),
+        (m(4.0, 0.0, 0.0, -1e-9), "InputOutOfRange"),
+        (m(4.0, 2.01, 2.01, 1.0), "InputOutOfRange"),
+    ] {
+        let e = lp.set_covariance_h_vz(&bad).unwrap_err();
+        assert!(std::format!("{e:?}").starts_with(err), "{e:?}");
+        assert_eq!(lp, before, "a refused block changes nothing");
+    }
+    let good = m(4.0, -0.3, -0.3, 0.09);
+    lp.set_covariance_h_vz(&good).unwrap();
+    assert_eq!(lp.covariance_h_vz(), good);
+    let p = lp.core().sigma.p;
+    let p0 = before.core().sigma.p;
+    for (i, j) in [
+        (0, 2),
+        (0, 3),
+        (1, 2),
+        (1, 3),
+        (2, 0),
+        (3, 0),
+        (2, 1),
+        (3, 1),
+    ] {
+        assert_eq!(p[(i, j)], 0.0);
+    }
+    for (i, j) in [(2, 2), (2, 3), (3, 2), (3, 3)] {
+        assert_eq!(p[(i, j)], p0[(i, j)]);
+    }
+    assert!(p.cholesky().is_some(), "P stays positive definite");
+    for k in 51..=60_000 {
+        step(&mut lp, k);
+    }
+    assert_eq!(lp.sigma(), lp.steady_sigma());
+}
