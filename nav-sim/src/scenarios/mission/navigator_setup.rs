@@ -48,8 +48,9 @@ pub struct NavigatorSettings {
     pub timeouts_s: [f64; 3],
     /// `baro_loop` variant: time constant of the baro-inertial loop's triple pole, s.
     pub baro_loop_tau_s: f64,
-    /// `baro_loop` variant: σ of the loop's initial altitude and vertical velocity at
-    /// midcourse (m, m/s), for its σ.
+    /// `baro_loop` variant: the loop's error model's σ of the initial altitude and vertical
+    /// velocity (m, m/s). The navigator starts the loop's σ from the EKF's vertical covariance
+    /// at midcourse; this one is the design's, and the start's only if the EKF's is refused.
     pub baro_loop_initial_sigma: [f64; 2],
 }
 
