@@ -55,8 +55,9 @@ pub enum BaroDamping<T> {
     Ekf(BaroErrorModel<T>),
     /// The classical 3rd-order baro-inertial loop ([`crate::vertical_channel::ClassicalLoop`])
     /// around the INS's vertical channel: driven by the INS's own vertical specific force
-    /// (`C_b^n f_b`), its ĥ and V̂_D fed back into the INS every tick, the EKF's (δh, δV_D)
-    /// block replaced by the loop's σ covariance. Its `imu_dt_s` must be the navigator's. The
+    /// (`C_b^n f_b`) plus the vertical Coriolis and transport-rate acceleration, started from
+    /// the INS's ĥ, V̂_z and the EKF's (δh, δV_D) covariance, its ĥ and V̂_D fed back into the
+    /// INS every tick, the EKF's (δh, δV_D) block replaced by the loop's σ covariance. Its `imu_dt_s` must be the navigator's. The
     /// loop owns the vertical channel: a LOS update's correction of h and V_D is replaced by
     /// the loop's at the next tick, and the loop's accelerometer-bias estimate is not fed back.
     /// Needs the crate feature `baro-inertial-loop` (default); without it the configuration
