@@ -523,8 +523,8 @@ fn precise_baro_chain<T: Real>(model: BaroErrorModel<T>, end_s: f64) -> (f64, u3
     (worst, fused)
 }
 
-/// A baro far more precise than the EKF's altitude (white σ down to 1 µm, so that every update
-/// fuses at the information-ratio limit, ρ = 8 389 in f32): through midcourse and terminal the
+/// A baro far more precise than the EKF's altitude (white σ down to 1 µm, the first updates at
+/// the information-ratio limit, ρ = 8 389 in f32): through midcourse and terminal the
 /// joint covariance stays positive definite after every tick, in f32 and f64, with and
 /// without the correlated error. Measured: f32's smallest correlation eigenvalue stays at
 /// ≈ 3.0e-5 (the update's stabilising noise, 256 ε; +3.8e-8 without it), f64's falls with σ
