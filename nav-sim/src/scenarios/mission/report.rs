@@ -8,6 +8,8 @@ use crate::plot::{render, Figure, Panel, Series};
 use anyhow::Result;
 use serde_json::{json, Map, Value};
 use std::path::Path;
+#[path = "bias.rs"]
+pub mod bias;
 
 /// Names of the 9 navigation error components (position NED m, velocity NED m/s, attitude
 /// misalignment φ NED rad), in the navigator's covariance order.
@@ -16,9 +18,6 @@ pub const COMPONENTS: [&str; 9] = [
 ];
 /// States in the NEES.
 pub const NAV_DOF: usize = 9;
-/// Names of the accelerometer-bias states (body / slave axes x, y, z): in carry the flight
-/// alignment's specific-force-difference bias, after the release the EKF's equivalent bias.
-pub const BIAS_COMPONENTS: [&str; 3] = ["acc_bias_x", "acc_bias_y", "acc_bias_z"];
 /// The state groups of the per-group NEES (3 states each: components `3g..3g + 3`).
 pub const GROUPS: [&str; 3] = ["position", "velocity", "attitude"];
 
@@ -78,14 +77,8 @@ pub struct FlightRecord {
     pub consistency: RunConsistency,
     /// NEES of the position, velocity and attitude 3 × 3 blocks ([`GROUPS`]), per epoch.
     pub group_nees: Vec<[f64; 3]>,
-    /// The accelerometer-bias states ([`BIAS_COMPONENTS`]) at the same epochs: NEES of the 3
-    /// and `e²/σ²` per axis (NaN where the navigator has no such state: the conventional
-    /// alignment in carry).
-    pub bias_consistency: RunConsistency,
-    /// Their error (estimate − truth) and σ, m/s², per epoch (NaN where absent).
-    pub bias_err: Vec<[f64; 3]>,
-    /// As `bias_err`, the navigator's σ.
-    pub bias_sigma: Vec<[f64; 3]>,
+    /// The accelerometer-bias states at the same epochs.
+    pub bias: bias::BiasRecord,
     /// The hand-over (none if the run never released through the alignment).
     pub handover: Option<HandoverSample>,
     /// Phase transitions: time, new phase.
@@ -95,20 +88,6 @@ pub struct FlightRecord {
     /// Ticks at which an aid was not nominal (rejected, refused, timed out) or the
     /// navigator reported a degradation: time, phase, `aid.state` tags.
     pub events: Vec<(f64, PhaseTag, Vec<String>)>,
-}
-
-/// RMS over runs of the accelerometer-bias states' error and σ per axis, m/s²: over a
-/// phase's epochs and at its last epoch.
-#[derive(Debug, Clone, Copy)]
-pub struct BiasRms {
-    /// RMS error over the phase.
-    pub err: [f64; 3],
-    /// RMS σ over the phase.
-    pub sigma: [f64; 3],
-    /// RMS error at the phase's last epoch.
-    pub err_last: [f64; 3],
-    /// RMS σ at the phase's last epoch.
-    pub sigma_last: [f64; 3],
 }
 
 /// Ensemble statistics of one variant.
@@ -131,9 +110,8 @@ pub struct VariantStats {
     /// Per phase (by the modal phase of the epochs): its consistency (no settling time) and
     /// its span, s.
     pub phases: Vec<(PhaseTag, Consistency, (f64, f64))>,
-    /// Per phase (as `phases`): the accelerometer-bias states' consistency (3 states) and
-    /// their RMS error and RMS σ per axis over runs and the phase's epochs, m/s².
-    pub bias_phases: Vec<(PhaseTag, Consistency, BiasRms)>,
+    /// Per phase (as `phases`): the accelerometer-bias states (`bias::phase_bias`).
+    pub bias_phases: Vec<(PhaseTag, Consistency, bias::BiasRms)>,
     /// Per phase (as `phases`): the ensemble mean of each group's NEES ([`GROUPS`], 3 states
     /// each) over runs and the phase's epochs.
     pub group_nees: Vec<(PhaseTag, [f64; 3])>,
@@ -183,40 +161,10 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
     let cons: Vec<RunConsistency> = records.iter().map(|r| r.consistency.clone()).collect();
     let consistency = Consistency::from_runs(NAV_DOF, &cons);
     let phases = phase_consistency(NAV_DOF, &cons, &phase, &t_s);
-    let bias_cons: Vec<RunConsistency> =
-        records.iter().map(|r| r.bias_consistency.clone()).collect();
-    let bias_phases = phase_consistency(3, &bias_cons, &phase, &t_s)
-        .into_iter()
-        .map(|(p, c, _)| {
-            // Every phase of `phase_consistency` has at least one epoch.
-            let keep: Vec<usize> = (0..n).filter(|&k| phase[k] == Some(p)).collect();
-            // RMS over runs and the epochs `ks` of axis `a` of a per-epoch series (NaN
-            // entries left out).
-            let ms =
-                |ks: &[usize], f: &dyn Fn(&FlightRecord, usize) -> Option<[f64; 3]>, a: usize| {
-                    let v: Vec<f64> = records
-                        .iter()
-                        .flat_map(|r| ks.iter().map(move |&k| (r, k)))
-                        .filter_map(|(r, k)| f(r, k))
-                        .map(|x| x[a].powi(2))
-                        .filter(|x| x.is_finite())
-                        .collect();
-                    (v.iter().sum::<f64>() / v.len().max(1) as f64).sqrt()
-                };
-            let err = |r: &FlightRecord, k: usize| r.bias_err.get(k).copied();
-            let sigma = |r: &FlightRecord, k: usize| r.bias_sigma.get(k).copied();
-            let all = BiasRms {
-                err: std::array::from_fn(|a| ms(&keep, &err, a)),
-                sigma: std::array::from_fn(|a| ms(&keep, &sigma, a)),
-                err_last: std::array::from_fn(|a| ms(&keep[keep.len() - 1..], &err, a)),
-                sigma_last: std::array::from_fn(|a| ms(&keep[keep.len() - 1..], &sigma, a)),
-            };
-            (p, c, all)
-        })
-        .collect();
     let group_nees = phase_group_nees(records, &phase);
     let phase_entry_s = phase_entries(records);
     let aid_counts = total_aid_counts(records);
+    let bias_phases = bias::phase_bias(records, &phase, &t_s);
     VariantStats {
         name: name.to_string(),
         runs: records.len(),
@@ -236,7 +184,7 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
 
 /// Per phase (the epochs whose modal phase it is): the consistency of the runs over them and
 /// the phase's first and last epoch, s.
-fn phase_consistency(
+pub(super) fn phase_consistency(
     dof: usize,
     cons: &[RunConsistency],
     phase: &[Option<PhaseTag>],
@@ -446,29 +394,6 @@ impl VariantStats {
             "phases": Value::Object(phases),
             "phase_entries": Value::Object(entries),
             "aid_outcomes": Value::Object(aids),
-        })
-    }
-
-    /// The accelerometer-bias states of a phase ([`BIAS_COMPONENTS`]): RMS error and RMS σ per
-    /// axis, µg, and their consistency (3 states); null where the variant has none.
-    fn bias_summary(&self, p: PhaseTag) -> Value {
-        let Some((_, c, b)) = self.bias_phases.iter().find(|(q, ..)| *q == p) else {
-            return Value::Null;
-        };
-        if !b.err.iter().any(|v| *v > 0.0) {
-            return Value::Null;
-        }
-        let ug = |v: &[f64; 3]| {
-            v.iter()
-                .map(|x| sig(x / (1e-6 * 9.806_65), 4))
-                .collect::<Vec<_>>()
-        };
-        json!({
-            "rms_ug": ug(&b.err),
-            "sigma_ug": ug(&b.sigma),
-            "rms_at_end_ug": ug(&b.err_last),
-            "sigma_at_end_ug": ug(&b.sigma_last),
-            "consistency": c.summary(),
         })
     }
 

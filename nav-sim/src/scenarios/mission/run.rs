@@ -5,7 +5,8 @@
 
 use super::config::MissionConfig;
 use super::navigator_setup::{navigator_config, NavigatorSettings, Variant, HISTORY};
-use super::report::{FlightRecord, HandoverSample, PhaseTag, BIAS_COMPONENTS, COMPONENTS};
+use super::report::bias::{record_bias, BiasRecord};
+use super::report::{FlightRecord, HandoverSample, PhaseTag, COMPONENTS};
 use super::sensors::{inputs, MasterMessage, MissionFaults, MissionInputs, Tick};
 use super::truth::{offset, simulate, MissionTruth};
 use crate::consistency::RunConsistency;
@@ -92,80 +93,6 @@ fn record<T: Real>(
     out.err.push(e);
     out.sigma.push(sigma);
     out.consistency.push(t, nees, &es);
-}
-
-/// The true mean specific force of the missile IMU's interval ending at epoch `k` (body axes),
-/// m/s².
-fn true_specific_force(truth: &MissionTruth, k: usize) -> Vector3<f64> {
-    let m = &truth.missile;
-    let k = k.max(1).min(m.imu.len().saturating_sub(1));
-    let h = m.imu[k]
-        .time
-        .micros_since(m.imu[k - 1].time)
-        .map_or(f64::NAN, |us| us as f64 * 1e-6);
-    m.imu[k].delta_v_m_s / h
-}
-
-/// Records the accelerometer-bias states at epoch `k`. In carry the flight alignment's
-/// specific-force-difference bias `b = b_m − b_s^eq` against its truth: the master's bias
-/// minus the slave's equivalent bias `b_s + (S + M) f` at the epoch's true specific force `f`
-/// (what `f̃_m − f_s` holds besides `θ × f`; the bias state is a constant, so in a turn the
-/// truth moves away from it by `(S + M) Δf`). After the release the EKF's equivalent bias
-/// against `b_s + (S + M) f_ref` at the specific force its states refer to (the carry's).
-fn record_bias<T: Real, const K: usize, const NS: usize>(
-    out: &mut FlightRecord,
-    nav: &Navigator<T, K, NS, HISTORY>,
-    truth: &MissionTruth,
-    inp: &MissionInputs,
-    k: usize,
-) {
-    let sm = inp.accel_matrix - Matrix3::identity();
-    let f_now = true_specific_force(truth, k);
-    let est: Option<(Vector3<f64>, Vector3<f64>, Matrix3<f64>)> = match nav.ekf() {
-        Some(ekf) => {
-            let f_ref = ekf
-                .specific_force_reference()
-                .map_or(f_now, |f| f.map(|x| x.to_f64()));
-            let p = ekf.covariance().map(|x| x.to_f64());
-            let pb: Matrix3<f64> = p
-                .fixed_view::<3, 3>(
-                    nav_core::seeker_ins::ACC_BIAS,
-                    nav_core::seeker_ins::ACC_BIAS,
-                )
-                .into_owned();
-            Some((
-                ekf.accel_bias_m_s2().map(|x| x.to_f64()),
-                inp.accel_bias_m_s2 + sm * f_ref,
-                pb,
-            ))
-        }
-        None => nav.alignment().accel_bias().map(|(b, _)| {
-            let p = nav.alignment().covariance().map(|x| x.to_f64());
-            // The bias states' spec indices: 12 + axis (after θ, θ_f, θ̇_f, θ̈_f).
-            let pb = Matrix3::from_fn(|i, j| p[(12 + i, 12 + j)]);
-            (
-                b.map(|x| x.to_f64()),
-                inp.master_accel_bias_m_s2 - (inp.accel_bias_m_s2 + sm * f_now),
-                pb,
-            )
-        }),
-    };
-    let (e, s, nees) = match est {
-        Some((b, t, pb)) => {
-            let e = b - t;
-            let nees = pb.try_inverse().map_or(f64::NAN, |pi| e.dot(&(pi * e)));
-            (
-                [e.x, e.y, e.z],
-                std::array::from_fn(|i| pb[(i, i)].max(0.0).sqrt()),
-                nees,
-            )
-        }
-        None => ([f64::NAN; 3], [f64::NAN; 3], f64::NAN),
-    };
-    let es: [(f64, f64); 3] = std::array::from_fn(|i| (e[i], s[i]));
-    out.bias_consistency.push(truth.missile.t_s[k], nees, &es);
-    out.bias_err.push(e);
-    out.bias_sigma.push(s);
 }
 
 fn handover_sample<T: Real>(
@@ -411,7 +338,7 @@ fn fly_with<T: Real, const K: usize, const NS: usize>(
     let every = ((cfg.imu_hz / set.output_hz).round() as usize).max(1);
     let mut out = FlightRecord {
         consistency: RunConsistency::new(&COMPONENTS),
-        bias_consistency: RunConsistency::new(&BIAS_COMPONENTS),
+        bias: BiasRecord::new(),
         ..FlightRecord::default()
     };
     let mut nav: Option<Navigator<T, K, NS, HISTORY>> = None;
