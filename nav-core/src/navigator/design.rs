@@ -26,7 +26,9 @@ pub(super) fn slave_share<T: Real>(config: &NavigatorConfig<T>) -> Vector3<T> {
 /// slave's scale-factor and misalignment share of level carry added to the bias prior
 /// ([`TaConfig::with_slave_share`]): the difference bias the alignment estimates is the
 /// master's minus the slave's *equivalent* bias `b_s + (S + M) f`, ≈ 1 g times the scale
-/// factor on the down axis. Without instrument errors `config.alignment` itself.
+/// factor on the down axis. Without instrument errors `config.alignment` itself. A sum beyond
+/// [`crate::transfer_alignment::MAX_ACCEL_BIAS_SIGMA_M_S2`] is refused where the navigator
+/// designs its alignment (`InvalidConfig { field: "accel_bias_sigma_m_s2" }`).
 pub fn alignment_config<T: Real>(config: &NavigatorConfig<T>) -> TaConfig<T> {
     let e = &config.ins.instrument_errors;
     config
