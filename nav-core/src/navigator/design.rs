@@ -7,9 +7,34 @@
 use super::types::{BaroDamping, NavigatorConfig, INERTIAL_LOOP};
 use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
 use crate::seeker_ins::{design_stamp, SeekerInsDesign};
-use crate::transfer_alignment::TaDesign;
+use crate::transfer_alignment::{slave_share_variance, TaConfig, TaDesign};
 use crate::vertical_channel::{classical_stamp, ClassicalDesign};
 use crate::{NavError, Real};
+use nalgebra::Vector3;
+
+/// The slave accelerometers' scale-factor and misalignment share of the alignment's
+/// difference-bias prior per axis X, Y, Z, (m/s²)²: the variance of `(S + M) f` at level
+/// carry's specific force for the EKF's instrument errors (`config.ins.instrument_errors`: the
+/// same accelerometers), [`slave_share_variance`].
+pub(super) fn slave_share<T: Real>(config: &NavigatorConfig<T>) -> Vector3<T> {
+    let e = &config.ins.instrument_errors;
+    slave_share_variance(e.accel_scale_factor, e.accel_misalignment_rad)
+}
+
+/// The alignment filter's configuration as the navigator runs it: `config.alignment` (whose
+/// `accel_bias_sigma_m_s2` is the instruments' own biases, master and slave) with the
+/// slave's scale-factor and misalignment share of level carry added to the bias prior
+/// ([`TaConfig::with_slave_share`]): the difference bias the alignment estimates is the
+/// master's minus the slave's *equivalent* bias `b_s + (S + M) f`, ≈ 1 g times the scale
+/// factor on the down axis. Without instrument errors `config.alignment` itself. A sum beyond
+/// [`crate::transfer_alignment::MAX_ACCEL_BIAS_SIGMA_M_S2`] is refused where the navigator
+/// designs its alignment (`InvalidConfig { field: "accel_bias_sigma_m_s2" }`).
+pub fn alignment_config<T: Real>(config: &NavigatorConfig<T>) -> TaConfig<T> {
+    let e = &config.ins.instrument_errors;
+    config
+        .alignment
+        .with_slave_share(e.accel_scale_factor, e.accel_misalignment_rad)
+}
 
 /// The designs a [`Navigator`](super::Navigator) is built from (see the module doc).
 ///
@@ -18,7 +43,8 @@ use crate::{NavError, Real};
 /// [`ClassicalDesign`]'s values (zeros when the flag is 0).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NavigatorDesign<T: Real, const K: usize> {
-    /// The transfer-alignment filter's design (for `config.alignment`).
+    /// The transfer-alignment filter's design (for [`alignment_config`]: `config.alignment`
+    /// with the slave's scale-factor and misalignment share in its bias prior).
     pub alignment: TaDesign<T, K>,
     /// The 17-state EKF's design (for `config.ins`).
     pub ins: SeekerInsDesign<T>,

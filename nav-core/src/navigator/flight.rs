@@ -1,6 +1,7 @@
 //! The navigator value and its tick (module doc of [`super`]).
 
 use super::baro::BaroState;
+use super::design::alignment_config;
 use super::design::NavigatorDesign;
 use super::handover::NavBlocks;
 use super::types::{
@@ -267,7 +268,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         config.validate()?;
         Ok(NavigatorDesign {
             ins: SeekerIns::design(&config.ins)?,
-            alignment: TransferAlignment::<T, K, N>::design(&config.alignment)?,
+            alignment: TransferAlignment::<T, K, N>::design(&alignment_config(config))?,
             baro_loop: match &config.baro {
                 BaroDamping::InertialLoop(c) => Some(ClassicalLoop::design(c)?),
                 _ => None,
@@ -299,7 +300,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         design.check_ins(config)?;
         design.check_baro_loop(config)?;
         let ta = TransferAlignment::<T, K, N>::from_design(
-            &config.alignment,
+            &alignment_config(config),
             &design.alignment,
             &TaInitial {
                 mount_misalignment_rad: Vector3::zeros(),

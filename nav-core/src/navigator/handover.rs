@@ -19,10 +19,15 @@
 //! * the accelerometer bias's correlation with the attitude error: the flight alignment
 //!   estimates θ together with the specific-force-difference bias `b = b_m − b_s` (df =
 //!   θ × f + b: in level flight a tilt and a horizontal bias are the same measurement), so
-//!   their errors are correlated, `P_θb`. The slave's bias `b_s` is the part of `b` its prior
-//!   explains, `E[b_s | b] = −β b` with `β = σ_bs² / (σ_bm² + σ_bs²)`, and (the estimate being
-//!   uncorrelated with its error) `cov(δθ, b_s) = β P_θb`; the EKF's bias error is `b_s` (zero
-//!   estimate), so `cov(φ_s, ∇) = −β C_s^n J_r P_θb`. Without it the EKF treats the tilt and
+//!   their errors are correlated, `P_θb`. The difference bias is the master's minus the
+//!   slave's *equivalent* bias, `b = b_m − b_s^eq`, `b_s^eq = b_s + (S + M) f_carry` (the
+//!   alignment's prior holds the slave's scale-factor and misalignment share `v = var((S + M)
+//!   f)` of level carry, [`crate::transfer_alignment::TaConfig::with_slave_share`]), and
+//!   `b_s^eq` is what the EKF's bias states estimate (referred to the carry's force, below).
+//!   Per axis, `b_s^eq` is the part of `b` its prior explains, `E[b_s^eq | b] = −β b` with
+//!   `β = (σ_bs² + v) / (σ_bm² + σ_bs² + v)`, and (the estimate being uncorrelated with its
+//!   error) `cov(δθ, b_s^eq) = β P_θb` per bias column; the EKF's bias error is `b_s^eq` (zero
+//!   estimate), so `cov(φ_s, ∇) = −C_s^n J_r P_θb diag(β)`. Without it the EKF treats the tilt and
 //!   the bias as independent and its horizontal velocity σ grows as if their effects added,
 //!   where in truth they largely cancel (`g φ ≈ −∇` along the level axes).
 //!
@@ -89,9 +94,14 @@ pub struct AlignmentAtRelease<T> {
     /// specific-force-difference bias `b = b_m − b_s` (columns, m/s²; master minus slave
     /// accelerometer bias), rad·m/s². Zero for a filter without that state.
     pub theta_bias_covariance: Matrix3<T>,
-    /// Prior variance of each axis' specific-force-difference bias in the alignment
-    /// (`σ_bm² + σ_bs²`), (m/s²)². Zero for a filter without that state.
-    pub bias_prior_variance_m2_s4: T,
+    /// Prior variance of the specific-force-difference bias in the alignment per axis X, Y, Z
+    /// (`σ_bm² + σ_bs² + v`), (m/s²)². Zero for a filter without that state.
+    pub bias_prior_variance_m2_s4: Vector3<T>,
+    /// The part `v` of `bias_prior_variance_m2_s4` that is the slave's scale-factor and
+    /// misalignment share (the slave's, like `σ_bs²`), per axis, (m/s²)²
+    /// ([`crate::transfer_alignment::slave_share_variance`]); zero when the prior holds the
+    /// instruments' biases only.
+    pub slave_share_variance_m2_s4: Vector3<T>,
 }
 
 impl<T: Real> AlignmentAtRelease<T> {
@@ -107,6 +117,17 @@ impl<T: Real> AlignmentAtRelease<T> {
             flexure_rate_covariance: f.theta_f_rate_covariance(),
             theta_bias_covariance: f.theta_bias_covariance(),
             bias_prior_variance_m2_s4: f.accel_bias_prior_variance(),
+            slave_share_variance_m2_s4: Vector3::zeros(),
+        }
+    }
+
+    /// This estimate with `v` ((m/s²)² per axis) as the slave's share of the bias prior
+    /// (`slave_share_variance_m2_s4`: the navigator's alignment adds it to the instruments'
+    /// prior, [`crate::transfer_alignment::TaConfig::with_slave_share`]).
+    pub fn with_slave_share(self, v: &Vector3<T>) -> Self {
+        Self {
+            slave_share_variance_m2_s4: *v,
+            ..self
         }
     }
 }
@@ -253,9 +274,12 @@ pub(crate) struct NavBlocks<T> {
     /// Attitude–accelerometer-bias cross-covariance before the slave's share β of the
     /// difference bias (module doc): `−C_s^n J_r P_θb`, rad·m/s².
     pub(crate) att_bias_unscaled: Matrix3<T>,
-    /// The alignment's prior variance of the difference bias (`σ_bm² + σ_bs²`), (m/s²)²;
-    /// zero: no cross block.
-    pub(crate) bias_prior_variance_m2_s4: T,
+    /// The alignment's prior variance of the difference bias per axis (`σ_bm² + σ_bs² + v`),
+    /// (m/s²)²; zero on every axis: no cross block.
+    pub(crate) bias_prior_variance_m2_s4: Vector3<T>,
+    /// The slave's scale-factor and misalignment share `v` of it per axis, (m/s²)² (the
+    /// EKF adds it to its bias variances when it refers them to the carry's force).
+    pub(crate) slave_share_m2_s4: Vector3<T>,
 }
 
 /// `(B + Bᵀ) / 2`, entry by entry as the symmetrisation of the whole P0.
@@ -279,13 +303,16 @@ impl<T: Real> NavBlocks<T> {
                 .is_some_and(|c| v.is_finite() && v >= T::zero() && v <= T::lit(*c))
         };
         let ab = priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2;
-        // With an attitude–bias cross block X, [att X; Xᵀ ab·I] is checked by its Schur
-        // complement att − X Xᵀ / ab (a sufficient condition for the shifted Cholesky of the
-        // whole P0 as the diagonal blocks' one is without X).
+        // With an attitude–bias cross block X, [att X; Xᵀ D] is checked by its Schur
+        // complement att − X D⁻¹ Xᵀ (a sufficient condition for the shifted Cholesky of the
+        // whole P0 as the diagonal blocks' one is without X), D = diag(ab + v): the bias block
+        // once the EKF has referred it to the carry's force (`refer_to_carry`, at the same
+        // tick, before any step); with `v` = 0 the P0 as written.
+        let d = self.slave_share_m2_s4.map(|v| v + ab);
         let cross_ok = match self.att_bias(ab) {
             None => true,
-            Some(x) if ab > T::zero() && all_finite(x.as_slice()) => {
-                let s = self.att - x * x.transpose() * (T::one() / ab);
+            Some(x) if d.iter().all(|v| *v > T::zero()) && all_finite(x.as_slice()) => {
+                let s = self.att - times_diag(&x, &d.map(|v| T::one() / v)) * x.transpose();
                 is_psd(&symmetrised(&s), T::lit(1e-6))
             }
             Some(_) => false,
@@ -320,9 +347,9 @@ impl<T: Real> NavBlocks<T> {
         // A diagonal entry symmetrised is itself ((v + v)/2 = v exactly).
         p0.fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS)
             .fill_diagonal(ab);
-        // Attitude–accelerometer-bias cross-covariance (module doc): −β C_s^n J_r P_θb, β the
-        // slave's share of the difference bias's prior variance (at most 1); written with its
-        // exact transpose, so P0 stays exactly symmetric.
+        // Attitude–accelerometer-bias cross-covariance (module doc): −C_s^n J_r P_θb diag(β),
+        // β the slave's share of the difference bias's prior variance per axis (at most 1);
+        // written with its exact transpose, so P0 stays exactly symmetric.
         if let Some(x) = self.att_bias(ab) {
             p0.fixed_view_mut::<3, 3>(ATT, ACC_BIAS).copy_from(&x);
             p0.fixed_view_mut::<3, 3>(ACC_BIAS, ATT)
@@ -333,12 +360,21 @@ impl<T: Real> NavBlocks<T> {
         p0.fixed_view_mut::<2, 2>(GIMBAL, GIMBAL).fill_diagonal(sb);
     }
 
-    /// The attitude–accelerometer-bias block of P0 for the accelerometer-bias prior variance
-    /// `ab` ((m/s²)²), `None` when the alignment has no difference-bias state.
+    /// The attitude–accelerometer-bias block of P0 for the slave's accelerometer-bias prior
+    /// variance `ab` ((m/s²)²): the columns of `att_bias_unscaled` times
+    /// `β = (ab + v) / (σ_bm² + σ_bs² + v)` (at most 1; 0 on an axis without prior). `None`
+    /// when the alignment has no difference-bias state.
     fn att_bias(&self, ab: T) -> Option<Matrix3<T>> {
-        (self.bias_prior_variance_m2_s4 > T::zero()).then(|| {
-            let beta = (ab / self.bias_prior_variance_m2_s4).min(T::one());
-            self.att_bias_unscaled * beta
+        let var = &self.bias_prior_variance_m2_s4;
+        var.iter().any(|v| *v > T::zero()).then(|| {
+            let beta = var.zip_map(&self.slave_share_m2_s4, |total, share| {
+                if total > T::zero() {
+                    ((ab + share) / total).min(T::one())
+                } else {
+                    T::zero()
+                }
+            });
+            times_diag(&self.att_bias_unscaled, &beta)
         })
     }
 }
@@ -433,6 +469,7 @@ pub(crate) fn hand_over_checked_master<T: Real>(
             att: symmetrised(&p_phi),
             att_bias_unscaled: -(a * alignment.theta_bias_covariance),
             bias_prior_variance_m2_s4: alignment.bias_prior_variance_m2_s4,
+            slave_share_m2_s4: alignment.slave_share_variance_m2_s4,
         },
     })
 }
@@ -527,14 +564,14 @@ fn validate_alignment<T: Real>(alignment: &AlignmentAtRelease<T>) -> Result<(), 
             input: "alignment.theta_bias_covariance",
         });
     }
-    let bias_var = alignment.bias_prior_variance_m2_s4;
-    input_finite("alignment.bias_prior_variance_m2_s4", bias_var)?;
-    if bias_var < T::zero() {
-        return Err(NavError::InputOutOfRange {
-            input: "alignment.bias_prior_variance_m2_s4",
-        });
-    }
-    Ok(())
+    sigma3(
+        &alignment.bias_prior_variance_m2_s4,
+        "alignment.bias_prior_variance_m2_s4",
+    )?;
+    sigma3(
+        &alignment.slave_share_variance_m2_s4,
+        "alignment.slave_share_variance_m2_s4",
+    )
 }
 
 #[cfg(test)]

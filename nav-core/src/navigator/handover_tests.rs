@@ -31,9 +31,15 @@ fn alignment() -> AlignmentAtRelease<f64> {
         // θ's error correlated with the difference bias's (P_bb 5e-7 (m/s²)², ρ ≈ −0.5 on
         // the level axes).
         theta_bias_covariance: Matrix3::from_diagonal(&Vector3::new(-1.1e-7, -1.5e-7, 2e-8)),
-        bias_prior_variance_m2_s4: 1e-6 + 0.25e-3 * 0.25e-3,
+        // σ_bs 1e-3 ([`PRIORS`]), σ_bm 0.25e-3 m/s², and the slave's share v of its scale
+        // factor and misalignment at level carry (200 ppm, 10″ of 9.8 m/s²).
+        bias_prior_variance_m2_s4: Vector3::repeat(1e-6 + 0.25e-3 * 0.25e-3) + SHARE,
+        slave_share_variance_m2_s4: SHARE,
     }
 }
+
+/// The slave's scale-factor and misalignment share of [`alignment`]'s bias prior, (m/s²)².
+const SHARE: Vector3<f64> = Vector3::new(2.3e-7, 2.3e-7, 3.8e-6);
 
 const LEVER: LeverArm<f64> = LeverArm {
     nominal_m: Vector3::new(1.5, 4.0, 0.6),
@@ -74,7 +80,8 @@ fn inputs<T: Real>() -> Inputs<T> {
         flexure_rate_rad_s: cast3(&a.flexure_rate_rad_s),
         flexure_rate_covariance: a.flexure_rate_covariance.map(T::lit),
         theta_bias_covariance: a.theta_bias_covariance.map(T::lit),
-        bias_prior_variance_m2_s4: T::lit(a.bias_prior_variance_m2_s4),
+        bias_prior_variance_m2_s4: cast3(&a.bias_prior_variance_m2_s4),
+        slave_share_variance_m2_s4: cast3(&a.slave_share_variance_m2_s4),
     };
     let lever = LeverArm {
         nominal_m: cast3(&LEVER.nominal_m),
@@ -364,21 +371,31 @@ fn alignment_from_a_flight_filter() {
     assert!(a.theta_bias_covariance.abs().max() > 0.0);
     assert_eq!(
         a.bias_prior_variance_m2_s4,
-        c.accel_bias_sigma_m_s2 * c.accel_bias_sigma_m_s2
+        c.accel_bias_sigma_m_s2
+            .component_mul(&c.accel_bias_sigma_m_s2)
     );
+    // The filter alone does not know which part of its prior is the slave's share.
+    assert_eq!(a.slave_share_variance_m2_s4, Vector3::zeros());
     let out = hand_over(&master(), &a, &LEVER, &PRIORS).unwrap();
     assert!(out.covariance.cholesky().is_some());
 }
 
-/// The attitude–accelerometer-bias block is `−β C_s^n J_r P_θb` (module doc), its
-/// transpose below the diagonal, and zero without a difference-bias state.
+/// The attitude–accelerometer-bias block is `−C_s^n J_r P_θb diag(β)` with the slave's
+/// share `β = (σ_bs² + v) / (σ_bm² + σ_bs² + v)` per axis (module doc), its transpose below
+/// the diagonal, and zero without a difference-bias state.
 #[test]
 fn attitude_bias_cross_covariance() {
     let a = alignment();
     let out = hand_over(&master(), &a, &LEVER, &PRIORS).unwrap();
     let c_s_n = master().c_m_n * exp_so3(&a.theta_rad);
-    let beta = PRIORS.accel_bias_sigma_m_s2.powi(2) / a.bias_prior_variance_m2_s4;
-    let want = -(c_s_n * right_jacobian(&a.theta_rad) * a.theta_bias_covariance) * beta;
+    let ab = PRIORS.accel_bias_sigma_m_s2.powi(2);
+    let beta = Vector3::from_fn(|i, _| {
+        (ab + a.slave_share_variance_m2_s4[i]) / a.bias_prior_variance_m2_s4[i]
+    });
+    // The share makes the slave's part of the down axis' prior almost all of it.
+    assert!(beta.z > 0.98 && beta.x < beta.z, "{beta}");
+    let want = -(c_s_n * right_jacobian(&a.theta_rad) * a.theta_bias_covariance)
+        * Matrix3::from_diagonal(&beta);
     let got = out
         .covariance
         .fixed_view::<3, 3>(ATT, ACC_BIAS)
@@ -395,7 +412,7 @@ fn attitude_bias_cross_covariance() {
     assert_eq!(lower, got.transpose());
     assert!(out.covariance.cholesky().is_some());
     let mut none = a;
-    none.bias_prior_variance_m2_s4 = 0.0;
+    none.bias_prior_variance_m2_s4 = Vector3::zeros();
     let out = hand_over(&master(), &none, &LEVER, &PRIORS).unwrap();
     let z = out
         .covariance
@@ -404,13 +421,68 @@ fn attitude_bias_cross_covariance() {
     assert_eq!(z, Matrix3::zeros());
     // A negative prior variance is refused, named.
     let mut bad = a;
-    bad.bias_prior_variance_m2_s4 = -1.0;
+    bad.bias_prior_variance_m2_s4.y = -1.0;
     assert_eq!(
         hand_over(&master(), &bad, &LEVER, &PRIORS).unwrap_err(),
         NavError::InputOutOfRange {
             input: "alignment.bias_prior_variance_m2_s4"
         }
     );
+    let mut bad = a;
+    bad.slave_share_variance_m2_s4.z = f64::NAN;
+    assert_eq!(
+        hand_over(&master(), &bad, &LEVER, &PRIORS).unwrap_err(),
+        NavError::NonFiniteInput {
+            input: "alignment.slave_share_variance_m2_s4"
+        }
+    );
+}
+
+/// `slave_share_variance` is the variance of `((S + M) f)_i` at level carry's specific
+/// force (`f` = gravity down) for independent scale-factor and misalignment errors of the
+/// given σ: checked against draws of S and M (seeded; 20 000 draws, the sample variance
+/// within 4 % of it per axis), and `with_slave_share` adds it to a configuration's prior.
+#[test]
+fn slave_share_is_the_scale_factor_and_misalignment_variance_at_level_carry() {
+    let (sf, mis) = (2e-4, 4.848e-5);
+    let v = crate::transfer_alignment::slave_share_variance(sf, mis);
+    let g = crate::earth::GRAVITY_POLE_M_S2;
+    let f = Vector3::new(0.0, 0.0, -g);
+    let mut seed = 0x2545_f491_4f6c_dd1d_u64;
+    let mut normal = || {
+        // Box-Muller from two uniforms of a 64-bit LCG.
+        let mut u = || {
+            seed = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            ((seed >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let (a, b) = (u(), u());
+        (-2.0 * a.ln()).sqrt() * (2.0 * core::f64::consts::PI * b).cos()
+    };
+    let n = 20_000;
+    let mut sum = Vector3::<f64>::zeros();
+    for _ in 0..n {
+        let sm = Matrix3::from_fn(|i, j| if i == j { sf } else { mis } * normal());
+        let e = sm * f;
+        sum += e.component_mul(&e);
+    }
+    let sample = sum / n as f64;
+    for i in 0..3 {
+        assert!(
+            (sample[i] / v[i] - 1.0).abs() < 0.04,
+            "axis {i}: {:e} vs {:e}",
+            sample[i],
+            v[i]
+        );
+    }
+    // `TaConfig::with_slave_share` adds it to the instruments' prior on every axis.
+    let own = crate::transfer_alignment::TaConfig::<f64>::flight(
+        crate::transfer_alignment::PaperCase::Case1,
+    );
+    let with = own.with_slave_share(sf, mis).accel_bias_sigma_m_s2;
+    for i in 0..3 {
+        let want = own.accel_bias_sigma_m_s2[i].powi(2) + v[i];
+        assert!((with[i] * with[i] - want).abs() < 1e-12 * want, "axis {i}");
+    }
 }
 
 /// P0 is symmetric and positive definite; refused inputs say which.
@@ -463,7 +535,8 @@ fn p0_is_positive_definite_and_bad_inputs_are_named() {
         flexure_rate_rad_s: a0.flexure_rate_rad_s.cast(),
         flexure_rate_covariance: a0.flexure_rate_covariance.cast(),
         theta_bias_covariance: a0.theta_bias_covariance.cast(),
-        bias_prior_variance_m2_s4: a0.bias_prior_variance_m2_s4 as f32,
+        bias_prior_variance_m2_s4: a0.bias_prior_variance_m2_s4.cast(),
+        slave_share_variance_m2_s4: a0.slave_share_variance_m2_s4.cast(),
     };
     let l32 = LeverArm::<f32> {
         nominal_m: LEVER.nominal_m.cast(),

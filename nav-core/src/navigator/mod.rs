@@ -30,7 +30,8 @@
 //!     flexure_rate_rad_s: Vector3::zeros(),
 //!     flexure_rate_covariance: Matrix3::from_diagonal_element(1e-6),
 //!     theta_bias_covariance: Matrix3::zeros(),
-//!     bias_prior_variance_m2_s4: 0.0,
+//!     bias_prior_variance_m2_s4: Vector3::zeros(),
+//!     slave_share_variance_m2_s4: Vector3::zeros(),
 //! };
 //! let lever = LeverArm { nominal_m: Vector3::new(1.5, 4.0, 0.6), sigma_m: Vector3::from_element(0.01) };
 //! let priors = HandoverPriors { accel_bias_sigma_m_s2: 1e-3, gyro_bias_sigma_rad_s: 5e-8, gimbal_bias_sigma_rad: 7e-4 };
@@ -195,7 +196,7 @@ mod tests;
 mod types;
 
 pub use baro::{BaroState, MAX_BARO_AGE_S};
-pub use design::NavigatorDesign;
+pub use design::{alignment_config, NavigatorDesign};
 pub use flight::{ConventionalNavigator, FlightNavigator, Navigator};
 pub use handover::{
     hand_over, right_jacobian, AlignmentAtRelease, HandoverPriors, LeverArm, MasterAtRelease,

@@ -80,12 +80,15 @@ pub struct TaConfig<T> {
     /// 1σ of one specific-force difference sample df (master + slave accelerometer noise), m/s²
     /// ([`ACCEL_NOISE_SIGMA_RANGE_M_S2`]).
     pub accel_noise_sigma_m_s2: T,
-    /// 1σ of the random-constant bias of each axis' specific-force difference df (master minus
-    /// slave accelerometer bias, in practice the slave's), m/s² (0 to
-    /// [`MAX_ACCEL_BIAS_SIGMA_M_S2`]). Only the flight configuration
-    /// ([`super::FlightFilter`]) estimates it (and its design's stamp includes it); the
-    /// paper's filters have no bias state and ignore it (0 in [`Self::paper`]).
-    pub accel_bias_sigma_m_s2: T,
+    /// 1σ per axis X, Y, Z of the random-constant bias of the specific-force difference df,
+    /// m/s² (each 0 to [`MAX_ACCEL_BIAS_SIGMA_M_S2`]): master minus slave *equivalent*
+    /// accelerometer bias, `b_m − (b_s + (S + M) f)` — the slave's scale-factor and
+    /// misalignment error at the carry's specific force `f` is as constant as its bias while
+    /// `f` is (≈ 1 g along the down axis in level carry; [`Self::with_slave_share`] adds it).
+    /// Only the flight configuration ([`super::FlightFilter`]) estimates it (and its
+    /// design's stamp includes it); the paper's filters have no bias state and ignore it (0
+    /// in [`Self::paper`]).
+    pub accel_bias_sigma_m_s2: Vector3<T>,
     /// Filter step (= nominal slave IMU sample interval), s: [`MIN_DT_S`] to [`MAX_DT_S`], a
     /// whole number of µs.
     pub dt_s: T,
@@ -166,7 +169,7 @@ impl<T: Real> TaConfig<T> {
             mount_sigma_rad: Vector3::repeat(deg(0.5)),
             rate_noise_sigma_rad_s: T::lit(2.9e-4),
             accel_noise_sigma_m_s2: T::lit(5.0e-3),
-            accel_bias_sigma_m_s2: T::zero(),
+            accel_bias_sigma_m_s2: Vector3::zeros(),
             dt_s: T::lit(0.01),
             time_tolerance_s: T::lit(0.001),
             max_gap_steps: 5,
@@ -179,14 +182,42 @@ impl<T: Real> TaConfig<T> {
 impl<T: Real> TaConfig<T> {
     /// The flight configuration of a paper case: [`Self::paper`] with the specific-force
     /// difference bias 1σ of a tactical-grade slave accelerometer, 300 µg (2.94e-3 m/s²,
-    /// combined with a 25 µg navigation-grade master: 3.0e-3 m/s²), for
-    /// [`super::FlightFilter`].
+    /// combined with a 25 µg navigation-grade master: 3.0e-3 m/s²) on every axis, for
+    /// [`super::FlightFilter`] (the instruments' biases only: [`Self::with_slave_share`]
+    /// adds the slave's scale-factor and misalignment share).
     pub fn flight(case: PaperCase) -> Self {
         Self {
-            accel_bias_sigma_m_s2: T::lit(3.0e-3),
+            accel_bias_sigma_m_s2: Vector3::repeat(T::lit(3.0e-3)),
             ..Self::paper(case)
         }
     }
+
+    /// This configuration with the slave accelerometers' scale-factor and misalignment share
+    /// of the equivalent bias added to the bias prior: per axis `σ_i² + v_i`, with `v_i`
+    /// ((m/s²)², [`slave_share_variance`]) the variance of `((S + M) f)_i` in level carry.
+    /// `scale_factor`: 1σ of each axis' scale-factor error, dimensionless; `misalignment_rad`:
+    /// 1σ of each off-diagonal element of M, rad. Not validated here ([`Self::validate`] and
+    /// the instrument errors' own checks are).
+    pub fn with_slave_share(&self, scale_factor: T, misalignment_rad: T) -> Self {
+        let v = slave_share_variance(scale_factor, misalignment_rad);
+        let b = &self.accel_bias_sigma_m_s2;
+        Self {
+            accel_bias_sigma_m_s2: b.component_mul(b).zip_map(&v, |b2, vi| (b2 + vi).sqrt()),
+            ..*self
+        }
+    }
+}
+
+/// Variance per slave axis X, Y, Z of the scale-factor and misalignment share `(S + M) f` of
+/// the slave's equivalent accelerometer bias at the specific force of level carry, (m/s²)²:
+/// `f` along the down axis (the mount's and the aircraft's few degrees of pitch change it
+/// by their square), its magnitude gravity at most, [`crate::earth::GRAVITY_POLE_M_S2`]; with
+/// independent errors `v_i = σ_S² f_i² + σ_M² (|f|² − f_i²)`: `σ_M² g²` on X and Y,
+/// `σ_S² g²` on Z. `scale_factor` dimensionless, `misalignment_rad` rad (1σ each).
+pub fn slave_share_variance<T: Real>(scale_factor: T, misalignment_rad: T) -> Vector3<T> {
+    let g = T::lit(crate::earth::GRAVITY_POLE_M_S2);
+    let (s, m) = (scale_factor * g, misalignment_rad * g);
+    Vector3::new(m * m, m * m, s * s)
 }
 
 #[cold]
@@ -269,13 +300,10 @@ impl<T: Real> TaConfig<T> {
         positive_within("rate_noise_sigma_rad_s", rate, rlo, rhi)?;
         let (alo, ahi) = ACCEL_NOISE_SIGMA_RANGE_M_S2;
         positive_within("accel_noise_sigma_m_s2", accel, alo, ahi)?;
-        require_non_negative("accel_bias_sigma_m_s2", self.accel_bias_sigma_m_s2)?;
-        within(
-            "accel_bias_sigma_m_s2",
-            self.accel_bias_sigma_m_s2,
-            0.0,
-            MAX_ACCEL_BIAS_SIGMA_M_S2,
-        )?;
+        for v in self.accel_bias_sigma_m_s2.iter() {
+            require_non_negative("accel_bias_sigma_m_s2", *v)?;
+            within("accel_bias_sigma_m_s2", *v, 0.0, MAX_ACCEL_BIAS_SIGMA_M_S2)?;
+        }
         require_non_negative("time_tolerance_s", self.time_tolerance_s)?;
         let tol_us = match seconds_to_micros(self.time_tolerance_s) {
             Some(tol) if 2 * tol < dt_us => tol,

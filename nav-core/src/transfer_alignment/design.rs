@@ -43,7 +43,7 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
         let chains = axis_chains::<T, K>(
             &cfg.flexure,
             &cfg.mount_sigma_rad,
-            cfg.accel_bias_sigma_m_s2,
+            &cfg.accel_bias_sigma_m_s2,
             cfg.dt_s,
         )?;
         Ok(Self {
@@ -56,7 +56,7 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
     /// [`TA_DESIGN_VERSION`] and the [`Fingerprint`] of, in this order, the chain length `K`,
     /// then per axis X, Y, Z the flexure `sigma_rad` and `tau_s`, then `mount_sigma_rad` X, Y,
     /// Z, then `dt_s`, and — for the flight configuration's chains with a bias state only
-    /// ([`super::FlightFilter`]) — `accel_bias_sigma_m_s2` after it. The gate, recovery,
+    /// ([`super::FlightFilter`]) — `accel_bias_sigma_m_s2` X, Y, Z after it. The gate, recovery,
     /// noise, lever arm, tolerance and gap settings are not in it: the design does not depend
     /// on them.
     pub fn stamp_for(cfg: &TaConfig<T>) -> DesignStamp {
@@ -69,7 +69,9 @@ impl<T: Real, const K: usize> TaDesign<T, K> {
         }
         fp = fp.real(cfg.dt_s);
         if has_accel_bias::<K>() {
-            fp = fp.real(cfg.accel_bias_sigma_m_s2);
+            for v in cfg.accel_bias_sigma_m_s2.iter() {
+                fp = fp.real(*v);
+            }
         }
         DesignStamp {
             version: TA_DESIGN_VERSION,

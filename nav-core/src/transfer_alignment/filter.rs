@@ -428,13 +428,13 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     }
 
     /// Prior variance of each axis' specific-force-difference bias (`σ_b²` of the
-    /// configuration), (m/s²)²; zero for a configuration without the bias state.
-    pub fn accel_bias_prior_variance(&self) -> T {
+    /// configuration, X, Y, Z), (m/s²)²; zero for a configuration without the bias state.
+    pub fn accel_bias_prior_variance(&self) -> Vector3<T> {
         if has_accel_bias::<K>() {
-            let s = self.config().accel_bias_sigma_m_s2;
-            s * s
+            let s = &self.config().accel_bias_sigma_m_s2;
+            s.component_mul(s)
         } else {
-            T::zero()
+            Vector3::zeros()
         }
     }
 

@@ -233,14 +233,14 @@ impl<T: Real, const K: usize> AxisChain<T, K> {
 pub fn axis_chains<T: Real, const K: usize>(
     flex: &[AxisFlexure<T>; 3],
     mount_sigma_rad: &Vector3<T>,
-    accel_bias_sigma_m_s2: T,
+    accel_bias_sigma_m_s2: &Vector3<T>,
     dt_s: T,
 ) -> Result<[AxisChain<T, K>; 3], NavError> {
     let b = accel_bias_sigma_m_s2;
     Ok([
-        AxisChain::with_bias(&flex[0], mount_sigma_rad.x, b, dt_s)?,
-        AxisChain::with_bias(&flex[1], mount_sigma_rad.y, b, dt_s)?,
-        AxisChain::with_bias(&flex[2], mount_sigma_rad.z, b, dt_s)?,
+        AxisChain::with_bias(&flex[0], mount_sigma_rad.x, b.x, dt_s)?,
+        AxisChain::with_bias(&flex[1], mount_sigma_rad.y, b.y, dt_s)?,
+        AxisChain::with_bias(&flex[2], mount_sigma_rad.z, b.z, dt_s)?,
     ])
 }
 

@@ -125,7 +125,7 @@ fn config(c: &Case, rng: &mut SimRng) -> TaConfig<f32> {
         accel_bias_sigma_m_s2: if c.flight {
             TaConfig::<f32>::flight(PaperCase::Case2).accel_bias_sigma_m_s2
         } else {
-            0.0
+            Vector3::zeros()
         },
         gate: if rng.random_bool(0.5) {
             Gate::Nis(25.0)

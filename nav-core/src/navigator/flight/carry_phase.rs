@@ -2,6 +2,7 @@
 //! to the late master through the transfer alignment's hand-over, the alignment's predictions
 //! run ahead, the IMU-confirmed separation and the EKF's start.
 
+use super::super::design::slave_share;
 use super::super::handover::{
     hand_over_checked_master, refer_to_carry, validate_master, AlignmentAtRelease, MasterAtRelease,
     NavBlocks,
@@ -175,7 +176,7 @@ fn slave_to<T: Real, const K: usize, const N: usize>(
 ) -> Result<(), NavError> {
     let nav = hand_over_checked_master(
         master,
-        &AlignmentAtRelease::from_filter(ta),
+        &AlignmentAtRelease::from_filter(ta).with_slave_share(&slave_share(config)),
         &config.lever_arm,
     )?;
     let corr = Correction::between(&snap.state, &nav.state);

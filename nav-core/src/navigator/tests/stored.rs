@@ -295,3 +295,55 @@ fn handover_refers_the_bias_to_the_carry_f64() {
 fn handover_refers_the_bias_to_the_carry_f32() {
     handover_refers_the_bias_to_the_carry::<f32>();
 }
+
+/// The flight alignment the navigator runs has the slave's scale-factor and misalignment
+/// share of level carry in its difference-bias prior (`alignment_config`: the instruments'
+/// prior plus `slave_share_variance` of the EKF's instrument errors, on every axis); its
+/// design's bias states start there and the running filter reports that prior.
+fn alignment_bias_prior_holds_the_slave_share<T: Real>() {
+    let cfg = config::<T>(BaroDamping::Off);
+    let e = cfg.ins.instrument_errors;
+    let share = crate::transfer_alignment::slave_share_variance(
+        e.accel_scale_factor,
+        e.accel_misalignment_rad,
+    )
+    .map(|v| v.to_f64());
+    assert!(share.z > share.x && share.x > 0.0);
+    let run = crate::navigator::alignment_config(&cfg).accel_bias_sigma_m_s2;
+    let own = cfg.alignment.accel_bias_sigma_m_s2;
+    let tol = if T::lit(1.0) + T::lit(1e-9) == T::lit(1.0) {
+        1e-6
+    } else {
+        1e-12
+    };
+    for i in 0..3 {
+        let want = own[i].to_f64().powi(2) + share[i];
+        let got = run[i].to_f64().powi(2);
+        assert!(
+            (got - want).abs() < tol * want,
+            "axis {i}: {got:e} vs {want:e}"
+        );
+    }
+    let design = FlightNavigator::<T, 32>::design(&cfg).unwrap();
+    let b = crate::transfer_alignment::BIAS_STATE;
+    for (i, ch) in design.alignment.chains.iter().enumerate() {
+        assert_eq!(ch.p0[(b, b)], run[i] * run[i], "axis {i}");
+    }
+    let world = World::new();
+    let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
+    let nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    assert_eq!(
+        nav.alignment().accel_bias_prior_variance(),
+        run.component_mul(&run)
+    );
+}
+
+#[test]
+fn alignment_bias_prior_holds_the_slave_share_f64() {
+    alignment_bias_prior_holds_the_slave_share::<f64>();
+}
+
+#[test]
+fn alignment_bias_prior_holds_the_slave_share_f32() {
+    alignment_bias_prior_holds_the_slave_share::<f32>();
+}

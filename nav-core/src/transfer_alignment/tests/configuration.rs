@@ -242,12 +242,12 @@ fn design_stamp_and_initial_f32_f64() {
     // The bias σ is in the flight design's stamp only.
     let c = cfg::<f32>();
     let mut other = c;
-    other.accel_bias_sigma_m_s2 = 1e-3;
+    other.accel_bias_sigma_m_s2.z = 1e-3;
     let flight = FlightFilter::<f32>::design(&c).unwrap();
     assert!(FlightFilter::from_design(&other, &flight, &TaInitial::default()).is_err());
     let paper = ProposedFilter::<f32>::design(&c).unwrap();
     assert!(ProposedFilter::from_design(&other, &paper, &TaInitial::default()).is_ok());
-    other.accel_bias_sigma_m_s2 = -1e-3;
+    other.accel_bias_sigma_m_s2.y = -1e-3;
     assert!(matches!(
         FlightFilter::<f32>::design(&other),
         Err(NavError::InvalidConfig {
@@ -255,6 +255,6 @@ fn design_stamp_and_initial_f32_f64() {
             ..
         })
     ));
-    other.accel_bias_sigma_m_s2 = 0.6;
+    other.accel_bias_sigma_m_s2 = Vector3::new(1e-3, 1e-3, 0.6);
     assert!(FlightFilter::<f32>::design(&other).is_err());
 }

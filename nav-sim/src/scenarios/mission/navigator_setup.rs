@@ -138,7 +138,9 @@ fn ta_config(cfg: &MissionConfig) -> TaConfig<f64> {
         mount_sigma_rad: Vector3::from(cfg.carry.mount_sigma_deg.map(f64::to_radians)),
         rate_noise_sigma_rad_s: rate,
         accel_noise_sigma_m_s2: acc,
-        accel_bias_sigma_m_s2: (s.accel_bias_ug * 1e-6 * g0).hypot(mi.accel_bias_ug * 1e-6 * g0),
+        accel_bias_sigma_m_s2: Vector3::repeat(
+            (s.accel_bias_ug * 1e-6 * g0).hypot(mi.accel_bias_ug * 1e-6 * g0),
+        ),
         dt_s: dt,
         time_tolerance_s: 0.1 * dt,
         max_gap_steps: (cfg.imu_hz.round() as u32).min(nav_core::transfer_alignment::MAX_GAP_STEPS),

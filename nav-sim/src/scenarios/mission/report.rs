@@ -8,6 +8,8 @@ use crate::plot::{render, Figure, Panel, Series};
 use anyhow::Result;
 use serde_json::{json, Map, Value};
 use std::path::Path;
+#[path = "bias.rs"]
+pub mod bias;
 
 /// Names of the 9 navigation error components (position NED m, velocity NED m/s, attitude
 /// misalignment φ NED rad), in the navigator's covariance order.
@@ -75,6 +77,8 @@ pub struct FlightRecord {
     pub consistency: RunConsistency,
     /// NEES of the position, velocity and attitude 3 × 3 blocks ([`GROUPS`]), per epoch.
     pub group_nees: Vec<[f64; 3]>,
+    /// The accelerometer-bias states at the same epochs.
+    pub bias: bias::BiasRecord,
     /// The hand-over (none if the run never released through the alignment).
     pub handover: Option<HandoverSample>,
     /// Phase transitions: time, new phase.
@@ -106,6 +110,8 @@ pub struct VariantStats {
     /// Per phase (by the modal phase of the epochs): its consistency (no settling time) and
     /// its span, s.
     pub phases: Vec<(PhaseTag, Consistency, (f64, f64))>,
+    /// Per phase (as `phases`): the accelerometer-bias states (`bias::phase_bias`).
+    pub bias_phases: Vec<(PhaseTag, Consistency, bias::BiasRms)>,
     /// Per phase (as `phases`): the ensemble mean of each group's NEES ([`GROUPS`], 3 states
     /// each) over runs and the phase's epochs.
     pub group_nees: Vec<(PhaseTag, [f64; 3])>,
@@ -154,10 +160,11 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
     });
     let cons: Vec<RunConsistency> = records.iter().map(|r| r.consistency.clone()).collect();
     let consistency = Consistency::from_runs(NAV_DOF, &cons);
-    let phases = phase_consistency(&cons, &phase, &t_s);
+    let phases = phase_consistency(NAV_DOF, &cons, &phase, &t_s);
     let group_nees = phase_group_nees(records, &phase);
     let phase_entry_s = phase_entries(records);
     let aid_counts = total_aid_counts(records);
+    let bias_phases = bias::phase_bias(records, &phase, &t_s);
     VariantStats {
         name: name.to_string(),
         runs: records.len(),
@@ -167,6 +174,7 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
         sigma,
         consistency,
         phases,
+        bias_phases,
         group_nees,
         handover: records.iter().filter_map(|r| r.handover).collect(),
         phase_entry_s,
@@ -176,7 +184,8 @@ pub fn reduce(name: &str, records: &[&FlightRecord]) -> VariantStats {
 
 /// Per phase (the epochs whose modal phase it is): the consistency of the runs over them and
 /// the phase's first and last epoch, s.
-fn phase_consistency(
+pub(super) fn phase_consistency(
+    dof: usize,
     cons: &[RunConsistency],
     phase: &[Option<PhaseTag>],
     t_s: &[f64],
@@ -201,7 +210,7 @@ fn phase_consistency(
                 .collect();
             Some((
                 *p,
-                Consistency::from_runs_settled(NAV_DOF, &sub, 0.0),
+                Consistency::from_runs_settled(dof, &sub, 0.0),
                 (t_s[*first], t_s[*last]),
             ))
         })
@@ -356,6 +365,7 @@ impl VariantStats {
                     "max_rms_down_m": sig(self.phase_max_rms(*p, 2), 4),
                     "consistency": c.summary(),
                     "group_nees_mean": groups,
+                    "accel_bias_states": self.bias_summary(*p),
                 }),
             );
         }

@@ -5,6 +5,7 @@
 
 use super::config::MissionConfig;
 use super::navigator_setup::{navigator_config, NavigatorSettings, Variant, HISTORY};
+use super::report::bias::{record_bias, BiasRecord};
 use super::report::{FlightRecord, HandoverSample, PhaseTag, COMPONENTS};
 use super::sensors::{inputs, MasterMessage, MissionFaults, MissionInputs, Tick};
 use super::truth::{offset, simulate, MissionTruth};
@@ -337,6 +338,7 @@ fn fly_with<T: Real, const K: usize, const NS: usize>(
     let every = ((cfg.imu_hz / set.output_hz).round() as usize).max(1);
     let mut out = FlightRecord {
         consistency: RunConsistency::new(&COMPONENTS),
+        bias: BiasRecord::new(),
         ..FlightRecord::default()
     };
     let mut nav: Option<Navigator<T, K, NS, HISTORY>> = None;
@@ -386,6 +388,7 @@ fn fly_with<T: Real, const K: usize, const NS: usize>(
         }
         if tick.index % every == 0 && truth.missile.t_s[tick.index] >= 1.0 - 1e-9 {
             record(&mut out, &rep.solution, phase, truth, tick.index);
+            record_bias(&mut out, n, truth, inp, tick.index);
         }
     }
     Ok(out)

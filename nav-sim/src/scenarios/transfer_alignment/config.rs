@@ -239,7 +239,7 @@ impl CaseConfig {
             mount_sigma_rad: Vector3::from(self.mount_sigma_deg).map(f64::to_radians),
             rate_noise_sigma_rad_s: rate,
             accel_noise_sigma_m_s2: accel,
-            accel_bias_sigma_m_s2: accel_bias,
+            accel_bias_sigma_m_s2: Vector3::repeat(accel_bias),
             dt_s: self.dt_s,
             time_tolerance_s: 0.1 * self.dt_s,
             gate: self.filter.gate_nis.map_or(Gate::Off, Gate::Nis),

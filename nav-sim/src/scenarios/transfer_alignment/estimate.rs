@@ -55,7 +55,7 @@ pub fn cast_config<T: Real>(c: &TaConfig<f64>) -> TaConfig<T> {
         mount_sigma_rad: v(&c.mount_sigma_rad),
         rate_noise_sigma_rad_s: T::lit(c.rate_noise_sigma_rad_s),
         accel_noise_sigma_m_s2: T::lit(c.accel_noise_sigma_m_s2),
-        accel_bias_sigma_m_s2: T::lit(c.accel_bias_sigma_m_s2),
+        accel_bias_sigma_m_s2: c.accel_bias_sigma_m_s2.map(T::lit),
         dt_s: T::lit(c.dt_s),
         time_tolerance_s: T::lit(c.time_tolerance_s),
         max_gap_steps: c.max_gap_steps,

@@ -392,7 +392,7 @@ fn run_case_scenario(ctx: &Context) -> Result<Value> {
         "flexure_tau_s": cfg.truth_flexure.tau_s,
         "filter_rate_noise_sigma_rad_s": sig(fc.rate_noise_sigma_rad_s, 4),
         "filter_accel_noise_sigma_m_s2": sig(fc.accel_noise_sigma_m_s2, 4),
-        "flight_accel_bias_sigma_m_s2": sig(fc.accel_bias_sigma_m_s2, 4),
+        "flight_accel_bias_sigma_m_s2": fc.accel_bias_sigma_m_s2.iter().map(|v| sig(*v, 4)).collect::<Vec<_>>(),
         "precision": format!("{:?}", cfg.precision),
         "windows_s": {"cruise": estimate::CRUISE_WINDOW_S, "after_accel_from": estimate::AFTER_ACCEL_FROM_S},
         "flexure": extra,

@@ -163,6 +163,10 @@ impl ImuErrors {
             accel_bias_m_s2: normal3(rng, [ab; 3]),
         }
     }
+    /// The drawn accelerometer bias, m/s².
+    pub(crate) fn accel_bias_m_s2(&self) -> Vector3<f64> {
+        self.accel_bias_m_s2
+    }
     /// The gyro reading of the rate `w`, rad/s.
     pub(crate) fn gyro(&self, w: &Vector3<f64>, rng: &mut SimRng) -> Vector3<f64> {
         w + self.gyro_bias_rad_s + normal3(rng, [self.gyro_sigma_rad_s; 3])

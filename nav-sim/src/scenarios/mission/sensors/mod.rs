@@ -128,6 +128,8 @@ pub struct MissionInputs {
     pub gyro_matrix: Matrix3<f64>,
     /// The seeker's random-constant gimbal-angle errors (pitch, yaw), rad.
     pub gimbal_bias_rad: [f64; 2],
+    /// The master IMU's accelerometer bias (master axes), m/s², drawn.
+    pub master_accel_bias_m_s2: Vector3<f64>,
     /// The master's navigation error at each message's time of validity (attitude φ rad,
     /// velocity m/s, position NED m), for the statistics.
     pub master_errors: Vec<(Timestamp, [Vector3<f64>; 3])>,
@@ -154,6 +156,7 @@ pub fn inputs(
         accel_matrix: sensors.acc_m,
         gyro_matrix: sensors.gyr_m,
         gimbal_bias_rad: [sensors.seeker_bias.x, sensors.seeker_bias.y],
+        master_accel_bias_m_s2: walk.master_accel_bias_m_s2(),
         master_errors: Vec::new(),
         first_lock_s: None,
     };

@@ -177,6 +177,11 @@ impl<'a> Walk<'a> {
         }
     }
 
+    /// The master IMU's drawn accelerometer bias (master axes), m/s².
+    pub(super) fn master_accel_bias_m_s2(&self) -> Vector3<f64> {
+        self.master_imu.accel_bias_m_s2()
+    }
+
     /// IMU epoch `k`: the sample and the aids since the previous one; none while in an IMU gap.
     pub(super) fn epoch(
         &mut self,
