@@ -2,10 +2,10 @@
 //! `K` states per chain, `N = 3 K`): the transformation of the design, the structured
 //! prediction, the conditioning of every committed covariance, and the flexure
 //! re-initialisation after a long gap.
-use super::fusion::fuse_rank_one;
+use super::fusion::{fuse_rank_one, UpdateChecks};
 use super::model::{flexure_chain_len, AxisChain};
 use crate::math::checks::set_block_diagonal;
-use crate::math::kalman::{FusionOutcome, FusionReport, Gate};
+use crate::math::kalman::{FusionOutcome, FusionReport};
 use crate::Real;
 use nalgebra::{Matrix3, SMatrix, SVector};
 
@@ -369,13 +369,13 @@ pub(super) fn fuse_bounded<T: Real, const N: usize>(
     hph: T,
     innovation: T,
     r: T,
-    gate: Gate<T>,
+    checks: UpdateChecks<T>,
 ) -> FusionReport<T> {
     // max(r, floor) without the library call: r is finite and positive (validated at
     // construction), so a NaN floor keeps r as `max` would.
     let floor = hph * T::lit(1.0 / MAX_VARIANCE_REDUCTION);
     let r_eff = if floor > r { floor } else { r };
-    match fuse_rank_one(x, p, b, hph, innovation, r_eff, gate) {
+    match fuse_rank_one(x, p, b, hph, innovation, r_eff, checks) {
         Ok(rep) => rep,
         Err(s) => skipped_report(innovation, s),
     }

@@ -6,6 +6,7 @@ use super::covariance::{
     condition, initial_covariance, predict_cov, predict_state, reinit_flexure, set_mount_only,
 };
 use super::filter::{Ahead, TransferAlignment, Undo};
+use super::fusion::{DeferredCheck, Guard, UpdateChecks};
 use super::health::Channel;
 use super::history::SlaveHistory;
 use super::measurement::{measurement, MasterSample, SlaveSample};
@@ -269,7 +270,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             monitor: self.monitor,
             second: self.second,
         };
-        let plan = match self.try_step_into(master, slave, &mut report.updates) {
+        let plan = match self.try_step_into(master, slave, &mut report.updates, Guard::Deferred) {
             Ok(plan) => plan,
             Err(e) => {
                 Health::bump(&mut self.monitor.health.imu_refused);
@@ -367,8 +368,20 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         master: &MasterSample<T>,
         slave: &SlaveSample<T>,
     ) -> Result<StepReport<T>, NavError> {
+        self.step_guarded(master, slave, Guard::Deferred)
+    }
+
+    /// [`Self::step`] starting with the checks `first` (tests: [`Guard::PerUpdate`] is the
+    /// reference the deferred checks must reproduce bit for bit).
+    #[inline(always)]
+    pub(super) fn step_guarded(
+        &mut self,
+        master: &MasterSample<T>,
+        slave: &SlaveSample<T>,
+        first: Guard,
+    ) -> Result<StepReport<T>, NavError> {
         let mut updates = [not_fused(); 6];
-        match self.try_step_into(master, slave, &mut updates) {
+        match self.try_step_into(master, slave, &mut updates, first) {
             Ok(plan) => Ok(StepReport {
                 time: slave.time,
                 predictions: plan.predictions,
@@ -419,6 +432,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         master: &MasterSample<T>,
         slave: &SlaveSample<T>,
         updates: &mut [FusionReport<T>; 6],
+        first: Guard,
     ) -> Result<Plan, NavError> {
         let plan = self.check_epoch(master, slave)?;
         let matching = measurement(master, slave, &self.cfg.lever_arm_m);
@@ -436,19 +450,40 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             FlexureModel::Conventional => f_comp,
             FlexureModel::Proposed => slave.specific_force_m_s2,
         };
-        let inputs = RowInputs {
+        let mut inputs = RowInputs {
             omega_m: master.angular_rate_rad_s,
             omega_dot_m: master.angular_accel_rad_s2,
             f_h,
             lever_arm_m: self.cfg.lever_arm_m,
             r_rate: self.r_rate,
             r_accel: self.r_accel,
-            gate: self.cfg.gate,
+            checks: UpdateChecks {
+                gate: self.cfg.gate,
+                guard: first,
+            },
         };
+        // With `Guard::Deferred` the updates' results are checked once, at the end
+        // (`DeferredCheck`); when that check fails (an update the per-update checks would have
+        // refused), the epoch runs again from the current epoch's state with every update
+        // checked before it writes (`Guard::PerUpdate`): either way the bits of the
+        // per-update checks alone. The prediction runs again too, from the current covariance
+        // (the same bits as the predictions prepared ahead, which the first run used up).
         let mut x = self.x;
-        self.advance_to_scratch(&mut x, &plan);
-        let (_, p) = self.buffers();
-        fuse_rows::<T, K, N>(&mut x, p, &z, &inputs, updates);
+        loop {
+            self.advance_to_scratch(&mut x, &plan);
+            let (_, p) = self.buffers();
+            let check = DeferredCheck::start(p);
+            fuse_rows::<T, K, N>(&mut x, p, &z, &inputs, updates);
+            if inputs.checks.guard == Guard::PerUpdate || check.passes(&x, p) {
+                break;
+            }
+            x = self.x;
+            inputs.checks.guard = Guard::PerUpdate;
+            #[cfg(test)]
+            {
+                self.reruns += 1;
+            }
+        }
         self.commit_epoch(x, &plan, updates);
         self.last = Some(slave.time);
         Ok(plan)
@@ -547,6 +582,112 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
                 Health::bump(&mut self.monitor.health.imu_refused);
                 Err(e)
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::config::{PaperCase, TaConfig};
+    use super::super::filter::TaInitial;
+    use super::*;
+    use crate::contract::Estimator;
+    use crate::math::kalman::FusionOutcome;
+    use std::format;
+
+    fn samples<T: Real>(k: u32) -> (MasterSample<T>, SlaveSample<T>) {
+        let time = Timestamp::from_micros(u64::from(k) * 10_000);
+        // A slow manoeuvre so that every row carries information.
+        let a = f64::from(k) * 0.05;
+        let (w, f) = (
+            Vector3::new(0.02 * a.sin(), -0.01, 0.015 * a.cos()),
+            Vector3::new(3.0 * a.cos(), 0.5, -9.8),
+        );
+        let m = MasterSample {
+            time,
+            angular_rate_rad_s: w.map(T::lit),
+            angular_accel_rad_s2: Vector3::new(0.001 * a.cos(), 0.0, -0.00075 * a.sin())
+                .map(T::lit),
+            specific_force_m_s2: f.map(T::lit),
+        };
+        let theta = Vector3::new(0.004, -0.003, 0.002);
+        let s = SlaveSample {
+            time,
+            angular_rate_rad_s: (w - theta.cross(&w)).map(T::lit),
+            specific_force_m_s2: (f - theta.cross(&f)).map(T::lit),
+        };
+        (m, s)
+    }
+
+    fn filter<T: Real, const K: usize, const N: usize>() -> TransferAlignment<T, K, N> {
+        let cfg = TaConfig {
+            accel_bias_sigma_m_s2: TaConfig::<T>::flight(PaperCase::Case2).accel_bias_sigma_m_s2,
+            ..TaConfig::paper(PaperCase::Case2)
+        };
+        TransferAlignment::new(&cfg, &TaInitial::default()).unwrap()
+    }
+
+    /// The step with deferred checks against the per-update checks alone: the same filter
+    /// (state, covariance, clock, counters) and the same reports, bit for bit, epoch after
+    /// epoch — in the normal case (the deferred check passes) and with a covariance made
+    /// indefinite before some epochs (updates the per-update checks refuse: the deferred run
+    /// fails its check and the epoch is run again). Returns the number of `Skipped` reports.
+    fn deferred_equals_per_update<T: Real, const K: usize, const N: usize>() -> (u32, usize) {
+        let mut deferred = filter::<T, K, N>();
+        let mut reference = deferred.clone();
+        let mut skipped = 0;
+        for k in 0..120u32 {
+            if k % 40 == 39 {
+                // An indefinite covariance: θ_X's variance tiny, its correlation with the next
+                // state far beyond 1 (an update driving a variance below zero).
+                for f in [&mut deferred, &mut reference] {
+                    let cur = usize::from(f.second);
+                    if let Some(p) = f.p.get_mut(cur) {
+                        p[(1, 1)] = T::lit(1e-12);
+                        p[(0, 1)] = T::lit(1e-3);
+                        p[(K + 1, K + 1)] = T::lit(1e-12);
+                        p[(K, K + 1)] = T::lit(-1e-3);
+                    }
+                }
+            }
+            if k % 3 == 1 {
+                // Predictions prepared ahead are used up by the deferred run.
+                assert_eq!(deferred.predict_ahead(), reference.predict_ahead());
+            }
+            let (m, s) = samples::<T>(k);
+            let a = deferred.step_guarded(&m, &s, Guard::Deferred);
+            let b = reference.step_guarded(&m, &s, Guard::PerUpdate);
+            assert_eq!(a, b, "epoch {k}");
+            assert_eq!(
+                format!("{deferred:?}"),
+                format!("{reference:?}"),
+                "epoch {k}"
+            );
+            if let Ok(r) = a {
+                skipped += r
+                    .updates
+                    .iter()
+                    .filter(|u| u.outcome == FusionOutcome::Skipped)
+                    .count();
+            }
+        }
+        assert_eq!(reference.reruns, 0);
+        (deferred.reruns, skipped)
+    }
+
+    #[test]
+    fn deferred_checks_give_the_per_update_result() {
+        // Each filter refuses some updates after the covariance was made indefinite (the
+        // fall-back to the per-update checks was taken), and agrees bit for bit throughout.
+        let runs = [
+            deferred_equals_per_update::<f32, 3, 9>(),
+            deferred_equals_per_update::<f32, 4, 12>(),
+            deferred_equals_per_update::<f32, 5, 15>(),
+            deferred_equals_per_update::<f64, 4, 12>(),
+            deferred_equals_per_update::<f64, 5, 15>(),
+        ];
+        for (reruns, skipped) in runs {
+            assert!(reruns > 0 && skipped > 0, "{runs:?}");
         }
     }
 }
