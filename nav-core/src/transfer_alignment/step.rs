@@ -105,6 +105,21 @@ fn in_range3<T: Real>(input: &'static str, v: &Vector3<T>, limit: f64) -> Result
     }
 }
 
+/// `true` when every input is within its physical range ([`check_ranges`]' limits) — and so
+/// finite: `|v| ≤ limit` is false for NaN and ±∞. No branch per value.
+#[inline(always)]
+fn all_in_range<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> bool {
+    let within = |v: &Vector3<T>, limit: f64| {
+        let lim = T::lit(limit);
+        (v.x.abs() <= lim) & (v.y.abs() <= lim) & (v.z.abs() <= lim)
+    };
+    within(&master.angular_rate_rad_s, MAX_ANGULAR_RATE_RAD_S)
+        & within(&master.angular_accel_rad_s2, MAX_ANGULAR_ACCEL_RAD_S2)
+        & within(&master.specific_force_m_s2, MAX_SPECIFIC_FORCE_M_S2)
+        & within(&slave.angular_rate_rad_s, MAX_ANGULAR_RATE_RAD_S)
+        & within(&slave.specific_force_m_s2, MAX_SPECIFIC_FORCE_M_S2)
+}
+
 /// Checks the physical range of the inputs (`InputOutOfRange`; limits
 /// [`MAX_ANGULAR_RATE_RAD_S`], [`MAX_ANGULAR_ACCEL_RAD_S2`], [`MAX_SPECIFIC_FORCE_M_S2`]).
 fn check_ranges<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> Result<(), NavError> {
@@ -401,18 +416,14 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         master: &MasterSample<T>,
         slave: &SlaveSample<T>,
     ) -> Result<Plan, NavError> {
-        // Fast path: one sum decides that all 15 inputs are finite; the per-field checks (which
-        // name the offending input) only run when some input is not.
-        let probe = zero_if_finite(&master.angular_rate_rad_s)
-            + zero_if_finite(&master.angular_accel_rad_s2)
-            + zero_if_finite(&master.specific_force_m_s2)
-            + zero_if_finite(&slave.angular_rate_rad_s)
-            + zero_if_finite(&slave.specific_force_m_s2);
-        if probe != T::zero() {
+        // Fast path: one test that all 15 inputs are within their ranges (and so finite); the
+        // per-field checks (which name the offending input, a non-finite one first) only run
+        // when some input is not.
+        if !all_in_range(master, slave) {
             master.validate()?;
             slave.validate()?;
+            check_ranges(master, slave)?;
         }
-        check_ranges(master, slave)?;
         let skew = master
             .time
             .micros_since(slave.time)
