@@ -203,7 +203,8 @@ pub(super) fn upper_times_row<T: Real, const N: usize, const M: usize>(
                     if let (Some(&j), Some(&hj)) = (h.index.get($t), h.value.get($t)) {
                         let (c, r) = if $i <= j { (j, $i) } else { ($i, j) };
                         if let Some(&pij) = cols.get(c).and_then(|col| col.get(r)) {
-                            $acc += hj * pij;
+                            // The sum starts from its first product, not from 0.
+                            $acc = if $t == 0 { hj * pij } else { $acc + hj * pij };
                         }
                     }
                 }
