@@ -2,10 +2,10 @@
 //! `K` states per chain, `N = 3 K`): the transformation of the design, the structured
 //! prediction, the conditioning of every committed covariance, and the flexure
 //! re-initialisation after a long gap.
-use super::fusion::fuse_rank_one;
+use super::fusion::{fuse_rank_one, UpdateChecks};
 use super::model::{flexure_chain_len, AxisChain};
 use crate::math::checks::set_block_diagonal;
-use crate::math::kalman::{FusionOutcome, FusionReport, Gate};
+use crate::math::kalman::{FusionOutcome, FusionReport};
 use crate::Real;
 use nalgebra::{Matrix3, SMatrix, SVector};
 
@@ -172,15 +172,17 @@ fn block_times_phi_t<T: Real, const K: usize, const N: usize, const DIAG: bool>(
             .copied()
             .unwrap_or_else(T::zero)
     };
-    // t_mj = Σ_n S_mn Φb_jn = S_m0 δ_j0 + Σ_{n≥1} S_mn Φb_jn.
+    // t_mj = Σ_n S_mn Φb_jn = S_m0 δ_j0 + Σ_{n≥1} S_mn Φb_jn (the sum starts from its first
+    // product, not from 0: every chain has kf ≥ 2).
     let mut t = SMatrix::<T, K, K>::zeros();
     for j in 0..K {
         for m in 0..K {
             let acc = if j >= kf {
                 s(m, j)
             } else {
-                let mut acc = if j == 0 { s(m, 0) } else { T::zero() };
-                for n in 1..kf {
+                let first = s(m, 1) * at(pb, j, 1);
+                let mut acc = if j == 0 { s(m, 0) + first } else { first };
+                for n in 2..kf {
                     acc += s(m, n) * at(pb, j, n);
                 }
                 acc
@@ -204,7 +206,7 @@ fn write_phi_times<T: Real, const K: usize, const N: usize, const DIAG: bool>(
     q: &SMatrix<T, K, K>,
 ) {
     let kf = flexure_chain_len::<K>();
-    // d_ij = Σ_m Φa_im t_mj = t_0j δ_i0 + Σ_{m≥1} Φa_im t_mj.
+    // d_ij = Σ_m Φa_im t_mj = t_0j δ_i0 + Σ_{m≥1} Φa_im t_mj (from its first product).
     for j in 0..K {
         let Some(col) = p
             .data
@@ -219,8 +221,9 @@ fn write_phi_times<T: Real, const K: usize, const N: usize, const DIAG: bool>(
             let mut acc = if i >= kf {
                 at(t, i, j)
             } else {
-                let mut acc = if i == 0 { at(t, 0, j) } else { T::zero() };
-                for m in 1..kf {
+                let first = at(pa, i, 1) * at(t, 1, j);
+                let mut acc = if i == 0 { at(t, 0, j) + first } else { first };
+                for m in 2..kf {
                     acc += at(pa, i, m) * at(t, m, j);
                 }
                 acc
@@ -369,13 +372,13 @@ pub(super) fn fuse_bounded<T: Real, const N: usize>(
     hph: T,
     innovation: T,
     r: T,
-    gate: Gate<T>,
+    checks: UpdateChecks<T>,
 ) -> FusionReport<T> {
     // max(r, floor) without the library call: r is finite and positive (validated at
     // construction), so a NaN floor keeps r as `max` would.
     let floor = hph * T::lit(1.0 / MAX_VARIANCE_REDUCTION);
     let r_eff = if floor > r { floor } else { r };
-    match fuse_rank_one(x, p, b, hph, innovation, r_eff, gate) {
+    match fuse_rank_one(x, p, b, hph, innovation, r_eff, checks) {
         Ok(rep) => rep,
         Err(s) => skipped_report(innovation, s),
     }

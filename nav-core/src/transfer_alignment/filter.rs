@@ -113,6 +113,9 @@ pub struct TransferAlignment<T: Real, const K: usize, const N: usize> {
     /// filter, not on the stack: the step's frame is the deepest of a master tick). Read only
     /// there, between the step and its continuation.
     pub(super) undo: Undo<T, N>,
+    /// Epochs whose deferred checks failed and that ran again (tests).
+    #[cfg(test)]
+    pub(super) reruns: u32,
 }
 
 /// The part of the filter a step changes besides the scratch covariance buffer: the state,
@@ -234,6 +237,8 @@ impl<T: Real, const K: usize, const N: usize> Estimator for TransferAlignment<T,
                 monitor: Monitor::new(),
                 second: false,
             },
+            #[cfg(test)]
+            reruns: 0,
         })
     }
 

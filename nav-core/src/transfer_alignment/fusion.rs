@@ -7,19 +7,102 @@
 //! `P − k bᵀ − b kᵀ + s k kᵀ` is `P − k bᵀ` plus a rounding-size term. What the Joseph form
 //! guards against rounding (a variance driven below zero) is guarded here as there: `P⁺`'s
 //! diagonal is computed and checked before anything is written (a refused update leaves `x`
-//! and `P` untouched), one update never divides a variance by more than
+//! and `P` untouched; a step checks the six results once at the end instead and, when that
+//! check fails, runs its updates again with these per-update checks: [`Guard`]), one update
+//! never divides a variance by more than
 //! [`super::MAX_VARIANCE_REDUCTION`] (`fuse_bounded`), and every committed covariance is
 //! loaded and conditioned ([`super::covariance::condition`]).
-use crate::math::kalman::{gate_scalar, FusionOutcome, FusionReport, Gate};
+use crate::math::kalman::{FusionOutcome, FusionReport, Gate};
 use crate::Real;
 use nalgebra::{SMatrix, SVector};
+
+/// Where the checks of an update's result (`P⁺`'s diagonal, the state correction) are made.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Guard {
+    /// In every update, before anything is written: a refused update changes nothing.
+    PerUpdate,
+    /// Once, after the epoch's updates ([`DeferredCheck`]): each update checks only what
+    /// decides its outcome (finite innovation and `r`, the innovation variance, the gate) and
+    /// writes. When the epoch's result fails the check, the caller discards it and runs the
+    /// epoch again with [`Guard::PerUpdate`]; when it passes, no update of the epoch would have
+    /// been refused by the per-update checks, so the result is the same bits.
+    Deferred,
+}
+
+/// What an update checks: the χ² gate, and where the checks of its result are made.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct UpdateChecks<T> {
+    /// The χ² gate.
+    pub gate: Gate<T>,
+    /// Where `P⁺`'s diagonal and the state correction are checked.
+    pub guard: Guard,
+}
+
+/// The check of [`Guard::Deferred`]: passes exactly when no update of the epoch, run with
+/// [`Guard::PerUpdate`] from the same start, would have been refused by the checks of its
+/// result — so that the deferred epoch's result is that of the per-update one, bit for bit.
+///
+/// Why it suffices, given the updates' own checks (`s` finite and positive): each update
+/// lowers every variance, `P⁺_ii = P_ii − k_i b_i` with `k_i b_i = (b_i / s) b_i ≥ 0` (rounding
+/// is monotone), and a non-finite variance stays non-finite; so every intermediate diagonal
+/// lies between the final one and the one at the start. The final diagonal non-negative and
+/// finite makes every intermediate one so; every intermediate diagonal sum (non-negative
+/// terms, each at most the starting one, summed in the same order) is at most the starting
+/// diagonal's sum, finite when that is. A non-finite correction `k_i·innovation` makes `x_i`
+/// non-finite, and a non-finite state stays so (a later row's innovation from it is non-finite
+/// and skipped): a finite final state rules it out.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct DeferredCheck<T> {
+    /// Sum of the diagonal at the start of the epoch's updates (units of the states squared,
+    /// summed as numbers).
+    start_sum: T,
+}
+
+impl<T: Real> DeferredCheck<T> {
+    /// Records the diagonal sum of the predicted covariance, before the updates.
+    #[inline(always)]
+    pub(super) fn start<const N: usize>(p: &SMatrix<T, N, N>) -> Self {
+        let (_, start_sum) = diagonal_scan(p);
+        Self { start_sum }
+    }
+
+    /// `true` when the result `x`, `P` of the epoch's updates stands (see [`DeferredCheck`]).
+    #[inline(always)]
+    pub(super) fn passes<const N: usize>(&self, x: &SVector<T, N>, p: &SMatrix<T, N, N>) -> bool {
+        let (negative, sum) = diagonal_scan(p);
+        let probe = x
+            .as_slice()
+            .iter()
+            .fold(sum * T::zero() + self.start_sum * T::zero(), |acc, v| {
+                acc + *v * T::zero()
+            });
+        !negative && probe == T::zero()
+    }
+}
+
+/// (a diagonal element negative, the diagonal's sum) of `p`; NaN compares false, but makes
+/// the sum NaN.
+#[inline(always)]
+fn diagonal_scan<T: Real, const N: usize>(p: &SMatrix<T, N, N>) -> (bool, T) {
+    let mut negative = false;
+    let mut sum = T::zero();
+    for (i, col) in p.data.0.iter().enumerate() {
+        if let Some(&d) = col.get(i) {
+            negative |= d < T::zero();
+            sum += d;
+        }
+    }
+    (negative, sum)
+}
 
 /// One scalar update of `x`, `P` (P stored as its upper triangle) given `b = P h` and
 /// `hph = hᵀ P h` (`r` the measurement variance, in the measurement's unit squared).
 /// `Ok(report)` when fused or rejected by the gate; `Err(s)` (with `s = hph + r`, the innovation variance) when the update cannot be
 /// fused numerically: a non-finite innovation or `r`, `r ≤ 0`, an innovation variance that is
-/// not finite and positive, `hph < 0`, a diagonal element of `P⁺` negative or non-finite, or a
-/// non-finite state correction. Nothing is written unless the update is fused.
+/// not finite and positive, `hph < 0`, and with [`Guard::PerUpdate`] a diagonal element of
+/// `P⁺` negative or non-finite, or a non-finite state correction (with [`Guard::Deferred`]
+/// those two are the caller's [`DeferredCheck`]). Nothing is written unless the update is
+/// fused.
 ///
 /// Not inlined: one copy per N serves the six rows of a step (inlined six times, the
 /// straight-line triangle costs kilobytes of flash).
@@ -31,58 +114,98 @@ pub(super) fn fuse_rank_one<T: Real, const N: usize>(
     hph: T,
     innovation: T,
     r: T,
-    gate: Gate<T>,
+    checks: UpdateChecks<T>,
 ) -> Result<FusionReport<T>, T> {
+    let UpdateChecks { gate, guard } = checks;
     let s = hph + r;
     // Finite innovation and r: `v·0` is ±0 for finite v, NaN for ±∞ and NaN (one multiply-add
     // and one compare instead of two classifications on the target).
     if innovation * T::zero() + r * T::zero() != T::zero() || r <= T::zero() {
         return Err(s);
     }
-    let Some((report, inv_s)) = gate_scalar(innovation, hph, s, gate) else {
+    // The shared gate's refusals (`s` not finite and positive, `hph < 0`) tested here with
+    // `s·0` (no classification of s), then its arithmetic ([`gate_within`]).
+    if s * T::zero() != T::zero() || s <= T::zero() || hph < T::zero() {
         return Err(s);
-    };
+    }
+    let (report, inv_s) = gate_within(innovation, s, gate);
     if report.outcome == FusionOutcome::Rejected {
         return Ok(report);
     }
     let [bs] = &b.data.0;
-    let mut k = [T::zero(); N];
-    for (ki, &bi) in k.iter_mut().zip(bs.iter()) {
-        *ki = bi * inv_s;
+    if guard == Guard::PerUpdate && !result_acceptable(p, bs, inv_s, innovation) {
+        return Err(s);
     }
-    // P⁺'s diagonal, checked before anything is written: one compare per element; ±∞ and NaN
-    // make the sum non-finite. (Not kept: the update pass computes each again, the same
-    // expression, where it writes it.)
+    let xs = &mut x.data.0[0];
+    if N <= UNROLLED_MAX_N {
+        downdate_unrolled(&mut p.data.0, bs, inv_s, xs, innovation);
+    } else {
+        downdate_loop(&mut p.data.0, bs, inv_s, xs, innovation);
+    }
+    Ok(report)
+}
+
+/// [`crate::math::kalman::gate_scalar`] for an innovation variance `s` known finite and positive and `hᵀPh ≥ 0`:
+/// the same expressions, so the same report and `1/s` bit for bit (tested against it), without
+/// its tests of `s` (a classification of `s` costs ≈ 30 instructions on the target).
+#[inline(always)]
+fn gate_within<T: Real>(innovation: T, s: T, gate: Gate<T>) -> (FusionReport<T>, T) {
+    let inv_s = T::one() / s;
+    let nis = innovation * innovation * inv_s;
+    let (test_ratio, rejected) = match gate {
+        Gate::Off => (T::zero(), false),
+        Gate::Nis(threshold) => {
+            let ratio = nis / threshold;
+            // A NaN ratio or a non-positive threshold rejects.
+            let within = matches!(
+                ratio.partial_cmp(&T::one()),
+                Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
+            );
+            (ratio, !within || threshold <= T::zero())
+        }
+    };
+    let outcome = if rejected {
+        FusionOutcome::Rejected
+    } else {
+        FusionOutcome::Fused
+    };
+    let report = FusionReport {
+        innovation,
+        innovation_variance: s,
+        nis,
+        test_ratio,
+        outcome,
+    };
+    (report, inv_s)
+}
+
+/// The checks of an update's result, before anything is written: `P⁺`'s diagonal
+/// `P_ii − k_i b_i` (`k_i = b_i / s`, given `1/s`) non-negative with a finite sum, and the
+/// state correction `k·innovation` finite. (The gains are formed again where they are used,
+/// the same expression: no array of them on the stack.)
+#[inline(always)]
+fn result_acceptable<T: Real, const N: usize>(
+    p: &SMatrix<T, N, N>,
+    bs: &[T; N],
+    inv_s: T,
+    innovation: T,
+) -> bool {
+    // P⁺'s diagonal: one compare per element; ±∞ and NaN make the sum non-finite. The state
+    // correction: NaN in `probe` when not finite.
     let mut negative = false;
     let mut sum = T::zero();
-    for (i, (&ki, &bi)) in k.iter().zip(bs.iter()).enumerate() {
+    let mut probe = T::zero();
+    for (i, &bi) in bs.iter().enumerate() {
         if let Some(&pii) = p.data.0.get(i).and_then(|col| col.get(i)) {
+            let ki = bi * inv_s;
             let v = pii - ki * bi;
             // `v < 0` misses NaN, but NaN also makes `sum` non-finite.
             negative |= v < T::zero();
             sum += v;
+            probe += ki * innovation * T::zero();
         }
     }
-    if negative || sum * T::zero() != T::zero() {
-        return Err(s);
-    }
-    // The state correction k·innovation, checked finite (computed again where it is added).
-    let mut probe = T::zero();
-    for &ki in k.iter() {
-        probe += ki * innovation * T::zero();
-    }
-    if probe != T::zero() {
-        return Err(s);
-    }
-    if N <= UNROLLED_MAX_N {
-        downdate_unrolled(&mut p.data.0, &k, bs);
-    } else {
-        downdate_loop(&mut p.data.0, &k, bs);
-    }
-    for (xi, &ki) in x.as_mut_slice().iter_mut().zip(k.iter()) {
-        *xi += ki * innovation;
-    }
-    Ok(report)
+    !negative && sum * T::zero() == T::zero() && probe == T::zero()
 }
 
 /// Largest N for which the update pass is straight-line code.
@@ -90,48 +213,70 @@ const UNROLLED_MAX_N: usize = 15;
 
 /// The loop form of [`downdate_unrolled`] (any N; same expressions in the same order).
 #[inline(always)]
-fn downdate_loop<T: Real, const N: usize>(p: &mut [[T; N]; N], k: &[T; N], b: &[T; N]) {
-    for (j, (col, &bj)) in p.iter_mut().zip(b.iter()).enumerate() {
-        for (pij, &ki) in col.iter_mut().zip(k.iter()).take(j + 1) {
-            *pij -= ki * bj;
+fn downdate_loop<T: Real, const N: usize>(
+    p: &mut [[T; N]; N],
+    b: &[T; N],
+    inv_s: T,
+    x: &mut [T; N],
+    innovation: T,
+) {
+    for (i, (&bi, xi)) in b.iter().zip(x.iter_mut()).enumerate() {
+        let ki = bi * inv_s;
+        for (col, &bj) in p.iter_mut().zip(b.iter()).skip(i) {
+            if let Some(pij) = col.get_mut(i) {
+                *pij -= ki * bj;
+            }
         }
+        *xi += ki * innovation;
     }
 }
 
 /// `P⁺_ij = P_ij − k_i b_j` for i ≤ j, on the upper triangle only (column-major
-/// `p[col][row]`, rows `0..=col`; the lower triangle is neither read nor written).
-/// Straight-line code for N ≤ 15, column by column (`b_j` and the gains held in registers;
-/// the guards are constants after monomorphisation; every filter of this module has N ≤ 15).
+/// `p[col][row]`, rows `0..=col`; the lower triangle is neither read nor written), and
+/// `x_i += k_i · innovation`, with the gain `k_i = b_i / s` (given `1/s`). Straight-line code
+/// for N ≤ 15, row by row: each gain formed once where its row starts (no array of gains),
+/// `b` held in registers; the guards are constants after monomorphisation; every filter of
+/// this module has N ≤ 15.
 #[inline(always)]
-fn downdate_unrolled<T: Real, const N: usize>(p: &mut [[T; N]; N], k: &[T; N], b: &[T; N]) {
-    macro_rules! column {
-        ($j:literal: $($i:literal)*) => {
-            if $j < N {
-                if let (Some(&bj), Some(col)) = (b.get($j), p.get_mut($j)) {
+fn downdate_unrolled<T: Real, const N: usize>(
+    p: &mut [[T; N]; N],
+    b: &[T; N],
+    inv_s: T,
+    x: &mut [T; N],
+    innovation: T,
+) {
+    macro_rules! row {
+        ($i:literal: $($j:literal)*) => {
+            if $i < N {
+                if let (Some(&bi), Some(xi)) = (b.get($i), x.get_mut($i)) {
+                    let ki = bi * inv_s;
                     $(
-                        if let (Some(&ki), Some(pij)) = (k.get($i), col.get_mut($i)) {
+                        if let (Some(&bj), Some(pij)) =
+                            (b.get($j), p.get_mut($j).and_then(|col| col.get_mut($i)))
+                        {
                             *pij -= ki * bj;
                         }
                     )*
+                    *xi += ki * innovation;
                 }
             }
         };
     }
-    column!(0: 0);
-    column!(1: 0 1);
-    column!(2: 0 1 2);
-    column!(3: 0 1 2 3);
-    column!(4: 0 1 2 3 4);
-    column!(5: 0 1 2 3 4 5);
-    column!(6: 0 1 2 3 4 5 6);
-    column!(7: 0 1 2 3 4 5 6 7);
-    column!(8: 0 1 2 3 4 5 6 7 8);
-    column!(9: 0 1 2 3 4 5 6 7 8 9);
-    column!(10: 0 1 2 3 4 5 6 7 8 9 10);
-    column!(11: 0 1 2 3 4 5 6 7 8 9 10 11);
-    column!(12: 0 1 2 3 4 5 6 7 8 9 10 11 12);
-    column!(13: 0 1 2 3 4 5 6 7 8 9 10 11 12 13);
-    column!(14: 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14);
+    row!(0: 0 1 2 3 4 5 6 7 8 9 10 11 12 13 14);
+    row!(1: 1 2 3 4 5 6 7 8 9 10 11 12 13 14);
+    row!(2: 2 3 4 5 6 7 8 9 10 11 12 13 14);
+    row!(3: 3 4 5 6 7 8 9 10 11 12 13 14);
+    row!(4: 4 5 6 7 8 9 10 11 12 13 14);
+    row!(5: 5 6 7 8 9 10 11 12 13 14);
+    row!(6: 6 7 8 9 10 11 12 13 14);
+    row!(7: 7 8 9 10 11 12 13 14);
+    row!(8: 8 9 10 11 12 13 14);
+    row!(9: 9 10 11 12 13 14);
+    row!(10: 10 11 12 13 14);
+    row!(11: 11 12 13 14);
+    row!(12: 12 13 14);
+    row!(13: 13 14);
+    row!(14: 14);
 }
 
 #[cfg(test)]
@@ -224,7 +369,10 @@ mod tests {
                 T::lit(hph_used),
                 innovation,
                 T::lit(r),
-                gate,
+                UpdateChecks {
+                    gate,
+                    guard: Guard::PerUpdate,
+                },
             );
             // The shared kernel in the same float type: same outcome and report.
             let (mut xs, mut ps) = (x0, p0);
@@ -293,6 +441,34 @@ mod tests {
         against_reference::<f64, 17>(64.0);
     }
 
+    /// The gate for a checked `s` gives the shared gate's report and `1/s`, bit for bit: gate
+    /// off, at 3 σ, at a threshold the ratio meets exactly, and a non-positive threshold.
+    #[test]
+    fn gate_within_is_the_shared_gate() {
+        use crate::math::kalman::gate_scalar;
+        let gates = [Gate::Off, Gate::Nis(9.0f32), Gate::Nis(4.0), Gate::Nis(0.0)];
+        let mut compared = 0;
+        for &gate in &gates {
+            for (innovation, hph, r) in [
+                (0.3f32, 0.01f32, 0.0025f32),
+                (-2.0, 0.75, 0.25),
+                (6.0, 3.0, 1.0),
+                (0.0, 1e-6, 1e-10),
+                (1e-3, 2.0e4, 3.0e-3),
+            ] {
+                let s = hph + r;
+                let shared = gate_scalar(innovation, hph, s, gate).unwrap();
+                // (Debug: a NaN test ratio of the zero threshold compares unequal.)
+                assert_eq!(
+                    std::format!("{:?}", gate_within(innovation, s, gate)),
+                    std::format!("{shared:?}")
+                );
+                compared += 1;
+            }
+        }
+        assert_eq!(compared, 20);
+    }
+
     /// The unrolled and the loop form give the same bits (N ≤ 15 uses the first).
     #[test]
     fn unrolled_and_loop_forms_agree() {
@@ -301,12 +477,15 @@ mod tests {
             let (p, h) = (p64.map(|v| v as f32), h64.map(|v| v as f32));
             let b = p * h;
             let s = h.dot(&b) + 0.5;
-            let k = b.map(|v| v / s);
+            let (inv_s, innovation) = (1.0 / s, 0.25f32);
             let (mut pu, mut pl) = (p, p);
-            downdate_unrolled(&mut pu.data.0, &k.data.0[0], &b.data.0[0]);
-            downdate_loop(&mut pl.data.0, &k.data.0[0], &b.data.0[0]);
+            let (mut xu, mut xl) = ([0.5f32; 15], [0.5f32; 15]);
+            downdate_unrolled(&mut pu.data.0, &b.data.0[0], inv_s, &mut xu, innovation);
+            downdate_loop(&mut pl.data.0, &b.data.0[0], inv_s, &mut xl, innovation);
             assert_eq!(bits(pu.as_slice()), bits(pl.as_slice()), "seed {seed}");
+            assert_eq!(bits(&xu), bits(&xl), "seed {seed}");
             assert_ne!(bits(pu.as_slice()), bits(p.as_slice()), "seed {seed}");
+            assert_ne!(bits(&xu), bits(&[0.5f32; 15]), "seed {seed}");
         }
     }
 }

@@ -4,12 +4,13 @@
 //! rank-one update of [`super::fusion`]).
 use super::config::MAX_ANGULAR_RATE_RAD_S;
 use super::covariance::fuse_bounded;
+use super::fusion::UpdateChecks;
 use super::measurement::{
     bounded_misalignment, clamp_symmetric, h_row_flight_df_with, h_row_total, linear_df_dot,
     ManoeuvreTerms,
 };
 use super::model::{has_accel_bias, FlexureModel};
-use crate::math::kalman::{FusionOutcome, FusionReport, Gate, SparseRow};
+use crate::math::kalman::{FusionOutcome, FusionReport, SparseRow};
 use crate::Real;
 use nalgebra::{SMatrix, SVector, Vector3};
 
@@ -87,8 +88,8 @@ pub(super) struct RowInputs<T: Real> {
     pub r_rate: T,
     /// Variance of the df measurements, (m/s²)².
     pub r_accel: T,
-    /// The χ² gate of every row.
-    pub gate: Gate<T>,
+    /// The χ² gate of every row, and where the checks of each update's result are made.
+    pub checks: UpdateChecks<T>,
 }
 
 /// Fuses the six scalar measurements `z` (dω_X..Z, df_X..Z) into the predicted `x`, `P` in
@@ -113,7 +114,7 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
         lever_arm_m: lever,
         r_rate,
         r_accel,
-        gate,
+        checks,
     } = *inputs;
     // The flight configuration predicts the measurement to second order in θ (the paper's
     // filters are linear in θ: exactly as specified).
@@ -134,6 +135,8 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
         ManoeuvreTerms::zero()
     };
     *updates = [not_fused(); 6];
+    // `b = P h` of each row, in one buffer (one slot of the frame for the six rows).
+    let mut b = SVector::<T, N>::zeros();
     let model_k = model_of::<K>();
     macro_rules! fuse_row {
         ($row:literal) => {
@@ -158,14 +161,14 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
                 // at θ̂.
                 let innovation = zi - linear_df_dot::<T, K, N>($row - 3, &f_h, &lever, &terms, x);
                 let h = h_row_flight_df_with::<T, K>($row - 3, &theta_hat, &f_h, &lever, &terms);
-                *rep = fuse_sparse(x, p, &h, innovation, r_accel, gate);
+                *rep = fuse_sparse(x, p, &h, innovation, r_accel, checks, &mut b);
             }
         };
         ($row:literal, $h:expr) => {
             if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
                 let h = $h;
                 let r = if $row < 3 { r_rate } else { r_accel };
-                *rep = fuse_sparse(x, p, &h, zi - h.dot(x), r, gate);
+                *rep = fuse_sparse(x, p, &h, zi - h.dot(x), r, checks, &mut b);
             }
         };
     }
@@ -187,27 +190,52 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
 pub(super) fn upper_times_row<T: Real, const N: usize, const M: usize>(
     p: &SMatrix<T, N, N>,
     h: &SparseRow<T, M>,
-) -> SVector<T, N> {
+    out: &mut SVector<T, N>,
+) {
     let cols = &p.data.0;
-    let mut b = [T::zero(); N];
-    macro_rules! entry {
-        ($($t:literal)*) => {
+    let [b] = &mut out.data.0;
+    // Element by element, written out (each b_i summed in a register over the row's entries,
+    // in their order, from 0: the same sums as entry by entry).
+    macro_rules! entries {
+        ($i:ident, $acc:ident; $($t:literal)*) => {
             $(
                 if $t < h.len {
                     if let (Some(&j), Some(&hj)) = (h.index.get($t), h.value.get($t)) {
-                        for (i, bi) in b.iter_mut().enumerate() {
-                            let (c, r) = if i <= j { (j, i) } else { (i, j) };
-                            if let Some(&pij) = cols.get(c).and_then(|col| col.get(r)) {
-                                *bi += hj * pij;
-                            }
+                        let (c, r) = if $i <= j { (j, $i) } else { ($i, j) };
+                        if let Some(&pij) = cols.get(c).and_then(|col| col.get(r)) {
+                            // The sum starts from its first product, not from 0.
+                            $acc = if $t == 0 { hj * pij } else { $acc + hj * pij };
                         }
                     }
                 }
             )*
         };
     }
-    entry!(0 1 2 3 4 5 6 7 8 9 10 11);
-    SVector::<T, N>::from_array_storage(nalgebra::ArrayStorage([b]))
+    macro_rules! elements {
+        ($($i:literal)*) => {
+            $(
+                if $i < N {
+                    if let Some(bi) = b.get_mut($i) {
+                        let (i, mut acc): (usize, T) = ($i, T::zero());
+                        entries!(i, acc; 0 1 2 3 4 5 6 7 8 9 10 11);
+                        *bi = acc;
+                    }
+                }
+            )*
+        };
+    }
+    elements!(0 1 2 3 4 5 6 7 8 9 10 11 12 13 14);
+    // Any further elements (N > 15; no filter of this module), in a loop.
+    for (i, bi) in b.iter_mut().enumerate().skip(15) {
+        let mut acc = T::zero();
+        for (&j, &hj) in h.index.iter().zip(h.value.iter()).take(h.len) {
+            let (c, r) = if i <= j { (j, i) } else { (i, j) };
+            if let Some(&pij) = cols.get(c).and_then(|col| col.get(r)) {
+                acc += hj * pij;
+            }
+        }
+        *bi = acc;
+    }
 }
 
 /// One scalar update with the sparse row `h` (built from validated, range-checked inputs with
@@ -220,11 +248,12 @@ fn fuse_sparse<T: Real, const N: usize, const M: usize>(
     h: &SparseRow<T, M>,
     innovation: T,
     r: T,
-    gate: Gate<T>,
+    checks: UpdateChecks<T>,
+    b: &mut SVector<T, N>,
 ) -> FusionReport<T> {
-    let b = upper_times_row(p, h);
-    let hph = h.dot(&b);
-    fuse_bounded(x, p, &b, hph, innovation, r, gate)
+    upper_times_row(p, h, b);
+    let hph = h.dot(b);
+    fuse_bounded(x, p, b, hph, innovation, r, checks)
 }
 
 /// The placeholder report of a row not yet fused.

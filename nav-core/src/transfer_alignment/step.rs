@@ -6,14 +6,13 @@ use super::covariance::{
     condition, initial_covariance, predict_cov, predict_state, reinit_flexure, set_mount_only,
 };
 use super::filter::{Ahead, TransferAlignment, Undo};
+use super::fusion::{DeferredCheck, Guard, UpdateChecks};
 use super::health::Channel;
 use super::history::SlaveHistory;
 use super::measurement::{measurement, MasterSample, SlaveSample};
 use super::model::FlexureModel;
 use super::rows::{fuse_rows, not_fused, RowInputs};
 use crate::contract::Health;
-#[allow(unused_imports)] // doc links
-use crate::math::kalman::fuse_scalar;
 use crate::math::kalman::FusionReport;
 use crate::time::Timestamp;
 use crate::{NavError, Real};
@@ -102,6 +101,21 @@ fn in_range3<T: Real>(input: &'static str, v: &Vector3<T>, limit: f64) -> Result
     } else {
         Err(NavError::InputOutOfRange { input })
     }
+}
+
+/// `true` when every input is within its physical range ([`check_ranges`]' limits) — and so
+/// finite: `|v| ≤ limit` is false for NaN and ±∞. No branch per value.
+#[inline(always)]
+fn all_in_range<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> bool {
+    let within = |v: &Vector3<T>, limit: f64| {
+        let lim = T::lit(limit);
+        (v.x.abs() <= lim) & (v.y.abs() <= lim) & (v.z.abs() <= lim)
+    };
+    within(&master.angular_rate_rad_s, MAX_ANGULAR_RATE_RAD_S)
+        & within(&master.angular_accel_rad_s2, MAX_ANGULAR_ACCEL_RAD_S2)
+        & within(&master.specific_force_m_s2, MAX_SPECIFIC_FORCE_M_S2)
+        & within(&slave.angular_rate_rad_s, MAX_ANGULAR_RATE_RAD_S)
+        & within(&slave.specific_force_m_s2, MAX_SPECIFIC_FORCE_M_S2)
 }
 
 /// Checks the physical range of the inputs (`InputOutOfRange`; limits
@@ -269,7 +283,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             monitor: self.monitor,
             second: self.second,
         };
-        let plan = match self.try_step_into(master, slave, &mut report.updates) {
+        let plan = match self.try_step_into(master, slave, &mut report.updates, Guard::Deferred) {
             Ok(plan) => plan,
             Err(e) => {
                 Health::bump(&mut self.monitor.health.imu_refused);
@@ -349,7 +363,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// Processes one epoch: checks the inputs and time stamps, predicts from the previous epoch
     /// to the grid point nearest the slave's time stamp (none at the first epoch, the flexure
     /// re-initialised after a gap longer than `max_gap_steps`), then fuses the six scalar
-    /// measurements (the sparse form of [`fuse_scalar`]) with the configured gate.
+    /// measurements (the sparse form of [`fuse_scalar`](crate::math::kalman::fuse_scalar)) with the configured gate.
     ///
     /// Refused (`Err`, the estimate unchanged bit for bit, the refusal counted in
     /// [`Health::imu_refused`]) only for invalid input: `NonFiniteInput`, `InputOutOfRange`
@@ -367,8 +381,20 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         master: &MasterSample<T>,
         slave: &SlaveSample<T>,
     ) -> Result<StepReport<T>, NavError> {
+        self.step_guarded(master, slave, Guard::Deferred)
+    }
+
+    /// [`Self::step`] starting with the checks `first` (tests: [`Guard::PerUpdate`] is the
+    /// reference the deferred checks must reproduce bit for bit).
+    #[inline(always)]
+    pub(super) fn step_guarded(
+        &mut self,
+        master: &MasterSample<T>,
+        slave: &SlaveSample<T>,
+        first: Guard,
+    ) -> Result<StepReport<T>, NavError> {
         let mut updates = [not_fused(); 6];
-        match self.try_step_into(master, slave, &mut updates) {
+        match self.try_step_into(master, slave, &mut updates, first) {
             Ok(plan) => Ok(StepReport {
                 time: slave.time,
                 predictions: plan.predictions,
@@ -388,18 +414,14 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         master: &MasterSample<T>,
         slave: &SlaveSample<T>,
     ) -> Result<Plan, NavError> {
-        // Fast path: one sum decides that all 15 inputs are finite; the per-field checks (which
-        // name the offending input) only run when some input is not.
-        let probe = zero_if_finite(&master.angular_rate_rad_s)
-            + zero_if_finite(&master.angular_accel_rad_s2)
-            + zero_if_finite(&master.specific_force_m_s2)
-            + zero_if_finite(&slave.angular_rate_rad_s)
-            + zero_if_finite(&slave.specific_force_m_s2);
-        if probe != T::zero() {
+        // Fast path: one test that all 15 inputs are within their ranges (and so finite); the
+        // per-field checks (which name the offending input, a non-finite one first) only run
+        // when some input is not.
+        if !all_in_range(master, slave) {
             master.validate()?;
             slave.validate()?;
+            check_ranges(master, slave)?;
         }
-        check_ranges(master, slave)?;
         let skew = master
             .time
             .micros_since(slave.time)
@@ -419,6 +441,7 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         master: &MasterSample<T>,
         slave: &SlaveSample<T>,
         updates: &mut [FusionReport<T>; 6],
+        first: Guard,
     ) -> Result<Plan, NavError> {
         let plan = self.check_epoch(master, slave)?;
         let matching = measurement(master, slave, &self.cfg.lever_arm_m);
@@ -436,19 +459,40 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             FlexureModel::Conventional => f_comp,
             FlexureModel::Proposed => slave.specific_force_m_s2,
         };
-        let inputs = RowInputs {
+        let mut inputs = RowInputs {
             omega_m: master.angular_rate_rad_s,
             omega_dot_m: master.angular_accel_rad_s2,
             f_h,
             lever_arm_m: self.cfg.lever_arm_m,
             r_rate: self.r_rate,
             r_accel: self.r_accel,
-            gate: self.cfg.gate,
+            checks: UpdateChecks {
+                gate: self.cfg.gate,
+                guard: first,
+            },
         };
+        // With `Guard::Deferred` the updates' results are checked once, at the end
+        // (`DeferredCheck`); when that check fails (an update the per-update checks would have
+        // refused), the epoch runs again from the current epoch's state with every update
+        // checked before it writes (`Guard::PerUpdate`): either way the bits of the
+        // per-update checks alone. The prediction runs again too, from the current covariance
+        // (the same bits as the predictions prepared ahead, which the first run used up).
         let mut x = self.x;
-        self.advance_to_scratch(&mut x, &plan);
-        let (_, p) = self.buffers();
-        fuse_rows::<T, K, N>(&mut x, p, &z, &inputs, updates);
+        loop {
+            self.advance_to_scratch(&mut x, &plan);
+            let (_, p) = self.buffers();
+            let check = DeferredCheck::start(p);
+            fuse_rows::<T, K, N>(&mut x, p, &z, &inputs, updates);
+            if inputs.checks.guard == Guard::PerUpdate || check.passes(&x, p) {
+                break;
+            }
+            x = self.x;
+            inputs.checks.guard = Guard::PerUpdate;
+            #[cfg(test)]
+            {
+                self.reruns += 1;
+            }
+        }
         self.commit_epoch(x, &plan, updates);
         self.last = Some(slave.time);
         Ok(plan)
@@ -550,3 +594,6 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests;
