@@ -12,7 +12,7 @@
 //! never divides a variance by more than
 //! [`super::MAX_VARIANCE_REDUCTION`] (`fuse_bounded`), and every committed covariance is
 //! loaded and conditioned ([`super::covariance::condition`]).
-use crate::math::kalman::{FusionOutcome, FusionReport, Gate};
+use crate::math::kalman::{gate_within, FusionOutcome, FusionReport, Gate};
 use crate::Real;
 use nalgebra::{SMatrix, SVector};
 
@@ -143,40 +143,6 @@ pub(super) fn fuse_rank_one<T: Real, const N: usize>(
         downdate_loop(&mut p.data.0, bs, inv_s, xs, innovation);
     }
     Ok(report)
-}
-
-/// [`crate::math::kalman::gate_scalar`] for an innovation variance `s` known finite and positive and `hᵀPh ≥ 0`:
-/// the same expressions, so the same report and `1/s` bit for bit (tested against it), without
-/// its tests of `s` (a classification of `s` costs ≈ 30 instructions on the target).
-#[inline(always)]
-fn gate_within<T: Real>(innovation: T, s: T, gate: Gate<T>) -> (FusionReport<T>, T) {
-    let inv_s = T::one() / s;
-    let nis = innovation * innovation * inv_s;
-    let (test_ratio, rejected) = match gate {
-        Gate::Off => (T::zero(), false),
-        Gate::Nis(threshold) => {
-            let ratio = nis / threshold;
-            // A NaN ratio or a non-positive threshold rejects.
-            let within = matches!(
-                ratio.partial_cmp(&T::one()),
-                Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
-            );
-            (ratio, !within || threshold <= T::zero())
-        }
-    };
-    let outcome = if rejected {
-        FusionOutcome::Rejected
-    } else {
-        FusionOutcome::Fused
-    };
-    let report = FusionReport {
-        innovation,
-        innovation_variance: s,
-        nis,
-        test_ratio,
-        outcome,
-    };
-    (report, inv_s)
 }
 
 /// The checks of an update's result, before anything is written: `P⁺`'s diagonal
@@ -439,34 +405,6 @@ mod tests {
         // The loop form (N > 15).
         against_reference::<f32, 17>(64.0);
         against_reference::<f64, 17>(64.0);
-    }
-
-    /// The gate for a checked `s` gives the shared gate's report and `1/s`, bit for bit: gate
-    /// off, at 3 σ, at a threshold the ratio meets exactly, and a non-positive threshold.
-    #[test]
-    fn gate_within_is_the_shared_gate() {
-        use crate::math::kalman::gate_scalar;
-        let gates = [Gate::Off, Gate::Nis(9.0f32), Gate::Nis(4.0), Gate::Nis(0.0)];
-        let mut compared = 0;
-        for &gate in &gates {
-            for (innovation, hph, r) in [
-                (0.3f32, 0.01f32, 0.0025f32),
-                (-2.0, 0.75, 0.25),
-                (6.0, 3.0, 1.0),
-                (0.0, 1e-6, 1e-10),
-                (1e-3, 2.0e4, 3.0e-3),
-            ] {
-                let s = hph + r;
-                let shared = gate_scalar(innovation, hph, s, gate).unwrap();
-                // (Debug: a NaN test ratio of the zero threshold compares unequal.)
-                assert_eq!(
-                    std::format!("{:?}", gate_within(innovation, s, gate)),
-                    std::format!("{shared:?}")
-                );
-                compared += 1;
-            }
-        }
-        assert_eq!(compared, 20);
     }
 
     /// The unrolled and the loop form give the same bits (N ≤ 15 uses the first).
