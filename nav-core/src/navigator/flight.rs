@@ -24,8 +24,10 @@ use nalgebra::{Matrix3, SMatrix, Vector3};
 
 mod carry_phase;
 mod flight_phase;
+mod psd_check;
 
 use carry_phase::MasterEpoch;
+use psd_check::PsdCheck;
 
 /// One INS state of the carry phase at a tick time (for the master's late epochs).
 #[derive(Debug, Clone, Copy)]
@@ -125,6 +127,8 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     separation: SeparationStatus,
     signal: Option<Timestamp>,
     ekf: Option<SeekerIns<T>>,
+    /// The EKF's P and its PSD-margin check (module `psd_check`); due from release on.
+    psd: PsdCheck,
     released_at: Option<Timestamp>,
     midcourse_at: Option<Timestamp>,
     baro_state: BaroState<T>,
@@ -340,6 +344,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             separation: SeparationStatus::NotSignalled,
             signal: None,
             ekf: None,
+            psd: PsdCheck::Due,
             released_at: None,
             midcourse_at: None,
             baro_state: match &config.baro {

@@ -2,7 +2,7 @@
 //! the covariance steps.
 
 use super::config::VARIANCE_CEILING;
-use super::covariance_health::{psd_lift, PsdMargin, PROPAGATION_STABILISING_EPS};
+use super::covariance_health::PsdMargin;
 use super::error_model::{propagate_covariance_sparse, transition_times, ATT, STATES, VEL};
 use super::filter::SeekerIns;
 use super::flight_noise::flight_noise_step;
@@ -28,12 +28,23 @@ pub struct ClipFlags {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum CovarianceSchedule {
     Interval,
-    /// As `Interval`, without the PSD check (the flight navigator's steps: its tick budget).
-    Unchecked,
+    /// As `Interval`, P's PSD margin as the caller says (the flight navigator: its budget).
+    Caller(PsdMargin),
     Deferred,
-    /// As `Interval`, with an external column propagated by the same Φ
+    /// As `Caller`, with an external column propagated by the same Φ
     /// ([`SeekerIns::propagate_cross`]; regular, unclipped samples only).
-    Cross,
+    Cross(PsdMargin),
+}
+
+impl CovarianceSchedule {
+    /// A bridged gap's held samples: more steps follow before the caller's check.
+    fn bridged(self) -> Self {
+        match self {
+            Self::Caller(PsdMargin::Deferred) => Self::Caller(PsdMargin::Constant),
+            Self::Cross(PsdMargin::Deferred) => Self::Cross(PsdMargin::Constant),
+            other => other,
+        }
+    }
 }
 
 impl<T: Real> SeekerIns<T> {
@@ -95,15 +106,16 @@ impl<T: Real> SeekerIns<T> {
 
     /// [`SeekerIns::propagate`] / [`SeekerIns::propagate_clipped`] (`clip`) without counting
     /// a refused sample in `Health::imu_refused` (the flight navigator's refused tick changes
-    /// nothing) and without the PSD check (the navigator's tick budget; the constant
-    /// [`PROPAGATION_STABILISING_EPS`] instead). Atomic without a copy of the filter on the
-    /// regular path.
+    /// nothing), P's PSD margin kept per `margin` (the navigator's tick budget). Atomic
+    /// without a copy of the filter on the regular path. Returns the interval of the
+    /// covariance step that ran, s (`None`: none).
     pub(crate) fn propagate_uncounted(
         &mut self,
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
-    ) -> Result<(), NavError> {
-        self.propagate_sample(sample, clip, CovarianceSchedule::Unchecked)
+        margin: PsdMargin,
+    ) -> Result<Option<T>, NavError> {
+        self.propagate_sample(sample, clip, CovarianceSchedule::Caller(margin))
     }
 
     /// IMU samples integrated since the last covariance step.
@@ -126,6 +138,7 @@ impl<T: Real> SeekerIns<T> {
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
         cross: &mut nalgebra::SVector<T, STATES>,
+        margin: PsdMargin,
     ) -> Result<Option<T>, NavError> {
         let dt_us = self.ins.dt_us();
         let gap = self.ins.time().is_some_and(|prev| {
@@ -135,12 +148,12 @@ impl<T: Real> SeekerIns<T> {
                 .is_some_and(|us| us.saturating_mul(2) > dt_us.saturating_mul(3))
         });
         if clip.is_some() || gap {
-            return self.propagate_cross_on_copy(sample, clip, cross);
+            return self.propagate_cross_on_copy(sample, clip, cross, margin);
         }
         if self.clock.is_some_and(|t| sample.time <= t) {
             return Err(NavError::TimeNotIncreasing);
         }
-        self.step_sample(sample, None, CovarianceSchedule::Cross, Some(cross))
+        self.step_sample(sample, None, CovarianceSchedule::Cross(margin), Some(cross))
     }
 
     /// [`SeekerIns::propagate_cross`]'s general path: deferred propagation and the covariance
@@ -151,12 +164,13 @@ impl<T: Real> SeekerIns<T> {
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
         cross: &mut nalgebra::SVector<T, STATES>,
+        margin: PsdMargin,
     ) -> Result<Option<T>, NavError> {
         let mut next = *self;
         next.propagate_deferred(sample, clip)?;
         let mut c = *cross;
         let dt = if next.steps_pending >= next.config.covariance_interval_steps {
-            next.predict_covariance_cross(&mut c)?
+            next.predict_covariance_cross(&mut c, margin)?
         } else {
             None
         };
@@ -171,18 +185,19 @@ impl<T: Real> SeekerIns<T> {
     /// covered, s (`None`: nothing was pending). When the step changed P other than by
     /// `Φ P Φᵀ + Q` (a variance repaired or held at its ceiling: a congruence the column
     /// does not follow), or when `Φ c` is not finite, `cross` is set to zero (the joint
-    /// covariance stays PSD; that correlation is forgotten). Errors leave the filter and
-    /// `cross` unchanged.
+    /// covariance stays PSD; that correlation is forgotten). P's PSD margin is kept per
+    /// `margin`. Errors leave the filter and `cross` unchanged.
     pub(crate) fn predict_covariance_cross(
         &mut self,
         cross: &mut nalgebra::SVector<T, STATES>,
+        margin: PsdMargin,
     ) -> Result<Option<T>, NavError> {
         if self.steps_pending == 0 {
             return Ok(None);
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
         let dv = self.dv_ned_pending_m_s;
-        self.covariance_step_cross(None, dt_total, &dv, cross)?;
+        self.covariance_step_cross(None, dt_total, &dv, cross, margin)?;
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
@@ -200,22 +215,22 @@ impl<T: Real> SeekerIns<T> {
         if r.is_err() {
             Health::bump(&mut self.health.imu_refused);
         }
-        r
+        r.map(|_| ())
     }
 
-    /// Time check, gap detection, then the sample; atomic.
+    /// Time check, gap detection, then the sample; atomic. The sample's step's interval, s.
     fn propagate_sample(
         &mut self,
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
         schedule: CovarianceSchedule,
-    ) -> Result<(), NavError> {
+    ) -> Result<Option<T>, NavError> {
         if self.clock.is_some_and(|t| sample.time <= t) {
             return Err(NavError::TimeNotIncreasing);
         }
         let Some(prev) = self.ins.time() else {
             // First sample after construction or re-initialisation: the nominal interval.
-            return self.step_sample(sample, clip, schedule, None).map(|_| ());
+            return self.step_sample(sample, clip, schedule, None);
         };
         let us = sample
             .time
@@ -223,7 +238,7 @@ impl<T: Real> SeekerIns<T> {
             .ok_or(NavError::TimeNotIncreasing)?;
         let dt_us = self.ins.dt_us();
         if us.saturating_mul(2) <= dt_us.saturating_mul(3) {
-            return self.step_sample(sample, clip, schedule, None).map(|_| ());
+            return self.step_sample(sample, clip, schedule, None);
         }
         self.propagate_after_gap(sample, clip, schedule, prev, us)
     }
@@ -240,7 +255,7 @@ impl<T: Real> SeekerIns<T> {
         schedule: CovarianceSchedule,
         prev: Timestamp,
         us: u64,
-    ) -> Result<(), NavError> {
+    ) -> Result<Option<T>, NavError> {
         let dt_us = self.ins.dt_us();
         // round(us / dt_us) − 1 ≥ 1 (dt_us > 0 by construction: no division by zero).
         let missing = us
@@ -251,14 +266,14 @@ impl<T: Real> SeekerIns<T> {
         let max_us = seconds_to_micros(self.config.imu_faults.max_gap_s).unwrap_or(0);
         let mut next = *self;
         if missing.saturating_mul(dt_us) <= max_us {
-            next.bridge_gap(prev, missing, schedule)?;
+            next.bridge_gap(prev, missing, schedule.bridged())?;
         } else {
             next.reset_after_gap()?;
         }
-        next.step_sample(sample, clip, schedule, None)?;
+        let stepped = next.step_sample(sample, clip, schedule, None)?;
         next.last_imu_fault = Some(sample.time);
         *self = next;
-        Ok(())
+        Ok(stepped)
     }
 
     /// Bias compensation, INS step and covariance step; the clipping inflation when flagged.
@@ -431,16 +446,16 @@ impl<T: Real> SeekerIns<T> {
             && schedule != CovarianceSchedule::Deferred
         {
             let dt_total = self.pending_interval_s(steps, pending_us);
+            let margin = match schedule {
+                CovarianceSchedule::Interval => PsdMargin::Checked,
+                CovarianceSchedule::Caller(m) | CovarianceSchedule::Cross(m) => m,
+                CovarianceSchedule::Deferred => PsdMargin::Constant,
+            };
             match cross {
-                Some(c) => self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c)?,
-                None => {
-                    let margin = if schedule == CovarianceSchedule::Interval {
-                        PsdMargin::Checked
-                    } else {
-                        PsdMargin::Constant
-                    };
-                    self.covariance_step_at(Some(&ins), dt_total, &dv_pending, margin)?;
+                Some(c) => {
+                    self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c, margin)?;
                 }
+                None => self.covariance_step_at(Some(&ins), dt_total, &dv_pending, margin)?,
             }
             stepped = Some(dt_total);
             self.steps_pending = 0;
@@ -516,14 +531,16 @@ impl<T: Real> SeekerIns<T> {
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
         cross: &mut nalgebra::SVector<T, STATES>,
+        margin: PsdMargin,
     ) -> Result<(), NavError> {
         let f_ned = dv_ned_m_s / dt_total_s;
         let at = ins.unwrap_or(&self.ins);
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
         let limits_before = self.health.limits_hit;
-        // The flight navigator's steps: no PSD check (its tick budget), the constant noise.
-        self.covariance_step_f(&f, ins, dt_total_s, PsdMargin::Constant)?;
+        // The flight navigator's steps: no PSD check here (its tick budget), the margin as it
+        // says.
+        self.covariance_step_f(&f, ins, dt_total_s, margin)?;
         // Φ c after the step (Φ is finite: the step succeeded), in a frame of its own beside
         // the kernel's; a column that overflows is forgotten as after a repair.
         if self.health.limits_hit == limits_before {
@@ -544,40 +561,29 @@ impl<T: Real> SeekerIns<T> {
         }
     }
 
-    /// Counts the repairs of a covariance step, then the PSD margin: with
-    /// [`PsdMargin::Checked`] (the stand-alone filter's step on an IMU sample) P is checked and lifted only when the margin
-    /// is small ([`super::PSD_MARGIN_EPS`]); with [`PsdMargin::Constant`] (a step flushed by an update or by
-    /// [`Self::predict_covariance`], and every step of the flight navigator) every variance
-    /// gains [`PROPAGATION_STABILISING_EPS`] ε. Then the variances are limited.
-    fn after_covariance_step(&mut self, repairs: u32, margin: PsdMargin) {
-        self.health.limits_hit = self.health.limits_hit.saturating_add(repairs);
-        let delta = match margin {
-            PsdMargin::Checked => psd_lift(&mut self.p),
-            PsdMargin::Constant => T::lit(PROPAGATION_STABILISING_EPS) * T::EPS,
-        };
-        if delta > T::zero() {
-            for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
-                if let Some(v) = col.get_mut(j) {
-                    *v += *v * delta;
-                }
-            }
-        }
-        self.limit_variances();
-    }
-
     /// Propagates P over the IMU samples accumulated since the last covariance step (no-op if
     /// none; the LOS update does it itself). Errors leave the filter unchanged.
     pub fn predict_covariance(&mut self) -> Result<(), NavError> {
+        self.predict_covariance_margin(PsdMargin::Constant)
+            .map(|_| ())
+    }
+
+    /// [`Self::predict_covariance`] with P's PSD margin kept per `margin` (the flight
+    /// navigator's); the interval covered, s (`None`: nothing was pending).
+    pub(crate) fn predict_covariance_margin(
+        &mut self,
+        margin: PsdMargin,
+    ) -> Result<Option<T>, NavError> {
         if self.steps_pending == 0 {
-            return Ok(());
+            return Ok(None);
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
         let dv = self.dv_ned_pending_m_s;
-        self.covariance_step_at(None, dt_total, &dv, PsdMargin::Constant)?;
+        self.covariance_step_at(None, dt_total, &dv, margin)?;
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
-        Ok(())
+        Ok(Some(dt_total))
     }
 }
 

@@ -570,4 +570,5 @@ fn release_at_truth<T: Real>(
 
 mod baro_ekf;
 mod chain;
+mod psd;
 mod stored;
