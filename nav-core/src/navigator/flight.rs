@@ -127,7 +127,7 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     separation: SeparationStatus,
     signal: Option<Timestamp>,
     ekf: Option<SeekerIns<T>>,
-    /// The EKF's P and its PSD-margin check (module `psd_check`); due from release on.
+    /// The EKF's P and its PSD-margin check (module `psd_check`): P0 is new at release.
     psd: PsdCheck,
     released_at: Option<Timestamp>,
     midcourse_at: Option<Timestamp>,
@@ -344,7 +344,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             separation: SeparationStatus::NotSignalled,
             signal: None,
             ekf: None,
-            psd: PsdCheck::Due,
+            psd: PsdCheck::ChangedNow,
             released_at: None,
             midcourse_at: None,
             baro_state: match &config.baro {
@@ -504,6 +504,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         out.phase = self.phase;
         out.transition = transition;
         self.solution_into(&mut out.solution);
+        if self.phase != Phase::Carry {
+            self.psd_end_of_tick();
+        }
         Ok(())
     }
 

@@ -41,9 +41,10 @@ pub(crate) enum PsdMargin {
     Constant,
     /// Nothing added: the caller checks P ([`super::SeekerIns::check_psd_margin`]) before the
     /// next covariance step — the flight navigator, on its next tick without a covariance
-    /// step or an update. The step starts from a checked P (relative pivots ≥
-    /// [`PSD_MARGIN_EPS`] ε), and its rounding moves them by a few ε: P stays positive
-    /// definite until the check.
+    /// step or an update. From a checked P (relative pivots ≥ [`PSD_MARGIN_EPS`] ε) the
+    /// step's rounding moves the pivots by a few ε: P stays positive definite until the
+    /// check. From a P not checked since its last change the caller adds the constant noise
+    /// after the step ([`super::SeekerIns::add_stabilising_noise`]).
     Deferred,
 }
 
@@ -157,14 +158,29 @@ impl<T: Real> SeekerIns<T> {
     pub(crate) fn check_psd_margin(&mut self) -> T {
         let delta = psd_lift(&mut self.p);
         if delta > T::zero() {
-            for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
-                if let Some(v) = col.get_mut(j) {
-                    *v += *v * delta;
-                }
-            }
-            self.limit_variances();
+            self.lift_variances(delta);
         }
         delta
+    }
+
+    /// The constant [`PROPAGATION_STABILISING_EPS`] ε of every variance after a covariance
+    /// step run with [`PsdMargin::Deferred`] from a P not checked since its last change (the
+    /// flight navigator's fallback when no quiet tick came between), then the variances
+    /// limited (counted in `Health::limits_hit`). The same as the step with
+    /// [`PsdMargin::Constant`] but for the order of the noise and the ceilings.
+    #[inline(never)]
+    pub(crate) fn add_stabilising_noise(&mut self) {
+        self.lift_variances(T::lit(PROPAGATION_STABILISING_EPS) * T::EPS);
+    }
+
+    /// `P ← P + δ diag(P)`, then the ceilings.
+    fn lift_variances(&mut self, delta: T) {
+        for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
+            if let Some(v) = col.get_mut(j) {
+                *v += *v * delta;
+            }
+        }
+        self.limit_variances();
     }
 }
 

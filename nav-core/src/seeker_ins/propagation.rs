@@ -28,23 +28,16 @@ pub struct ClipFlags {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum CovarianceSchedule {
     Interval,
-    /// As `Interval`, P's PSD margin as the caller says (the flight navigator: its budget).
-    Caller(PsdMargin),
+    /// As `Interval`, P's PSD check left to the caller ([`PsdMargin::Deferred`]: the flight
+    /// navigator's steps, its tick budget).
+    Unchecked,
+    /// As `Unchecked` with the constant noise ([`PsdMargin::Constant`]): the held samples of
+    /// a gap bridged under `Unchecked` (more steps follow before the caller's check).
+    Stabilised,
     Deferred,
-    /// As `Caller`, with an external column propagated by the same Φ
+    /// As `Unchecked`, with an external column propagated by the same Φ
     /// ([`SeekerIns::propagate_cross`]; regular, unclipped samples only).
-    Cross(PsdMargin),
-}
-
-impl CovarianceSchedule {
-    /// A bridged gap's held samples: more steps follow before the caller's check.
-    fn bridged(self) -> Self {
-        match self {
-            Self::Caller(PsdMargin::Deferred) => Self::Caller(PsdMargin::Constant),
-            Self::Cross(PsdMargin::Deferred) => Self::Cross(PsdMargin::Constant),
-            other => other,
-        }
-    }
+    Cross,
 }
 
 impl<T: Real> SeekerIns<T> {
@@ -106,20 +99,18 @@ impl<T: Real> SeekerIns<T> {
 
     /// [`SeekerIns::propagate`] / [`SeekerIns::propagate_clipped`] (`clip`) without counting
     /// a refused sample in `Health::imu_refused` (the flight navigator's refused tick changes
-    /// nothing), P's PSD margin kept per `margin` (the navigator's tick budget). Atomic
-    /// without a copy of the filter on the regular path. Returns the interval of the
-    /// covariance step that ran, s (`None`: none).
+    /// nothing) and without the PSD check (the navigator's tick budget: it checks P on a later
+    /// tick, [`PsdMargin::Deferred`]). Atomic without a copy of the filter on the regular
+    /// path.
     pub(crate) fn propagate_uncounted(
         &mut self,
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
-        margin: PsdMargin,
-    ) -> Result<Option<T>, NavError> {
-        self.propagate_sample(sample, clip, CovarianceSchedule::Caller(margin))
+    ) -> Result<(), NavError> {
+        self.propagate_sample(sample, clip, CovarianceSchedule::Unchecked)
     }
 
-    /// IMU samples integrated since the last covariance step.
-    #[cfg(test)]
+    /// IMU samples integrated since the last covariance step (0 after a sample: its step ran).
     pub(crate) fn steps_pending(&self) -> u16 {
         self.steps_pending
     }
@@ -138,7 +129,6 @@ impl<T: Real> SeekerIns<T> {
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
         cross: &mut nalgebra::SVector<T, STATES>,
-        margin: PsdMargin,
     ) -> Result<Option<T>, NavError> {
         let dt_us = self.ins.dt_us();
         let gap = self.ins.time().is_some_and(|prev| {
@@ -148,12 +138,12 @@ impl<T: Real> SeekerIns<T> {
                 .is_some_and(|us| us.saturating_mul(2) > dt_us.saturating_mul(3))
         });
         if clip.is_some() || gap {
-            return self.propagate_cross_on_copy(sample, clip, cross, margin);
+            return self.propagate_cross_on_copy(sample, clip, cross);
         }
         if self.clock.is_some_and(|t| sample.time <= t) {
             return Err(NavError::TimeNotIncreasing);
         }
-        self.step_sample(sample, None, CovarianceSchedule::Cross(margin), Some(cross))
+        self.step_sample(sample, None, CovarianceSchedule::Cross, Some(cross))
     }
 
     /// [`SeekerIns::propagate_cross`]'s general path: deferred propagation and the covariance
@@ -164,13 +154,12 @@ impl<T: Real> SeekerIns<T> {
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
         cross: &mut nalgebra::SVector<T, STATES>,
-        margin: PsdMargin,
     ) -> Result<Option<T>, NavError> {
         let mut next = *self;
         next.propagate_deferred(sample, clip)?;
         let mut c = *cross;
         let dt = if next.steps_pending >= next.config.covariance_interval_steps {
-            next.predict_covariance_cross(&mut c, margin)?
+            next.predict_covariance_cross(&mut c)?
         } else {
             None
         };
@@ -185,19 +174,18 @@ impl<T: Real> SeekerIns<T> {
     /// covered, s (`None`: nothing was pending). When the step changed P other than by
     /// `Φ P Φᵀ + Q` (a variance repaired or held at its ceiling: a congruence the column
     /// does not follow), or when `Φ c` is not finite, `cross` is set to zero (the joint
-    /// covariance stays PSD; that correlation is forgotten). P's PSD margin is kept per
-    /// `margin`. Errors leave the filter and `cross` unchanged.
+    /// covariance stays PSD; that correlation is forgotten). P's PSD margin is the caller's
+    /// to check ([`PsdMargin::Deferred`]). Errors leave the filter and `cross` unchanged.
     pub(crate) fn predict_covariance_cross(
         &mut self,
         cross: &mut nalgebra::SVector<T, STATES>,
-        margin: PsdMargin,
     ) -> Result<Option<T>, NavError> {
         if self.steps_pending == 0 {
             return Ok(None);
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
         let dv = self.dv_ned_pending_m_s;
-        self.covariance_step_cross(None, dt_total, &dv, cross, margin)?;
+        self.covariance_step_cross(None, dt_total, &dv, cross)?;
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
@@ -215,22 +203,22 @@ impl<T: Real> SeekerIns<T> {
         if r.is_err() {
             Health::bump(&mut self.health.imu_refused);
         }
-        r.map(|_| ())
+        r
     }
 
-    /// Time check, gap detection, then the sample; atomic. The sample's step's interval, s.
+    /// Time check, gap detection, then the sample; atomic.
     fn propagate_sample(
         &mut self,
         sample: &ImuIncrement<T>,
         clip: Option<ClipFlags>,
         schedule: CovarianceSchedule,
-    ) -> Result<Option<T>, NavError> {
+    ) -> Result<(), NavError> {
         if self.clock.is_some_and(|t| sample.time <= t) {
             return Err(NavError::TimeNotIncreasing);
         }
         let Some(prev) = self.ins.time() else {
             // First sample after construction or re-initialisation: the nominal interval.
-            return self.step_sample(sample, clip, schedule, None);
+            return self.step_sample(sample, clip, schedule, None).map(|_| ());
         };
         let us = sample
             .time
@@ -238,7 +226,7 @@ impl<T: Real> SeekerIns<T> {
             .ok_or(NavError::TimeNotIncreasing)?;
         let dt_us = self.ins.dt_us();
         if us.saturating_mul(2) <= dt_us.saturating_mul(3) {
-            return self.step_sample(sample, clip, schedule, None);
+            return self.step_sample(sample, clip, schedule, None).map(|_| ());
         }
         self.propagate_after_gap(sample, clip, schedule, prev, us)
     }
@@ -255,7 +243,7 @@ impl<T: Real> SeekerIns<T> {
         schedule: CovarianceSchedule,
         prev: Timestamp,
         us: u64,
-    ) -> Result<Option<T>, NavError> {
+    ) -> Result<(), NavError> {
         let dt_us = self.ins.dt_us();
         // round(us / dt_us) − 1 ≥ 1 (dt_us > 0 by construction: no division by zero).
         let missing = us
@@ -266,14 +254,18 @@ impl<T: Real> SeekerIns<T> {
         let max_us = seconds_to_micros(self.config.imu_faults.max_gap_s).unwrap_or(0);
         let mut next = *self;
         if missing.saturating_mul(dt_us) <= max_us {
-            next.bridge_gap(prev, missing, schedule.bridged())?;
+            let held = match schedule {
+                CovarianceSchedule::Unchecked => CovarianceSchedule::Stabilised,
+                other => other,
+            };
+            next.bridge_gap(prev, missing, held)?;
         } else {
             next.reset_after_gap()?;
         }
-        let stepped = next.step_sample(sample, clip, schedule, None)?;
+        next.step_sample(sample, clip, schedule, None)?;
         next.last_imu_fault = Some(sample.time);
         *self = next;
-        Ok(stepped)
+        Ok(())
     }
 
     /// Bias compensation, INS step and covariance step; the clipping inflation when flagged.
@@ -446,16 +438,20 @@ impl<T: Real> SeekerIns<T> {
             && schedule != CovarianceSchedule::Deferred
         {
             let dt_total = self.pending_interval_s(steps, pending_us);
-            let margin = match schedule {
-                CovarianceSchedule::Interval => PsdMargin::Checked,
-                CovarianceSchedule::Caller(m) | CovarianceSchedule::Cross(m) => m,
-                CovarianceSchedule::Deferred => PsdMargin::Constant,
-            };
             match cross {
-                Some(c) => {
-                    self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c, margin)?;
+                Some(c) => self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c)?,
+                None => {
+                    let margin = match schedule {
+                        CovarianceSchedule::Interval => PsdMargin::Checked,
+                        CovarianceSchedule::Unchecked | CovarianceSchedule::Cross => {
+                            PsdMargin::Deferred
+                        }
+                        CovarianceSchedule::Stabilised | CovarianceSchedule::Deferred => {
+                            PsdMargin::Constant
+                        }
+                    };
+                    self.covariance_step_at(Some(&ins), dt_total, &dv_pending, margin)?;
                 }
-                None => self.covariance_step_at(Some(&ins), dt_total, &dv_pending, margin)?,
             }
             stepped = Some(dt_total);
             self.steps_pending = 0;
@@ -488,19 +484,22 @@ impl<T: Real> SeekerIns<T> {
         let at = ins.unwrap_or(&self.ins);
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
-        self.covariance_step_f(&f, ins, dt_total_s, margin)
+        let repairs = self.covariance_step_f(&f, ins, dt_total_s)?;
+        self.after_covariance_step(repairs, margin);
+        Ok(())
     }
 
     /// [`Self::covariance_step_at`] with F given (its mean specific force is the interval's
-    /// `dv / Δt`). Not inlined: one copy serves every covariance step.
+    /// `dv / Δt`), without the PSD margin and the ceilings (the caller's
+    /// [`Self::after_covariance_step`]); the repairs. Not inlined: one copy serves every
+    /// covariance step.
     #[inline(never)]
     fn covariance_step_f(
         &mut self,
         f: &SparseF<T>,
         ins: Option<&Ins<T>>,
         dt_total_s: T,
-        margin: PsdMargin,
-    ) -> Result<(), NavError> {
+    ) -> Result<u32, NavError> {
         let ins = ins.unwrap_or(&self.ins);
         let repairs = propagate_covariance_sparse(
             &mut self.p,
@@ -518,8 +517,7 @@ impl<T: Real> SeekerIns<T> {
             f,
             dt_total_s,
         );
-        self.after_covariance_step(repairs, margin);
-        Ok(())
+        Ok(repairs)
     }
 
     /// [`Self::covariance_step_at`] that also applies the step's Φ to `cross` (module doc of
@@ -531,16 +529,15 @@ impl<T: Real> SeekerIns<T> {
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
         cross: &mut nalgebra::SVector<T, STATES>,
-        margin: PsdMargin,
     ) -> Result<(), NavError> {
         let f_ned = dv_ned_m_s / dt_total_s;
         let at = ins.unwrap_or(&self.ins);
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
         let limits_before = self.health.limits_hit;
-        // The flight navigator's steps: no PSD check here (its tick budget), the margin as it
-        // says.
-        self.covariance_step_f(&f, ins, dt_total_s, margin)?;
+        // The flight navigator's steps: no PSD check (its tick budget; it checks P later).
+        let repairs = self.covariance_step_f(&f, ins, dt_total_s)?;
+        self.after_covariance_step(repairs, PsdMargin::Deferred);
         // Φ c after the step (Φ is finite: the step succeeded), in a frame of its own beside
         // the kernel's; a column that overflows is forgotten as after a repair.
         if self.health.limits_hit == limits_before {
@@ -564,18 +561,14 @@ impl<T: Real> SeekerIns<T> {
     /// Propagates P over the IMU samples accumulated since the last covariance step (no-op if
     /// none; the LOS update does it itself). Errors leave the filter unchanged.
     pub fn predict_covariance(&mut self) -> Result<(), NavError> {
-        self.predict_covariance_margin(PsdMargin::Constant)
-            .map(|_| ())
+        self.predict_covariance_with(PsdMargin::Constant)
     }
 
-    /// [`Self::predict_covariance`] with P's PSD margin kept per `margin` (the flight
-    /// navigator's); the interval covered, s (`None`: nothing was pending).
-    pub(crate) fn predict_covariance_margin(
-        &mut self,
-        margin: PsdMargin,
-    ) -> Result<Option<T>, NavError> {
+    /// [`Self::predict_covariance`], P's PSD margin kept per `margin` (the flight navigator:
+    /// [`PsdMargin::Deferred`]).
+    pub(crate) fn predict_covariance_with(&mut self, margin: PsdMargin) -> Result<(), NavError> {
         if self.steps_pending == 0 {
-            return Ok(None);
+            return Ok(());
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
         let dv = self.dv_ned_pending_m_s;
@@ -583,7 +576,7 @@ impl<T: Real> SeekerIns<T> {
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
-        Ok(Some(dt_total))
+        Ok(())
     }
 }
 

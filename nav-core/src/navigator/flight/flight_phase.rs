@@ -7,9 +7,11 @@ use super::super::types::{
     AidAvailability, AidState, Aids, BaroDamping, ImuTick, Phase, TickReport, Transition,
     TransitionCause, INERTIAL_LOOP,
 };
-use super::{elapsed, LoopBaro, Navigator, PsdCheck};
+use super::{elapsed, LoopBaro, Navigator};
 use crate::contract::{Estimator, FusionOutcome};
-use crate::seeker_ins::{ClipFlags, CrossColumn, ImuIncrement, LosSample, SeekerIns, STATES};
+use crate::seeker_ins::{
+    ClipFlags, CrossColumn, ImuIncrement, LosSample, PsdMargin, SeekerIns, STATES,
+};
 use crate::time::Timestamp;
 use crate::vertical_channel::{BaroSample, ClassicalLoop, ImuSample as VerticalImu, InitialState};
 use crate::{NavError, Real};
@@ -46,37 +48,32 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             None
         };
         self.time = inc.time;
-        self.after_imu(aids, transition, loop_baro, out)?;
-        self.check_psd_when_due();
-        Ok(())
+        self.after_imu(aids, transition, loop_baro, out)
     }
 
     /// The EKF's IMU part in place (atomic), the baro column in step with its covariance step;
-    /// the step keeps P's PSD margin as the check's state says (module `psd_check`).
+    /// the step's PSD margin per module `psd_check`.
     #[inline(always)]
     fn ekf_imu(&mut self, inc: &ImuIncrement<T>, clip: Option<ClipFlags>) -> Result<(), NavError> {
         let model = self.baro_model();
-        let margin = self.psd.margin();
         let Some(ekf) = self.ekf.as_mut() else {
             return Err(NavError::InputOutOfRange {
                 input: "navigator state",
             });
         };
-        let stepped = if let Some(model) = model {
+        if let Some(model) = model {
             let bs = &mut self.baro_state;
             let before = (ekf.health().limits_hit, ekf.health().gaps_reset);
-            let stepped = ekf.propagate_cross(inc, clip, &mut bs.cross, margin)?;
-            if let Some(dt) = stepped {
+            if let Some(dt) = ekf.propagate_cross(inc, clip, &mut bs.cross)? {
                 bs.decay(&model, dt);
             }
             if (ekf.health().limits_hit, ekf.health().gaps_reset) != before {
                 bs.cross = nalgebra::SVector::zeros();
             }
-            stepped
         } else {
-            ekf.propagate_uncounted(inc, clip, margin)?
-        };
-        self.psd = self.psd.after_imu(stepped.is_some());
+            ekf.propagate_uncounted(inc, clip)?;
+        }
+        self.psd = self.psd.after_imu(ekf.steps_pending() == 0);
         Ok(())
     }
 
@@ -96,11 +93,11 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             });
         };
         // On the copy: a refusal is dropped with it, as on the in-place path.
-        let stepped = ekf.propagate_uncounted(inc, clip, self.psd.margin())?;
+        ekf.propagate_uncounted(inc, clip)?;
         let outcome = Self::loop_step(&mut lp, &mut ekf, inc.time, baro)?;
+        self.psd = self.psd.after_imu(ekf.steps_pending() == 0);
         self.ekf = Some(ekf);
         self.vloop = Some(lp);
-        self.psd = self.psd.after_imu(stepped.is_some());
         Ok(outcome)
     }
 
@@ -277,10 +274,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             });
         };
         let bs = &mut self.baro_state;
-        if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross, self.psd.margin())? {
+        if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
             bs.decay(model, dt);
         }
-        self.psd = PsdCheck::ChangedNow;
+        self.psd_after_flush();
         Ok(self.baro_update(model, b, age))
     }
 
@@ -385,17 +382,15 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         ekf.check_los(s)?;
         // The pending covariance step first (in place, atomic; the update then needs no copy
         // of the filter), the baro column in step with it.
-        let margin = self.psd.margin();
         if let Some(model) = model {
             let bs = &mut self.baro_state;
-            if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross, margin)? {
+            if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
                 bs.decay(&model, dt);
             }
         } else if ekf.los_at_ins_time(s) {
             // As `update_los` would on a copy of the filter.
-            ekf.predict_covariance_margin(margin)?;
+            ekf.predict_covariance_with(PsdMargin::Deferred)?;
         }
-        self.psd = PsdCheck::ChangedNow;
         self.los_update(s, model.is_some())
     }
 
@@ -403,6 +398,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// the baro column follows the components the update fused (module `baro`).
     #[inline(never)]
     fn los_update(&mut self, s: &LosSample<T>, baro_column: bool) -> Result<AidState, NavError> {
+        self.psd_after_flush();
         let Some(ekf) = self.ekf.as_mut() else {
             return Err(NavError::InputOutOfRange {
                 input: "navigator state",

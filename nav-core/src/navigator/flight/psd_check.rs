@@ -6,12 +6,13 @@
 //! ticks that run a covariance step (≈ 13 000 instructions, with an update up to ≈ 20 000)
 //! cannot carry it, but most of its ticks run neither a covariance step nor an update
 //! (≈ 3 000). P changes only in covariance steps and updates, so the check runs on the first
-//! tick after such a change that changes P no more: it checks the P the next covariance step
-//! starts from. A covariance step from a checked P adds nothing (`PsdMargin::Deferred`): its
-//! rounding moves the relative pivots by a few ε, within the 16 ε margin the check left, so
-//! an update on the same tick reads a positive definite P. A covariance step from a P not
-//! checked since its last change (no quiet tick in between: an update or step on the
-//! previous tick) keeps the constant 4 ε of every variance (`PsdMargin::Constant`).
+//! tick after such a change that changes P no more (at its end): it checks the P the next
+//! covariance step starts from. A covariance step from a checked P adds nothing
+//! (`PsdMargin::Deferred`): its rounding moves the relative pivots by a few ε, within the
+//! 16 ε margin the check left, so an update on the same tick reads a positive definite P. A
+//! covariance step from a P not checked since its last change (no quiet tick in between: an
+//! update or step on the previous tick) is followed by the constant 4 ε of every variance,
+//! before any update reads P.
 //!
 //! An update reads the P of a covariance step that was not checked on its own: checking
 //! before the update would put the check on the busiest ticks (a LOS and a baro update on
@@ -21,7 +22,6 @@
 
 use super::Navigator;
 use crate::contract::Estimator;
-use crate::seeker_ins::PsdMargin;
 use crate::Real;
 
 /// Where the EKF's P stands with respect to its PSD-margin check.
@@ -31,71 +31,81 @@ pub(super) enum PsdCheck {
     Checked,
     /// Changed by a covariance step or an update on this tick.
     ChangedNow,
+    /// Changed on this tick by the IMU part's covariance step from a P not checked since
+    /// its last change: the constant noise is added before an update reads P, at the latest
+    /// at the end of the tick.
+    SteppedUnchecked,
     /// Changed on an earlier tick and not checked since: the check is due.
     Due,
 }
 
 impl PsdCheck {
-    /// How a covariance step keeps P's PSD margin from this state: nothing added when P
-    /// was checked since its last change, else the constant noise.
-    pub(super) fn margin(self) -> PsdMargin {
-        match self {
-            Self::Checked => PsdMargin::Deferred,
-            Self::ChangedNow | Self::Due => PsdMargin::Constant,
-        }
-    }
-
-    /// The state after the tick's IMU part, `stepped` when it ran a covariance step: a change
-    /// of an earlier tick becomes due.
+    /// The state after the tick's IMU part, `stepped` when it ran a covariance step.
+    #[inline(always)]
     pub(super) fn after_imu(self, stepped: bool) -> Self {
         match (stepped, self) {
-            (true, _) => Self::ChangedNow,
-            (false, Self::ChangedNow) => Self::Due,
-            (false, other) => other,
+            (false, s) => s,
+            (true, Self::Checked) => Self::ChangedNow,
+            (true, _) => Self::SteppedUnchecked,
         }
     }
 }
 
 impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
+    /// Before an update, after the flush of its pending covariance step (run without noise,
+    /// `PsdMargin::Deferred`): the constant noise when a covariance step of this tick started
+    /// from a P not checked since its last change (the IMU part's, or the flush's: P changed on
+    /// the tick before, no quiet tick in between); then P changed now. A flush runs a step
+    /// when nothing of this tick changed P before it and no sample is pending after it (every
+    /// tick adds one).
+    #[inline(never)]
+    pub(super) fn psd_after_flush(&mut self) {
+        let flushed = self.ekf.as_ref().is_some_and(|e| e.steps_pending() == 0);
+        match self.psd {
+            PsdCheck::SteppedUnchecked => self.add_fallback_noise(),
+            PsdCheck::Due if flushed => self.add_fallback_noise(),
+            PsdCheck::Checked | PsdCheck::ChangedNow | PsdCheck::Due => {}
+        }
+        self.psd = PsdCheck::ChangedNow;
+    }
+
     /// At the end of a flight tick: the check when it is due (P changed on an earlier tick,
     /// not on this one), the baro column forgotten when a variance was limited (a congruence
     /// the column does not follow; a lift alone keeps the joint covariance PSD: it adds a
-    /// positive diagonal to P's block). Not inlined: its frame is not on the tick's path
-    /// under the kernels.
+    /// positive diagonal to P's block); a change of this tick becomes due. Not inlined: its
+    /// frame is not on the tick's path under the kernels.
     #[inline(never)]
-    pub(super) fn check_psd_when_due(&mut self) {
-        if self.psd != PsdCheck::Due {
-            return;
+    pub(super) fn psd_end_of_tick(&mut self) {
+        match self.psd {
+            PsdCheck::Checked => {}
+            PsdCheck::ChangedNow => self.psd = PsdCheck::Due,
+            PsdCheck::SteppedUnchecked => {
+                self.add_fallback_noise();
+                self.psd = PsdCheck::Due;
+            }
+            PsdCheck::Due => {
+                if let Some(ekf) = self.ekf.as_mut() {
+                    let limits = ekf.health().limits_hit;
+                    ekf.check_psd_margin();
+                    if ekf.health().limits_hit != limits {
+                        self.baro_state.cross = nalgebra::SVector::zeros();
+                    }
+                }
+                self.psd = PsdCheck::Checked;
+            }
         }
+    }
+
+    /// The constant noise after a covariance step from an unchecked P
+    /// (`SeekerIns::add_stabilising_noise`), the baro column forgotten if a variance was
+    /// limited.
+    fn add_fallback_noise(&mut self) {
         if let Some(ekf) = self.ekf.as_mut() {
             let limits = ekf.health().limits_hit;
-            ekf.check_psd_margin();
+            ekf.add_stabilising_noise();
             if ekf.health().limits_hit != limits {
                 self.baro_state.cross = nalgebra::SVector::zeros();
             }
         }
-        self.psd = PsdCheck::Checked;
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn a_step_adds_nothing_only_from_a_checked_p() {
-        assert_eq!(PsdCheck::Checked.margin(), PsdMargin::Deferred);
-        assert_eq!(PsdCheck::ChangedNow.margin(), PsdMargin::Constant);
-        assert_eq!(PsdCheck::Due.margin(), PsdMargin::Constant);
-    }
-
-    #[test]
-    fn a_change_becomes_due_on_the_next_tick_without_a_step() {
-        for s in [PsdCheck::Checked, PsdCheck::ChangedNow, PsdCheck::Due] {
-            assert_eq!(s.after_imu(true), PsdCheck::ChangedNow);
-        }
-        assert_eq!(PsdCheck::ChangedNow.after_imu(false), PsdCheck::Due);
-        assert_eq!(PsdCheck::Due.after_imu(false), PsdCheck::Due);
-        assert_eq!(PsdCheck::Checked.after_imu(false), PsdCheck::Checked);
     }
 }

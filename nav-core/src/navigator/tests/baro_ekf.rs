@@ -115,7 +115,7 @@ fn baro_column_prediction_keeps_the_joint_covariance_pd() {
         if k % 10 == 9 {
             let c_before = st.cross;
             let dt = ekf
-                .predict_covariance_cross(&mut st.cross, crate::seeker_ins::PsdMargin::Constant)
+                .predict_covariance_cross(&mut st.cross)
                 .unwrap()
                 .unwrap();
             assert!((dt - 0.1).abs() < 1e-12);
