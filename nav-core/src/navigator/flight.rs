@@ -504,6 +504,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         out.phase = self.phase;
         out.transition = transition;
         self.solution_into(&mut out.solution);
+        // The EKF's deferred PSD check (module `psd_check`), last: the report carries P as the
+        // tick left it (a lift, ≤ 16 ε of each variance, shows from the next tick on), and
+        // the tick's frame holds nothing more across the call. From the separation tick on.
         if self.phase != Phase::Carry {
             self.psd_end_of_tick();
         }

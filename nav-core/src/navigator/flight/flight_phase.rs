@@ -395,7 +395,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     }
 
     /// The LOS update after [`Self::fuse_los`]'s check and covariance step; with `baro_column`
-    /// the baro column follows the components the update fused (module `baro`).
+    /// the baro column follows the components the update fused (module `baro`). The PSD
+    /// state after the flush first (module `psd_check`; here, not in `fuse_los`, whose frame
+    /// it would grow).
     #[inline(never)]
     fn los_update(&mut self, s: &LosSample<T>, baro_column: bool) -> Result<AidState, NavError> {
         self.psd_after_flush();
