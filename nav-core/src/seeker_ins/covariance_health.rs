@@ -138,13 +138,10 @@ impl<T: Real> SeekerIns<T> {
             PsdMargin::Deferred => T::zero(),
         };
         if delta > T::zero() {
-            for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
-                if let Some(v) = col.get_mut(j) {
-                    *v += *v * delta;
-                }
-            }
+            self.lift_variances(delta);
+        } else {
+            self.limit_variances();
         }
-        self.limit_variances();
     }
 
     /// P's PSD-margin check on its own, outside a covariance step (after steps run with
@@ -167,13 +164,14 @@ impl<T: Real> SeekerIns<T> {
     /// step run with [`PsdMargin::Deferred`] from a P not checked since its last change (the
     /// flight navigator's fallback when no quiet tick came between), then the variances
     /// limited (counted in `Health::limits_hit`). The same as the step with
-    /// [`PsdMargin::Constant`] but for the order of the noise and the ceilings.
-    #[inline(never)]
+    /// [`PsdMargin::Constant`] but for the ceilings, applied before and after the noise.
     pub(crate) fn add_stabilising_noise(&mut self) {
         self.lift_variances(T::lit(PROPAGATION_STABILISING_EPS) * T::EPS);
     }
 
-    /// `P ← P + δ diag(P)`, then the ceilings.
+    /// `P ← P + δ diag(P)`, then the ceilings. Not inlined: one copy for the step's margin,
+    /// the check and the constant noise.
+    #[inline(never)]
     fn lift_variances(&mut self, delta: T) {
         for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
             if let Some(v) = col.get_mut(j) {
