@@ -145,3 +145,82 @@ fn the_deferred_check_keeps_a_healthy_p_bit_for_bit_f64() {
     }
     assert_eq!(covariance(&nav), p0);
 }
+
+/// The LOS sample of the world's missile truth at `time`.
+fn los_at(world: &World, lever: &Vector3<f64>, time: Timestamp) -> LosSample<f32> {
+    let g = gimbal_truth(&world.missile_truth(lever));
+    LosSample {
+        time,
+        gimbal: crate::seeker_ins::GimbalAngles {
+            pitch_rad: g.pitch_rad as f32,
+            yaw_rad: g.yaw_rad as f32,
+        },
+    }
+}
+
+/// The EKF after one tick with a LOS sample as the navigator runs it: the IMU sample, the
+/// pending covariance step flushed without noise, the constant noise when `noise`, the update.
+fn los_tick_reference(
+    ekf: &SeekerIns<f32>,
+    inc: &ImuIncrement<f64>,
+    los: &LosSample<f32>,
+    noise: bool,
+) -> SMatrix<f32, STATES, STATES> {
+    let mut e = *ekf;
+    e.propagate_uncounted(&cast_inc::<f32>(inc), None).unwrap();
+    e.predict_covariance_with(crate::seeker_ins::PsdMargin::Deferred)
+        .unwrap();
+    if noise {
+        e.add_stabilising_noise();
+    }
+    e.update_los(los).unwrap();
+    *e.covariance()
+}
+
+#[test]
+fn a_step_from_an_unchecked_p_gets_the_constant_noise_before_the_update_f32() {
+    let mut p0 = crate::seeker_ins::paper_initial_covariance::<f32>();
+    p0 *= 0.01;
+    let (mut nav, mut world) = released_with(p0);
+    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
+    while nav.phase() != Phase::Midcourse {
+        nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
+            .unwrap();
+    }
+    // Up to a tick whose IMU part runs a covariance step.
+    loop {
+        nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
+            .unwrap();
+        if nav.ekf().unwrap().steps_pending() == 0 {
+            break;
+        }
+    }
+    // A LOS sample on the next tick: its flushed step starts from the P of that step, not
+    // checked yet (no quiet tick between), so the constant noise comes before the update.
+    let inc = world.step(&lever);
+    let los = los_at(&world, &lever, inc.time);
+    let ekf = *nav.ekf().unwrap();
+    let aids = Aids {
+        seeker: Some(&los),
+        ..Aids::NONE
+    };
+    nav.tick(&tick_of(&inc), &aids).unwrap();
+    let with_noise = los_tick_reference(&ekf, &inc, &los, true);
+    assert_eq!(covariance(&nav), with_noise);
+    assert_ne!(with_noise, los_tick_reference(&ekf, &inc, &los, false));
+    // A quiet tick checks P; a LOS sample after it flushes a step from a checked P: no noise.
+    nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
+        .unwrap();
+    let inc = world.step(&lever);
+    let los = los_at(&world, &lever, inc.time);
+    let ekf = *nav.ekf().unwrap();
+    let aids = Aids {
+        seeker: Some(&los),
+        ..Aids::NONE
+    };
+    nav.tick(&tick_of(&inc), &aids).unwrap();
+    assert_eq!(
+        covariance(&nav),
+        los_tick_reference(&ekf, &inc, &los, false)
+    );
+}
