@@ -25,8 +25,10 @@ use nalgebra::{Matrix3, SMatrix, Vector3};
 
 mod carry_phase;
 mod flight_phase;
+mod psd_check;
 
 use carry_phase::MasterEpoch;
+use psd_check::PsdCheck;
 
 /// One INS state of the carry phase at a tick time (for the master's late epochs).
 #[derive(Debug, Clone, Copy)]
@@ -126,6 +128,8 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     separation: SeparationStatus,
     signal: Option<Timestamp>,
     ekf: Option<SeekerIns<T>>,
+    /// The EKF's P and its PSD-margin check (module `psd_check`): P0 is new at release.
+    psd: PsdCheck,
     released_at: Option<Timestamp>,
     midcourse_at: Option<Timestamp>,
     baro_state: BaroState<T>,
@@ -341,6 +345,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             separation: SeparationStatus::NotSignalled,
             signal: None,
             ekf: None,
+            psd: PsdCheck::ChangedNow,
             released_at: None,
             midcourse_at: None,
             baro_state: match &config.baro {
@@ -500,6 +505,12 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         out.phase = self.phase;
         out.transition = transition;
         self.solution_into(&mut out.solution);
+        // The EKF's deferred PSD check (module `psd_check`), last: the report carries P as the
+        // tick left it (a lift, ≤ 16 ε of each variance, shows from the next tick on), and
+        // the tick's frame holds nothing more across the call. From the separation tick on.
+        if self.phase != Phase::Carry {
+            self.psd_end_of_tick();
+        }
         Ok(())
     }
 

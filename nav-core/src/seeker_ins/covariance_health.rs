@@ -12,30 +12,40 @@
 //! small margin before that and lifts it.
 
 use super::error_model::STATES;
+use super::filter::SeekerIns;
 use crate::Real;
 use nalgebra::SMatrix;
 
 /// Relative variance added to every state after a covariance step that runs without the PSD
-/// check ([`PSD_MARGIN_EPS`]): a step flushed by an update on the same tick or by
-/// [`super::SeekerIns::predict_covariance`], and every step of the flight navigator; in units
-/// of ε of the working precision: `P ← P + δ diag(P)`, `δ = 4 ε` (4.8e-7 in f32). The check
-/// costs ≈ 8 800 instructions on the M4F (the navigator's released tick 13 303 → 22 087 with
-/// it), which the update's path and the navigator's 20 000-instruction tick cannot carry;
-/// 4 ε outpaces the few ε a step's rounding moves the smallest correlation eigenvalue by.
-/// Along the directions the seeker observes it acts as process noise: as the only
-/// stabilising noise of every step it made the f32 flight configuration conservative (mean
-/// NEES per state 0.970 against f64's 1.021 over the consistency campaign).
+/// check ([`PSD_MARGIN_EPS`]) and without a check to follow: a step flushed by an update on
+/// the same tick or by [`super::SeekerIns::predict_covariance`], and a step of the flight
+/// navigator that starts from a P not checked since its last change; in units of ε of the
+/// working precision: `P ← P + δ diag(P)`, `δ = 4 ε` (4.8e-7 in f32). The check costs
+/// ≈ 8 800 instructions on the M4F, which the update's path and the navigator's
+/// 20 000-instruction tick cannot carry on the same tick as a covariance step; 4 ε outpaces
+/// the few ε a step's rounding moves the smallest correlation eigenvalue by. Along the
+/// directions the seeker observes it acts as process noise: as the only stabilising noise of
+/// every step it made the f32 flight configuration conservative (mean NEES per state 0.970
+/// against f64's 1.021 over the consistency campaign).
 pub const PROPAGATION_STABILISING_EPS: f64 = 4.0;
 
 /// How a covariance step keeps P's PSD margin.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) enum PsdMargin {
+pub(crate) enum PsdMargin {
     /// The LDLᵀ check of the margin, every variance lifted only when it is small
     /// ([`PSD_MARGIN_EPS`]): the stand-alone filter's step on an IMU sample.
     Checked,
     /// Every variance gains [`PROPAGATION_STABILISING_EPS`] ε: a step flushed by an update or
-    /// by [`super::SeekerIns::predict_covariance`], and every step of the flight navigator.
+    /// by [`super::SeekerIns::predict_covariance`], and a step of the flight navigator from a
+    /// P not checked since its last change.
     Constant,
+    /// Nothing added: the caller checks P ([`super::SeekerIns::check_psd_margin`]) before the
+    /// next covariance step — the flight navigator, on its next tick without a covariance
+    /// step or an update. From a checked P (relative pivots ≥ [`PSD_MARGIN_EPS`] ε) the
+    /// step's rounding moves the pivots by a few ε: P stays positive definite until the
+    /// check. From a P not checked since its last change the caller adds the constant noise
+    /// after the step ([`super::SeekerIns::add_stabilising_noise`]).
+    Deferred,
 }
 
 /// Smallest relative LDLᵀ pivot `d_k / P_kk` of P kept after a covariance step, in units of
@@ -109,6 +119,67 @@ pub(super) fn psd_lift<T: Real>(p: &mut SMatrix<T, STATES, STATES>) -> T {
     }
     p.fill_upper_triangle_with_lower_triangle();
     margin - min_rel
+}
+
+impl<T: Real> SeekerIns<T> {
+    /// Counts the repairs of a covariance step, then the PSD margin: with
+    /// [`PsdMargin::Checked`] (the stand-alone filter's step on an IMU sample) P is checked
+    /// and lifted only when the margin is small ([`PSD_MARGIN_EPS`]); with
+    /// [`PsdMargin::Constant`] (a step flushed by an update or by
+    /// [`Self::predict_covariance`], or a step of the flight navigator from a P not checked
+    /// since its last change) every variance gains [`PROPAGATION_STABILISING_EPS`] ε; with
+    /// [`PsdMargin::Deferred`] nothing (the caller's [`Self::check_psd_margin`] follows).
+    /// Then the variances are limited.
+    pub(super) fn after_covariance_step(&mut self, repairs: u32, margin: PsdMargin) {
+        self.health.limits_hit = self.health.limits_hit.saturating_add(repairs);
+        let delta = match margin {
+            PsdMargin::Checked => psd_lift(&mut self.p),
+            PsdMargin::Constant => T::lit(PROPAGATION_STABILISING_EPS) * T::EPS,
+            PsdMargin::Deferred => T::zero(),
+        };
+        if delta > T::zero() {
+            self.lift_variances(delta);
+        } else {
+            self.limit_variances();
+        }
+    }
+
+    /// P's PSD-margin check on its own, outside a covariance step (after steps run with
+    /// [`PsdMargin::Deferred`], and updates): every variance lifted by the relative `δ` of
+    /// [`psd_lift`] when a relative LDLᵀ pivot is below [`PSD_MARGIN_EPS`] ε, then the
+    /// variances limited (a limit counted in `Health::limits_hit`, a congruence a column kept
+    /// beside the 17 does not follow). Returns `δ`, dimensionless (≤ 0: P unchanged, bit for
+    /// bit). The flight navigator runs it on a tick without a covariance step or an update
+    /// (≈ 9 000 instructions on the M4F, beside an IMU-only tick's ≈ 3 000).
+    #[inline(never)]
+    pub(crate) fn check_psd_margin(&mut self) -> T {
+        let delta = psd_lift(&mut self.p);
+        if delta > T::zero() {
+            self.lift_variances(delta);
+        }
+        delta
+    }
+
+    /// The constant [`PROPAGATION_STABILISING_EPS`] ε of every variance after a covariance
+    /// step run with [`PsdMargin::Deferred`] from a P not checked since its last change (the
+    /// flight navigator's fallback when no quiet tick came between), then the variances
+    /// limited (counted in `Health::limits_hit`). The same as the step with
+    /// [`PsdMargin::Constant`] but for the ceilings, applied before and after the noise.
+    pub(crate) fn add_stabilising_noise(&mut self) {
+        self.lift_variances(T::lit(PROPAGATION_STABILISING_EPS) * T::EPS);
+    }
+
+    /// `P ← P + δ diag(P)`, then the ceilings. Not inlined: one copy for the step's margin,
+    /// the check and the constant noise.
+    #[inline(never)]
+    fn lift_variances(&mut self, delta: T) {
+        for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
+            if let Some(v) = col.get_mut(j) {
+                *v += *v * delta;
+            }
+        }
+        self.limit_variances();
+    }
 }
 
 #[cfg(test)]

@@ -175,6 +175,7 @@ pub use config::{
     MAX_GAP_ATTITUDE_SIGMA_RAD, MAX_GAP_S, MAX_GAP_SAMPLES, MAX_GAP_VELOCITY_SIGMA_M_S,
     MAX_INFLATION_FACTOR, MAX_STARVED_AFTER_S, VARIANCE_CEILING,
 };
+pub(crate) use covariance_health::PsdMargin;
 pub use covariance_health::{PROPAGATION_STABILISING_EPS, PSD_MARGIN_EPS};
 #[cfg(test)]
 pub(crate) use error_model::transition_times as transition_times_for_tests;

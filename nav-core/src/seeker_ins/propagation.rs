@@ -2,7 +2,7 @@
 //! the covariance steps.
 
 use super::config::VARIANCE_CEILING;
-use super::covariance_health::{psd_lift, PsdMargin, PROPAGATION_STABILISING_EPS};
+use super::covariance_health::PsdMargin;
 use super::error_model::{propagate_covariance_sparse, transition_times, ATT, STATES, VEL};
 use super::filter::SeekerIns;
 use super::flight_noise::flight_noise_step;
@@ -28,10 +28,14 @@ pub struct ClipFlags {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum CovarianceSchedule {
     Interval,
-    /// As `Interval`, without the PSD check (the flight navigator's steps: its tick budget).
+    /// As `Interval`, P's PSD check left to the caller ([`PsdMargin::Deferred`]: the flight
+    /// navigator's steps, its tick budget).
     Unchecked,
+    /// As `Unchecked` with the constant noise ([`PsdMargin::Constant`]): the held samples of
+    /// a gap bridged under `Unchecked` (more steps follow before the caller's check).
+    Stabilised,
     Deferred,
-    /// As `Interval`, with an external column propagated by the same Φ
+    /// As `Unchecked`, with an external column propagated by the same Φ
     /// ([`SeekerIns::propagate_cross`]; regular, unclipped samples only).
     Cross,
 }
@@ -95,9 +99,9 @@ impl<T: Real> SeekerIns<T> {
 
     /// [`SeekerIns::propagate`] / [`SeekerIns::propagate_clipped`] (`clip`) without counting
     /// a refused sample in `Health::imu_refused` (the flight navigator's refused tick changes
-    /// nothing) and without the PSD check (the navigator's tick budget; the constant
-    /// [`PROPAGATION_STABILISING_EPS`] instead). Atomic without a copy of the filter on the
-    /// regular path.
+    /// nothing) and without the PSD check (the navigator's tick budget: it checks P on a later
+    /// tick, [`PsdMargin::Deferred`]). Atomic without a copy of the filter on the regular
+    /// path.
     pub(crate) fn propagate_uncounted(
         &mut self,
         sample: &ImuIncrement<T>,
@@ -106,8 +110,7 @@ impl<T: Real> SeekerIns<T> {
         self.propagate_sample(sample, clip, CovarianceSchedule::Unchecked)
     }
 
-    /// IMU samples integrated since the last covariance step.
-    #[cfg(test)]
+    /// IMU samples integrated since the last covariance step (0 after a sample: its step ran).
     pub(crate) fn steps_pending(&self) -> u16 {
         self.steps_pending
     }
@@ -171,8 +174,8 @@ impl<T: Real> SeekerIns<T> {
     /// covered, s (`None`: nothing was pending). When the step changed P other than by
     /// `Φ P Φᵀ + Q` (a variance repaired or held at its ceiling: a congruence the column
     /// does not follow), or when `Φ c` is not finite, `cross` is set to zero (the joint
-    /// covariance stays PSD; that correlation is forgotten). Errors leave the filter and
-    /// `cross` unchanged.
+    /// covariance stays PSD; that correlation is forgotten). P's PSD margin is the caller's
+    /// to check ([`PsdMargin::Deferred`]). Errors leave the filter and `cross` unchanged.
     pub(crate) fn predict_covariance_cross(
         &mut self,
         cross: &mut nalgebra::SVector<T, STATES>,
@@ -251,7 +254,11 @@ impl<T: Real> SeekerIns<T> {
         let max_us = seconds_to_micros(self.config.imu_faults.max_gap_s).unwrap_or(0);
         let mut next = *self;
         if missing.saturating_mul(dt_us) <= max_us {
-            next.bridge_gap(prev, missing, schedule)?;
+            let held = match schedule {
+                CovarianceSchedule::Unchecked => CovarianceSchedule::Stabilised,
+                other => other,
+            };
+            next.bridge_gap(prev, missing, held)?;
         } else {
             next.reset_after_gap()?;
         }
@@ -434,10 +441,14 @@ impl<T: Real> SeekerIns<T> {
             match cross {
                 Some(c) => self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c)?,
                 None => {
-                    let margin = if schedule == CovarianceSchedule::Interval {
-                        PsdMargin::Checked
-                    } else {
-                        PsdMargin::Constant
+                    let margin = match schedule {
+                        CovarianceSchedule::Interval => PsdMargin::Checked,
+                        CovarianceSchedule::Unchecked | CovarianceSchedule::Cross => {
+                            PsdMargin::Deferred
+                        }
+                        CovarianceSchedule::Stabilised | CovarianceSchedule::Deferred => {
+                            PsdMargin::Constant
+                        }
                     };
                     self.covariance_step_at(Some(&ins), dt_total, &dv_pending, margin)?;
                 }
@@ -473,19 +484,22 @@ impl<T: Real> SeekerIns<T> {
         let at = ins.unwrap_or(&self.ins);
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
-        self.covariance_step_f(&f, ins, dt_total_s, margin)
+        let repairs = self.covariance_step_f(&f, ins, dt_total_s)?;
+        self.after_covariance_step(repairs, margin);
+        Ok(())
     }
 
     /// [`Self::covariance_step_at`] with F given (its mean specific force is the interval's
-    /// `dv / Δt`). Not inlined: one copy serves every covariance step.
+    /// `dv / Δt`), without the PSD margin and the ceilings (the caller's
+    /// [`Self::after_covariance_step`]); the repairs. Not inlined: one copy serves every
+    /// covariance step.
     #[inline(never)]
     fn covariance_step_f(
         &mut self,
         f: &SparseF<T>,
         ins: Option<&Ins<T>>,
         dt_total_s: T,
-        margin: PsdMargin,
-    ) -> Result<(), NavError> {
+    ) -> Result<u32, NavError> {
         let ins = ins.unwrap_or(&self.ins);
         let repairs = propagate_covariance_sparse(
             &mut self.p,
@@ -503,8 +517,7 @@ impl<T: Real> SeekerIns<T> {
             f,
             dt_total_s,
         );
-        self.after_covariance_step(repairs, margin);
-        Ok(())
+        Ok(repairs)
     }
 
     /// [`Self::covariance_step_at`] that also applies the step's Φ to `cross` (module doc of
@@ -522,8 +535,9 @@ impl<T: Real> SeekerIns<T> {
         let s = at.state();
         let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
         let limits_before = self.health.limits_hit;
-        // The flight navigator's steps: no PSD check (its tick budget), the constant noise.
-        self.covariance_step_f(&f, ins, dt_total_s, PsdMargin::Constant)?;
+        // The flight navigator's steps: no PSD check (its tick budget; it checks P later).
+        let repairs = self.covariance_step_f(&f, ins, dt_total_s)?;
+        self.after_covariance_step(repairs, PsdMargin::Deferred);
         // Φ c after the step (Φ is finite: the step succeeded), in a frame of its own beside
         // the kernel's; a column that overflows is forgotten as after a repair.
         if self.health.limits_hit == limits_before {
@@ -544,36 +558,21 @@ impl<T: Real> SeekerIns<T> {
         }
     }
 
-    /// Counts the repairs of a covariance step, then the PSD margin: with
-    /// [`PsdMargin::Checked`] (the stand-alone filter's step on an IMU sample) P is checked and lifted only when the margin
-    /// is small ([`super::PSD_MARGIN_EPS`]); with [`PsdMargin::Constant`] (a step flushed by an update or by
-    /// [`Self::predict_covariance`], and every step of the flight navigator) every variance
-    /// gains [`PROPAGATION_STABILISING_EPS`] ε. Then the variances are limited.
-    fn after_covariance_step(&mut self, repairs: u32, margin: PsdMargin) {
-        self.health.limits_hit = self.health.limits_hit.saturating_add(repairs);
-        let delta = match margin {
-            PsdMargin::Checked => psd_lift(&mut self.p),
-            PsdMargin::Constant => T::lit(PROPAGATION_STABILISING_EPS) * T::EPS,
-        };
-        if delta > T::zero() {
-            for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
-                if let Some(v) = col.get_mut(j) {
-                    *v += *v * delta;
-                }
-            }
-        }
-        self.limit_variances();
-    }
-
     /// Propagates P over the IMU samples accumulated since the last covariance step (no-op if
     /// none; the LOS update does it itself). Errors leave the filter unchanged.
     pub fn predict_covariance(&mut self) -> Result<(), NavError> {
+        self.predict_covariance_with(PsdMargin::Constant)
+    }
+
+    /// [`Self::predict_covariance`], P's PSD margin kept per `margin` (the flight navigator:
+    /// [`PsdMargin::Deferred`]).
+    pub(crate) fn predict_covariance_with(&mut self, margin: PsdMargin) -> Result<(), NavError> {
         if self.steps_pending == 0 {
             return Ok(());
         }
         let dt_total = self.pending_interval_s(self.steps_pending, self.pending_us);
         let dv = self.dv_ned_pending_m_s;
-        self.covariance_step_at(None, dt_total, &dv, PsdMargin::Constant)?;
+        self.covariance_step_at(None, dt_total, &dv, margin)?;
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();

@@ -9,7 +9,9 @@ use super::super::types::{
 };
 use super::{elapsed, LoopBaro, Navigator};
 use crate::contract::{Estimator, FusionOutcome};
-use crate::seeker_ins::{ClipFlags, CrossColumn, ImuIncrement, LosSample, SeekerIns, STATES};
+use crate::seeker_ins::{
+    ClipFlags, CrossColumn, ImuIncrement, LosSample, PsdMargin, SeekerIns, STATES,
+};
 use crate::time::Timestamp;
 use crate::vertical_channel::{BaroSample, ClassicalLoop, ImuSample as VerticalImu};
 use crate::{NavError, Real};
@@ -49,7 +51,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         self.after_imu(aids, transition, loop_baro, out)
     }
 
-    /// The EKF's IMU part in place (atomic), the baro column in step with its covariance step.
+    /// The EKF's IMU part in place (atomic), the baro column in step with its covariance step;
+    /// the step's PSD margin per module `psd_check`.
     #[inline(always)]
     fn ekf_imu(&mut self, inc: &ImuIncrement<T>, clip: Option<ClipFlags>) -> Result<(), NavError> {
         let model = self.baro_model();
@@ -70,6 +73,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         } else {
             ekf.propagate_uncounted(inc, clip)?;
         }
+        self.psd = self.psd.after_imu(ekf.steps_pending() == 0);
         Ok(())
     }
 
@@ -91,6 +95,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         // On the copy: a refusal is dropped with it, as on the in-place path.
         ekf.propagate_uncounted(inc, clip)?;
         let outcome = Self::loop_step(&mut lp, &mut ekf, inc.time, baro)?;
+        self.psd = self.psd.after_imu(ekf.steps_pending() == 0);
         self.ekf = Some(ekf);
         self.vloop = Some(lp);
         Ok(outcome)
@@ -268,6 +273,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
             bs.decay(model, dt);
         }
+        self.psd_after_flush();
         Ok(self.baro_update(model, b, age))
     }
 
@@ -379,15 +385,18 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             }
         } else if ekf.los_at_ins_time(s) {
             // As `update_los` would on a copy of the filter.
-            ekf.predict_covariance()?;
+            ekf.predict_covariance_with(PsdMargin::Deferred)?;
         }
         self.los_update(s, model.is_some())
     }
 
     /// The LOS update after [`Self::fuse_los`]'s check and covariance step; with `baro_column`
-    /// the baro column follows the components the update fused (module `baro`).
+    /// the baro column follows the components the update fused (module `baro`). The PSD
+    /// state after the flush first (module `psd_check`; here, not in `fuse_los`, whose frame
+    /// it would grow).
     #[inline(never)]
     fn los_update(&mut self, s: &LosSample<T>, baro_column: bool) -> Result<AidState, NavError> {
+        self.psd_after_flush();
         let Some(ekf) = self.ekf.as_mut() else {
             return Err(NavError::InputOutOfRange {
                 input: "navigator state",

@@ -572,4 +572,5 @@ mod baro_ekf;
 #[cfg(feature = "baro-inertial-loop")]
 mod baro_loop;
 mod chain;
+mod psd;
 mod stored;
