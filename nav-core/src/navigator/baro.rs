@@ -8,7 +8,9 @@
 //!   P by the EKF itself; `c ← e Φ c` with the EKF's own Φ
 //!   (`SeekerIns::predict_covariance_cross`); `s ← e² s + σ_b² (1 − e²)`; `b̂ ← e b̂`.
 //! * Measurement: `z = h(t) − τ_b V_up(t) + b + v` (the baro's lag τ_b to first order, its
-//!   white noise v of variance `R`), predicted as `ẑ = ĥ + τ V̂_D + b̂` with
+//!   white noise v of variance `R = max(σ_w², (τ² ā)² + (ε z)²)`: the configured σ_w, or what
+//!   the model cannot resolve, `BaroState::measurement_variance_m2`), predicted as
+//!   `ẑ = ĥ + τ V̂_D + b̂` with
 //!   `τ = τ_b + age` (a sample older than the tick adds its age to the lag). The error-state
 //!   measurement `y = ẑ − z = H δx_aug − v` has `H = [e_h + τ e_VD, 1]` (`e_h`: the δh state,
 //!   `e_VD`: δV_D).
@@ -56,7 +58,7 @@ pub struct BaroState<T> {
     /// Envelope of the INS's vertical acceleration seen through the baro's lag, m/s²
     /// (`|ΔV̂_D / Δt|` between samples, through a first-order lag of the baro's τ_b): what the
     /// first-order lag compensation leaves, `τ² L(ḧ)`, is bounded by `τ²` times it
-    /// ([`Self::measurement_variance_m2`]).
+    /// (`Self::measurement_variance_m2`).
     pub lag_accel_m_s2: T,
     /// The INS's V̂_D at the previous sample, m/s.
     pub last_vd_m_s: T,
