@@ -8,7 +8,9 @@
 //!   P by the EKF itself; `c ← e Φ c` with the EKF's own Φ
 //!   (`SeekerIns::predict_covariance_cross`); `s ← e² s + σ_b² (1 − e²)`; `b̂ ← e b̂`.
 //! * Measurement: `z = h(t) − τ_b V_up(t) + b + v` (the baro's lag τ_b to first order, its
-//!   white noise v of variance `R`), predicted as `ẑ = ĥ + τ V̂_D + b̂` with
+//!   white noise v of variance `R = max(σ_w², (τ² ā)² + (ε z)²)`: the configured σ_w, or what
+//!   the model cannot resolve, `BaroState::measurement_variance_m2`), predicted as
+//!   `ẑ = ĥ + τ V̂_D + b̂` with
 //!   `τ = τ_b + age` (a sample older than the tick adds its age to the lag). The error-state
 //!   measurement `y = ẑ − z = H δx_aug − v` has `H = [e_h + τ e_VD, 1]` (`e_h`: the δh state,
 //!   `e_VD`: δV_D).
@@ -53,6 +55,13 @@ pub struct BaroState<T> {
     pub variance_m2: T,
     /// Estimate of the correlated baro error b, m.
     pub bias_m: T,
+    /// Envelope of the INS's vertical acceleration seen through the baro's lag, m/s²
+    /// (`|ΔV̂_D / Δt|` between samples, through a first-order lag of the baro's τ_b): what the
+    /// first-order lag compensation leaves, `τ² L(ḧ)`, is bounded by `τ²` times it
+    /// (`Self::measurement_variance_m2`).
+    pub lag_accel_m_s2: T,
+    /// The INS's V̂_D at the previous sample, m/s.
+    pub last_vd_m_s: T,
 }
 
 impl<T: Real> BaroState<T> {
@@ -62,6 +71,78 @@ impl<T: Real> BaroState<T> {
             cross: SVector::zeros(),
             variance_m2: model.markov_sigma_m * model.markov_sigma_m,
             bias_m: T::zero(),
+            lag_accel_m_s2: T::zero(),
+            last_vd_m_s: T::zero(),
+        }
+    }
+
+    /// No baro error state (damping off, or by the baro-inertial loop): all zero.
+    pub fn off() -> Self {
+        Self {
+            cross: SVector::zeros(),
+            variance_m2: T::zero(),
+            bias_m: T::zero(),
+            lag_accel_m_s2: T::zero(),
+            last_vd_m_s: T::zero(),
+        }
+    }
+
+    /// The variance of the sample's white error the update uses, m²: the configured
+    /// `σ_w²`, or — when larger — what the measurement model cannot resolve below:
+    ///
+    /// * the first-order lag compensation `z ≈ h − τ ḣ` leaves `z − (h − τ ḣ) = τ² L(ḧ)`
+    ///   exactly (a first-order lag `L = 1/(1 + τ_b s)`: `1 − τs − L = −τ²s² L`), bounded by
+    ///   `τ² ā` with `ā` the envelope of `|ḧ|` through the lag ([`Self::lag_accel_m_s2`],
+    ///   updated here from the INS's V̂_D at this sample and the previous one);
+    /// * the innovation `ẑ − z` differences two altitudes rounded to `T`, each by at most
+    ///   `ε |z| / 2` (ε = `T::EPS`, the relative spacing of `T`): together `ε |z|`.
+    ///
+    /// Floor `(τ² ā)² + (ε z)²`. A baro described more precisely than that (white σ 1 µm
+    /// behind a 0.2 s lag) would otherwise fuse the neglected lag term as information worth
+    /// microns, drive the altitude's σ below its real error and have every later sample
+    /// rejected by the gate. `tau_s`: the effective lag (the baro's plus the sample's age), s;
+    /// `previous`: the time of the previous sample of damping (`None`: this is the first).
+    pub(crate) fn measurement_variance_m2(
+        &mut self,
+        model: &BaroErrorModel<T>,
+        ekf: &SeekerIns<T>,
+        tau_s: T,
+        sample: &BaroSample<T>,
+        previous: Option<crate::time::Timestamp>,
+    ) -> T {
+        let vd = ekf.state().vel_ned_m_s.z;
+        let dt: Option<T> = previous
+            .and_then(|t| sample.time.micros_since(t))
+            .map(crate::time::micros_to_seconds);
+        match dt {
+            Some(dt) if dt > T::zero() => {
+                let a = ((vd - self.last_vd_m_s) / dt).abs();
+                // The baro's first-order lag over Δt (implicit Euler: stable for any Δt / τ_b).
+                self.lag_accel_m_s2 += (a - self.lag_accel_m_s2) * (dt / (model.lag_s + dt));
+            }
+            Some(_) => {}
+            // The first sample of damping: no previous V̂_D; the lag taken in steady state on
+            // the INS's present vertical acceleration (its specific force, Coriolis and
+            // transport-rate term, normal gravity).
+            None => {
+                let st = ekf.state();
+                let g = crate::earth::normal_gravity_m_s2(
+                    T::lit(st.position.lat_rad),
+                    T::lit(st.position.alt_m),
+                );
+                let f = ekf.ins().specific_force_ned_m_s2();
+                self.lag_accel_m_s2 = (loop_vertical_input_m_s2(st, &f) - g).abs();
+            }
+        }
+        self.last_vd_m_s = vd;
+        let white = model.white_sigma_m * model.white_sigma_m;
+        let lag = tau_s * tau_s * self.lag_accel_m_s2;
+        let rounding = T::EPS * sample.altitude_m;
+        let floor = lag * lag + rounding * rounding;
+        if floor > white {
+            floor
+        } else {
+            white
         }
     }
 

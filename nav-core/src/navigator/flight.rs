@@ -350,11 +350,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             midcourse_at: None,
             baro_state: match &config.baro {
                 BaroDamping::Ekf(m) => BaroState::start(m),
-                BaroDamping::Off | BaroDamping::InertialLoop(_) => BaroState {
-                    cross: nalgebra::SVector::zeros(),
-                    variance_m2: T::zero(),
-                    bias_m: T::zero(),
-                },
+                BaroDamping::Off | BaroDamping::InertialLoop(_) => BaroState::off(),
             },
             loop_design: design.baro_loop,
             vloop: None,

@@ -294,7 +294,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             Some(ekf) => {
                 let tau = model.lag_s + age;
                 let y = bs.predicted_m(ekf, tau) - b.altitude_m;
-                let r = model.white_sigma_m * model.white_sigma_m;
+                let r = bs.measurement_variance_m2(model, ekf, tau, b, self.last_baro_time);
                 let gate = self.config.ins.gate;
                 match baro_gain(ekf.covariance(), bs, tau, y, r, gate) {
                     None => FusionOutcome::Skipped,

@@ -37,6 +37,7 @@ fn baro_update_matches_dense_18_state_reference_and_finite_differences() {
         cross,
         variance_m2: s,
         bias_m: 1.5,
+        ..BaroState::off()
     };
     let tau = 0.3;
     let h = BaroState::h_row(tau);
@@ -103,6 +104,7 @@ fn baro_column_prediction_keeps_the_joint_covariance_pd() {
         cross,
         variance_m2: s,
         bias_m: 2.0,
+        ..BaroState::off()
     };
     let mut t = Timestamp::from_micros(DT_US);
     for k in 0..25u64 {
@@ -365,6 +367,7 @@ fn baro_update_keeps_the_joint_covariance_psd_in_f32() {
         cross: c.map(|x| x as f32),
         variance_m2: s as f32,
         bias_m: 0.0,
+        ..BaroState::off()
     };
     let h = BaroState::h_row(0.2_f32);
     let u = baro_update(&p, &st, &h, 700.0, 0.01, Gate::Off).unwrap();

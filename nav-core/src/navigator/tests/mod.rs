@@ -569,6 +569,7 @@ fn release_at_truth<T: Real>(
 }
 
 mod baro_ekf;
+mod baro_floor;
 #[cfg(feature = "baro-inertial-loop")]
 mod baro_loop;
 mod chain;

@@ -120,6 +120,7 @@ fn baro_update_in_place_is_the_reference<T: Real>() {
         cross: c64.map(|x| T::lit(x)),
         variance_m2: T::lit(s64),
         bias_m: T::lit(1.5),
+        ..BaroState::off()
     };
     let p = *ekf.covariance();
     for (tau, z) in [(0.3, 3004.0), (0.0, 2990.0), (0.05, 3000.5)] {
