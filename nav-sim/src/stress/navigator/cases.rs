@@ -114,6 +114,7 @@ pub(super) fn cases(level: StressLevel) -> Result<Vec<Case>> {
     };
     for &hz in hz_grid {
         variations(&mut b, hz, &faults);
+        quiet(&mut b, hz, &faults);
     }
     Ok(b.out)
 }
@@ -219,4 +220,31 @@ fn variations(b: &mut Builder, hz: f64, faults: &FaultTable) {
             c.signal = false;
         },
     );
+}
+
+/// Almost no process noise: the instruments' noise × 0.01, no instrument errors, a seeker
+/// precise to 1e-5 rad (four draws), every fault on.
+fn quiet(b: &mut Builder, hz: f64, faults: &FaultTable) {
+    // Almost no process noise: the instruments' noise × 0.01, no instrument errors, a
+    // seeker precise to 1e-5 rad (four draws).
+    for draw in 0..4 {
+        let name = format!(
+            "{hz} Hz, IMU noise × 0.01, no instrument errors, seeker 1e-5 rad, draw {draw}"
+        );
+        b.add(name, &|c: &mut Case| {
+            c.cfg.imu_hz = hz;
+            c.faults = faults.clone();
+            let s = &mut c.cfg.sensors;
+            s.accel_noise_ug_rt_hz *= 0.01;
+            s.gyro_arw_deg_rt_h *= 0.01;
+            s.accel_bias_ug = 0.0;
+            s.gyro_bias_deg_h = 0.0;
+            s.accel_scale_factor_ppm = 0.0;
+            s.gyro_scale_factor_ppm = 0.0;
+            s.accel_misalignment_arcsec = 0.0;
+            s.gyro_misalignment_arcsec = 0.0;
+            s.seeker_noise_deg = 1e-5_f64.to_degrees();
+            s.seeker_bias_deg = 0.0;
+        });
+    }
 }
