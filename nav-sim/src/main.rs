@@ -44,8 +44,8 @@ enum Cmd {
         /// Output directory.
         #[arg(long, default_value = "target/stress")]
         out: PathBuf,
-        /// Run one estimator's campaign only: transfer_alignment, seeker_ins or
-        /// vertical_channel (the report then says the others did not run).
+        /// Run one estimator's campaign only: transfer_alignment, seeker_ins,
+        /// vertical_channel or navigator (the report then says the others did not run).
         #[arg(long)]
         only: Option<String>,
     },
@@ -193,22 +193,31 @@ fn stress(full: bool, out: &Path, only: Option<&str>) -> Result<()> {
         path.display()
     );
     println!(
-        "{:<20} {:>6} {:>12} {:>8} {:>8} {:>10} {:>12}",
-        "estimator", "cases", "steps", "stalls", "non-PSD", "non-finite", "max refusals"
+        "{:<20} {:>6} {:>12} {:>8} {:>8} {:>10} {:>12} {:>9}",
+        "estimator",
+        "cases",
+        "steps",
+        "stalls",
+        "non-PSD",
+        "non-finite",
+        "max refusals",
+        "hostile!"
     );
     for (name, e) in [
         ("transfer_alignment", &report.transfer_alignment),
         ("seeker_ins", &report.seeker_ins),
         ("vertical_channel", &report.vertical_channel),
+        ("navigator", &report.navigator),
     ] {
         println!(
-            "{name:<20} {:>6} {:>12} {:>8} {:>8} {:>10} {:>12}",
+            "{name:<20} {:>6} {:>12} {:>8} {:>8} {:>10} {:>12} {:>9}",
             e.cases,
             e.steps,
             e.permanent_stalls,
             e.non_psd_commits,
             e.non_finite_reports,
-            e.max_consecutive_refusals
+            e.max_consecutive_refusals,
+            e.hostile_not_refused
         );
         for f in &e.findings {
             println!("    {}: {}", f.case, f.finding);

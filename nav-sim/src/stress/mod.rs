@@ -18,6 +18,7 @@
 //! A valid call is one whose input lies in the estimator's documented envelope; the campaigns
 //! feed only such calls (hostile-but-legal), so any `Err` counts as a refusal.
 
+pub mod navigator;
 pub mod seeker_ins;
 pub mod transfer_alignment;
 pub mod vertical_channel;
@@ -67,6 +68,10 @@ pub struct EstimatorStress {
     pub refusals: u64,
     /// PSD checks made.
     pub psd_checks: u64,
+    /// Hostile inputs (NaN, ∞, out of range) made; only the navigator's part makes them.
+    pub hostile_inputs: u64,
+    /// Hostile inputs that were accepted or changed the estimator although refused.
+    pub hostile_not_refused: u64,
     /// Up to 20 findings (stalls, non-PSD, non-finite), first come.
     pub findings: Vec<CaseFinding>,
     /// What the campaign covered, in words.
@@ -127,6 +132,8 @@ impl EstimatorStress {
             .max(other.max_consecutive_refusals);
         self.refusals += other.refusals;
         self.psd_checks += other.psd_checks;
+        self.hostile_inputs += other.hostile_inputs;
+        self.hostile_not_refused += other.hostile_not_refused;
         for f in other.findings {
             if self.findings.len() < 20 {
                 self.findings.push(f);
@@ -135,9 +142,10 @@ impl EstimatorStress {
         self.coverage.extend(other.coverage);
     }
 
-    /// `true` when the campaign ran and all three failure counts are 0.
+    /// `true` when the campaign ran and all failure counts are 0.
     pub fn clean(&self) -> bool {
         self.cases > 0
+            && self.hostile_not_refused == 0
             && self.permanent_stalls == 0
             && self.non_psd_commits == 0
             && self.non_finite_reports == 0
@@ -282,11 +290,13 @@ pub struct StressReport {
     pub seeker_ins: EstimatorStress,
     /// Per estimator.
     pub vertical_channel: EstimatorStress,
+    /// The flight navigator (the three estimators as one chain).
+    pub navigator: EstimatorStress,
     /// `true` when every estimator's three failure counts are 0.
     pub clean: bool,
 }
 
-/// Runs one estimator's campaign (`Some(name)`) or all three; the others report 0 cases.
+/// Runs one estimator's campaign (`Some(name)`) or all four; the others report 0 cases.
 pub fn run_only(level: StressLevel, only: Option<&str>) -> anyhow::Result<StressReport> {
     let Some(name) = only else {
         return Ok(run(level));
@@ -301,28 +311,30 @@ pub fn run_only(level: StressLevel, only: Option<&str>) -> anyhow::Result<Stress
         transfer_alignment: EstimatorStress::default(),
         seeker_ins: EstimatorStress::default(),
         vertical_channel: EstimatorStress::default(),
+        navigator: EstimatorStress::default(),
         clean: false,
     };
     match name {
         "transfer_alignment" => report.transfer_alignment = transfer_alignment::run(level),
         "seeker_ins" => report.seeker_ins = seeker_ins::run(level),
         "vertical_channel" => report.vertical_channel = vertical_channel::run(level),
+        "navigator" => report.navigator = navigator::run(level),
         other => anyhow::bail!(
-            "unknown estimator `{other}` (transfer_alignment, seeker_ins, vertical_channel)"
+            "unknown estimator `{other}` (transfer_alignment, seeker_ins, vertical_channel, navigator)"
         ),
     }
     report.elapsed_s = t0.elapsed().as_secs_f64();
     Ok(report)
 }
 
-/// Runs the three campaigns (in parallel).
+/// Runs the four campaigns (in parallel).
 pub fn run(level: StressLevel) -> StressReport {
     let t0 = std::time::Instant::now();
-    let ((ta, seeker), vc) = rayon::join(
+    let ((ta, seeker), (vc, nav)) = rayon::join(
         || rayon::join(|| transfer_alignment::run(level), || seeker_ins::run(level)),
-        || vertical_channel::run(level),
+        || rayon::join(|| vertical_channel::run(level), || navigator::run(level)),
     );
-    let clean = ta.clean() && seeker.clean() && vc.clean();
+    let clean = ta.clean() && seeker.clean() && vc.clean() && nav.clean();
     StressReport {
         level: match level {
             StressLevel::Short => "short",
@@ -332,6 +344,7 @@ pub fn run(level: StressLevel) -> StressReport {
         transfer_alignment: ta,
         seeker_ins: seeker,
         vertical_channel: vc,
+        navigator: nav,
         clean,
     }
 }

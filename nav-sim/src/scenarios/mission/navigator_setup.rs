@@ -150,7 +150,7 @@ fn ta_config(cfg: &MissionConfig) -> TaConfig<f64> {
 }
 
 /// The navigator's configuration of a variant, in float type T.
-pub(super) fn navigator_config<T: Real>(
+pub(crate) fn navigator_config<T: Real>(
     cfg: &MissionConfig,
     set: &NavigatorSettings,
     variant: Variant,

@@ -34,7 +34,7 @@ fn phase_tag(p: Phase) -> PhaseTag {
     }
 }
 
-fn master_nav<T: Real>(m: &MasterMessage) -> MasterNav<T> {
+pub(crate) fn master_nav<T: Real>(m: &MasterMessage) -> MasterNav<T> {
     let v = |x: &Vector3<f64>| x.map(T::lit);
     MasterNav {
         time: m.time,
@@ -198,7 +198,7 @@ fn cast_aids<T: Real>(
     }
 }
 
-fn imu_tick<T: Real>(tick: &Tick) -> ImuTick<T> {
+pub(crate) fn imu_tick<T: Real>(tick: &Tick) -> ImuTick<T> {
     ImuTick {
         increment: ImuIncrement {
             time: tick.imu.time,
@@ -214,7 +214,7 @@ fn imu_tick<T: Real>(tick: &Tick) -> ImuTick<T> {
 /// the tick's time with its velocity (the bus latency).
 /// Its covariance: the master's σ, and for the attitude the mount and flexure σ on top (the
 /// missile's attitude is the master's until the alignment has estimated them).
-fn initial_from_master<T: Real>(
+pub(crate) fn initial_from_master<T: Real>(
     m: &MasterMessage,
     cfg: &MissionConfig,
     now: nav_core::time::Timestamp,
