@@ -172,21 +172,7 @@ fn refused_in_flight_changes_nothing<T: Real>(
     lever: &Vector3<f64>,
 ) {
     // In flight: a bad LOS sample is refused with nothing changed, the next tick works.
-    let truth = world.missile_truth(lever);
-    let p0 = {
-        let mut p = crate::seeker_ins::paper_initial_covariance::<T>();
-        p *= T::lit(0.01);
-        p
-    };
-    nav.release_with(&crate::seeker_ins::SeekerInsInitial {
-        state: InsState {
-            position: truth.position,
-            vel_ned_m_s: truth.vel_ned_m_s.cast(),
-            q_b_n: truth.q_b_n.cast(),
-        },
-        covariance: p0,
-    })
-    .unwrap();
+    release_at_truth(nav, world, lever);
     assert_eq!(nav.phase(), Phase::Released);
     let inc = world.step(lever);
     let r = nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();

@@ -554,9 +554,19 @@ fn release_at_truth<T: Real>(
     world: &World,
     lever: &Vector3<f64>,
 ) {
-    let truth = world.missile_truth(lever);
     let mut p0 = crate::seeker_ins::paper_initial_covariance::<T>();
     p0 *= T::lit(0.01);
+    release_at_truth_with(nav, world, lever, p0);
+}
+
+/// Releases `nav` at the world's missile truth with the EKF's initial covariance `p0`.
+fn release_at_truth_with<T: Real>(
+    nav: &mut FlightNavigator<T, 32>,
+    world: &World,
+    lever: &Vector3<f64>,
+    p0: SMatrix<T, STATES, STATES>,
+) {
+    let truth = world.missile_truth(lever);
     nav.release_with(&crate::seeker_ins::SeekerInsInitial {
         state: InsState {
             position: truth.position,

@@ -47,16 +47,7 @@ fn near_singular_p0<T: Real>() -> SMatrix<T, STATES, STATES> {
 fn released_with<T: Real>(p0: SMatrix<T, STATES, STATES>) -> (FlightNavigator<T, 32>, World) {
     let (mut nav, world) = carry_for::<T>(1.0, 10.0);
     let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
-    let truth = world.missile_truth(&lever);
-    nav.release_with(&crate::seeker_ins::SeekerInsInitial {
-        state: InsState {
-            position: truth.position,
-            vel_ned_m_s: truth.vel_ned_m_s.cast(),
-            q_b_n: truth.q_b_n.cast(),
-        },
-        covariance: p0,
-    })
-    .unwrap();
+    release_at_truth_with(&mut nav, &world, &lever, p0);
     (nav, world)
 }
 
