@@ -23,8 +23,8 @@
 //! In the missions (`nav-sim`: `mission`, `mission-s-turn`) the check never lifted (smallest
 //! relative pivot 1.7e-2) and no step started from an unchecked P. With almost no process
 //! noise (a seeker precise to 1e-5 rad, a hundredth of the IMUs' noise, no instrument errors)
-//! baro and LOS updates turned P indefinite (10 times in 20 missions, README), which the
-//! check lifted on the next quiet tick; the constant 4 ε after every step had prevented it.
+//! baro and LOS updates used to turn P indefinite (10 times in 20 missions, README) until the
+//! baro update's stabilising noise got its floor of one ε (module `baro`): never since.
 
 use super::Navigator;
 use crate::contract::Estimator;
