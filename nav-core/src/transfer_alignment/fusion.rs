@@ -12,7 +12,7 @@
 //! never divides a variance by more than
 //! [`super::MAX_VARIANCE_REDUCTION`] (`fuse_bounded`), and every committed covariance is
 //! loaded and conditioned ([`super::covariance::condition`]).
-use crate::math::kalman::{gate_within, FusionOutcome, FusionReport, Gate};
+use crate::math::kalman::{gate_scalar, FusionOutcome, FusionReport, Gate};
 use crate::Real;
 use nalgebra::{SMatrix, SVector};
 
@@ -123,12 +123,9 @@ pub(super) fn fuse_rank_one<T: Real, const N: usize>(
     if innovation * T::zero() + r * T::zero() != T::zero() || r <= T::zero() {
         return Err(s);
     }
-    // The shared gate's refusals (`s` not finite and positive, `hph < 0`) tested here with
-    // `s·0` (no classification of s), then its arithmetic ([`gate_within`]).
-    if s * T::zero() != T::zero() || s <= T::zero() || hph < T::zero() {
+    let Some((report, inv_s)) = gate_scalar(innovation, hph, s, gate) else {
         return Err(s);
-    }
-    let (report, inv_s) = gate_within(innovation, s, gate);
+    };
     if report.outcome == FusionOutcome::Rejected {
         return Ok(report);
     }

@@ -182,14 +182,6 @@ pub fn gate_scalar<T: Real>(
     if s * T::zero() != T::zero() || s <= T::zero() || hph < T::zero() {
         return None;
     }
-    Some(gate_within(innovation, s, gate))
-}
-
-/// [`gate_scalar`]'s arithmetic for an innovation variance `s` the caller has already found
-/// finite and positive (with `hᵀPh ≥ 0`): the report and `1/s`, the same expressions and so the
-/// same bits.
-#[inline(always)]
-pub fn gate_within<T: Real>(innovation: T, s: T, gate: Gate<T>) -> (FusionReport<T>, T) {
     let inv_s = T::one() / s;
     let nis = innovation * innovation * inv_s;
     let (test_ratio, rejected) = match gate {
@@ -209,7 +201,7 @@ pub fn gate_within<T: Real>(innovation: T, s: T, gate: Gate<T>) -> (FusionReport
     } else {
         FusionOutcome::Fused
     };
-    (
+    Some((
         FusionReport {
             innovation,
             innovation_variance: s,
@@ -218,7 +210,7 @@ pub fn gate_within<T: Real>(innovation: T, s: T, gate: Gate<T>) -> (FusionReport
             outcome,
         },
         inv_s,
-    )
+    ))
 }
 
 enum GainOutcome<T: Real, const N: usize> {
