@@ -101,8 +101,10 @@ pub(crate) fn record_bias<T: Real, const K: usize, const NS: usize>(
         }
         None => nav.alignment().accel_bias().map(|(b, _)| {
             let p = nav.alignment().covariance().map(|x| x.to_f64());
-            // The bias states' spec indices: 12 + axis (after θ, θ_f, θ̇_f, θ̈_f).
-            let pb = Matrix3::from_fn(|i, j| p[(12 + i, 12 + j)]);
+            // The bias states' spec (derivative-major) indices: 3 · BIAS_STATE + axis (after
+            // θ, θ_f, θ̇_f, θ̈_f).
+            let first = 3 * nav_core::transfer_alignment::BIAS_STATE;
+            let pb = Matrix3::from_fn(|i, j| p[(first + i, first + j)]);
             (
                 b.map(|x| x.to_f64()),
                 inp.master_accel_bias_m_s2 - (inp.accel_bias_m_s2 + sm * f_now),
