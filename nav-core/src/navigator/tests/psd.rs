@@ -168,6 +168,24 @@ fn los_tick_reference(
     *e.covariance()
 }
 
+/// One navigator tick with a LOS sample at the world's next IMU sample; the EKF before it,
+/// the sample and the LOS sample (for [`los_tick_reference`]).
+fn tick_with_los(
+    nav: &mut FlightNavigator<f32, 32>,
+    world: &mut World,
+    lever: &Vector3<f64>,
+) -> (SeekerIns<f32>, ImuIncrement<f64>, LosSample<f32>) {
+    let inc = world.step(lever);
+    let los = los_at(world, lever, inc.time);
+    let ekf = *nav.ekf().unwrap();
+    let aids = Aids {
+        seeker: Some(&los),
+        ..Aids::NONE
+    };
+    nav.tick(&tick_of(&inc), &aids).unwrap();
+    (ekf, inc, los)
+}
+
 #[test]
 fn a_step_from_an_unchecked_p_gets_the_constant_noise_before_the_update_f32() {
     let mut p0 = crate::seeker_ins::paper_initial_covariance::<f32>();
@@ -188,28 +206,14 @@ fn a_step_from_an_unchecked_p_gets_the_constant_noise_before_the_update_f32() {
     }
     // A LOS sample on the next tick: its flushed step starts from the P of that step, not
     // checked yet (no quiet tick between), so the constant noise comes before the update.
-    let inc = world.step(&lever);
-    let los = los_at(&world, &lever, inc.time);
-    let ekf = *nav.ekf().unwrap();
-    let aids = Aids {
-        seeker: Some(&los),
-        ..Aids::NONE
-    };
-    nav.tick(&tick_of(&inc), &aids).unwrap();
+    let (ekf, inc, los) = tick_with_los(&mut nav, &mut world, &lever);
     let with_noise = los_tick_reference(&ekf, &inc, &los, true);
     assert_eq!(covariance(&nav), with_noise);
     assert_ne!(with_noise, los_tick_reference(&ekf, &inc, &los, false));
     // A quiet tick checks P; a LOS sample after it flushes a step from a checked P: no noise.
     nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
         .unwrap();
-    let inc = world.step(&lever);
-    let los = los_at(&world, &lever, inc.time);
-    let ekf = *nav.ekf().unwrap();
-    let aids = Aids {
-        seeker: Some(&los),
-        ..Aids::NONE
-    };
-    nav.tick(&tick_of(&inc), &aids).unwrap();
+    let (ekf, inc, los) = tick_with_los(&mut nav, &mut world, &lever);
     assert_eq!(
         covariance(&nav),
         los_tick_reference(&ekf, &inc, &los, false)
