@@ -39,6 +39,7 @@ pub static CAMPAIGNS: &[Campaign] = &[
     crate::scenarios::seeker_ins::campaign::CAMPAIGN_F32,
     crate::scenarios::vertical_channel::CAMPAIGN,
     crate::scenarios::vertical_channel::CAMPAIGN_CLASSICAL,
+    crate::scenarios::navigator_campaign::CAMPAIGN,
 ];
 
 /// Scenario kind `consistency`.
@@ -212,7 +213,14 @@ fn run(ctx: &Context) -> Result<Value> {
             let v = if r.filter == "paper" {
                 judge(r, None, None)
             } else {
-                judge(r, paper, Some(ideal_seed(ctx.seed, c.estimator, r.variant)))
+                // The flight filter's reference seed as it always was; other judged filters
+                // (the navigator's phases) their own.
+                let name = if r.filter == "flight" {
+                    c.estimator.to_string()
+                } else {
+                    format!("{}/{}", c.estimator, r.filter)
+                };
+                judge(r, paper, Some(ideal_seed(ctx.seed, &name, r.variant)))
             };
             csv_row(&mut csv, c.estimator, r, &v);
             verdicts.push((r, v));
@@ -285,10 +293,43 @@ fn csv_row(csv: &mut String, estimator: &str, r: &VariantResult, v: &Verdict) {
     );
 }
 
+/// The filters an estimator's results are judged on (every one but the paper filter), in
+/// order of first appearance: `flight` for the estimators flown beside their paper filter, the
+/// phases, hand-over and last epoch for the navigator.
+fn judged_filters<'a>(verdicts: &[(&'a VariantResult, Verdict)]) -> Vec<&'a str> {
+    let mut out: Vec<&str> = Vec::new();
+    for (r, _) in verdicts {
+        if r.filter != "paper" && !out.contains(&r.filter.as_str()) {
+            out.push(r.filter.as_str());
+        }
+    }
+    out
+}
+
 fn estimator_summary(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Value {
+    let judged = judged_filters(verdicts);
+    if judged == ["flight"] {
+        let mut m = filter_summary(verdicts, "flight");
+        m.insert("about".into(), json!(c.about));
+        return Value::Object(m);
+    }
+    // Several judged filters (the navigator's phases): the same summary for each.
+    let by_filter: Map<String, Value> = judged
+        .iter()
+        .map(|f| ((*f).to_string(), Value::Object(filter_summary(verdicts, f))))
+        .collect();
+    json!({
+        "about": c.about,
+        "judged": judged,
+        "by_filter": Value::Object(by_filter),
+    })
+}
+
+/// The summary of one judged filter over the variants (the paper filter's rows beside it).
+fn filter_summary(verdicts: &[(&VariantResult, Verdict)], filter: &str) -> Map<String, Value> {
     let flight: Vec<&(&VariantResult, Verdict)> = verdicts
         .iter()
-        .filter(|(r, _)| r.filter == "flight")
+        .filter(|(r, _)| r.filter == filter)
         .collect();
     let paper: Vec<&(&VariantResult, Verdict)> = verdicts
         .iter()
@@ -323,8 +364,7 @@ fn estimator_summary(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Va
     let n = flight.len();
     let stat_fail = flight.iter().filter(|(_, v)| !v.pass_statistical).count();
     let ideal_expected: f64 = flight.iter().map(|(_, v)| v.ideal_p_below).sum();
-    json!({
-        "about": c.about,
+    let out = json!({
         "flight_variants": n,
         "flight_pass": flight.iter().filter(|(_, v)| v.pass).count(),
         "flight_pass_statistical": n - stat_fail,
@@ -340,10 +380,18 @@ fn estimator_summary(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Va
         "worst_frac_in_band": worst_by(&|v| -v.frac_in_band),
         "worst_normalized_error_sq": worst_by(&|v| nes_badness(v.nes_worst.1)),
         "worst_accuracy": worst_by(&|v| v.accuracy_worst.1),
-    })
+    });
+    match out {
+        Value::Object(m) => m,
+        _ => Map::new(),
+    }
 }
 
 fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec<Panel> {
+    let judged = judged_filters(verdicts);
+    if judged != ["flight"] {
+        return judged_filter_panels(c, verdicts, &judged);
+    }
     let mut ratio = Panel {
         title: format!(
             "{}: mean NEES / states (1 if consistent; > {RATIO_CLIP} drawn at {RATIO_CLIP})",
@@ -397,6 +445,84 @@ fn estimator_panels(c: &Campaign, verdicts: &[(&VariantResult, Verdict)]) -> Vec
         frac.series.push(s);
     }
     ratio.series.extend(fails);
+    add_bands(verdicts, &mut ratio, &mut frac);
+    vec![ratio, frac]
+}
+
+/// The panels of an estimator judged on several filters (the navigator's phases, hand-over
+/// and last epoch): per variant, each filter's mean NEES per state (those outside the band of
+/// their time average marked) and fraction of epochs in band, side by side.
+fn judged_filter_panels(
+    c: &Campaign,
+    verdicts: &[(&VariantResult, Verdict)],
+    judged: &[&str],
+) -> Vec<Panel> {
+    let mut ratio = Panel {
+        title: format!(
+            "{}: mean NEES / states per phase (1 if consistent; > {RATIO_CLIP} drawn at \
+             {RATIO_CLIP}; ringed: outside the band of its time average)",
+            c.estimator
+        ),
+        y_label: "NEES / states".into(),
+        y_range: Some((0.0, RATIO_CLIP * 1.05)),
+        ..Panel::default()
+    };
+    let mut frac = Panel {
+        title: format!(
+            "{}: fraction of epochs in the NEES band per phase (hand-over, final: one epoch)",
+            c.estimator
+        ),
+        y_label: "fraction in band".into(),
+        y_range: Some((0.0, 1.05)),
+        ..Panel::default()
+    };
+    let width = 0.7 / judged.len().max(1) as f64;
+    let mut outside = (Vec::new(), Vec::new());
+    for (i, filter) in judged.iter().enumerate() {
+        let rows: Vec<&(&VariantResult, Verdict)> = verdicts
+            .iter()
+            .filter(|(r, _)| r.filter == *filter)
+            .collect();
+        let x: Vec<f64> = rows
+            .iter()
+            .map(|(r, _)| r.variant as f64 - 0.35 + width * (i as f64 + 0.5))
+            .collect();
+        let per_state = |r: &VariantResult| {
+            (r.consistency.mean_nees() / r.consistency.dof as f64).min(RATIO_CLIP)
+        };
+        let y_ratio: Vec<f64> = rows.iter().map(|(r, _)| per_state(r)).collect();
+        for ((r, v), xi) in rows.iter().zip(&x) {
+            if !v.pass_statistical {
+                outside.0.push(*xi);
+                outside.1.push(per_state(r));
+            }
+        }
+        let lit = rows.iter().filter(|(_, v)| v.pass).count();
+        let stat = rows.iter().filter(|(_, v)| v.pass_statistical).count();
+        let mut s = Series::line(
+            format!(
+                "{filter} (literal {lit}, statistical {stat} of {})",
+                rows.len()
+            ),
+            &x,
+            &y_ratio,
+            i,
+        );
+        s.style = Style::Points;
+        ratio.series.push(s);
+        let y_frac: Vec<f64> = rows.iter().map(|(_, v)| v.frac_in_band).collect();
+        let mut s = Series::line(*filter, &x, &y_frac, i);
+        s.style = Style::Points;
+        frac.series.push(s);
+    }
+    let mut s = Series::line(
+        "outside the band of its time average",
+        &outside.0,
+        &outside.1,
+        7,
+    );
+    s.style = Style::Points;
+    ratio.series.push(s);
     add_bands(verdicts, &mut ratio, &mut frac);
     vec![ratio, frac]
 }

@@ -5,6 +5,7 @@ pub mod campaign_plan;
 pub mod consistency_campaign;
 pub mod flexure_process;
 pub mod mission;
+pub mod navigator_campaign;
 pub mod seeker_ins;
 pub mod transfer_alignment;
 pub mod vertical_channel;

@@ -18,7 +18,7 @@ use serde::Deserialize;
 const G_BANK_M_S2: f64 = 9.806_65;
 
 /// Peak rate of a smooth ramp per unit change and duration (`max S'(u) = 15/8`).
-const RAMP_PEAK_RATE: f64 = 1.875;
+pub(crate) const RAMP_PEAK_RATE: f64 = 1.875;
 
 /// The mission profile (TOML table `[profile]`). Angles in degrees, times in seconds from
 /// take-off of the simulation (t = 0), speeds in m/s.
@@ -37,16 +37,23 @@ pub struct MissionProfile {
     pub heading_deg: f64,
     /// Captive carry ends (release), s.
     pub release_s: f64,
-    /// Carry manoeuvre: coordinated turn starting at this time, s.
+    /// Carry manoeuvre: starts at this time, s.
     pub carry_turn_start_s: f64,
-    /// Carry manoeuvre: course change, deg (sign: + to the right).
+    /// Carry manoeuvre on the `course` or `flight_path` axis: the angle's change, deg (sign:
+    /// + to the right, + up); unused on the `speed` axis.
     pub carry_turn_deg: f64,
-    /// Carry manoeuvre: duration of the turn, s.
+    /// Carry manoeuvre: duration of the change, s.
     pub carry_turn_s: f64,
-    /// Second carry turn back to the initial course after this many seconds from the first's
-    /// end (an S-shaped manoeuvre), s; none if absent.
+    /// Second carry manoeuvre back to the initial course, flight path or speed after this many
+    /// seconds from the first's end (an S-shaped manoeuvre), s; none if absent.
     #[serde(default)]
     pub carry_turn_back_after_s: Option<f64>,
+    /// Axis of the carry manoeuvre (default `course`: a coordinated turn, the lateral axis).
+    #[serde(default)]
+    pub carry_manoeuvre_axis: CarryManoeuvreAxis,
+    /// Carry manoeuvre on the `speed` axis: the speed change, m/s (unused on the others).
+    #[serde(default)]
+    pub carry_speed_change_m_s: f64,
     /// Drop after release: duration, s (0.5-2).
     pub drop_s: f64,
     /// Drop: flight-path angle reached at its end, deg (negative: sinking).
@@ -78,6 +85,19 @@ pub struct MissionProfile {
     pub weave_start_s: f64,
     /// End of the mission, s.
     pub end_s: f64,
+}
+
+/// The axis of the carry manoeuvre (the acceleration the transfer alignment sees).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CarryManoeuvreAxis {
+    /// A coordinated turn: course change, lateral acceleration.
+    #[default]
+    Course,
+    /// A pull-up or push-over: flight-path angle change, vertical acceleration.
+    FlightPath,
+    /// An acceleration or deceleration: speed change, along-track.
+    Speed,
 }
 
 fn default_weave_period() -> f64 {
@@ -117,14 +137,26 @@ impl MissionProfile {
             }
         };
         ok(
-            self.carry_speed_m_s > 50.0 && self.boost_speed_gain_m_s >= 0.0,
+            self.carry_speed_m_s > 50.0
+                && self.boost_speed_gain_m_s >= 0.0
+                && self.carry_speed_m_s + self.carry_speed_change_m_s.min(0.0) > 50.0,
             "speeds",
+        )?;
+        ok(
+            self.carry_manoeuvre_axis == CarryManoeuvreAxis::Speed
+                || self.carry_speed_change_m_s == 0.0,
+            "carry_speed_change_m_s is for the speed axis",
+        )?;
+        ok(
+            self.carry_manoeuvre_axis != CarryManoeuvreAxis::FlightPath
+                || (self.carry_turn_deg.abs() < 30.0 && self.carry_turn_back_after_s.is_some()),
+            "carry flight-path change within ±30 deg and back to level (carry_turn_back_after_s)",
         )?;
         ok(
             self.carry_turn_start_s >= 0.0
                 && self.carry_turn_s > 0.0
-                && self.carry_turn_start_s + self.carry_turn_s < self.release_s,
-            "carry turn must end before release",
+                && self.carry_manoeuvre_end_s() < self.release_s,
+            "carry manoeuvre (and its way back) must end before release",
         )?;
         ok(
             (0.1..=5.0).contains(&self.drop_s) && self.recover_s > 0.0 && self.boost_s > 0.0,
@@ -145,6 +177,61 @@ impl MissionProfile {
         )
     }
 
+    /// End of the carry manoeuvre (of its way back if any), s.
+    pub fn carry_manoeuvre_end_s(&self) -> f64 {
+        let first = self.carry_turn_start_s + self.carry_turn_s;
+        match self.carry_turn_back_after_s {
+            Some(after) => first + after + self.carry_turn_s,
+            None => first,
+        }
+    }
+
+    /// The carry manoeuvre's ramps on its axis (the change and, if any, the way back), in
+    /// the axis's unit (rad, or m/s for the speed).
+    fn carry_ramps(&self) -> Vec<Ramp> {
+        let delta = match self.carry_manoeuvre_axis {
+            CarryManoeuvreAxis::Course | CarryManoeuvreAxis::FlightPath => {
+                self.carry_turn_deg.to_radians()
+            }
+            CarryManoeuvreAxis::Speed => self.carry_speed_change_m_s,
+        };
+        let mut ramps = vec![Ramp {
+            start_s: self.carry_turn_start_s,
+            duration_s: self.carry_turn_s,
+            delta,
+        }];
+        if let Some(after) = self.carry_turn_back_after_s {
+            ramps.push(Ramp {
+                start_s: self.carry_turn_start_s + self.carry_turn_s + after,
+                duration_s: self.carry_turn_s,
+                delta: -delta,
+            });
+        }
+        ramps
+    }
+
+    /// Speed at release (after the carry manoeuvre), m/s.
+    fn release_speed_m_s(&self) -> f64 {
+        match (self.carry_manoeuvre_axis, self.carry_turn_back_after_s) {
+            (CarryManoeuvreAxis::Speed, None) => self.carry_speed_m_s + self.carry_speed_change_m_s,
+            _ => self.carry_speed_m_s,
+        }
+    }
+
+    /// Altitude at release, m: the carry altitude plus what a flight-path manoeuvre climbed
+    /// (first order: each ramp at half its angle on average, the hold at the full angle).
+    fn release_alt_m(&self) -> f64 {
+        if self.carry_manoeuvre_axis != CarryManoeuvreAxis::FlightPath {
+            return self.carry_alt_m;
+        }
+        let g = self.carry_turn_deg.to_radians();
+        let v = self.carry_speed_m_s;
+        // Validated: a flight-path manoeuvre comes back to level flight.
+        let after = self.carry_turn_back_after_s.unwrap_or(0.0);
+        // The two ramps (half the angle each on average) and the hold between them.
+        self.carry_alt_m + v * g.sin() * (self.carry_turn_s + after)
+    }
+
     /// The phase boundaries.
     pub fn events(&self) -> TruthEvents {
         let drop_end_s = self.release_s + self.drop_s;
@@ -163,6 +250,9 @@ impl MissionProfile {
         let turn_start = recover_start + self.recover_s;
         let course = self.course(turn_start);
         let mut speed = Schedule::constant(self.carry_speed_m_s);
+        if self.carry_manoeuvre_axis == CarryManoeuvreAxis::Speed {
+            speed.ramps.extend(self.carry_ramps());
+        }
         speed.ramps.push(Ramp {
             start_s: ev.drop_end_s,
             duration_s: self.boost_s,
@@ -182,17 +272,8 @@ impl MissionProfile {
     /// `turn_start` (s), the weave.
     fn course(&self, turn_start: f64) -> Schedule {
         let mut course = Schedule::constant(self.heading_deg.to_radians());
-        course.ramps.push(Ramp {
-            start_s: self.carry_turn_start_s,
-            duration_s: self.carry_turn_s,
-            delta: self.carry_turn_deg.to_radians(),
-        });
-        if let Some(after) = self.carry_turn_back_after_s {
-            course.ramps.push(Ramp {
-                start_s: self.carry_turn_start_s + self.carry_turn_s + after,
-                duration_s: self.carry_turn_s,
-                delta: -self.carry_turn_deg.to_radians(),
-            });
+        if self.carry_manoeuvre_axis == CarryManoeuvreAxis::Course {
+            course.ramps.extend(self.carry_ramps());
         }
         course.ramps.push(Ramp {
             start_s: turn_start,
@@ -217,6 +298,9 @@ impl MissionProfile {
         // altitude change to cruise, held long enough to cover it.
         let gd = self.drop_flight_path_deg.to_radians();
         let mut flight_path = Schedule::constant(0.0);
+        if self.carry_manoeuvre_axis == CarryManoeuvreAxis::FlightPath {
+            flight_path.ramps.extend(self.carry_ramps());
+        }
         flight_path.ramps.push(Ramp {
             start_s: self.release_s,
             duration_s: self.drop_s,
@@ -228,10 +312,11 @@ impl MissionProfile {
             delta: -gd,
         });
         // Height lost in the drop and recovery (each ramp's mean angle is half its change).
-        let v_after = self.carry_speed_m_s + self.boost_speed_gain_m_s;
-        let lost_m = -(gd.sin()) * 0.5 * (self.carry_speed_m_s * self.drop_s)
-            - (gd.sin()) * 0.5 * (v_after.min(self.carry_speed_m_s) * self.recover_s);
-        let dh = self.cruise_alt_m - (self.carry_alt_m - lost_m.max(0.0));
+        let v_release = self.release_speed_m_s();
+        let v_after = v_release + self.boost_speed_gain_m_s;
+        let lost_m = -(gd.sin()) * 0.5 * (v_release * self.drop_s)
+            - (gd.sin()) * 0.5 * (v_after.min(v_release) * self.recover_s);
+        let dh = self.cruise_alt_m - (self.release_alt_m() - lost_m.max(0.0));
         if dh.abs() > 1.0 {
             let gc = self.cruise_flight_path_deg.to_radians() * dh.signum();
             let ramp_s = 5.0;
@@ -315,6 +400,8 @@ pub(crate) mod tests {
             carry_turn_deg: 30.0,
             carry_turn_s: 15.0,
             carry_turn_back_after_s: Some(5.0),
+            carry_manoeuvre_axis: CarryManoeuvreAxis::Course,
+            carry_speed_change_m_s: 0.0,
             drop_s: 1.0,
             drop_flight_path_deg: -3.0,
             tip_off_rate_deg_s: [20.0, -10.0, 5.0],
