@@ -459,8 +459,8 @@ fn judged_filter_panels(
 ) -> Vec<Panel> {
     let mut ratio = Panel {
         title: format!(
-            "{}: mean NEES / states per phase (1 if consistent; > {RATIO_CLIP} drawn at \
-             {RATIO_CLIP}; ringed: outside the band of its time average)",
+            "{}: mean NEES / states per phase (> {RATIO_CLIP} at {RATIO_CLIP}; grey: outside \
+             its time average's band)",
             c.estimator
         ),
         y_label: "NEES / states".into(),
@@ -469,7 +469,7 @@ fn judged_filter_panels(
     };
     let mut frac = Panel {
         title: format!(
-            "{}: fraction of epochs in the NEES band per phase (hand-over, final: one epoch)",
+            "{}: fraction of epochs in the NEES band (hand-over, final: one epoch)",
             c.estimator
         ),
         y_label: "fraction in band".into(),
