@@ -154,46 +154,28 @@ fn turn_duration_s(turn_deg: f64, speed_m_s: f64) -> f64 {
     (RAMP_PEAK_RATE * turn_deg.to_radians().abs() / peak_rate).max(10.0)
 }
 
-/// Draws variant `v` of the campaign seed `seed` from the base scenario `base`.
-pub fn draw_variant(base: &MissionScenario, seed: u64, v: usize) -> DrawnVariant {
-    let mut rng = run_rng(seed, v as u64);
-    let mut sc = base.clone();
-    sc.variants = vec![ChainVariant::Full];
-    let cfg = &mut sc.mission;
-    // The carry: lever arm, flexure.
-    let lever_len = uniform(&mut rng, LEVER_ARM_RANGE_M);
+/// A lever arm of length in [`LEVER_ARM_RANGE_M`], direction uniform on the sphere, m.
+fn draw_lever_arm(rng: &mut impl Rng) -> ([f64; 3], f64) {
+    let len = uniform(rng, LEVER_ARM_RANGE_M);
     let (z, az): (f64, f64) = (
         rng.random_range(-1.0..=1.0),
         rng.random_range(0.0..std::f64::consts::TAU),
     );
     let rxy = (1.0 - z * z).max(0.0).sqrt();
-    let lever = [
-        lever_len * rxy * az.cos(),
-        lever_len * rxy * az.sin(),
-        lever_len * z,
-    ];
-    let (lo, hi) = (TAU_SCALE_RANGE.0.ln(), TAU_SCALE_RANGE.1.ln());
-    let tau_scale = rng.random_range(lo..=hi).exp();
-    cfg.carry.lever_arm_m = lever;
-    for t in cfg.carry.flexure.tau_s.iter_mut() {
-        *t *= tau_scale;
-    }
-    // The profile.
-    let p = &mut cfg.profile;
-    let speed = uniform(&mut rng, SPEED_RANGE_M_S);
-    p.carry_speed_m_s = speed - p.boost_speed_gain_m_s;
-    p.carry_alt_m = uniform(&mut rng, ALTITUDE_RANGE_M);
-    p.cruise_alt_m = uniform(&mut rng, ALTITUDE_RANGE_M);
-    p.heading_deg = rng.random_range(0.0..360.0);
-    p.release_s = uniform(&mut rng, RELEASE_RANGE_S);
+    ([len * rxy * az.cos(), len * rxy * az.sin(), len * z], len)
+}
+
+/// The carry manoeuvre of `p` (axis, timing, size; `p.release_s` drawn before): its
+/// parameters for the outputs.
+fn draw_carry_manoeuvre(rng: &mut impl Rng, p: &mut MissionProfile) -> Value {
     let axis = [
         CarryManoeuvreAxis::Course,
         CarryManoeuvreAxis::FlightPath,
         CarryManoeuvreAxis::Speed,
     ][rng.random_range(0..3usize)];
     p.carry_manoeuvre_axis = axis;
-    p.carry_turn_s = uniform(&mut rng, CARRY_CHANGE_RANGE_S);
-    let back_after = uniform(&mut rng, CARRY_BACK_AFTER_RANGE_S);
+    p.carry_turn_s = uniform(rng, CARRY_CHANGE_RANGE_S);
+    let back_after = uniform(rng, CARRY_BACK_AFTER_RANGE_S);
     let back = axis != CarryManoeuvreAxis::Course || rng.random_bool(0.5);
     p.carry_turn_back_after_s = back.then_some(back_after);
     let (range, unit) = match axis {
@@ -201,8 +183,8 @@ pub fn draw_variant(base: &MissionScenario, seed: u64, v: usize) -> DrawnVariant
         CarryManoeuvreAxis::FlightPath => (CARRY_PITCH_RANGE_DEG, "deg"),
         CarryManoeuvreAxis::Speed => (CARRY_SPEED_RANGE_M_S, "m_s"),
     };
-    let magnitude = uniform(&mut rng, range);
-    let size = signed(&mut rng, magnitude);
+    let magnitude = uniform(rng, range);
+    let size = signed(rng, magnitude);
     if axis == CarryManoeuvreAxis::Speed {
         p.carry_turn_deg = 0.0;
         p.carry_speed_change_m_s = size;
@@ -226,13 +208,26 @@ pub fn draw_variant(base: &MissionScenario, seed: u64, v: usize) -> DrawnVariant
     }
     let latest = (p.release_s - CARRY_MARGIN_S - length).max(CARRY_MARGIN_S);
     p.carry_turn_start_s = rng.random_range(CARRY_MARGIN_S..=latest);
-    // The landmark and the run-in.
-    let bearing_deg: f64 = rng.random_range(0.0..360.0);
-    let range_m = uniform(&mut rng, LANDMARK_RANGE_M);
-    let s_turn = rng.random_bool(0.5);
-    let s_amplitude = uniform(&mut rng, S_TURN_AMPLITUDE_RANGE_DEG);
-    let s_period = uniform(&mut rng, S_TURN_PERIOD_RANGE_S);
-    let runs_seed: u64 = rng.random();
+    json!({
+        "axis": format!("{axis:?}").to_lowercase(),
+        "size": sig(size, 4),
+        "size_unit": unit,
+        "start_s": sig(p.carry_turn_start_s, 4),
+        "change_s": sig(p.carry_turn_s, 4),
+        "back_after_s": p.carry_turn_back_after_s.map(|x| sig(x, 4)),
+    })
+}
+
+/// The landmark `bearing_deg` and `range_m` from the start of the midcourse turn: its
+/// position north-east of the start (m), the turn aimed at it, the end of the mission
+/// [`MIN_END_RANGE_M`] from it, the cruise flight-path angle; returns the landmark's
+/// position and the end of the turn, s.
+fn aim_at_landmark(
+    p: &mut MissionProfile,
+    bearing_deg: f64,
+    range_m: f64,
+    speed: f64,
+) -> ((f64, f64), f64) {
     let turn_start = p.release_s + p.drop_s + p.recover_s;
     let (n0, e0) = north_east_m(p, turn_start);
     let landmark = (
@@ -265,6 +260,40 @@ pub fn draw_variant(base: &MissionScenario, seed: u64, v: usize) -> DrawnVariant
         .asin()
         .to_degrees()
         .clamp(3.0, 20.0);
+    (landmark, turn_end)
+}
+
+/// Draws variant `v` of the campaign seed `seed` from the base scenario `base`.
+pub fn draw_variant(base: &MissionScenario, seed: u64, v: usize) -> DrawnVariant {
+    let mut rng = run_rng(seed, v as u64);
+    let mut sc = base.clone();
+    sc.variants = vec![ChainVariant::Full];
+    let cfg = &mut sc.mission;
+    // The carry: lever arm, flexure.
+    let (lever, lever_len) = draw_lever_arm(&mut rng);
+    let (lo, hi) = (TAU_SCALE_RANGE.0.ln(), TAU_SCALE_RANGE.1.ln());
+    let tau_scale = rng.random_range(lo..=hi).exp();
+    cfg.carry.lever_arm_m = lever;
+    for t in cfg.carry.flexure.tau_s.iter_mut() {
+        *t *= tau_scale;
+    }
+    // The profile.
+    let p = &mut cfg.profile;
+    let speed = uniform(&mut rng, SPEED_RANGE_M_S);
+    p.carry_speed_m_s = speed - p.boost_speed_gain_m_s;
+    p.carry_alt_m = uniform(&mut rng, ALTITUDE_RANGE_M);
+    p.cruise_alt_m = uniform(&mut rng, ALTITUDE_RANGE_M);
+    p.heading_deg = rng.random_range(0.0..360.0);
+    p.release_s = uniform(&mut rng, RELEASE_RANGE_S);
+    let manoeuvre = draw_carry_manoeuvre(&mut rng, p);
+    // The landmark and the run-in.
+    let bearing_deg: f64 = rng.random_range(0.0..360.0);
+    let range_m = uniform(&mut rng, LANDMARK_RANGE_M);
+    let s_turn = rng.random_bool(0.5);
+    let s_amplitude = uniform(&mut rng, S_TURN_AMPLITUDE_RANGE_DEG);
+    let s_period = uniform(&mut rng, S_TURN_PERIOD_RANGE_S);
+    let runs_seed: u64 = rng.random();
+    let (landmark, turn_end) = aim_at_landmark(p, bearing_deg, range_m, speed);
     if s_turn {
         p.weave_amplitude_deg = s_amplitude;
         p.weave_period_s = s_period;
@@ -281,14 +310,7 @@ pub fn draw_variant(base: &MissionScenario, seed: u64, v: usize) -> DrawnVariant
         "lever_arm_length_m": sig(lever_len, 4),
         "flexure_tau_scale": sig(tau_scale, 4),
         "flexure_tau_s": cfg.carry.flexure.tau_s.map(|t| sig(t, 4)),
-        "carry_manoeuvre": {
-            "axis": format!("{axis:?}").to_lowercase(),
-            "size": sig(size, 4),
-            "size_unit": unit,
-            "start_s": sig(p.carry_turn_start_s, 4),
-            "change_s": sig(p.carry_turn_s, 4),
-            "back_after_s": p.carry_turn_back_after_s.map(|x| sig(x, 4)),
-        },
+        "carry_manoeuvre": manoeuvre,
         "release_s": sig(p.release_s, 4),
         "speed_m_s": sig(speed, 4),
         "carry_alt_m": sig(p.carry_alt_m, 4),
@@ -459,140 +481,5 @@ fn run(plan: &CampaignPlan) -> Result<Vec<VariantResult>> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    fn base() -> MissionScenario {
-        load_scenario("mission").unwrap().0
-    }
-
-    /// Smallest and largest of `xs`.
-    fn span(xs: &[f64]) -> (f64, f64) {
-        xs.iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
-                (a.min(*x), b.max(*x))
-            })
-    }
-
-    /// `xs` stay inside `r` and cover at least 90 % of it.
-    fn covers(name: &str, xs: &[f64], r: (f64, f64)) {
-        let (lo, hi) = span(xs);
-        assert!(
-            lo >= r.0 - 1e-9 && hi <= r.1 + 1e-9,
-            "{name}: [{lo}, {hi}] outside {r:?}"
-        );
-        assert!(
-            hi - lo >= 0.9 * (r.1 - r.0),
-            "{name}: [{lo}, {hi}] covers too little of {r:?}"
-        );
-    }
-
-    /// 200 draws stay inside the stated ranges and cover them (every range, both signs of
-    /// every lever-arm axis, every manoeuvre axis, both run-ins), every drawn mission passes
-    /// the scenario's own checks, the midcourse turn ends aimed at the landmark, the mission
-    /// ends near [`MIN_END_RANGE_M`] from it, and the navigator's settings are the file's.
-    #[test]
-    fn the_variant_draw_covers_the_ranges() {
-        let base = base();
-        let vs: Vec<DrawnVariant> = (0..200).map(|v| draw_variant(&base, 9100, v)).collect();
-        let f = |key: &str| -> Vec<f64> {
-            vs.iter()
-                .map(|v| v.params[key].as_f64().unwrap_or(f64::NAN))
-                .collect()
-        };
-        covers("lever arm", &f("lever_arm_length_m"), LEVER_ARM_RANGE_M);
-        covers("τ scale", &f("flexure_tau_scale"), TAU_SCALE_RANGE);
-        covers("release", &f("release_s"), RELEASE_RANGE_S);
-        covers("speed", &f("speed_m_s"), SPEED_RANGE_M_S);
-        covers("carry altitude", &f("carry_alt_m"), ALTITUDE_RANGE_M);
-        covers("cruise altitude", &f("cruise_alt_m"), ALTITUDE_RANGE_M);
-        covers("heading", &f("heading_deg"), (0.0, 360.0));
-        covers("landmark bearing", &f("landmark_bearing_deg"), (0.0, 360.0));
-        covers("landmark range", &f("landmark_range_m"), LANDMARK_RANGE_M);
-        for a in 0..3 {
-            let l: Vec<f64> = vs
-                .iter()
-                .map(|v| v.scenario.mission.carry.lever_arm_m[a])
-                .collect();
-            let (lo, hi) = span(&l);
-            assert!(lo < -5.0 && hi > 5.0, "lever arm axis {a}: [{lo}, {hi}]");
-        }
-        for axis in ["course", "flightpath", "speed"] {
-            let sizes: Vec<f64> = vs
-                .iter()
-                .filter(|v| v.params["carry_manoeuvre"]["axis"] == axis)
-                .map(|v| v.params["carry_manoeuvre"]["size"].as_f64().unwrap())
-                .collect();
-            let r = match axis {
-                "course" => CARRY_TURN_RANGE_DEG,
-                "flightpath" => CARRY_PITCH_RANGE_DEG,
-                _ => CARRY_SPEED_RANGE_M_S,
-            };
-            assert!(sizes.len() > 40, "{axis}: {} draws", sizes.len());
-            let mags: Vec<f64> = sizes.iter().map(|x| x.abs()).collect();
-            covers(axis, &mags, r);
-            assert!(sizes.iter().any(|x| *x < 0.0) && sizes.iter().any(|x| *x > 0.0));
-        }
-        let starts: Vec<f64> = vs
-            .iter()
-            .map(|v| v.params["carry_manoeuvre"]["start_s"].as_f64().unwrap())
-            .collect();
-        let (lo, hi) = span(&starts);
-        assert!(lo < 10.0 && hi > 60.0, "manoeuvre start [{lo}, {hi}]");
-        let s_turns = vs
-            .iter()
-            .filter(|v| v.params["run_in"]["shape"] == "s_turn")
-            .count();
-        assert!(
-            (60..140).contains(&s_turns),
-            "{s_turns} S-turn run-ins of 200"
-        );
-        for v in &vs {
-            let m = &v.scenario.mission;
-            m.check().unwrap();
-            assert_eq!(v.scenario.variants, vec![ChainVariant::Full]);
-            assert_eq!(
-                v.scenario.navigator.gate_nis.to_bits(),
-                base.navigator.gate_nis.to_bits()
-            );
-            let p = &m.profile;
-            let turn_end = p.release_s + p.drop_s + p.recover_s + p.midcourse_turn_s;
-            let (n, e) = north_east_m(p, turn_end);
-            let (dn, de) = (m.landmark.north_m - n, m.landmark.east_m - e);
-            let vel = p.motion().at(turn_end).vel_ned_m_s;
-            let off = wrap_deg(de.atan2(dn).to_degrees() - vel.y.atan2(vel.x).to_degrees());
-            assert!(off.abs() < 2.0, "variant {}: aimed {off} deg off", v.params);
-            let (n, e) = north_east_m(p, p.end_s);
-            let left = (m.landmark.north_m - n).hypot(m.landmark.east_m - e);
-            assert!(
-                // S-turns and the climb shorten the ground track's progress: it ends
-                // farther, never closer.
-                left > 0.8 * MIN_END_RANGE_M && left < 2.5 * MIN_END_RANGE_M
-                    || p.end_s - turn_end <= 30.0 + 1e-9,
-                "variant {}: ends {left} m from the landmark",
-                v.params
-            );
-        }
-    }
-
-    /// Same seed, same numbers; another seed, other variants; every phase, the hand-over and
-    /// the last epoch reported.
-    #[test]
-    fn campaign_is_reproducible() {
-        let plan = CampaignPlan {
-            variants: 1,
-            runs: 2,
-            seed: 17,
-            progress: false,
-        };
-        let a = run(&plan).unwrap();
-        let b = run(&plan).unwrap();
-        crate::scenarios::campaign_plan::assert_same_results(&a, &b);
-        let filters: Vec<&str> = a.iter().map(|r| r.filter.as_str()).collect();
-        for f in ["carry", "released", "midcourse", "handover", "final"] {
-            assert!(filters.contains(&f), "{f} missing: {filters:?}");
-        }
-        let other = draw_variant(&base(), 18, 0);
-        assert_ne!(a[0].params, other.params);
-    }
-}
+#[path = "navigator_campaign_tests.rs"]
+mod tests;
