@@ -422,17 +422,78 @@ pub(crate) mod tests {
     /// Velocity derivative and attitude rates of the motion agree with central differences.
     #[test]
     fn motion_derivatives_match_finite_differences() {
-        let m = profile(10.0).motion();
-        let h = 1e-5;
-        let mut t = 0.05;
-        while t < 300.0 {
-            let k = m.at(t);
-            let da = (m.at(t + h).vel_ned_m_s - m.at(t - h).vel_ned_m_s) / (2.0 * h);
-            let w = crate::flight_path::body_rate_by_differences(&m, t, h);
-            assert!((da - k.accel_ned_m_s2).norm() < 1e-5, "t {t}: accel");
-            assert!((w - k.w_nb_b_rad_s).norm() < 1e-7, "t {t}: body rate");
-            t += 0.37;
+        for p in [
+            profile(10.0),
+            on_axis(CarryManoeuvreAxis::FlightPath),
+            on_axis(CarryManoeuvreAxis::Speed),
+        ] {
+            let m = p.motion();
+            let h = 1e-5;
+            let mut t = 0.05;
+            while t < 300.0 {
+                let k = m.at(t);
+                let da = (m.at(t + h).vel_ned_m_s - m.at(t - h).vel_ned_m_s) / (2.0 * h);
+                let w = crate::flight_path::body_rate_by_differences(&m, t, h);
+                assert!((da - k.accel_ned_m_s2).norm() < 1e-5, "t {t}: accel");
+                assert!((w - k.w_nb_b_rad_s).norm() < 1e-7, "t {t}: body rate");
+                t += 0.37;
+            }
         }
+    }
+
+    /// The test profile with its carry manoeuvre on `axis` (6° of flight path or −30 m/s, out
+    /// and back).
+    fn on_axis(axis: CarryManoeuvreAxis) -> MissionProfile {
+        let mut p = profile(0.0);
+        p.carry_manoeuvre_axis = axis;
+        if axis == CarryManoeuvreAxis::Speed {
+            p.carry_turn_deg = 0.0;
+            p.carry_speed_change_m_s = -30.0;
+        } else {
+            p.carry_turn_deg = 6.0;
+        }
+        p
+    }
+
+    /// A carry manoeuvre on the flight-path or speed axis: the carry's acceleration is on that
+    /// axis (vertical, along-track), the motion is back to its carry speed and level flight
+    /// before release, and the cruise altitude is still reached (the flight-path manoeuvre's
+    /// climb is taken into account).
+    #[test]
+    fn carry_manoeuvre_on_the_flight_path_and_speed_axes() {
+        for axis in [CarryManoeuvreAxis::FlightPath, CarryManoeuvreAxis::Speed] {
+            let p = on_axis(axis);
+            p.validate().unwrap();
+            let m = p.motion();
+            let mid = m.at(p.carry_turn_start_s + 0.5 * p.carry_turn_s);
+            let v = mid.vel_ned_m_s;
+            let along = mid.accel_ned_m_s2.dot(&v) / v.norm();
+            let vertical = mid.accel_ned_m_s2.z;
+            match axis {
+                CarryManoeuvreAxis::Speed => {
+                    assert!(along < -1.0 && vertical.abs() < 1e-9, "{along} {vertical}")
+                }
+                _ => assert!(vertical < -0.5, "{vertical}"),
+            }
+            let before = m.at(p.release_s - 1.0);
+            assert!((before.vel_ned_m_s.norm() - p.carry_speed_m_s).abs() < 1e-6);
+            assert!(before.vel_ned_m_s.z.abs() < 1e-6);
+            let stamps: Vec<u64> = (0..=30_000u64).map(|k| k * 10_000).collect();
+            let start = nav_core::seeker_ins::Position {
+                lat_rad: p.start_lat_deg.to_radians(),
+                lon_rad: p.start_lon_deg.to_radians(),
+                alt_m: p.carry_alt_m,
+            };
+            let t = generate(&m, start, &stamps);
+            let end = t.position.last().unwrap().alt_m;
+            assert!(
+                (end - p.cruise_alt_m).abs() < 100.0,
+                "{axis:?}: cruise altitude {end}"
+            );
+        }
+        let mut p = on_axis(CarryManoeuvreAxis::FlightPath);
+        p.carry_turn_back_after_s = None;
+        assert!(p.validate().is_err(), "a climb that never levels off");
     }
 
     /// The largest position (m, ECEF distance), velocity (m/s) and attitude (rad) errors, at
