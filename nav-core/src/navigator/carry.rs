@@ -95,9 +95,10 @@ pub(crate) struct ReleaseEvidence<T> {
     falling: bool,
 }
 
+/// `now − since`, s (0 when not later; integer-to-float conversions only, no `f64`).
 fn held<T: Real>(now: Timestamp, since: Timestamp) -> T {
     now.micros_since(since)
-        .map_or(T::zero(), |us| T::lit(us as f64 * 1e-6))
+        .map_or(T::zero(), crate::time::micros_to_seconds)
 }
 
 impl<T: Real> ReleaseEvidence<T> {
