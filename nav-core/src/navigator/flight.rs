@@ -50,6 +50,8 @@ struct MasterRecord<T> {
 impl<T: Real> MasterRecord<T> {
     /// The record of a sample of time of validity `epoch` with lever-arm-compensated specific
     /// force `f_master_m_s2` (m/s², master axes) and the alignment's θ̂ `theta_rad` after it.
+    /// In a frame of its own (not under the master tick's step).
+    #[inline(never)]
     fn new(epoch: Timestamp, f_master_m_s2: &Vector3<T>, theta_rad: &Vector3<T>) -> Self {
         let c_m_s: Matrix3<T> = exp_so3(&(-theta_rad));
         let f = c_m_s * f_master_m_s2;
