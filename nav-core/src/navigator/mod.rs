@@ -158,7 +158,8 @@
 //! **Changes to the agreed API** (`navigator-api.md`): [`FlightNavigator`] is
 //! `Navigator<T, 5, 15, H>` (the flight alignment filter has chains of 5, not 3);
 //! [`NavigatorInitial`] carries `nav_covariance` (the solution's σ until the first master
-//! sample); [`BaroDamping::InertialLoop`] takes a
+//! sample); [`NavigatorConfig`] carries `max_master_latency_s` (the histories' sizing rule)
+//! and [`SeparationCheck`] `unsignalled_onset_s` (the release without a signal); [`BaroDamping::InertialLoop`] takes a
 //! [`ClassicalConfig`](crate::vertical_channel::ClassicalConfig); [`Transition`] is a struct
 //! (from, to, cause, time); [`AidState`] has no `Skipped` (a sample that cannot be fused
 //! numerically leaves the aid `Waiting`, its report says `Skipped`); [`Aids::NONE`];
