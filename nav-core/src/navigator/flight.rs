@@ -1,6 +1,7 @@
 //! The navigator value and its tick (module doc of [`super`]).
 
 use super::baro::BaroState;
+use super::carry::{CarriedForce, ReleaseEvidence};
 use super::design::alignment_config;
 use super::design::NavigatorDesign;
 use super::handover::NavBlocks;
@@ -37,23 +38,35 @@ struct Snapshot<T> {
     state: InsState<T>,
 }
 
-/// What separation is judged against, from the last fused master sample: its specific force
-/// and the alignment's misalignment after it, from which the force in slave axes is formed
-/// when needed (a signalled release, the EKF's start), not on every master tick.
+/// What separation is judged against, from the last fused master sample: its
+/// lever-arm-compensated specific force turned into slave axes by the alignment's θ̂ after it,
+/// formed once (the signalled confirmation, the unsignalled cue and the EKF's start read it).
 #[derive(Debug, Clone, Copy)]
 struct MasterRecord<T> {
-    /// Its lever-arm-compensated specific force in master axes, m/s².
-    f_master_m_s2: Vector3<T>,
-    /// The alignment's total misalignment θ̂ after it, rad.
-    theta_rad: Vector3<T>,
+    /// The force in slave axes, `exp(−[θ̂×]) f̃_m`, with its time of validity and norm.
+    carried: CarriedForce<T>,
 }
 
 impl<T: Real> MasterRecord<T> {
-    /// The sample's lever-arm-compensated specific force in slave axes, m/s²:
-    /// `exp(−[θ̂×]) f̃_m`.
+    /// The record of a sample of time of validity `epoch` with lever-arm-compensated specific
+    /// force `f_master_m_s2` (m/s², master axes) and the alignment's θ̂ `theta_rad` after it.
+    /// In a frame of its own (not under the master tick's step).
+    #[inline(never)]
+    fn new(epoch: Timestamp, f_master_m_s2: &Vector3<T>, theta_rad: &Vector3<T>) -> Self {
+        let c_m_s: Matrix3<T> = exp_so3(&(-theta_rad));
+        let f = c_m_s * f_master_m_s2;
+        Self {
+            carried: CarriedForce {
+                epoch,
+                f_m_s2: f,
+                norm_m_s2: f.norm(),
+            },
+        }
+    }
+
+    /// The sample's lever-arm-compensated specific force in slave axes, m/s².
     fn f_slave_m_s2(&self) -> Vector3<T> {
-        let c_m_s: Matrix3<T> = exp_so3(&(-self.theta_rad));
-        c_m_s * self.f_master_m_s2
+        self.carried.f_m_s2
     }
 }
 
@@ -123,8 +136,8 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     last_master: Option<MasterRecord<T>>,
     /// Scratch of the master tick's step ([`MasterEpoch`]: no state).
     epoch: MasterEpoch<T>,
-    /// The IMU's own free-fall evidence (unsignalled release).
-    free_fall: super::carry::FreeFall,
+    /// The IMU's own evidence for a release without a signal (unloading, free fall).
+    release_evidence: ReleaseEvidence<T>,
     separation: SeparationStatus,
     signal: Option<Timestamp>,
     ekf: Option<SeekerIns<T>>,
@@ -301,6 +314,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         initial: &NavigatorInitial<T>,
     ) -> Result<Self, NavError> {
         config.validate()?;
+        Self::check_history_depth(config)?;
         design.check_ins(config)?;
         design.check_baro_loop(config)?;
         let ta = TransferAlignment::<T, K, N>::from_design(
@@ -341,7 +355,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             master_steps: 0,
             last_master: None,
             epoch: MasterEpoch::blank(),
-            free_fall: super::carry::FreeFall::default(),
+            release_evidence: ReleaseEvidence::new(config.separation.confirm_window_s),
             separation: SeparationStatus::NotSignalled,
             signal: None,
             ekf: None,
@@ -559,6 +573,24 @@ fn lost_if(lost: bool) -> AidAvailability {
 }
 
 impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
+    /// The histories' depth `H` against the master latency the configuration accepts:
+    /// `(H − 2) · imu_dt_s ≥ max_master_latency_s` (the slave's interval means are placed at
+    /// their mid-points, so the oldest interpolation point is `H − 3/2` ticks back; one tick
+    /// of margin for a late tick). `InvalidConfig { field: "max_master_latency_s", issue:
+    /// OutOfRange }` when the ring is too short (e.g. `H` = 64 reaches 62 ms at 1 kHz, less
+    /// than a bus latency of 100 ms: `H` ≥ 102 there).
+    fn check_history_depth(config: &NavigatorConfig<T>) -> Result<(), NavError> {
+        let reach_s = T::lit(H.saturating_sub(2) as f64) * config.imu_dt_s;
+        if reach_s >= config.max_master_latency_s {
+            Ok(())
+        } else {
+            Err(NavError::InvalidConfig {
+                field: "max_master_latency_s",
+                issue: crate::error::ConfigIssue::OutOfRange,
+            })
+        }
+    }
+
     /// Master: in carry, no fused sample for `timeouts.master_s` (since the start).
     fn master_availability(&self) -> AidAvailability {
         let since = self.master.last_ok.unwrap_or(self.start);

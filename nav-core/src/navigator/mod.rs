@@ -60,7 +60,10 @@
 //! **Carry.** Every tick the INS integrates the slave increment, the slave sample
 //! (rate `Δθ/dt`, specific force `Δv/dt`) goes into a [`crate::transfer_alignment::SlaveHistory`]
 //! and the INS state into a ring of `H` snapshots. A master sample of time of validity `t_m`
-//! (any latency up to `H` ticks) is matched with the slave at its epoch: the slave samples are
+//! (any latency up to `H − 3/2` ticks; sizing rule, checked at construction against
+//! [`NavigatorConfig::max_master_latency_s`]: `(H − 2) · imu_dt_s ≥ max_master_latency_s`,
+//! e.g. `H` ≥ 102 for 100 ms at 1 kHz; ≈ 96 B of RAM per tick of depth in f32, no code or
+//! stack) is matched with the slave at its epoch: the slave samples are
 //! interval means, i.e. values at their interval's mid-point, and are interpolated at `t_m`
 //! ([`SlaveHistory::at_time`](crate::transfer_alignment::SlaveHistory::at_time); pairing the
 //! end-stamped mean with the instantaneous master would mismatch by half an interval of the
@@ -79,10 +82,50 @@
 //! `confirm_window_s` of the signal; then the EKF starts ([`SeekerIns`](crate::seeker_ins::SeekerIns))
 //! from the current (slaved) INS state with the hand-over P0 of the last master epoch. A
 //! signal the IMU does not confirm in the window: [`SeparationStatus::SeparationUnconfirmed`],
-//! the navigator stays in carry (degraded). Without a signal the last master sample is stale
-//! once the master has timed out, so it cannot serve as the reference: the master timed out
-//! and the IMU reading free fall on its own (`|f_s|` below `specific_force_jump_m_s2` on every
-//! tick for `confirm_window_s`): [`SeparationStatus::UnsignalledRelease`] (released, degraded).
+//! the navigator stays in carry (degraded).
+//!
+//! *Without a signal* ([`SeparationStatus::UnsignalledRelease`], released, degraded) the
+//! navigator has the IMU and the bus's silence: the umbilical and the bus go with the release.
+//! A missile on the pylon feels the aircraft's specific force at its station (the pylon holds
+//! it: ≈ 1 g up in level flight, the load factor in a turn or a pull-up); a released missile
+//! only its own aerodynamic forces and thrust, so along the carried force it reads less: it
+//! *unloads*. The slave's specific force is averaged over a window of `confirm_window_s`
+//! (the mean of the IMU's Δv over five blocks of a fifth each, tested at each block's end:
+//! independent of the IMU rate, and a vibration at release — an ejector, a clipped 200 Hz
+//! burst sampled at 1 kHz — averages out instead of breaking an every-tick test). A release
+//! is declared when the master has timed out (`timeouts.master_s`) and either
+//!
+//! 1. *unloading with the master's loss*: the window's mean falls short of the last fused
+//!    master sample's carried force `f_c` (lever-arm compensated, in slave axes by θ̂) along
+//!    it by more than `specific_force_jump_m_s2`, `|f_c| − f̄_s·f_c/|f_c| > jump`, in a window
+//!    that starts after that sample's time of validity and at most `unsignalled_onset_s`
+//!    after it (the first such window is kept: after a drop the pull-out and the boost need
+//!    not unload; a master sample fused later withdraws it — the bus was alive); or
+//! 2. *free fall*: the window's mean `|f̄_s|` is below `specific_force_jump_m_s2`, however long
+//!    the master has been silent (a release during a bus dropout).
+//!
+//! Parameters: `specific_force_jump_m_s2` (m/s², > 0), `confirm_window_s` (s, > 0),
+//! `unsignalled_onset_s` (s, > 0 and ≤ `timeouts.master_s`, else `InvalidConfig`),
+//! `timeouts.master_s` (s). The time from release to declaration is the later of the
+//! master's time-out after its last fused sample and the first window's end (≈ 0.57-0.58 s on
+//! the mission's drop at 100 and 1000 Hz with a 0.5 s time-out and window).
+//!
+//! The trade. *False release* (on the wing): a bus dropout during a manoeuvre that unloads by
+//! more than the threshold on average over a window starting within `unsignalled_onset_s` of
+//! the last master epoch — a push-over or a roll-out of a turn whose onset coincides with the
+//! bus's failure (3 m/s² within 0.3 s, a jerk above 10 m/s³) — or one that holds less than
+//! `jump` for a whole window (a zero-g manoeuvre). A turn or a pull-up loads the missile and
+//! never releases it; an unloading that starts later than the onset bound (the short stress
+//! mission's roll-out during a 2 s dropout: 12 m/s² of unloading, crossing 3 m/s² ≈ 1 s after
+//! the bus's loss) does not either. Larger `jump` and `confirm_window_s`, smaller
+//! `unsignalled_onset_s` make false releases rarer. *Missed release*: a release whose mean
+//! unloading over every window starting within the onset bound stays below `jump` (a
+//! velocity deficit along the carried force below `jump × confirm_window_s`, 1.5 m/s for the
+//! mission: the mission's 1 s drop to −3° at 180 m/s has 9.4 m/s), or whose bus outlives
+//! the onset bound; it is then declared only on free fall, else the navigator stays in carry.
+//! Releases whose thrust and lift hold the carried force (a powered rail launch) are not
+//! seen by either cue: they need the signal.
+//!
 //! What carries over: position, velocity, attitude and their covariance (the hand-over's),
 //! gyro and gimbal biases from their priors. The flight alignment's estimate of the
 //! specific-force-difference bias is **not** handed over: the EKF's accelerometer bias starts
@@ -115,7 +158,8 @@
 //! **Changes to the agreed API** (`navigator-api.md`): [`FlightNavigator`] is
 //! `Navigator<T, 5, 15, H>` (the flight alignment filter has chains of 5, not 3);
 //! [`NavigatorInitial`] carries `nav_covariance` (the solution's σ until the first master
-//! sample); [`BaroDamping::InertialLoop`] takes a
+//! sample); [`NavigatorConfig`] carries `max_master_latency_s` (the histories' sizing rule)
+//! and [`SeparationCheck`] `unsignalled_onset_s` (the release without a signal); [`BaroDamping::InertialLoop`] takes a
 //! [`ClassicalConfig`](crate::vertical_channel::ClassicalConfig); [`Transition`] is a struct
 //! (from, to, cause, time); [`AidState`] has no `Skipped` (a sample that cannot be fused
 //! numerically leaves the aid `Waiting`, its report says `Skipped`); [`Aids::NONE`];
@@ -139,7 +183,13 @@
 //!     priors: HandoverPriors { accel_bias_sigma_m_s2: 1e-3, gyro_bias_sigma_rad_s: 5e-8, gimbal_bias_sigma_rad: 7e-4 },
 //!     ins: SeekerInsConfig::flight(Landmark::new(Position { lat_rad: 0.6462, ..here })?),
 //!     imu_dt_s: 0.01,
-//!     separation: SeparationCheck { specific_force_jump_m_s2: 4.0, confirm_window_s: 0.3, coast_s: 2.0 },
+//!     max_master_latency_s: 0.1, // 10 ticks: H = 32 reaches 0.3 s
+//!     separation: SeparationCheck {
+//!         specific_force_jump_m_s2: 4.0,
+//!         confirm_window_s: 0.3,
+//!         unsignalled_onset_s: 0.3,
+//!         coast_s: 2.0,
+//!     },
 //!     baro: BaroDamping::Ekf(BaroErrorModel { white_sigma_m: 1.0, markov_sigma_m: 5.0, markov_tau_s: 100.0, lag_s: 0.0 }),
 //!     timeouts: AidTimeouts { master_s: 0.5, baro_s: 1.0, seeker_s: 2.0 },
 //! };

@@ -24,6 +24,14 @@ pub struct NavigatorConfig<T> {
     pub ins: SeekerInsConfig<T>,
     /// Nominal IMU interval, s.
     pub imu_dt_s: T,
+    /// The largest master latency the navigator must accept: the age of a master sample's
+    /// time of validity at the tick it is handed in, s (≥ 0). The slave history and the ring
+    /// of INS snapshots, `H` ticks deep, must reach back to it: `(H − 2) · imu_dt_s ≥
+    /// max_master_latency_s` (one tick for the interpolation between interval mid-points, one
+    /// of margin for a late tick), checked at construction
+    /// (`InvalidConfig { field: "max_master_latency_s", issue: OutOfRange }`). A sample older
+    /// than the ring reaches is refused (`MeasurementTimeOutOfWindow`).
+    pub max_master_latency_s: T,
     /// Release confirmation and coast.
     pub separation: SeparationCheck<T>,
     /// How the baro damps the vertical channel from midcourse on.
@@ -69,10 +77,19 @@ pub enum BaroDamping<T> {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SeparationCheck<T> {
     /// Departure of the slave's specific force from the last master's lever-arm-compensated
-    /// specific force (in slave axes) that confirms separation, m/s² (> 0).
+    /// specific force (in slave axes) that confirms separation, m/s² (> 0). Without a signal,
+    /// the unloading (the slave's force along the carried one falling short of it) and the
+    /// free fall (`|f_s|` below it) that declare a release (module doc, "Separation").
     pub specific_force_jump_m_s2: T,
-    /// How long after the release signal the IMU may confirm it, s (> 0).
+    /// How long after the release signal the IMU may confirm it, s (> 0). Without a signal,
+    /// how long the unloading or the free fall must last, on every tick, to declare a release.
     pub confirm_window_s: T,
+    /// Without a signal: the latest start of the unloading after the last fused master
+    /// sample's time of validity for the two to be one event (the umbilical and the bus go
+    /// with the release), s (> 0, ≤ `timeouts.master_s`). An unloading that starts later,
+    /// the master already silent, is an aircraft manoeuvre during a bus dropout as likely as a
+    /// release: only the free fall declares one then.
+    pub unsignalled_onset_s: T,
     /// Time from release to midcourse (baro damping enabled), s (≥ 0).
     pub coast_s: T,
 }
@@ -178,7 +195,8 @@ pub enum Phase {
 pub enum TransitionCause {
     /// Release signal confirmed by the IMU.
     SeparationConfirmed,
-    /// Master lost and the IMU saw the separation without a signal.
+    /// Master lost and the IMU saw the separation without a signal (module doc,
+    /// "Separation": the unloading with the master's loss, or the free fall).
     UnsignalledSeparation,
     /// [`super::Navigator::release_with`].
     ReleaseCommanded,
@@ -258,7 +276,8 @@ pub enum SeparationStatus {
     Confirmed,
     /// Signal without the IMU's confirmation within the window: stays in carry.
     SeparationUnconfirmed,
-    /// Master lost and the IMU saw the separation: released without a signal.
+    /// Master lost and the IMU saw the separation (the unloading with the master's loss, or
+    /// the free fall; module doc, "Separation"): released without a signal.
     UnsignalledRelease,
     /// Released by [`super::Navigator::release_with`].
     Commanded,
@@ -335,9 +354,14 @@ impl<T: Real> NavigatorConfig<T> {
             s.specific_force_jump_m_s2,
         )?;
         require_positive("separation.confirm_window_s", s.confirm_window_s)?;
+        require_positive("separation.unsignalled_onset_s", s.unsignalled_onset_s)?;
         require_non_negative("separation.coast_s", s.coast_s)?;
+        require_non_negative("max_master_latency_s", self.max_master_latency_s)?;
         let t = &self.timeouts;
         require_positive("timeouts.master_s", t.master_s)?;
+        if s.unsignalled_onset_s > t.master_s {
+            return Err(out_of_range("separation.unsignalled_onset_s"));
+        }
         require_positive("timeouts.baro_s", t.baro_s)?;
         require_positive("timeouts.seeker_s", t.seeker_s)?;
         if let BaroDamping::Ekf(m) = &self.baro {

@@ -71,9 +71,12 @@ pub fn mission_config() -> Result<NavigatorConfig<f32>, NavError> {
         },
         ins: SeekerInsConfig::flight(Landmark::new(seeker_landmark_position())?),
         imu_dt_s: 0.01,
+        // The recorded master is 30 ms late; H = 16 ticks reach 0.14 s.
+        max_master_latency_s: 0.1,
         separation: SeparationCheck {
             specific_force_jump_m_s2: 4.0,
             confirm_window_s: 0.3,
+            unsignalled_onset_s: 0.3,
             coast_s: 1.0,
         },
         baro: BaroDamping::Ekf(BaroErrorModel {

@@ -2,6 +2,7 @@
 //! to the late master through the transfer alignment's hand-over, the alignment's predictions
 //! run ahead, the IMU-confirmed separation and the EKF's start.
 
+use super::super::carry::CueLimits;
 use super::super::design::slave_share;
 use super::super::handover::{
     hand_over_checked_master, refer_to_carry, validate_master, AlignmentAtRelease, MasterAtRelease,
@@ -291,9 +292,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
 
     /// The carry tick's separation logic: a release `signal` (its time) recorded, then the
     /// IMU's confirmation (the slave's specific force `f_s_m_s2`, m/s², against the last
-    /// master's) within the window, or an unsignalled release (the master lost and the IMU
-    /// falling); a release confirmed starts the EKF and reports the transition. In a frame of
-    /// its own (not above the master's step).
+    /// master's) within the window, or an unsignalled release (the master lost, and the IMU
+    /// unloading since the master's loss or falling: [`ReleaseEvidence`](super::super::carry::ReleaseEvidence));
+    /// a release confirmed starts the EKF and reports the transition. In a frame of its own
+    /// (not above the master's step).
     #[inline(never)]
     fn separation_check(
         &mut self,
@@ -314,21 +316,26 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 self.separation = SeparationStatus::AwaitingConfirmation;
             }
         }
-        let falling_s = self.free_fall.update(
+        // The IMU's evidence without a signal, recorded on every carry tick (the unloading
+        // starts before the master times out).
+        let limits = CueLimits {
+            jump_m_s2: self.config.separation.specific_force_jump_m_s2,
+            onset_s: self.config.separation.unsignalled_onset_s,
+        };
+        let cue = self.release_evidence.update(
             self.time,
             f_s_m_s2,
-            self.config.separation.specific_force_jump_m_s2,
+            self.last_master.as_ref().map(|lm| &lm.carried),
+            &limits,
         );
         let mut release = None;
-        let mut f_reference = None;
         match (self.separation, self.signal) {
             (SeparationStatus::AwaitingConfirmation, Some(sig)) => {
                 let age = elapsed::<T>(self.time, sig);
-                // The IMU's confirmation against the last master's force in slave axes
-                // (formed only when a signalled release awaits it; the EKF's start reuses it).
-                f_reference = self.last_master.map(|lm| lm.f_slave_m_s2());
-                let imu_sees = f_reference.is_some_and(|f| {
-                    (f_s_m_s2 - f).norm() > self.config.separation.specific_force_jump_m_s2
+                // The IMU's confirmation against the last master's force in slave axes.
+                let imu_sees = self.last_master.is_some_and(|lm| {
+                    (f_s_m_s2 - lm.f_slave_m_s2()).norm()
+                        > self.config.separation.specific_force_jump_m_s2
                 });
                 if imu_sees {
                     release = Some((
@@ -340,7 +347,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 }
             }
             _ => {
-                if master_lost && falling_s >= self.config.separation.confirm_window_s {
+                if master_lost && cue.is_some() {
                     release = Some((
                         SeparationStatus::UnsignalledRelease,
                         TransitionCause::UnsignalledSeparation,
@@ -349,7 +356,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             }
         }
         if let Some((status, cause)) = release {
-            if self.hand_over_now(f_reference) {
+            if self.hand_over_now() {
                 self.enter_released(status, cause);
                 *transition = self.pending.take();
             }
@@ -374,11 +381,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// current INS state with the hand-over P0 of the last fused master sample (its
     /// navigation blocks kept from that tick: the alignment has not changed since, so the
     /// hand-over would give them again bit for bit), written in place into the new EKF, its
-    /// accelerometer-bias states referred to the carry's specific force ([`refer_to_carry`]).
-    /// `f_reference`: the last master's specific force in slave axes when already formed
-    /// ([`MasterRecord::f_slave_m_s2`]).
+    /// accelerometer-bias states referred to the carry's specific force ([`refer_to_carry`],
+    /// the last master's in slave axes, [`MasterRecord::f_slave_m_s2`]).
     #[inline(never)]
-    fn hand_over_now(&mut self, f_reference: Option<Vector3<T>>) -> bool {
+    fn hand_over_now(&mut self) -> bool {
         let (Some(lm), Some(blocks)) = (self.last_master, self.handover) else {
             return false;
         };
@@ -396,8 +402,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
             self.hand_over_dense(&blocks)
         };
-        let f_slave = f_reference.unwrap_or_else(|| lm.f_slave_m_s2());
-        started && refer_to_carry(&mut self.ekf, &f_slave)
+        started && refer_to_carry(&mut self.ekf, &lm.f_slave_m_s2())
     }
 
     /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.
@@ -425,10 +430,14 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         let Some(fix) = self.snapshot_fix.take() else {
             return;
         };
+        // Newest first, up to the fix's start (the older ones are not touched: a deep ring
+        // costs nothing here).
         for s in self
             .snapshots
             .iter_mut()
-            .filter(|s| s.time >= fix.from && s.time <= fix.until)
+            .rev()
+            .take_while(|s| s.time >= fix.from)
+            .filter(|s| s.time <= fix.until)
         {
             if let Some(corrected) = fix.correction.apply(&s.state) {
                 s.state = corrected;
@@ -545,10 +554,11 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         } else {
             e.report.predictions.max(1)
         };
-        self.last_master = Some(MasterRecord {
-            f_master_m_s2: compensate_lever_arm(&e.sample, &self.config.lever_arm.nominal_m),
-            theta_rad: self.ta.theta(),
-        });
+        self.last_master = Some(MasterRecord::new(
+            e.sample.time,
+            &compensate_lever_arm(&e.sample, &self.config.lever_arm.nominal_m),
+            &self.ta.theta(),
+        ));
         Ok(self.record_master())
     }
 

@@ -76,9 +76,11 @@ fn config<T: Real>(baro: BaroDamping<T>) -> NavigatorConfig<T> {
         },
         ins: SeekerInsConfig::flight(Landmark::new(landmark_position()).unwrap()),
         imu_dt_s: T::lit(DT),
+        max_master_latency_s: T::lit(0.1),
         separation: SeparationCheck {
             specific_force_jump_m_s2: T::lit(4.0),
             confirm_window_s: T::lit(0.3),
+            unsignalled_onset_s: T::lit(0.3),
             coast_s: T::lit(COAST_S),
         },
         baro,
@@ -584,4 +586,5 @@ mod baro_floor;
 mod baro_loop;
 mod chain;
 mod psd;
+mod release;
 mod stored;

@@ -20,9 +20,13 @@ use nav_core::vertical_channel::{AidTimeouts as VcTimeouts, ClassicalConfig, Err
 use nav_core::Real;
 use serde::Deserialize;
 
-/// Slave-history depth of the navigator: ≥ the largest master latency (0.1 s) × the IMU rate
-/// (100 Hz), with margin for a late message, samples.
-pub const HISTORY: usize = 64;
+/// Slave-history depth of the navigator, samples: the sizing rule `(H − 2) · imu_dt ≥` the
+/// largest master latency accepted (`NavigatorConfig::max_master_latency_s`, the mission's
+/// `[master] latency_s` upper bound), checked at construction. 512 reaches 0.51 s at 1 kHz:
+/// the mission's 0.1 s and the stress campaign's late master (0.3 s, and the 0.4 s late
+/// fault) at every IMU rate flown (100-1000 Hz). A navigator holds ≈ 96 B per sample in f32
+/// (≈ 49 KB here): host memory; the firmware image's depth is its own.
+pub const HISTORY: usize = 512;
 
 /// The navigator's settings (TOML table `[navigator]`): everything that is design, not truth.
 #[derive(Debug, Clone, Deserialize)]
@@ -40,8 +44,12 @@ pub struct NavigatorSettings {
     pub covariance_hz: f64,
     /// Separation check: specific-force jump that confirms a release, m/s².
     pub separation_jump_m_s2: f64,
-    /// Separation check: window after the signal for the IMU's confirmation, s.
+    /// Separation check: window after the signal for the IMU's confirmation, and how long
+    /// the IMU's unloading or free fall must last without a signal, s.
     pub separation_window_s: f64,
+    /// Separation check without a signal: the latest start of the unloading after the last
+    /// fused master sample's time of validity, s.
+    pub separation_onset_s: f64,
     /// Released → midcourse (baro enabled) after this coast, s.
     pub coast_s: f64,
     /// Aid time-outs: master (carry), baro (midcourse), seeker (terminal), s.
@@ -203,9 +211,11 @@ pub(crate) fn navigator_config<T: Real>(
         },
         ins,
         imu_dt_s: T::lit(dt),
+        max_master_latency_s: T::lit(cfg.master.latency_s[1]),
         separation: SeparationCheck {
             specific_force_jump_m_s2: T::lit(set.separation_jump_m_s2),
             confirm_window_s: T::lit(set.separation_window_s),
+            unsignalled_onset_s: T::lit(set.separation_onset_s),
             coast_s: T::lit(set.coast_s),
         },
         baro,

@@ -151,10 +151,13 @@ struct Flight {
     seen: [bool; 4],
     seeker_after_midcourse: u64,
     separation_signalled: bool,
+    /// The truth's release (the missile leaves the wing), and the navigator's.
+    truth_release: Timestamp,
+    released_at: Option<Timestamp>,
 }
 
 impl Flight {
-    fn new(name: &str) -> Self {
+    fn new(name: &str, truth_release: Timestamp) -> Self {
         Self {
             ticks: Tally::new(format!("{name} (ticks)")),
             aids: [
@@ -167,6 +170,8 @@ impl Flight {
             seen: [false; 4],
             seeker_after_midcourse: 0,
             separation_signalled: false,
+            truth_release,
+            released_at: None,
         }
     }
 
@@ -184,6 +189,9 @@ impl Flight {
             if matches!(rep.phase, Phase::Midcourse | Phase::Terminal) {
                 self.seeker_after_midcourse += 1;
             }
+        }
+        if let Some(t) = rep.transition.filter(|t| t.from == Phase::Carry) {
+            self.released_at.get_or_insert(t.time);
         }
         let i = match rep.phase {
             Phase::Carry => 0,
@@ -207,6 +215,17 @@ impl Flight {
             stalls.push(format!("never released ({why})"));
         } else if !seen[2] {
             stalls.push("released but never in midcourse".to_string());
+        }
+        // A release declared while the missile is on the wing.
+        if let Some(early_us) = self
+            .released_at
+            .and_then(|t| self.truth_release.micros_since(t))
+            .filter(|us| *us > 0)
+        {
+            stalls.push(format!(
+                "released {:.3} s before the missile left the wing",
+                early_us as f64 * 1e-6
+            ));
         }
         if seen[2] && !seen[3] && self.seeker_after_midcourse >= 50 {
             stalls.push(format!(
@@ -257,7 +276,12 @@ pub(super) fn fly(case: &Case) -> Result<EstimatorStress> {
     let mut inp = inputs(cfg, &truth, &case.faults.faults(), &mut rng)?;
     shifted(&mut inp, case.offset_us);
     let config = navigator_config::<f32>(cfg, &case.set, Variant::Full)?;
-    let mut f = Flight::new(&case.name);
+    let release = truth
+        .missile
+        .imu
+        .get(truth.release_index)
+        .map_or(Timestamp::ZERO, |i| i.time);
+    let mut f = Flight::new(&case.name, shift(release, case.offset_us));
     let mut nav: Option<Nav> = None;
     let mut queue: std::collections::VecDeque<MasterMessage> = Default::default();
     let mut last_imu_time = Timestamp::ZERO;
