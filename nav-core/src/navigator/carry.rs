@@ -27,9 +27,10 @@
 //! sample is stale, and the aircraft may have manoeuvred since (a 2 s dropout in level carry
 //! was enough for that comparison to exceed its threshold in a quarter of the runs with the
 //! missile still on the wing).
+use crate::math::rotation::exp_so3;
 use crate::time::Timestamp;
 use crate::Real;
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 /// The last fused master sample's carried specific force, as the unloading cue reads it.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -198,6 +199,42 @@ impl<T: Real> ReleaseEvidence<T> {
                 self.unloaded_from = Some(start);
             }
         }
+    }
+}
+
+/// What separation is judged against, from the last fused master sample: its
+/// lever-arm-compensated specific force turned into slave axes by the alignment's θ̂ after it,
+/// formed once (the signalled confirmation, the unsignalled cue and the EKF's start read it).
+#[derive(Debug, Clone, Copy)]
+pub(super) struct MasterRecord<T> {
+    /// The force in slave axes, `exp(−[θ̂×]) f̃_m`, with its time of validity and norm.
+    pub(super) carried: CarriedForce<T>,
+}
+
+impl<T: Real> MasterRecord<T> {
+    /// The record of a sample of time of validity `epoch` with lever-arm-compensated specific
+    /// force `f_master_m_s2` (m/s², master axes) and the alignment's θ̂ `theta_rad` after it.
+    /// In a frame of its own (not under the master tick's step).
+    #[inline(never)]
+    pub(super) fn new(
+        epoch: Timestamp,
+        f_master_m_s2: &Vector3<T>,
+        theta_rad: &Vector3<T>,
+    ) -> Self {
+        let c_m_s: Matrix3<T> = exp_so3(&(-theta_rad));
+        let f = c_m_s * f_master_m_s2;
+        Self {
+            carried: CarriedForce {
+                epoch,
+                f_m_s2: f,
+                norm_m_s2: f.norm(),
+            },
+        }
+    }
+
+    /// The sample's lever-arm-compensated specific force in slave axes, m/s².
+    pub(super) fn f_slave_m_s2(&self) -> Vector3<T> {
+        self.carried.f_m_s2
     }
 }
 

@@ -1,7 +1,7 @@
 //! The navigator value and its tick (module doc of [`super`]).
 
 use super::baro::BaroState;
-use super::carry::{CarriedForce, ReleaseEvidence};
+use super::carry::{MasterRecord, ReleaseEvidence};
 use super::design::alignment_config;
 use super::design::NavigatorDesign;
 use super::handover::NavBlocks;
@@ -13,7 +13,7 @@ use super::types::{
 use crate::contract::{AidCounters, Estimator, FusionReport};
 use crate::earth::radii_m;
 use crate::math::rotation::{
-    exp_so3, log_so3, quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm,
+    log_so3, quat_from_rotation_vector, quat_mul, quat_normalize, quat_to_dcm,
 };
 use crate::seeker_ins::{Ins, InsState, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES};
 use crate::time::Timestamp;
@@ -22,7 +22,7 @@ use crate::vertical_channel::{ClassicalDesign, ClassicalLoop};
 use crate::{HealthState, NavError, Real};
 use heapless::Deque;
 use nalgebra::Quaternion;
-use nalgebra::{Matrix3, SMatrix, Vector3};
+use nalgebra::{SMatrix, Vector3};
 
 mod carry_phase;
 mod flight_phase;
@@ -36,38 +36,6 @@ use psd_check::PsdCheck;
 struct Snapshot<T> {
     time: Timestamp,
     state: InsState<T>,
-}
-
-/// What separation is judged against, from the last fused master sample: its
-/// lever-arm-compensated specific force turned into slave axes by the alignment's θ̂ after it,
-/// formed once (the signalled confirmation, the unsignalled cue and the EKF's start read it).
-#[derive(Debug, Clone, Copy)]
-struct MasterRecord<T> {
-    /// The force in slave axes, `exp(−[θ̂×]) f̃_m`, with its time of validity and norm.
-    carried: CarriedForce<T>,
-}
-
-impl<T: Real> MasterRecord<T> {
-    /// The record of a sample of time of validity `epoch` with lever-arm-compensated specific
-    /// force `f_master_m_s2` (m/s², master axes) and the alignment's θ̂ `theta_rad` after it.
-    /// In a frame of its own (not under the master tick's step).
-    #[inline(never)]
-    fn new(epoch: Timestamp, f_master_m_s2: &Vector3<T>, theta_rad: &Vector3<T>) -> Self {
-        let c_m_s: Matrix3<T> = exp_so3(&(-theta_rad));
-        let f = c_m_s * f_master_m_s2;
-        Self {
-            carried: CarriedForce {
-                epoch,
-                f_m_s2: f,
-                norm_m_s2: f.norm(),
-            },
-        }
-    }
-
-    /// The sample's lever-arm-compensated specific force in slave axes, m/s².
-    fn f_slave_m_s2(&self) -> Vector3<T> {
-        self.carried.f_m_s2
-    }
 }
 
 /// What the baro-inertial loop did with this tick's baro sample.
