@@ -3,7 +3,7 @@
 use super::*;
 use crate::math::rotation::{euler_to_dcm, log_so3, quat_to_dcm};
 
-fn master() -> MasterAtRelease<f64> {
+pub(super) fn master() -> MasterAtRelease<f64> {
     MasterAtRelease {
         c_m_n: euler_to_dcm(0.2, 0.05, 1.3),
         vel_ned_m_s: Vector3::new(40.0, 170.0, -3.0),
@@ -20,7 +20,7 @@ fn master() -> MasterAtRelease<f64> {
     }
 }
 
-fn alignment() -> AlignmentAtRelease<f64> {
+pub(super) fn alignment() -> AlignmentAtRelease<f64> {
     let pt = Matrix3::new(1.0, 0.2, 0.0, 0.2, 2.0, 0.1, 0.0, 0.1, 4.0) * 1e-7;
     AlignmentAtRelease {
         theta_rad: Vector3::new(0.012, -0.008, 0.02),
@@ -35,17 +35,19 @@ fn alignment() -> AlignmentAtRelease<f64> {
         // factor and misalignment at level carry (200 ppm, 10″ of 9.8 m/s²).
         bias_prior_variance_m2_s4: Vector3::repeat(1e-6 + 0.25e-3 * 0.25e-3) + SHARE,
         slave_share_variance_m2_s4: SHARE,
+        bias_m_s2: Vector3::new(2e-4, -1e-4, 3e-4),
+        bias_covariance_m2_s4: Matrix3::new(5.0, 1.0, 0.0, 1.0, 4.0, 0.5, 0.0, 0.5, 9.0) * 1e-8,
     }
 }
 
 /// The slave's scale-factor and misalignment share of [`alignment`]'s bias prior, (m/s²)².
 const SHARE: Vector3<f64> = Vector3::new(2.3e-7, 2.3e-7, 3.8e-6);
 
-const LEVER: LeverArm<f64> = LeverArm {
+pub(super) const LEVER: LeverArm<f64> = LeverArm {
     nominal_m: Vector3::new(1.5, 4.0, 0.6),
     sigma_m: Vector3::new(0.01, 0.01, 0.01),
 };
-const PRIORS: HandoverPriors<f64> = HandoverPriors {
+pub(super) const PRIORS: HandoverPriors<f64> = HandoverPriors {
     accel_bias_sigma_m_s2: 1e-3,
     gyro_bias_sigma_rad_s: 5e-8,
     gimbal_bias_sigma_rad: 7e-4,
@@ -82,6 +84,8 @@ fn inputs<T: Real>() -> Inputs<T> {
         theta_bias_covariance: a.theta_bias_covariance.map(T::lit),
         bias_prior_variance_m2_s4: cast3(&a.bias_prior_variance_m2_s4),
         slave_share_variance_m2_s4: cast3(&a.slave_share_variance_m2_s4),
+        bias_m_s2: cast3(&a.bias_m_s2),
+        bias_covariance_m2_s4: a.bias_covariance_m2_s4.map(T::lit),
     };
     let lever = LeverArm {
         nominal_m: cast3(&LEVER.nominal_m),
@@ -376,6 +380,13 @@ fn alignment_from_a_flight_filter() {
     );
     // The filter alone does not know which part of its prior is the slave's share.
     assert_eq!(a.slave_share_variance_m2_s4, Vector3::zeros());
+    // Its difference-bias estimate and covariance (the bias states' block).
+    assert_eq!(a.bias_m_s2, f.accel_bias().unwrap().0);
+    for i in 0..3 {
+        for j in 0..3 {
+            assert_eq!(a.bias_covariance_m2_s4[(i, j)], p[(12 + i, 12 + j)]);
+        }
+    }
     let out = hand_over(&master(), &a, &LEVER, &PRIORS).unwrap();
     assert!(out.covariance.cholesky().is_some());
 }
@@ -537,6 +548,8 @@ fn p0_is_positive_definite_and_bad_inputs_are_named() {
         theta_bias_covariance: a0.theta_bias_covariance.cast(),
         bias_prior_variance_m2_s4: a0.bias_prior_variance_m2_s4.cast(),
         slave_share_variance_m2_s4: a0.slave_share_variance_m2_s4.cast(),
+        bias_m_s2: a0.bias_m_s2.cast(),
+        bias_covariance_m2_s4: a0.bias_covariance_m2_s4.cast(),
     };
     let l32 = LeverArm::<f32> {
         nominal_m: LEVER.nominal_m.cast(),

@@ -20,7 +20,8 @@ use crate::earth::{earth_rate_ned, transport_rate_ned};
 use crate::seeker_ins::{validate_increment, ImuIncrement, Ins, SeekerIns, SeekerInsInitial};
 use crate::time::Timestamp;
 use crate::transfer_alignment::{
-    compensate_lever_arm, GapOutcome, MasterSample, SlaveSample, StepReport, TransferAlignment,
+    compensate_lever_arm, level_carry_force, share_charge, GapOutcome, MasterSample, SlaveSample,
+    StepReport, TransferAlignment,
 };
 use crate::{NavError, Real};
 use nalgebra::{Matrix3, SMatrix, Vector3};
@@ -397,7 +398,8 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             self.hand_over_dense(&blocks)
         };
         let f_slave = f_reference.unwrap_or_else(|| lm.f_slave_m_s2());
-        started && refer_to_carry(&mut self.ekf, &f_slave)
+        let ab = priors.accel_bias_sigma_m_s2 * priors.accel_bias_sigma_m_s2;
+        started && refer_to_carry(&mut self.ekf, &f_slave, blocks.bias_start(ab).as_ref())
     }
 
     /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.
@@ -536,6 +538,21 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             slave_to(config, ta, at, snap, now, out)
         })?;
         let e = &self.epoch;
+        // The bias states' share of the specific force's change since the last fused epoch
+        // (module `transfer_alignment::bias_charge`; level carry's force before the first).
+        let f_now = compensate_lever_arm(&e.sample, &self.config.lever_arm.nominal_m);
+        let f_prev = self
+            .last_master
+            .map_or_else(level_carry_force, |lm| lm.f_master_m_s2);
+        let ie = &self.config.ins.instrument_errors;
+        let charge = share_charge(
+            ie.accel_scale_factor,
+            ie.accel_misalignment_rad,
+            &f_prev,
+            &f_now,
+        );
+        // Refused only for a non-finite charge (the fused forces are finite): nothing changed.
+        let _ = self.ta.charge_accel_bias_variance(&charge);
         // What the next sample will likely need: as many predictions as this one; after the
         // first epoch (nothing predicted, the master's interval not known yet) as many as a
         // tick runs ahead, so that the next master tick predicts nothing itself (predictions
@@ -546,7 +563,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             e.report.predictions.max(1)
         };
         self.last_master = Some(MasterRecord {
-            f_master_m_s2: compensate_lever_arm(&e.sample, &self.config.lever_arm.nominal_m),
+            f_master_m_s2: f_now,
             theta_rad: self.ta.theta(),
         });
         Ok(self.record_master())
