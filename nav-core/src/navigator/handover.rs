@@ -102,11 +102,6 @@ pub struct AlignmentAtRelease<T> {
     /// ([`crate::transfer_alignment::slave_share_variance`]); zero when the prior holds the
     /// instruments' biases only.
     pub slave_share_variance_m2_s4: Vector3<T>,
-    /// The specific-force-difference bias estimate `b̂` per axis X, Y, Z, m/s² (zero without
-    /// that state; the EKF's start `−β b̂` with [`HAND_OVER_BIAS_ESTIMATE`], module doc).
-    pub bias_m_s2: Vector3<T>,
-    /// Covariance of `b̂`'s error across the axes, (m/s²)² (zero without that state).
-    pub bias_covariance_m2_s4: Matrix3<T>,
 }
 
 impl<T: Real> AlignmentAtRelease<T> {
@@ -123,8 +118,6 @@ impl<T: Real> AlignmentAtRelease<T> {
             theta_bias_covariance: f.theta_bias_covariance(),
             bias_prior_variance_m2_s4: f.accel_bias_prior_variance(),
             slave_share_variance_m2_s4: Vector3::zeros(),
-            bias_m_s2: f.accel_bias().map_or_else(Vector3::zeros, |(b, _)| b),
-            bias_covariance_m2_s4: f.accel_bias_covariance(),
         }
     }
 
@@ -287,10 +280,6 @@ pub(crate) struct NavBlocks<T> {
     /// The slave's scale-factor and misalignment share `v` of it per axis, (m/s²)² (the
     /// EKF adds it to its bias variances when it refers them to the carry's force).
     pub(crate) slave_share_m2_s4: Vector3<T>,
-    /// The alignment's difference-bias estimate `b̂`, m/s², and its covariance, (m/s²)²
-    /// (read with [`HAND_OVER_BIAS_ESTIMATE`] only).
-    pub(crate) bias_m_s2: Vector3<T>,
-    pub(crate) bias_covariance_m2_s4: Matrix3<T>,
 }
 
 /// `(B + Bᵀ) / 2`, entry by entry as the symmetrisation of the whole P0.
@@ -319,11 +308,6 @@ impl<T: Real> NavBlocks<T> {
         // whole P0 as the diagonal blocks' one is without X), D = diag(ab + v): the bias block
         // once the EKF has referred it to the carry's force (`refer_to_carry`, at the same
         // tick, before any step); with `v` = 0 the P0 as written.
-        // A bias block from the alignment's estimate ([`HAND_OVER_BIAS_ESTIMATE`]) is not
-        // diagonal: the EKF's own dense check decides.
-        if self.bias_start(ab).is_some() {
-            return false;
-        }
         let d = self.slave_share_m2_s4.map(|v| v + ab);
         let cross_ok = match self.att_bias(ab) {
             None => true,
@@ -361,14 +345,8 @@ impl<T: Real> NavBlocks<T> {
         let gb = priors.gyro_bias_sigma_rad_s * priors.gyro_bias_sigma_rad_s;
         let sb = priors.gimbal_bias_sigma_rad * priors.gimbal_bias_sigma_rad;
         // A diagonal entry symmetrised is itself ((v + v)/2 = v exactly).
-        match self.bias_start(ab) {
-            Some(start) => p0
-                .fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS)
-                .copy_from(&start.covariance_m2_s4),
-            None => p0
-                .fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS)
-                .fill_diagonal(ab),
-        }
+        p0.fixed_view_mut::<3, 3>(ACC_BIAS, ACC_BIAS)
+            .fill_diagonal(ab);
         // Attitude–accelerometer-bias cross-covariance (module doc): −C_s^n J_r P_θb diag(β),
         // β the slave's share of the difference bias's prior variance per axis (at most 1);
         // written with its exact transpose, so P0 stays exactly symmetric.
@@ -499,8 +477,6 @@ pub(crate) fn hand_over_checked_master<T: Real>(
             att_bias_unscaled: -(a * alignment.theta_bias_covariance),
             bias_prior_variance_m2_s4: alignment.bias_prior_variance_m2_s4,
             slave_share_m2_s4: alignment.slave_share_variance_m2_s4,
-            bias_m_s2: alignment.bias_m_s2,
-            bias_covariance_m2_s4: alignment.bias_covariance_m2_s4,
         },
     })
 }
@@ -583,17 +559,12 @@ fn validate_alignment<T: Real>(alignment: &AlignmentAtRelease<T>) -> Result<(), 
     sigma3(
         &alignment.slave_share_variance_m2_s4,
         "alignment.slave_share_variance_m2_s4",
-    )?;
-    finite3(&alignment.bias_m_s2, "alignment.bias_m_s2")?;
-    covariance3(
-        &alignment.bias_covariance_m2_s4,
-        "alignment.bias_covariance_m2_s4",
     )
 }
 
 mod bias;
-pub(crate) use bias::refer_to_carry;
 pub use bias::HAND_OVER_BIAS_ESTIMATE;
+pub(crate) use bias::{alignment_bias_start, refer_to_carry, BiasStart};
 
 #[cfg(test)]
 #[path = "handover_tests.rs"]

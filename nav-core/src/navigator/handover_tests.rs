@@ -35,8 +35,6 @@ pub(super) fn alignment() -> AlignmentAtRelease<f64> {
         // factor and misalignment at level carry (200 ppm, 10″ of 9.8 m/s²).
         bias_prior_variance_m2_s4: Vector3::repeat(1e-6 + 0.25e-3 * 0.25e-3) + SHARE,
         slave_share_variance_m2_s4: SHARE,
-        bias_m_s2: Vector3::new(2e-4, -1e-4, 3e-4),
-        bias_covariance_m2_s4: Matrix3::new(5.0, 1.0, 0.0, 1.0, 4.0, 0.5, 0.0, 0.5, 9.0) * 1e-8,
     }
 }
 
@@ -84,8 +82,6 @@ fn inputs<T: Real>() -> Inputs<T> {
         theta_bias_covariance: a.theta_bias_covariance.map(T::lit),
         bias_prior_variance_m2_s4: cast3(&a.bias_prior_variance_m2_s4),
         slave_share_variance_m2_s4: cast3(&a.slave_share_variance_m2_s4),
-        bias_m_s2: cast3(&a.bias_m_s2),
-        bias_covariance_m2_s4: a.bias_covariance_m2_s4.map(T::lit),
     };
     let lever = LeverArm {
         nominal_m: cast3(&LEVER.nominal_m),
@@ -380,13 +376,6 @@ fn alignment_from_a_flight_filter() {
     );
     // The filter alone does not know which part of its prior is the slave's share.
     assert_eq!(a.slave_share_variance_m2_s4, Vector3::zeros());
-    // Its difference-bias estimate and covariance (the bias states' block).
-    assert_eq!(a.bias_m_s2, f.accel_bias().unwrap().0);
-    for i in 0..3 {
-        for j in 0..3 {
-            assert_eq!(a.bias_covariance_m2_s4[(i, j)], p[(12 + i, 12 + j)]);
-        }
-    }
     let out = hand_over(&master(), &a, &LEVER, &PRIORS).unwrap();
     assert!(out.covariance.cholesky().is_some());
 }
@@ -548,8 +537,6 @@ fn p0_is_positive_definite_and_bad_inputs_are_named() {
         theta_bias_covariance: a0.theta_bias_covariance.cast(),
         bias_prior_variance_m2_s4: a0.bias_prior_variance_m2_s4.cast(),
         slave_share_variance_m2_s4: a0.slave_share_variance_m2_s4.cast(),
-        bias_m_s2: a0.bias_m_s2.cast(),
-        bias_covariance_m2_s4: a0.bias_covariance_m2_s4.cast(),
     };
     let l32 = LeverArm::<f32> {
         nominal_m: LEVER.nominal_m.cast(),

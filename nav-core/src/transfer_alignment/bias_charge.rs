@@ -118,6 +118,23 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
         Ok(())
     }
 
+    /// [`Self::charge_accel_bias_variance`] of [`share_charge`] for the specific force
+    /// moving from `f_prev_m_s2` (the last fused epoch's; `None` before the first: level
+    /// carry's, what the prior covers) to `f_now_m_s2` (m/s², slave axes), with the slave
+    /// accelerometers' `scale_factor` (dimensionless) and `misalignment_rad` (rad) 1σ. A
+    /// non-finite force charges nothing (refused, nothing changed).
+    pub fn charge_share_change(
+        &mut self,
+        scale_factor: T,
+        misalignment_rad: T,
+        f_prev_m_s2: Option<Vector3<T>>,
+        f_now_m_s2: &Vector3<T>,
+    ) {
+        let prev = f_prev_m_s2.unwrap_or_else(level_carry_force);
+        let add = share_charge(scale_factor, misalignment_rad, &prev, f_now_m_s2);
+        let _ = self.charge_accel_bias_variance(&add);
+    }
+
     /// Covariance of the specific-force-difference bias states across the axes X, Y, Z,
     /// (m/s²)²; zero for a filter without them.
     pub fn accel_bias_covariance(&self) -> Matrix3<T> {
@@ -258,17 +275,16 @@ mod tests {
         let s_z = 2.0 * SF;
         let level = level_carry_force::<f64>();
         let turn = level * 1.56;
-        let mut f_prev = level;
+        let mut f_prev = None;
         let mut worst: f64 = 0.0;
         for k in 0..6_200_u64 {
             let f = if k < 6_000 { level } else { turn };
             let (m, s) = epoch(k, &f, s_z);
             ta.step(&m, &s).unwrap();
             if charge {
-                ta.charge_accel_bias_variance(&share_charge(SF, MIS, &f_prev, &f))
-                    .unwrap();
+                ta.charge_share_change(SF, MIS, f_prev, &f);
             }
-            f_prev = f;
+            f_prev = Some(f);
             if k >= 6_000 {
                 let (b, sigma) = ta.accel_bias().unwrap();
                 let truth = -s_z * f.z;
