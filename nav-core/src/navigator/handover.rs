@@ -38,6 +38,14 @@
 //!   the tilt and the difference bias absorbed; the drop (≈ 0 g) and the pull-up after it are
 //!   departures from it, charged to the velocity (`seeker_ins` flight noise), not new biases.
 //!
+//! * the accelerometer-bias estimate: the EKF's bias states start from the priors (zero
+//!   estimate). Handing over the alignment's `b̂` as `−β b̂` with covariance
+//!   `diag(β) P_bb diag(β) + diag(β σ_bm²)` (module `bias`, [`HAND_OVER_BIAS_ESTIMATE`]) was
+//!   measured and is off: the alignment's level-axis bias stays overconfident after the
+//!   carry's turns (the misalignment share acts there as a tilt; README, "The bias hand-over,
+//!   measured again"). The alignment's bias variance itself is charged with the share's
+//!   change in a manoeuvre ([`crate::transfer_alignment::share_charge`]).
+//!
 //! The other cross-covariances between the blocks are neglected (master and alignment errors
 //! are independent; the attitude–velocity coupling through the lever arm is `|ω × l| σ_φm`,
 //! below 10⁻³ m/s for any pylon).
