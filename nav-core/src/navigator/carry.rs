@@ -209,6 +209,9 @@ impl<T: Real> ReleaseEvidence<T> {
 pub(super) struct MasterRecord<T> {
     /// The force in slave axes, `exp(−[θ̂×]) f̃_m`, with its time of validity and norm.
     pub(super) carried: CarriedForce<T>,
+    /// Its lever-arm-compensated specific force in master axes, m/s² (the bias charge's
+    /// reference for the next sample's change).
+    pub(super) f_master_m_s2: Vector3<T>,
 }
 
 impl<T: Real> MasterRecord<T> {
@@ -229,6 +232,7 @@ impl<T: Real> MasterRecord<T> {
                 f_m_s2: f,
                 norm_m_s2: f.norm(),
             },
+            f_master_m_s2: *f_master_m_s2,
         }
     }
 

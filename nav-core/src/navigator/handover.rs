@@ -38,6 +38,14 @@
 //!   the tilt and the difference bias absorbed; the drop (≈ 0 g) and the pull-up after it are
 //!   departures from it, charged to the velocity (`seeker_ins` flight noise), not new biases.
 //!
+//! * the accelerometer-bias estimate: the EKF's bias states start from the priors (zero
+//!   estimate). Handing over the alignment's `b̂` as `−β b̂` with covariance
+//!   `diag(β) P_bb diag(β) + diag(β σ_bm²)` (module `bias`, [`HAND_OVER_BIAS_ESTIMATE`]) was
+//!   measured and is off: the alignment's level-axis bias stays overconfident after the
+//!   carry's turns (the misalignment share acts there as a tilt; README, "The bias hand-over,
+//!   measured again"). The alignment's bias variance itself is charged with the share's
+//!   change in a manoeuvre ([`crate::transfer_alignment::share_charge`]).
+//!
 //! The other cross-covariances between the blocks are neglected (master and alignment errors
 //! are independent; the attitude–velocity coupling through the lever arm is `|ω × l| σ_φm`,
 //! below 10⁻³ m/s for any pylon).
@@ -360,22 +368,29 @@ impl<T: Real> NavBlocks<T> {
         p0.fixed_view_mut::<2, 2>(GIMBAL, GIMBAL).fill_diagonal(sb);
     }
 
+    /// The β per axis of the slave's share of the difference bias (`(ab + v) / (σ_bm² +
+    /// σ_bs² + v)`, at most 1; 0 on an axis without prior), `ab` the slave's bias prior
+    /// variance, (m/s²)².
+    pub(super) fn beta(&self, ab: T) -> Vector3<T> {
+        self.bias_prior_variance_m2_s4
+            .zip_map(&self.slave_share_m2_s4, |total, share| {
+                if total > T::zero() {
+                    ((ab + share) / total).min(T::one())
+                } else {
+                    T::zero()
+                }
+            })
+    }
+
     /// The attitude–accelerometer-bias block of P0 for the slave's accelerometer-bias prior
     /// variance `ab` ((m/s²)²): the columns of `att_bias_unscaled` times
     /// `β = (ab + v) / (σ_bm² + σ_bs² + v)` (at most 1; 0 on an axis without prior). `None`
     /// when the alignment has no difference-bias state.
     fn att_bias(&self, ab: T) -> Option<Matrix3<T>> {
         let var = &self.bias_prior_variance_m2_s4;
-        var.iter().any(|v| *v > T::zero()).then(|| {
-            let beta = var.zip_map(&self.slave_share_m2_s4, |total, share| {
-                if total > T::zero() {
-                    ((ab + share) / total).min(T::one())
-                } else {
-                    T::zero()
-                }
-            });
-            times_diag(&self.att_bias_unscaled, &beta)
-        })
+        var.iter()
+            .any(|v| *v > T::zero())
+            .then(|| times_diag(&self.att_bias_unscaled, &self.beta(ab)))
     }
 }
 
@@ -474,25 +489,6 @@ pub(crate) fn hand_over_checked_master<T: Real>(
     })
 }
 
-/// The carry's specific force as the reference of the new EKF's accelerometer-bias states
-/// (`SeekerIns::set_specific_force_reference`): the alignment levelled the slave against its
-/// own accelerometers at the carry's specific force, so the equivalent bias `b + (S + M) f`
-/// the EKF starts from is the one of that force, not of the drop's first covariance step.
-/// `f_slave_m_s2`: the last fused master epoch's lever-arm-compensated specific force in slave
-/// axes, m/s². Always `true` (the hand-over stands: a force the EKF refuses leaves its first
-/// step's specific force as the reference).
-pub(crate) fn refer_to_carry<T: Real>(
-    ekf: &mut Option<crate::seeker_ins::SeekerIns<T>>,
-    f_slave_m_s2: &Vector3<T>,
-) -> bool {
-    if let Some(e) = ekf.as_mut() {
-        // Refused only for a non-finite force (the master's samples are checked finite) or a
-        // reference already set (a new EKF has none): nothing to undo either way.
-        let _ = e.set_specific_force_reference(f_slave_m_s2);
-    }
-    true
-}
-
 /// The checks of [`hand_over`] on what does not come from the alignment: the master, the
 /// lever arm and the priors (errors as [`hand_over`]'s).
 pub(crate) fn validate_master<T: Real>(
@@ -573,6 +569,10 @@ fn validate_alignment<T: Real>(alignment: &AlignmentAtRelease<T>) -> Result<(), 
         "alignment.slave_share_variance_m2_s4",
     )
 }
+
+mod bias;
+pub use bias::HAND_OVER_BIAS_ESTIMATE;
+pub(crate) use bias::{alignment_bias_start, refer_to_carry, BiasStart};
 
 #[cfg(test)]
 #[path = "handover_tests.rs"]

@@ -3,7 +3,7 @@
 use super::*;
 use crate::math::rotation::{euler_to_dcm, log_so3, quat_to_dcm};
 
-fn master() -> MasterAtRelease<f64> {
+pub(super) fn master() -> MasterAtRelease<f64> {
     MasterAtRelease {
         c_m_n: euler_to_dcm(0.2, 0.05, 1.3),
         vel_ned_m_s: Vector3::new(40.0, 170.0, -3.0),
@@ -20,7 +20,7 @@ fn master() -> MasterAtRelease<f64> {
     }
 }
 
-fn alignment() -> AlignmentAtRelease<f64> {
+pub(super) fn alignment() -> AlignmentAtRelease<f64> {
     let pt = Matrix3::new(1.0, 0.2, 0.0, 0.2, 2.0, 0.1, 0.0, 0.1, 4.0) * 1e-7;
     AlignmentAtRelease {
         theta_rad: Vector3::new(0.012, -0.008, 0.02),
@@ -41,11 +41,11 @@ fn alignment() -> AlignmentAtRelease<f64> {
 /// The slave's scale-factor and misalignment share of [`alignment`]'s bias prior, (m/s²)².
 const SHARE: Vector3<f64> = Vector3::new(2.3e-7, 2.3e-7, 3.8e-6);
 
-const LEVER: LeverArm<f64> = LeverArm {
+pub(super) const LEVER: LeverArm<f64> = LeverArm {
     nominal_m: Vector3::new(1.5, 4.0, 0.6),
     sigma_m: Vector3::new(0.01, 0.01, 0.01),
 };
-const PRIORS: HandoverPriors<f64> = HandoverPriors {
+pub(super) const PRIORS: HandoverPriors<f64> = HandoverPriors {
     accel_bias_sigma_m_s2: 1e-3,
     gyro_bias_sigma_rad_s: 5e-8,
     gimbal_bias_sigma_rad: 7e-4,

@@ -127,13 +127,14 @@
 //!
 //! # Files
 //!
-//! `config` (configuration, envelope, the paper's configurations), `model` (the flexure models
+//! `bias_charge` (the bias variance a manoeuvre's change of specific force needs), `config` (configuration, envelope, the paper's configurations), `model` (the flexure models
 //! and the per-axis exact discretisation), `design` ([`TaDesign`]), `measurement` (samples,
 //! lever arm, H rows), `history` ([`SlaveHistory`]), `covariance` (the numerics above),
 //! `health` ([`Channel`], counters, health rules), `filter` (the estimator value and its
 //! outputs), `step` (the per-epoch work), `rows` (the six scalar rows of an epoch), `fusion`
 //! (the rank-one scalar update), `observability` (observability matrices and their
 //! numerical rank, for analysis).
+mod bias_charge;
 mod config;
 mod covariance;
 mod design;
@@ -149,6 +150,7 @@ mod step;
 #[cfg(test)]
 mod tests;
 
+pub use bias_charge::{level_carry_force, share_change_variance, share_charge};
 pub use config::{
     default_recovery, slave_share_variance, PaperCase, TaConfig, ACCEL_NOISE_SIGMA_RANGE_M_S2,
     MAX_ACCEL_BIAS_SIGMA_M_S2, MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_DT_S,

@@ -5,8 +5,8 @@
 use super::super::carry::CueLimits;
 use super::super::design::slave_share;
 use super::super::handover::{
-    hand_over_checked_master, refer_to_carry, validate_master, AlignmentAtRelease, MasterAtRelease,
-    NavBlocks,
+    alignment_bias_start, hand_over_checked_master, refer_to_carry, validate_master,
+    AlignmentAtRelease, BiasStart, MasterAtRelease, NavBlocks,
 };
 use super::super::types::{
     AidAvailability, AidState, Aids, ImuTick, MasterNav, NavigatorConfig, SeparationStatus,
@@ -389,7 +389,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             return false;
         };
         let priors = self.config.priors;
-        let started = if blocks.p0_passes_checks(&priors) {
+        // The alignment's bias estimate (a design switch, off); through the dense check.
+        let bias = alignment_bias_start(&self.ta, &blocks, &priors);
+        let started = if bias.is_none() && blocks.p0_passes_checks(&priors) {
             SeekerIns::start_in(
                 &mut self.ekf,
                 &self.config.ins,
@@ -400,20 +402,23 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             .is_ok()
         } else {
             // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
-            self.hand_over_dense(&blocks)
+            self.hand_over_dense(&blocks, bias.as_ref())
         };
-        started && refer_to_carry(&mut self.ekf, &lm.f_slave_m_s2())
+        started && refer_to_carry(&mut self.ekf, &lm.f_slave_m_s2(), bias.as_ref())
     }
 
     /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.
     #[cold]
     #[inline(never)]
-    fn hand_over_dense(&mut self, blocks: &NavBlocks<T>) -> bool {
+    fn hand_over_dense(&mut self, blocks: &NavBlocks<T>, bias: Option<&BiasStart<T>>) -> bool {
         let mut initial = SeekerInsInitial {
             state: *self.ins.state(),
             covariance: SMatrix::zeros(),
         };
         blocks.write_p0(&self.config.priors, &mut initial.covariance);
+        if let Some(b) = bias {
+            b.write_into(&mut initial.covariance);
+        }
         match SeekerIns::from_design(&self.config.ins, &self.design, &initial) {
             Ok(ekf) => {
                 self.ekf = Some(ekf);
@@ -545,6 +550,16 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             slave_to(config, ta, at, snap, now, out)
         })?;
         let e = &self.epoch;
+        // The bias states' share of the force's change (`transfer_alignment::bias_charge`).
+        let f_now = compensate_lever_arm(&e.sample, &self.config.lever_arm.nominal_m);
+        let ie = &self.config.ins.instrument_errors;
+        let f_prev = self.last_master.map(|lm| lm.f_master_m_s2);
+        self.ta.charge_share_change(
+            ie.accel_scale_factor,
+            ie.accel_misalignment_rad,
+            f_prev,
+            &f_now,
+        );
         // What the next sample will likely need: as many predictions as this one; after the
         // first epoch (nothing predicted, the master's interval not known yet) as many as a
         // tick runs ahead, so that the next master tick predicts nothing itself (predictions
@@ -554,11 +569,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         } else {
             e.report.predictions.max(1)
         };
-        self.last_master = Some(MasterRecord::new(
-            e.sample.time,
-            &compensate_lever_arm(&e.sample, &self.config.lever_arm.nominal_m),
-            &self.ta.theta(),
-        ));
+        self.last_master = Some(MasterRecord::new(e.sample.time, &f_now, &self.ta.theta()));
         Ok(self.record_master())
     }
 
