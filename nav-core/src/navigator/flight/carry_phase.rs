@@ -553,11 +553,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         // The bias states' share of the force's change (`transfer_alignment::bias_charge`).
         let f_now = compensate_lever_arm(&e.sample, &self.config.lever_arm.nominal_m);
         let ie = &self.config.ins.instrument_errors;
-        let f_prev = self.last_master.map(|lm| lm.f_master_m_s2);
         self.ta.charge_share_change(
             ie.accel_scale_factor,
             ie.accel_misalignment_rad,
-            f_prev,
+            self.last_master.map(|lm| lm.f_master_m_s2),
             &f_now,
         );
         // What the next sample will likely need: as many predictions as this one; after the
