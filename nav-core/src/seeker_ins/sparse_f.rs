@@ -2,7 +2,7 @@
 //! `error_model`), the layout the generated covariance step (`generated::predict17`) reads
 //! entry by entry, and the dense 9×15 block they form.
 
-use super::mechanization::{Kinematics, Position};
+use super::mechanization::{Ins, Kinematics, Position, PositionKinematics};
 use crate::math::rotation::skew;
 use crate::Real;
 use nalgebra::{Matrix3, SMatrix, Vector3};
@@ -49,7 +49,18 @@ impl<T: Real> SparseF<T> {
         c_b_n: &Matrix3<T>,
         f_ned_m_s2: &Vector3<T>,
     ) -> Self {
-        let k = Kinematics::new(pos, v);
+        Self::at(&Kinematics::new(pos, v), v, c_b_n, f_ned_m_s2)
+    }
+
+    /// [`SparseF::new`] from the kinematics `k` of the state (velocity `v`, m/s), as the INS
+    /// keeps them ([`Ins::kinematics`](super::mechanization::Ins::kinematics)): no `sin`/`cos`
+    /// or `sqrt` of its own.
+    pub(crate) fn at(
+        k: &Kinematics<T>,
+        v: &Vector3<T>,
+        c_b_n: &Matrix3<T>,
+        f_ned_m_s2: &Vector3<T>,
+    ) -> Self {
         let z = T::zero();
         let inv_m = T::one() / k.rm_h;
         let inv_n = T::one() / k.rn_h;
@@ -99,6 +110,26 @@ impl<T: Real> SparseF<T> {
             att_v: Vector3::new(inv_n, -inv_m, -tan * inv_n),
             w_in: k.w_ie + k.w_en,
         }
+    }
+
+    /// F at the state of `ins` with the radii `radii` its last step kept (no `sin`/`cos`,
+    /// `sqrt` or f64 conversion; [`Ins::step_keeping_radii`]; `None`: evaluated at its
+    /// position) and the mean specific force of the interval, `dv_ned_m_s / dt_s` (m/s, s).
+    /// Not inlined: its temporaries are not in the covariance step's frame, under which the
+    /// kernel runs.
+    #[inline(never)]
+    pub(super) fn at_ins(
+        ins: &Ins<T>,
+        radii: Option<&PositionKinematics<T>>,
+        dv_ned_m_s: &Vector3<T>,
+        dt_s: T,
+    ) -> Self {
+        let v = &ins.state().vel_ned_m_s;
+        let k = match radii {
+            Some(r) => Kinematics::at(r, v),
+            None => Kinematics::new(&ins.state().position, v),
+        };
+        Self::at(&k, v, &ins.c_b_n(), &(dv_ned_m_s / dt_s))
     }
 
     /// `G = F Δt` (same layout).
