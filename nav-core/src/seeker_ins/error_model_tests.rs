@@ -216,7 +216,14 @@ fn every_non_finite_input_refuses_the_step_and_leaves_p_unchanged() {
         }
         let fields = sparse_f_entries(&mut sf.clone()).len();
         assert_eq!(fields, 46);
-        for k in 0..fields {
+        // The entries the prediction leaves out (`NEGLIGIBLE` of xtask/src/gen.rs: f00, f02,
+        // f12, vel_h.x, vel_h.y, att_lat.y, att_h) are zero in every F and not read.
+        let left_out = [0, 1, 4, 10, 11, 17, 19, 20, 21];
+        let mut probe = sf;
+        for (k, e) in sparse_f_entries(&mut probe).into_iter().enumerate() {
+            assert!(!left_out.contains(&k) || *e == T::zero(), "entry {k}");
+        }
+        for k in (0..fields).filter(|k| !left_out.contains(k)) {
             for v in bad {
                 let mut f = sf;
                 if let Some(entry) = sparse_f_entries(&mut f).into_iter().nth(k) {
@@ -326,12 +333,30 @@ fn f_matches_finite_differences_of_the_ins_equations() {
         1e-7, 1e-7, 1.0, 0.01, 0.01, 0.01, 1e-5, 1e-5, 1e-5, 1e-3, 1e-3, 1e-3, 1e-6, 1e-6, 1e-6,
         1e-4, 1e-4,
     ];
+    // Left out of the model (`NEGLIGIBLE` of xtask/src/gen.rs): F holds zero and the
+    // derivative is within the bound over the envelope given there.
+    let left_out = [
+        ((0, 0), 9.5e-7),
+        ((0, 2), 1.5e-11),
+        ((1, 2), 8.4e-11),
+        ((3, 2), 5.1e-8),
+        ((4, 2), 5.1e-8),
+        ((6, 2), 1.5e-11),
+        ((7, 0), 9.5e-7),
+        ((7, 2), 1.5e-11),
+        ((8, 2), 8.3e-11),
+    ];
     for (j, &h) in steps.iter().enumerate() {
         let mut dx = SVector::<f64, 17>::zeros();
         dx[j] = h;
         let col = (err_dot(&dx) - err_dot(&(-dx))) / (2.0 * h);
         let scale: f64 = f.column(j).abs().max().max(1e-12);
         for i in 0..17 {
+            if let Some((_, bound)) = left_out.iter().find(|(ij, _)| *ij == (i, j)) {
+                assert_eq!(f[(i, j)], 0.0, "F[{i},{j}] is left out");
+                assert!(col[i].abs() <= *bound, "F[{i},{j}]: {:e}", col[i]);
+                continue;
+            }
             let diff = (col[i] - f[(i, j)]).abs();
             assert!(
                 diff <= 1e-5 * scale,
