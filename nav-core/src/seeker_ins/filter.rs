@@ -9,7 +9,7 @@ use super::config::{
 use super::error_model::STATES;
 use super::flight_noise::EquivalentBiasCharge;
 use super::health::{LastUpdate, SeekerAid, SeekerCounters};
-use super::mechanization::{Ins, InsState};
+use super::mechanization::{Ins, InsState, PositionKinematics};
 use crate::contract::{AidCounters, Estimator, Gate, Health, RecoveryPolicy};
 use crate::time::Timestamp;
 use crate::{HealthState, NavError, Real};
@@ -62,6 +62,11 @@ pub struct SeekerIns<T> {
     /// The equivalent-bias variance added so far (flight configuration; module
     /// `flight_noise`). Kept across re-initialisation, as the bias block is.
     pub(super) bias_charge: EquivalentBiasCharge<T>,
+    /// The radii the covariance step's F uses: those the last INS step evaluated at the
+    /// start of its interval ([`Ins::step_keeping_radii`]); `None` after construction,
+    /// re-initialisation or a reset (no step pending: the next step sets them before a
+    /// covariance step can run; were one to run, F would evaluate them at the INS's position).
+    pub(super) radii: Option<PositionKinematics<T>>,
 }
 
 impl<T: Real> PartialEq for SeekerInsInitial<T> {
@@ -94,6 +99,7 @@ impl<T: Real> PartialEq for SeekerIns<T> {
             && self.run_start == o.run_start
             && self.last_update == o.last_update
             && self.bias_charge == o.bias_charge
+            && self.radii == o.radii
     }
 }
 
@@ -178,6 +184,7 @@ impl<T: Real> Estimator for SeekerIns<T> {
                 }
             }
         }
+        self.radii = None;
         self.ins = ins;
         self.steps_pending = 0;
         self.pending_us = 0;
@@ -472,6 +479,7 @@ impl<T: Real> SeekerIns<T> {
             run_start: None,
             last_update: LastUpdate::None,
             bias_charge: EquivalentBiasCharge::default(),
+            radii: None,
         }
     }
 

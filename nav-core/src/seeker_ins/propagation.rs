@@ -6,7 +6,7 @@ use super::covariance_health::PsdMargin;
 use super::error_model::{propagate_covariance_sparse, transition_times, ATT, STATES, VEL};
 use super::filter::SeekerIns;
 use super::flight_noise::flight_noise_step;
-use super::mechanization::{ImuIncrement, Ins};
+use super::mechanization::{ImuIncrement, Ins, PositionKinematics};
 use super::sparse_f::SparseF;
 use crate::contract::Health;
 use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
@@ -342,6 +342,7 @@ impl<T: Real> SeekerIns<T> {
     /// navigation block of P goes to its ceilings (correlations dropped).
     fn reset_after_gap(&mut self) -> Result<(), NavError> {
         self.ins = Ins::new(*self.ins.state(), self.config.imu_dt_s)?;
+        self.radii = None;
         let zero = T::zero();
         for (j, col) in self.p.as_mut_slice().chunks_exact_mut(STATES).enumerate() {
             for (i, v) in col.iter_mut().enumerate() {
@@ -428,7 +429,7 @@ impl<T: Real> SeekerIns<T> {
             .time()
             .and_then(|t| compensated.time.micros_since(t))
             .unwrap_or(ins.dt_us());
-        ins.step(compensated)?;
+        let radii = ins.step_keeping_radii(compensated)?;
         let dt = ins.last_interval_s();
         let dv_pending = self.dv_ned_pending_m_s + ins.specific_force_ned_m_s2() * dt;
         let steps = self.steps_pending.saturating_add(1);
@@ -439,7 +440,9 @@ impl<T: Real> SeekerIns<T> {
         {
             let dt_total = self.pending_interval_s(steps, pending_us);
             match cross {
-                Some(c) => self.covariance_step_cross(Some(&ins), dt_total, &dv_pending, c)?,
+                Some(c) => {
+                    self.covariance_step_cross(Some((&ins, &radii)), dt_total, &dv_pending, c)?
+                }
                 None => {
                     let margin = match schedule {
                         CovarianceSchedule::Interval => PsdMargin::Checked,
@@ -450,7 +453,7 @@ impl<T: Real> SeekerIns<T> {
                             PsdMargin::Constant
                         }
                     };
-                    self.covariance_step_at(Some(&ins), dt_total, &dv_pending, margin)?;
+                    self.covariance_step_at(Some((&ins, &radii)), dt_total, &dv_pending, margin)?;
                 }
             }
             stepped = Some(dt_total);
@@ -466,25 +469,27 @@ impl<T: Real> SeekerIns<T> {
             Health::bump(&mut self.counters.out_of_range_samples);
         }
         self.ins = ins;
+        self.radii = Some(radii);
         Ok(stepped)
     }
 
-    /// The covariance step over `dt_total_s` at the INS `ins` with the velocity increment
-    /// `dv_ned_m_s` (m/s) of the interval: `Φ P Φᵀ + Q`, the flight configuration's
-    /// instrument-error noise, repairs, stabilising noise (`margin`) and
-    /// ceilings. The pending counters are the caller's. Atomic (P unchanged on error).
+    /// The covariance step over `dt_total_s` at the INS `ins` with the radii its step kept
+    /// (`None`: the filter's own INS and `radii`) and the velocity increment `dv_ned_m_s`
+    /// (m/s) of the interval: `Φ P Φᵀ + Q`, the flight configuration's instrument-error noise,
+    /// repairs, stabilising noise (`margin`) and ceilings. The pending counters are the
+    /// caller's. Atomic (P unchanged on error).
     fn covariance_step_at(
         &mut self,
-        ins: Option<&Ins<T>>,
+        ins: Option<(&Ins<T>, &PositionKinematics<T>)>,
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
         margin: PsdMargin,
     ) -> Result<(), NavError> {
-        let f_ned = dv_ned_m_s / dt_total_s;
-        let at = ins.unwrap_or(&self.ins);
-        let s = at.state();
-        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
-        let repairs = self.covariance_step_f(&f, ins, dt_total_s)?;
+        let f = match ins {
+            Some((at, radii)) => SparseF::at_ins(at, Some(radii), dv_ned_m_s, dt_total_s),
+            None => SparseF::at_ins(&self.ins, self.radii.as_ref(), dv_ned_m_s, dt_total_s),
+        };
+        let repairs = self.covariance_step_f(&f, ins.map(|(i, _)| i), dt_total_s)?;
         self.after_covariance_step(repairs, margin);
         Ok(())
     }
@@ -522,21 +527,21 @@ impl<T: Real> SeekerIns<T> {
 
     /// [`Self::covariance_step_at`] that also applies the step's Φ to `cross` (module doc of
     /// [`Self::predict_covariance_cross`]); atomic (P and `cross` unchanged on error). `ins`:
-    /// the INS of the step (`None`: the filter's own).
+    /// the INS of the step with the radii its step kept (`None`: the filter's own).
     fn covariance_step_cross(
         &mut self,
-        ins: Option<&Ins<T>>,
+        ins: Option<(&Ins<T>, &PositionKinematics<T>)>,
         dt_total_s: T,
         dv_ned_m_s: &Vector3<T>,
         cross: &mut nalgebra::SVector<T, STATES>,
     ) -> Result<(), NavError> {
-        let f_ned = dv_ned_m_s / dt_total_s;
-        let at = ins.unwrap_or(&self.ins);
-        let s = at.state();
-        let f = SparseF::new(&s.position, &s.vel_ned_m_s, &at.c_b_n(), &f_ned);
+        let f = match ins {
+            Some((at, radii)) => SparseF::at_ins(at, Some(radii), dv_ned_m_s, dt_total_s),
+            None => SparseF::at_ins(&self.ins, self.radii.as_ref(), dv_ned_m_s, dt_total_s),
+        };
         let limits_before = self.health.limits_hit;
         // The flight navigator's steps: no PSD check (its tick budget; it checks P later).
-        let repairs = self.covariance_step_f(&f, ins, dt_total_s)?;
+        let repairs = self.covariance_step_f(&f, ins.map(|(i, _)| i), dt_total_s)?;
         self.after_covariance_step(repairs, PsdMargin::Deferred);
         // Φ c after the step (Φ is finite: the step succeeded), in a frame of its own beside
         // the kernel's; a column that overflows is forgotten as after a repair.

@@ -2,7 +2,7 @@
 //! `error_model`), the layout the generated covariance step (`generated::predict17`) reads
 //! entry by entry, and the dense 9×15 block they form.
 
-use super::mechanization::{Kinematics, Position};
+use super::mechanization::{Ins, Kinematics, Position, PositionKinematics};
 use crate::math::rotation::skew;
 use crate::Real;
 use nalgebra::{Matrix3, SMatrix, Vector3};
@@ -10,7 +10,8 @@ use nalgebra::{Matrix3, SMatrix, Vector3};
 /// The non-zero block `F[0..9, 0..15]` of the error-model matrix (module doc).
 pub type FBlock<T> = SMatrix<T, 9, 15>;
 
-/// The structurally non-zero entries of F (module doc), 61 of the 9×15 block:
+/// The structurally non-zero entries of F (module doc), 61 of the 9×15 block (nine of them
+/// held at zero: left out of the prediction, `NEGLIGIBLE` in xtask/src/gen.rs):
 ///
 /// ```text
 /// rows δL, δl:  F00 F02 F03 / F10 F12 F14       row δh: F25 (= −1)
@@ -49,7 +50,18 @@ impl<T: Real> SparseF<T> {
         c_b_n: &Matrix3<T>,
         f_ned_m_s2: &Vector3<T>,
     ) -> Self {
-        let k = Kinematics::new(pos, v);
+        Self::at(&Kinematics::new(pos, v), v, c_b_n, f_ned_m_s2)
+    }
+
+    /// [`SparseF::new`] from the kinematics `k` of the state (velocity `v`, m/s), as the INS
+    /// keeps them ([`Ins::kinematics`](super::mechanization::Ins::kinematics)): no `sin`/`cos`
+    /// or `sqrt` of its own.
+    pub(crate) fn at(
+        k: &Kinematics<T>,
+        v: &Vector3<T>,
+        c_b_n: &Matrix3<T>,
+        f_ned_m_s2: &Vector3<T>,
+    ) -> Self {
         let z = T::zero();
         let inv_m = T::one() / k.rm_h;
         let inv_n = T::one() / k.rn_h;
@@ -81,24 +93,48 @@ impl<T: Real> SparseF<T> {
         let (dg_dlat, dg_dh) = gravity_gradient(k.sin_lat, k.cos_lat, k.alt_m, inv_sqrt_d);
         vel_lat.z += dg_dlat;
         vel_h.z += dg_dh;
+        // The entries the prediction leaves out (`NEGLIGIBLE` of the generator,
+        // xtask/src/gen.rs, with their bounds) are zero: ∂L̇/∂L and its attitude counterpart
+        // (v.x / (R_M + h)² · dR_M/dL), and the height column but for the gravity gradient.
+        let att_lat = dwie_dl + dwen_dlat;
         Self {
-            f00: -v.x * inv_m2 * k.drm_dlat,
-            f02: -v.x * inv_m2,
+            f00: z,
+            f02: z,
             f03: inv_m,
             f10: v.y * tan * sec * inv_n - v.y * sec * inv_n2 * k.drn_dlat,
-            f12: -v.y * sec * inv_n2,
+            f12: z,
             f14: sec * inv_n,
             f25: -T::one(),
             vel_lat,
-            vel_h,
+            vel_h: Vector3::new(z, z, vel_h.z),
             vel_vel: vx * dwen_dv - skew(&rho),
             f_ned: *f_ned_m_s2,
             c_b_n: *c_b_n,
-            att_lat: dwie_dl + dwen_dlat,
-            att_h: dwen_dh,
+            att_lat: Vector3::new(att_lat.x, z, att_lat.z),
+            att_h: Vector3::zeros(),
             att_v: Vector3::new(inv_n, -inv_m, -tan * inv_n),
             w_in: k.w_ie + k.w_en,
         }
+    }
+
+    /// F at the state of `ins` with the radii `radii` its last step kept (no `sin`/`cos`,
+    /// `sqrt` or f64 conversion; [`Ins::step_keeping_radii`]; `None`: evaluated at its
+    /// position) and the mean specific force of the interval, `dv_ned_m_s / dt_s` (m/s, s).
+    /// Not inlined: its temporaries are not in the covariance step's frame, under which the
+    /// kernel runs.
+    #[inline(never)]
+    pub(super) fn at_ins(
+        ins: &Ins<T>,
+        radii: Option<&PositionKinematics<T>>,
+        dv_ned_m_s: &Vector3<T>,
+        dt_s: T,
+    ) -> Self {
+        let v = &ins.state().vel_ned_m_s;
+        let k = match radii {
+            Some(r) => Kinematics::at(r, v),
+            None => Kinematics::new(&ins.state().position, v),
+        };
+        Self::at(&k, v, &ins.c_b_n(), &(dv_ned_m_s / dt_s))
     }
 
     /// `G = F Δt` (same layout).
