@@ -223,7 +223,7 @@ pub(super) fn downdate_two<T: Real, const N: usize>(
         }
         return;
     }
-    // Straight-line for the paper's filters (N ≤ 12).
+    // Straight-line up to N = 12 (the proposed filter pairs its rows).
     row!(0: 0 1 2 3 4 5 6 7 8 9 10 11);
     row!(1: 1 2 3 4 5 6 7 8 9 10 11);
     row!(2: 2 3 4 5 6 7 8 9 10 11);
