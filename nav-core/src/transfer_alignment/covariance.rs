@@ -3,11 +3,14 @@
 //! prediction, the conditioning of every committed covariance, and the flexure
 //! re-initialisation after a long gap.
 use super::fusion::{fuse_rank_one, UpdateChecks};
-use super::model::{flexure_chain_len, AxisChain};
+use super::model::AxisChain;
 use crate::math::checks::set_block_diagonal;
 use crate::math::kalman::{FusionOutcome, FusionReport};
 use crate::Real;
 use nalgebra::{Matrix3, SMatrix, SVector};
+
+mod predict;
+pub(super) use predict::{predict_cov, predict_state};
 
 /// One scalar update divides a variance by at most this ratio (`r ≥ hᵀPh / ratio`): keeps the
 /// scalar update's subtraction within f32's digits (chosen by the stress campaign).
@@ -130,171 +133,6 @@ pub(super) fn symmetric_from_upper<T: Real, const N: usize>(
     SMatrix::<T, N, N>::from_fn(|r, c| upper_at(p, r, c))
 }
 
-/// The K×K block at rows `r0..`, columns `c0..` of a covariance stored as its upper
-/// triangle (`c0 ≥ r0`), column-major `[col][row]`: an off-diagonal block (`DIAG` false,
-/// c0 > r0) lies in the upper triangle; of a diagonal one (c0 = r0) only the upper half is
-/// read (`DIAG`: the caller reads element (m, n), m > n, at (n, m)). One bounds check per
-/// column (the offsets are run-time).
-#[inline(always)]
-fn block_of<T: Real, const K: usize, const N: usize>(
-    p: &SMatrix<T, N, N>,
-    r0: usize,
-    c0: usize,
-) -> [[T; K]; K] {
-    let mut blk = [[T::zero(); K]; K];
-    for (n, dst) in blk.iter_mut().enumerate() {
-        if let Some(src) = p.data.0.get(c0 + n).and_then(|col| col.get(r0..r0 + K)) {
-            dst.copy_from_slice(src);
-        }
-    }
-    blk
-}
-
-/// `S Φ_bᵀ` of the block `S = P_ab` (rows `r0..`, columns `c0..` of the covariance `p`, stored
-/// as its upper triangle; see [`block_of`]), using Φ's first column e₁ (θ_m is a random
-/// constant, so in either parametrisation nothing feeds the first state but itself) and, in a
-/// flight chain, the bias's unit row and column (a bias state, the last of a flight chain,
-/// index ≥ kf, is a random constant: its row and column of Φ are unit vectors, so its products
-/// are copies and it drops out of the sums).
-#[inline(always)]
-fn block_times_phi_t<T: Real, const K: usize, const N: usize, const DIAG: bool>(
-    p: &SMatrix<T, N, N>,
-    r0: usize,
-    c0: usize,
-    pb: &SMatrix<T, K, K>,
-) -> SMatrix<T, K, K> {
-    let kf = flexure_chain_len::<K>();
-    let blk = block_of::<T, K, N>(p, r0, c0);
-    let s = |m: usize, n: usize| {
-        let (m, n) = if DIAG && m > n { (n, m) } else { (m, n) };
-        blk.get(n)
-            .and_then(|col| col.get(m))
-            .copied()
-            .unwrap_or_else(T::zero)
-    };
-    // t_mj = Σ_n S_mn Φb_jn = S_m0 δ_j0 + Σ_{n≥1} S_mn Φb_jn (the sum starts from its first
-    // product, not from 0: every chain has kf ≥ 2).
-    let mut t = SMatrix::<T, K, K>::zeros();
-    for j in 0..K {
-        for m in 0..K {
-            let acc = if j >= kf {
-                s(m, j)
-            } else {
-                let first = s(m, 1) * at(pb, j, 1);
-                let mut acc = if j == 0 { s(m, 0) + first } else { first };
-                for n in 2..kf {
-                    acc += s(m, n) * at(pb, j, n);
-                }
-                acc
-            };
-            put(&mut t, m, j, acc);
-        }
-    }
-    t
-}
-
-/// `P_ab ← Φ_a t (+ Q_d,a on a diagonal block)` with `t = P_ab Φ_bᵀ`: written to the block's
-/// upper-triangle entries of `p` (all of an off-diagonal block a < b, the upper half of a
-/// diagonal one, `DIAG`).
-#[inline(always)]
-fn write_phi_times<T: Real, const K: usize, const N: usize, const DIAG: bool>(
-    p: &mut SMatrix<T, N, N>,
-    r0: usize,
-    c0: usize,
-    pa: &SMatrix<T, K, K>,
-    t: &SMatrix<T, K, K>,
-    q: &SMatrix<T, K, K>,
-) {
-    let kf = flexure_chain_len::<K>();
-    // d_ij = Σ_m Φa_im t_mj = t_0j δ_i0 + Σ_{m≥1} Φa_im t_mj (from its first product).
-    for j in 0..K {
-        let Some(col) = p
-            .data
-            .0
-            .get_mut(c0 + j)
-            .and_then(|col| col.get_mut(r0..r0 + K))
-        else {
-            continue;
-        };
-        let i_end = if DIAG { j + 1 } else { K };
-        for i in 0..i_end {
-            let mut acc = if i >= kf {
-                at(t, i, j)
-            } else {
-                let first = at(pa, i, 1) * at(t, 1, j);
-                let mut acc = if i == 0 { at(t, 0, j) + first } else { first };
-                for m in 2..kf {
-                    acc += at(pa, i, m) * at(t, m, j);
-                }
-                acc
-            };
-            if DIAG {
-                acc += at(q, i, j);
-            }
-            if let Some(e) = col.get_mut(i) {
-                *e = acc;
-            }
-        }
-    }
-}
-
-/// One block of [`predict_cov`]: `P_ab ← Φ_a P_ab Φ_bᵀ (+ Q_d,a if DIAG, a = b)`, the block at
-/// rows `K a`, columns `K b`, reading `src` (or `dst` when `None`). Out of line, two copies
-/// per N (diagonal and off-diagonal block): measured against six inlined blocks, +25
-/// instructions per prediction (12 and 15 states) for 3.3 KB less flash in the filters' image
-/// and 48 B less stack.
-#[inline(never)]
-fn predict_block<T: Real, const K: usize, const N: usize, const DIAG: bool>(
-    phi: &[SMatrix<T, K, K>; 3],
-    q_d: &[SMatrix<T, K, K>; 3],
-    src: Option<&SMatrix<T, N, N>>,
-    dst: &mut SMatrix<T, N, N>,
-    (a, b): (usize, usize),
-) {
-    let (Some(pa), Some(pb), Some(qa)) = (phi.get(a), phi.get(b), q_d.get(a)) else {
-        return;
-    };
-    let t = match src {
-        Some(m) => block_times_phi_t::<T, K, N, DIAG>(m, K * a, K * b, pb),
-        None => block_times_phi_t::<T, K, N, DIAG>(dst, K * a, K * b, pb),
-    };
-    write_phi_times::<T, K, N, DIAG>(dst, K * a, K * b, pa, &t, qa);
-}
-
-/// One prediction over `dt_s` of a covariance stored as its upper triangle: per pair of axes
-/// a ≤ b, `P_ab ← Φ_a P_ab Φ_bᵀ (+ Q_d,a if a = b)` on the upper-triangle entries of `dst`
-/// (the lower triangle is neither read nor written), reading `src` (or `dst` itself when
-/// `None`: each block is read before it is written and read only once).
-pub(super) fn predict_cov<T: Real, const K: usize, const N: usize>(
-    phi: &[SMatrix<T, K, K>; 3],
-    q_d: &[SMatrix<T, K, K>; 3],
-    src: Option<&SMatrix<T, N, N>>,
-    dst: &mut SMatrix<T, N, N>,
-) {
-    // N = 3 K is checked at construction; stating it here lets the compiler prove every
-    // block index below in bounds.
-    if N != 3 * K {
-        return;
-    }
-    for a in 0..3usize {
-        predict_block::<T, K, N, true>(phi, q_d, src, dst, (a, a));
-    }
-    for ab in [(0, 1), (0, 2), (1, 2)] {
-        predict_block::<T, K, N, false>(phi, q_d, src, dst, ab);
-    }
-}
-
-/// `x ← blockdiag(Φ_X, Φ_Y, Φ_Z) x`.
-pub(super) fn predict_state<T: Real, const K: usize, const N: usize>(
-    phi: &[SMatrix<T, K, K>; 3],
-    x: &mut SVector<T, N>,
-) {
-    for (a, ph) in phi.iter().enumerate() {
-        let xa = ph * x.fixed_rows::<K>(K * a);
-        x.fixed_rows_mut::<K>(K * a).copy_from(&xa);
-    }
-}
-
 /// Conditions a committed covariance (stored as its upper triangle), keeping it PSD (both
 /// operations map a PSD matrix to a PSD matrix): the diagonal loading of [`PSD_LOADING_EPS`],
 /// then, for a variance above its ceiling (a bound no consistent covariance reaches: see
@@ -350,7 +188,7 @@ fn hold_at_ceilings<T: Real, const N: usize>(p: &mut SMatrix<T, N, N>, ceiling: 
 /// The report of an update that could not be fused: finite numbers only.
 #[cold]
 #[inline(never)]
-fn skipped_report<T: Real>(innovation: T, s: T) -> FusionReport<T> {
+pub(super) fn skipped_report<T: Real>(innovation: T, s: T) -> FusionReport<T> {
     let finite_or_zero = |v: T| if v.is_finite() { v } else { T::zero() };
     FusionReport {
         innovation: finite_or_zero(innovation),
@@ -358,6 +196,20 @@ fn skipped_report<T: Real>(innovation: T, s: T) -> FusionReport<T> {
         nis: T::zero(),
         test_ratio: T::zero(),
         outcome: FusionOutcome::Skipped,
+    }
+}
+
+/// The measurement variance of an update, raised to at least `hph / MAX_VARIANCE_REDUCTION`
+/// ([`MAX_VARIANCE_REDUCTION`]; `hph = hᵀ P h`, `r` in the measurement's unit squared).
+#[inline(always)]
+pub(super) fn bounded_variance<T: Real>(hph: T, r: T) -> T {
+    // max(r, floor) without the library call: r is finite and positive (validated at
+    // construction), so a NaN floor keeps r as `max` would.
+    let floor = hph * T::lit(1.0 / MAX_VARIANCE_REDUCTION);
+    if floor > r {
+        floor
+    } else {
+        r
     }
 }
 
@@ -374,10 +226,7 @@ pub(super) fn fuse_bounded<T: Real, const N: usize>(
     r: T,
     checks: UpdateChecks<T>,
 ) -> FusionReport<T> {
-    // max(r, floor) without the library call: r is finite and positive (validated at
-    // construction), so a NaN floor keeps r as `max` would.
-    let floor = hph * T::lit(1.0 / MAX_VARIANCE_REDUCTION);
-    let r_eff = if floor > r { floor } else { r };
+    let r_eff = bounded_variance(hph, r);
     match fuse_rank_one(x, p, b, hph, innovation, r_eff, checks) {
         Ok(rep) => rep,
         Err(s) => skipped_report(innovation, s),

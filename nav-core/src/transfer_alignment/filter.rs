@@ -489,12 +489,8 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
     /// `true` when |θ| is beyond [`MAX_MISALIGNMENT_RAD`] on some axis (or not finite).
     pub(super) fn diverged(x: &SVector<T, N>) -> bool {
         let lim = T::lit(MAX_MISALIGNMENT_RAD);
-        (0..3).any(|a| {
-            let v = x.get(K * a).copied().unwrap_or_else(T::zero);
-            !matches!(
-                v.abs().partial_cmp(&lim),
-                Some(core::cmp::Ordering::Less | core::cmp::Ordering::Equal)
-            )
-        })
+        // `|v| ≤ lim` is false for NaN: one compare per axis, no branch between them.
+        let within = |a: usize| x.get(K * a).copied().unwrap_or_else(T::zero).abs() <= lim;
+        !(within(0) & within(1) & within(2))
     }
 }

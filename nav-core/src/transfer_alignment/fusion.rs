@@ -142,6 +142,102 @@ pub(super) fn fuse_rank_one<T: Real, const N: usize>(
     Ok(report)
 }
 
+/// What an update's own checks decide, before anything is written: `Ok((report, 1/s))`, the
+/// report `Fused` or `Rejected` by the gate; `Err(s)` (`s = hph + r`) when the update cannot be
+/// fused numerically (see [`fuse_rank_one`]).
+#[inline(always)]
+pub(super) fn decide<T: Real>(
+    hph: T,
+    innovation: T,
+    r: T,
+    gate: Gate<T>,
+) -> Result<(FusionReport<T>, T), T> {
+    let s = hph + r;
+    // Finite innovation and r: `v·0` is ±0 for finite v, NaN for ±∞ and NaN (one multiply-add
+    // and one compare instead of two classifications on the target).
+    if innovation * T::zero() + r * T::zero() != T::zero() || r <= T::zero() {
+        return Err(s);
+    }
+    gate_scalar(innovation, hph, s, gate).ok_or(s)
+}
+
+/// `1/s` and the innovation of a fused update of a pair ([`downdate_two`]).
+#[derive(Clone, Copy)]
+pub(super) struct Gain<T> {
+    /// `1/s`, s the innovation variance.
+    pub inv_s: T,
+    /// The innovation, in the measurement's unit.
+    pub innovation: T,
+}
+
+/// Two consecutive fused updates ([`Guard::Deferred`]) in one pass over the upper triangle,
+/// with `b1 = P h1` and `b2 = P⁺ h2` (`P⁺` the first update's result):
+/// `P_ij ← (P_ij − k1_i b1_j) − k2_i b2_j`, `x_i ← (x_i + k1_i ν1) + k2_i ν2` (`k_i = b_i / s`,
+/// given `1/s`), each element read and written once. The same expressions in the same order
+/// as the two updates one after the other ([`fuse_rank_one`] twice): the same bits. Not
+/// inlined: one copy per N. (`b1`, `b2` are parameters of their own, so the compiler knows
+/// they do not alias P and keeps them in registers.)
+#[inline(never)]
+pub(super) fn downdate_two<T: Real, const N: usize>(
+    x: &mut [T; N],
+    p: &mut [[T; N]; N],
+    b1: &[T; N],
+    b2: &[T; N],
+    [g1, g2]: [Gain<T>; 2],
+) {
+    let (inv1, inv2, nu1, nu2) = (g1.inv_s, g2.inv_s, g1.innovation, g2.innovation);
+    macro_rules! row {
+        ($i:literal: $($j:literal)*) => {
+            if $i < N {
+                if let (Some(&b1i), Some(&b2i), Some(xi)) = (b1.get($i), b2.get($i), x.get_mut($i)) {
+                    let (k1i, k2i) = (b1i * inv1, b2i * inv2);
+                    $(
+                        if let (Some(&b1j), Some(&b2j), Some(pij)) =
+                            (b1.get($j), b2.get($j), p.get_mut($j).and_then(|col| col.get_mut($i)))
+                        {
+                            *pij -= k1i * b1j;
+                            *pij -= k2i * b2j;
+                        }
+                    )*
+                    *xi += k1i * nu1;
+                    *xi += k2i * nu2;
+                }
+            }
+        };
+    }
+    if N > 12 {
+        // No filter of this module pairs its rows with N > 12: the loop form, for safety.
+        for (i, xi) in x.iter_mut().enumerate() {
+            let (Some(&b1i), Some(&b2i)) = (b1.get(i), b2.get(i)) else {
+                continue;
+            };
+            let (k1i, k2i) = (b1i * inv1, b2i * inv2);
+            for ((col, &b1j), &b2j) in p.iter_mut().zip(b1.iter()).zip(b2.iter()).skip(i) {
+                if let Some(pij) = col.get_mut(i) {
+                    *pij -= k1i * b1j;
+                    *pij -= k2i * b2j;
+                }
+            }
+            *xi += k1i * nu1;
+            *xi += k2i * nu2;
+        }
+        return;
+    }
+    // Straight-line up to N = 12 (the proposed filter pairs its rows).
+    row!(0: 0 1 2 3 4 5 6 7 8 9 10 11);
+    row!(1: 1 2 3 4 5 6 7 8 9 10 11);
+    row!(2: 2 3 4 5 6 7 8 9 10 11);
+    row!(3: 3 4 5 6 7 8 9 10 11);
+    row!(4: 4 5 6 7 8 9 10 11);
+    row!(5: 5 6 7 8 9 10 11);
+    row!(6: 6 7 8 9 10 11);
+    row!(7: 7 8 9 10 11);
+    row!(8: 8 9 10 11);
+    row!(9: 9 10 11);
+    row!(10: 10 11);
+    row!(11: 11);
+}
+
 /// The checks of an update's result, before anything is written: `P⁺`'s diagonal
 /// `P_ii − k_i b_i` (`k_i = b_i / s`, given `1/s`) non-negative with a finite sum, and the
 /// state correction `k·innovation` finite. (The gains are formed again where they are used,
@@ -402,6 +498,60 @@ mod tests {
         // The loop form (N > 15).
         against_reference::<f32, 17>(64.0);
         against_reference::<f64, 17>(64.0);
+    }
+
+    /// Two updates in one pass ([`downdate_two`]) give the bits of the two one after the
+    /// other ([`downdate_unrolled`] twice, the second's `b` from the first's result), in the
+    /// straight-line form (N = 9, 12) and the loop form (N = 15).
+    fn two_in_one_pass<const N: usize>() {
+        for seed in 0..10u64 {
+            let (p64, h64, x64) = case::<N>(seed);
+            let (_, h2_64, _) = case::<N>(seed + 100);
+            let p = p64.map(|v| v as f32);
+            let (h1, h2) = (h64.map(|v| v as f32), h2_64.map(|v| v as f32));
+            let x0: [f32; N] = core::array::from_fn(|i| x64[i] as f32);
+            let (nu1, nu2) = (0.25f32, -0.125f32);
+            let b1 = p * h1;
+            let inv1 = 1.0 / (h1.dot(&b1) + 0.5);
+            // One update as `fuse_rank_one` runs it.
+            let one = |ps: &mut SMatrix<f32, N, N>, xs: &mut [f32; N], b: &[f32; N], inv, nu| {
+                if N <= UNROLLED_MAX_N {
+                    downdate_unrolled(&mut ps.data.0, b, inv, xs, nu);
+                } else {
+                    downdate_loop(&mut ps.data.0, b, inv, xs, nu);
+                }
+            };
+            let (mut ps, mut xs) = (p, x0);
+            one(&mut ps, &mut xs, &b1.data.0[0], inv1, nu1);
+            // b2 = P⁺ h2 from the upper triangle the downdate keeps.
+            let b2 = SVector::<f32, N>::from_fn(|i, _| {
+                (0..N).map(|j| h2[j] * ps[(i.min(j), i.max(j))]).sum()
+            });
+            let inv2 = 1.0 / (h2.dot(&b2) + 0.5);
+            one(&mut ps, &mut xs, &b2.data.0[0], inv2, nu2);
+            let (mut pp, mut xp) = (p, x0);
+            let gains = [
+                Gain {
+                    inv_s: inv1,
+                    innovation: nu1,
+                },
+                Gain {
+                    inv_s: inv2,
+                    innovation: nu2,
+                },
+            ];
+            downdate_two(&mut xp, &mut pp.data.0, &b1.data.0[0], &b2.data.0[0], gains);
+            assert_eq!(bits(pp.as_slice()), bits(ps.as_slice()), "seed {seed}");
+            assert_eq!(bits(&xp), bits(&xs), "seed {seed}");
+            assert_ne!(bits(pp.as_slice()), bits(p.as_slice()), "seed {seed}");
+        }
+    }
+
+    #[test]
+    fn two_updates_in_one_pass_match_them_one_after_the_other() {
+        two_in_one_pass::<9>();
+        two_in_one_pass::<12>();
+        two_in_one_pass::<17>();
     }
 
     /// The unrolled and the loop form give the same bits (N ≤ 15 uses the first).

@@ -82,6 +82,20 @@ impl Monitor {
             starved: false,
             skipped: false,
         };
+        // The common epoch, every update fused: what the general count below does for it
+        // (each channel's fused count up, its run of rejections ended; no run of all-skipped
+        // epochs), without the per-outcome branches.
+        if updates
+            .iter()
+            .fold(true, |all, rep| all & (rep.outcome == FusionOutcome::Fused))
+        {
+            for c in self.channels.iter_mut() {
+                c.fused = c.fused.saturating_add(1);
+                c.consecutive_rejected = 0;
+            }
+            self.all_skipped_run = 0;
+            return count;
+        }
         let mut all_skipped = true;
         for (rep, c) in updates.iter().zip(self.channels.iter_mut()) {
             let outcome = rep.outcome;

@@ -1,10 +1,13 @@
 //! The six scalar measurement rows of an epoch: the second-order prediction of the flight
 //! configuration's measurement, and the sparse updates of [`fuse_rows`] (rows with their
 //! sparsity pattern known at compile time, `b = P h` from the row's columns of P only, the
-//! rank-one update of [`super::fusion`]).
+//! rank-one update of [`super::fusion`]). The proposed filter fuses the rows in pairs (0-1,
+//! 2-3, 4-5) when the step defers its result checks: the second row's `b` and innovation
+//! against the first update's result, then one pass over P for both downdates — the bits of
+//! the six updates one after the other.
 use super::config::MAX_ANGULAR_RATE_RAD_S;
-use super::covariance::fuse_bounded;
-use super::fusion::UpdateChecks;
+use super::covariance::{bounded_variance, fuse_bounded, skipped_report};
+use super::fusion::{decide, downdate_two, fuse_rank_one, Gain, Guard, UpdateChecks};
 use super::measurement::{
     bounded_misalignment, clamp_symmetric, h_row_flight_df_with, h_row_total, linear_df_dot,
     ManoeuvreTerms,
@@ -107,6 +110,11 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     inputs: &RowInputs<T>,
     updates: &mut [FusionReport<T>; 6],
 ) {
+    if K == 4 && N == 12 && inputs.checks.guard == Guard::Deferred {
+        // The proposed filter: the rows in pairs, each pair's downdate in one pass (the
+        // conventional filter's too would take the filters' image over its flash ceiling).
+        return fuse_rows_paired::<T, K, N>(x, p, z, inputs, updates);
+    }
     let RowInputs {
         omega_m,
         omega_dot_m,
@@ -123,17 +131,7 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     } else {
         *z
     };
-    // The df rows' gain and covariance use the same second-order model's Jacobian at this θ̂
-    // (flight configuration only). It takes θ̂ unbounded: on an axis beyond the small-angle
-    // bound the predicted ½ term no longer depends on θ, and neither may the gain (a gain from
-    // the slope at the bound let a filter thrown out of its model run away to non-finite
-    // values). The manoeuvre terms are the same for the three df rows: computed once.
-    let theta_hat = theta_of::<T, K, N>(x);
-    let terms = if has_accel_bias::<K>() {
-        ManoeuvreTerms::new(&omega_m, &omega_dot_m, &lever)
-    } else {
-        ManoeuvreTerms::zero()
-    };
+    let (theta_hat, terms) = df_jacobian_inputs::<T, K, N>(x, &omega_m, &omega_dot_m, &lever);
     *updates = [not_fused(); 6];
     // `b = P h` of each row, in one buffer (one slot of the frame for the six rows).
     let mut b = SVector::<T, N>::zeros();
@@ -180,6 +178,71 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     fuse_row!(5);
 }
 
+/// What the flight configuration's df rows' Jacobian is evaluated with: θ̂ of `x` and the
+/// manoeuvre terms (zero in the paper's filters). The df rows' gain and covariance use the same
+/// second-order model's Jacobian at this θ̂, taken unbounded: on an axis beyond the small-angle
+/// bound the predicted ½ term no longer depends on θ, and neither may the gain (a gain from the
+/// slope at the bound let a filter thrown out of its model run away to non-finite values). The
+/// manoeuvre terms are the same for the three df rows: computed once.
+#[inline(always)]
+fn df_jacobian_inputs<T: Real, const K: usize, const N: usize>(
+    x: &SVector<T, N>,
+    omega_m: &Vector3<T>,
+    omega_dot_m: &Vector3<T>,
+    lever: &Vector3<T>,
+) -> (Vector3<T>, ManoeuvreTerms<T>) {
+    let terms = if has_accel_bias::<K>() {
+        ManoeuvreTerms::new(omega_m, omega_dot_m, lever)
+    } else {
+        ManoeuvreTerms::zero()
+    };
+    (theta_of::<T, K, N>(x), terms)
+}
+
+/// [`fuse_rows`] of the proposed filter with [`Guard::Deferred`]: the rows in pairs (0-1,
+/// 2-3, 4-5, [`fuse_pair`]), each report written into its slot of `updates`. Not inlined: one
+/// copy per filter, not one per caller of the step (inlined, the filters' image grew by 15 KB).
+#[inline(never)]
+fn fuse_rows_paired<T: Real, const K: usize, const N: usize>(
+    x: &mut SVector<T, N>,
+    p: &mut SMatrix<T, N, N>,
+    z: &SVector<T, 6>,
+    inputs: &RowInputs<T>,
+    updates: &mut [FusionReport<T>; 6],
+) {
+    let RowInputs {
+        omega_m,
+        f_h,
+        lever_arm_m: lever,
+        r_rate,
+        r_accel,
+        checks,
+        ..
+    } = *inputs;
+    let model_k = model_of::<K>();
+    // `b = P h` of the pair's two rows (one slot of the frame each, for the three pairs).
+    let (mut b, mut b2) = (SVector::<T, N>::zeros(), SVector::<T, N>::zeros());
+    macro_rules! pair {
+        (row $row:literal) => {
+            PairRow {
+                h: h_row_total::<T, K, 4>(model_k, $row, &omega_m, &f_h, &lever),
+                z: z.as_slice().get($row).copied().unwrap_or_else(T::zero),
+                r: if $row < 3 { r_rate } else { r_accel },
+            }
+        };
+        ($first:literal, $second:literal) => {
+            let rows = [pair!(row $first), pair!(row $second)];
+            let (head, tail) = updates.split_at_mut($second);
+            if let (Some(u1), Some(u2)) = (head.get_mut($first), tail.first_mut()) {
+                fuse_pair(x, p, &rows, checks, [&mut b, &mut b2], [u1, u2]);
+            }
+        };
+    }
+    pair!(0, 1);
+    pair!(2, 3);
+    pair!(4, 5);
+}
+
 /// `b = P h` of a covariance stored as its upper triangle (column-major `p[col][row]`, rows
 /// `0..=col` of each column; the lower triangle is not read): `P_ij` is read from column
 /// `max(i, j)`, row `min(i, j)`. Summed as [`crate::math::kalman::covariance_times_row`]
@@ -192,6 +255,18 @@ pub(super) fn upper_times_row<T: Real, const N: usize, const M: usize>(
     h: &SparseRow<T, M>,
     out: &mut SVector<T, N>,
 ) {
+    upper_times_row_with(p, h, out, |_, _, pij| pij);
+}
+
+/// [`upper_times_row`] of the covariance whose stored element `(r, c)` (`r ≤ c`) is
+/// `elem(r, c, P_rc)` (inlined: with constant indices the closure folds).
+#[inline(always)]
+fn upper_times_row_with<T: Real, const N: usize, const M: usize>(
+    p: &SMatrix<T, N, N>,
+    h: &SparseRow<T, M>,
+    out: &mut SVector<T, N>,
+    elem: impl Fn(usize, usize, T) -> T,
+) {
     let cols = &p.data.0;
     let [b] = &mut out.data.0;
     // Element by element, written out (each b_i summed in a register over the row's entries,
@@ -202,7 +277,8 @@ pub(super) fn upper_times_row<T: Real, const N: usize, const M: usize>(
                 if $t < h.len {
                     if let (Some(&j), Some(&hj)) = (h.index.get($t), h.value.get($t)) {
                         let (c, r) = if $i <= j { (j, $i) } else { ($i, j) };
-                        if let Some(&pij) = cols.get(c).and_then(|col| col.get(r)) {
+                        if let Some(&stored) = cols.get(c).and_then(|col| col.get(r)) {
+                            let pij = elem(r, c, stored);
                             // The sum starts from its first product, not from 0.
                             $acc = if $t == 0 { hj * pij } else { $acc + hj * pij };
                         }
@@ -230,11 +306,112 @@ pub(super) fn upper_times_row<T: Real, const N: usize, const M: usize>(
         let mut acc = T::zero();
         for (&j, &hj) in h.index.iter().zip(h.value.iter()).take(h.len) {
             let (c, r) = if i <= j { (j, i) } else { (i, j) };
-            if let Some(&pij) = cols.get(c).and_then(|col| col.get(r)) {
-                acc += hj * pij;
+            if let Some(&stored) = cols.get(c).and_then(|col| col.get(r)) {
+                acc += hj * elem(r, c, stored);
             }
         }
         *bi = acc;
+    }
+}
+
+/// One row of a pair ([`fuse_pair`]): its sparse `h`, the measurement `z` (rad/s or m/s²) and
+/// its variance `r` (the unit squared).
+struct PairRow<T, const M: usize> {
+    h: SparseRow<T, M>,
+    z: T,
+    r: T,
+}
+
+/// Two consecutive scalar updates ([`Guard::Deferred`]), the same bits as [`fuse_sparse`]
+/// twice: the second row's innovation and `b = P h` are formed against the first update's
+/// result (the state entries and covariance elements they read, with the first update's own
+/// expressions), then both downdates run in one pass ([`downdate_two`]); when only one of the
+/// two is fused, it runs alone ([`fuse_rank_one`], deciding again the same way). The two
+/// reports are written into `u1`, `u2` (the caller's slots).
+#[inline(always)]
+fn fuse_pair<T: Real, const N: usize, const M: usize>(
+    x: &mut SVector<T, N>,
+    p: &mut SMatrix<T, N, N>,
+    [first, second]: &[PairRow<T, M>; 2],
+    checks: UpdateChecks<T>,
+    [b1, b2]: [&mut SVector<T, N>; 2],
+    [u1, u2]: [&mut FusionReport<T>; 2],
+) {
+    let nu1 = first.z - first.h.dot(x);
+    upper_times_row(p, &first.h, b1);
+    let hph1 = first.h.dot(b1);
+    let r1 = bounded_variance(hph1, first.r);
+    let d1 = decide(hph1, nu1, r1, checks.gate);
+    let inv1 = fused_inv_s(&d1);
+    *u1 = report_of(d1, nu1);
+    let nu2 = match inv1 {
+        Some(inv1) => {
+            // x⁺ on the row's entries, and P⁺ = P − k1 b1ᵀ element by element as the
+            // downdate writes them (`k1_r = b1_r / s1`, row r ≤ column c).
+            let at = |i: usize| b1.get(i).copied().unwrap_or_else(T::zero);
+            let mut acc = T::zero();
+            for (j, hj) in second.h.entries() {
+                let xj = x.get(j).copied().unwrap_or_else(T::zero);
+                acc += hj * (xj + at(j) * inv1 * nu1);
+            }
+            upper_times_row_with(p, &second.h, b2, |r, c, v| v - at(r) * inv1 * at(c));
+            second.z - acc
+        }
+        None => {
+            upper_times_row(p, &second.h, b2);
+            second.z - second.h.dot(x)
+        }
+    };
+    let hph2 = second.h.dot(b2);
+    let r2 = bounded_variance(hph2, second.r);
+    let d2 = decide(hph2, nu2, r2, checks.gate);
+    let inv2 = fused_inv_s(&d2);
+    *u2 = report_of(d2, nu2);
+    match (inv1, inv2) {
+        (Some(inv1), Some(inv2)) => {
+            let gains = [
+                Gain {
+                    inv_s: inv1,
+                    innovation: nu1,
+                },
+                Gain {
+                    inv_s: inv2,
+                    innovation: nu2,
+                },
+            ];
+            downdate_two(
+                &mut x.data.0[0],
+                &mut p.data.0,
+                &b1.data.0[0],
+                &b2.data.0[0],
+                gains,
+            );
+        }
+        (Some(_), None) => {
+            let _ = fuse_rank_one(x, p, b1, hph1, nu1, r1, checks);
+        }
+        (None, Some(_)) => {
+            let _ = fuse_rank_one(x, p, b2, hph2, nu2, r2, checks);
+        }
+        (None, None) => {}
+    }
+}
+
+/// `1/s` of a decision to fuse.
+#[inline(always)]
+fn fused_inv_s<T: Real>(d: &Result<(FusionReport<T>, T), T>) -> Option<T> {
+    match d {
+        Ok((rep, inv_s)) if rep.outcome == FusionOutcome::Fused => Some(*inv_s),
+        _ => None,
+    }
+}
+
+/// The report of a decision (a numerical refusal: `Skipped`).
+#[inline(always)]
+fn report_of<T: Real>(d: Result<(FusionReport<T>, T), T>, innovation: T) -> FusionReport<T> {
+    match d {
+        Ok((rep, _)) => rep,
+        Err(s) => skipped_report(innovation, s),
     }
 }
 

@@ -41,11 +41,12 @@ fn filter<T: Real, const K: usize, const N: usize>() -> TransferAlignment<T, K, 
 /// (state, covariance, clock, counters) and the same reports, bit for bit, epoch after
 /// epoch — in the normal case (the deferred check passes) and with a covariance made
 /// indefinite before some epochs (updates the per-update checks refuse: the deferred run
-/// fails its check and the epoch is run again). Returns the number of `Skipped` reports.
+/// fails its check and the epoch is run again), and with outliers the gate rejects in one
+/// row of a pair. Returns the number of `Skipped` reports.
 fn deferred_equals_per_update<T: Real, const K: usize, const N: usize>() -> (u32, usize) {
     let mut deferred = filter::<T, K, N>();
     let mut reference = deferred.clone();
-    let mut skipped = 0;
+    let (mut skipped, mut rejected) = (0, 0);
     for k in 0..120u32 {
         if k % 40 == 39 {
             // An indefinite covariance: θ_X's variance tiny, its correlation with the next
@@ -64,7 +65,15 @@ fn deferred_equals_per_update<T: Real, const K: usize, const N: usize>() -> (u32
             // Predictions prepared ahead are used up by the deferred run.
             assert_eq!(deferred.predict_ahead(), reference.predict_ahead());
         }
-        let (m, s) = samples::<T>(k);
+        let (m, mut s) = samples::<T>(k);
+        // Outliers the gate rejects, in the first or the second row of a pair (the proposed
+        // filter fuses rows 0-1, 2-3, 4-5 in pairs), so that a pair also runs with one fused.
+        match k % 7 {
+            3 => s.angular_rate_rad_s.x += T::lit(0.5),
+            5 => s.specific_force_m_s2.x += T::lit(5.0),
+            6 => s.specific_force_m_s2.z += T::lit(5.0),
+            _ => {}
+        }
         let a = deferred.step_guarded(&m, &s, Guard::Deferred);
         let b = reference.step_guarded(&m, &s, Guard::PerUpdate);
         assert_eq!(a, b, "epoch {k}");
@@ -79,9 +88,24 @@ fn deferred_equals_per_update<T: Real, const K: usize, const N: usize>() -> (u32
                 .iter()
                 .filter(|u| u.outcome == FusionOutcome::Skipped)
                 .count();
+            // Pairs of rows (the proposed filter fuses them in pairs) with one rejected.
+            rejected += r
+                .updates
+                .chunks(2)
+                .filter(|pair| {
+                    pair.iter()
+                        .filter(|u| u.outcome == FusionOutcome::Rejected)
+                        .count()
+                        == 1
+                })
+                .count();
         }
     }
     assert_eq!(reference.reruns, 0);
+    assert!(
+        rejected > 0,
+        "no pair of rows with one rejected by the gate"
+    );
     (deferred.reruns, skipped)
 }
 
