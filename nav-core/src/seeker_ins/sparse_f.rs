@@ -53,9 +53,10 @@ impl<T: Real> SparseF<T> {
         Self::at(&Kinematics::new(pos, v), v, c_b_n, f_ned_m_s2)
     }
 
-    /// [`SparseF::new`] from the kinematics `k` of the state (velocity `v`, m/s), as the INS
-    /// keeps them ([`Ins::kinematics`](super::mechanization::Ins::kinematics)): no `sin`/`cos`
-    /// or `sqrt` of its own.
+    /// [`SparseF::new`] from the kinematics `k` of the state (velocity `v`, m/s), built from the
+    /// radii the INS step evaluated
+    /// ([`Ins::step_keeping_radii`](super::mechanization::Ins::step_keeping_radii)): no
+    /// `sin`/`cos` or `sqrt` of its own.
     pub(crate) fn at(
         k: &Kinematics<T>,
         v: &Vector3<T>,
