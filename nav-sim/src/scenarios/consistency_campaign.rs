@@ -14,8 +14,8 @@
 //!
 //! Outputs in the scenario directory: `summary.json` (per estimator: variants, passes, the
 //! worst cases by each criterion, the targets), `variants.csv` (one row per variant and
-//! filter) and `consistency.png` (per estimator, each variant's mean NEES per state with the
-//! 95 % band, and its fraction of epochs in band).
+//! filter, with its RMS per axis) and `consistency.png` (per estimator, each variant's mean
+//! NEES per state with the 95 % band, and its fraction of epochs in band).
 
 use crate::consistency::nees_band_95;
 use crate::plot::{self, Figure, Panel, Series, Style};
@@ -202,7 +202,7 @@ fn run(ctx: &Context) -> Result<Value> {
         "estimator,variant,filter,nees_dof,runs,nees_mean,band_lo,band_hi,frac_in_band,\
          worst_nes_axis,worst_nes,worst_accuracy_axis,worst_accuracy_ratio,pass,\
          nees_effective_epochs,mean_band_lo,mean_band_hi,pass_statistical,ideal_p_below,\
-         ideal_p5,normalized_error_sq,params\n",
+         ideal_p5,normalized_error_sq,rms,params\n",
     );
     let mut estimators = Map::new();
     let mut panels = Vec::new();
@@ -259,13 +259,15 @@ fn run(ctx: &Context) -> Result<Value> {
     }))
 }
 
-/// One row of `variants.csv`: a variant of `estimator` with its filter's verdict.
+/// One row of `variants.csv`: a variant of `estimator` with its filter's verdict; `rms` is
+/// the row's RMS per axis (units in the names; the navigator's `final` row: the horizontal
+/// RMS and σ at the last epoch, `horizontal_m`, `horizontal_sigma_m`).
 fn csv_row(csv: &mut String, estimator: &str, r: &VariantResult, v: &Verdict) {
     let (lo, hi) = nees_band_95(r.consistency.dof, r.consistency.runs);
     let _ = writeln!(
         csv,
         "{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{},{:.4},{},{:.4},{},{:.2},{:.4},{:.4},{},{:.3},\
-         {:.4},{},\"{}\"",
+         {:.4},{},{},\"{}\"",
         estimator,
         r.variant,
         r.filter,
@@ -288,6 +290,11 @@ fn csv_row(csv: &mut String, estimator: &str, r: &VariantResult, v: &Verdict) {
         v.ideal_p5,
         r.consistency
             .normalized_error_sq
+            .iter()
+            .map(|(n, x)| format!("{n}={x:.4}"))
+            .collect::<Vec<_>>()
+            .join(" "),
+        r.rms
             .iter()
             .map(|(n, x)| format!("{n}={x:.4}"))
             .collect::<Vec<_>>()

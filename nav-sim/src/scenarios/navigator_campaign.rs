@@ -265,6 +265,17 @@ fn aim_at_landmark(
 
 /// Draws variant `v` of the campaign seed `seed` from the base scenario `base`.
 pub fn draw_variant(base: &MissionScenario, seed: u64, v: usize) -> DrawnVariant {
+    draw_variant_at_speed(base, seed, v, None)
+}
+
+/// [`draw_variant`] with its speed after the boost replaced by `speed_m_s` (m/s; `None`: the
+/// drawn one), every other draw the same (to isolate the speed on one variant).
+pub fn draw_variant_at_speed(
+    base: &MissionScenario,
+    seed: u64,
+    v: usize,
+    speed_m_s: Option<f64>,
+) -> DrawnVariant {
     let mut rng = run_rng(seed, v as u64);
     let mut sc = base.clone();
     sc.variants = vec![ChainVariant::Full];
@@ -279,7 +290,8 @@ pub fn draw_variant(base: &MissionScenario, seed: u64, v: usize) -> DrawnVariant
     }
     // The profile.
     let p = &mut cfg.profile;
-    let speed = uniform(&mut rng, SPEED_RANGE_M_S);
+    let drawn_speed = uniform(&mut rng, SPEED_RANGE_M_S);
+    let speed = speed_m_s.unwrap_or(drawn_speed);
     p.carry_speed_m_s = speed - p.boost_speed_gain_m_s;
     p.carry_alt_m = uniform(&mut rng, ALTITUDE_RANGE_M);
     p.cruise_alt_m = uniform(&mut rng, ALTITUDE_RANGE_M);

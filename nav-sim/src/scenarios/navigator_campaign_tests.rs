@@ -141,3 +141,33 @@ fn campaign_is_reproducible() {
     let other = draw_variant(&base(), 18, 0);
     assert_ne!(a[0].params, other.params);
 }
+
+/// A variant drawn at a given speed is the drawn variant but for the speed and what follows
+/// from it (the speed itself, the carry speed, the midcourse turn's duration, the end): the
+/// lever arm, altitudes, courses, landmark and run-in are the same draws.
+#[test]
+fn a_variant_at_another_speed_keeps_every_other_draw() {
+    let base = base();
+    for v in 0..5 {
+        let drawn = draw_variant(&base, 9100, v);
+        let same = draw_variant_at_speed(&base, 9100, v, None);
+        assert_eq!(drawn.params, same.params);
+        let at = draw_variant_at_speed(&base, 9100, v, Some(150.0));
+        assert_eq!(at.params["speed_m_s"].as_f64(), Some(150.0));
+        assert_eq!(at.runs_seed, drawn.runs_seed);
+        let p = &at.scenario.mission.profile;
+        assert!((p.carry_speed_m_s + p.boost_speed_gain_m_s - 150.0).abs() < 1e-9);
+        for key in [
+            "lever_arm_m",
+            "carry_alt_m",
+            "cruise_alt_m",
+            "heading_deg",
+            "landmark_bearing_deg",
+            "landmark_range_m",
+            "run_in",
+            "release_s",
+        ] {
+            assert_eq!(at.params[key], drawn.params[key], "variant {v}: {key}");
+        }
+    }
+}
