@@ -40,9 +40,10 @@
 //!
 //! * the accelerometer-bias estimate: the EKF's bias states start from the priors (zero
 //!   estimate). Handing over the alignment's `b̂` as `−β b̂` with covariance
-//!   `diag(β) P_bb diag(β) + diag(β σ_bm²)` (module `bias`, [`HAND_OVER_BIAS_ESTIMATE`]) was
-//!   measured and is off: the alignment's level-axis bias stays overconfident after the
-//!   carry's turns (the misalignment share acts there as a tilt; README, "The bias hand-over,
+//!   `diag(β) P_bb diag(β) + diag(β σ_bm²)` (plus the level axes' misalignment share) was
+//!   measured and removed: the alignment's level-axis bias stays overconfident after the
+//!   carry's turns (the misalignment share acts there as a tilt), and neither form was
+//!   consistent on both `mission` and `mission-s-turn` (README, "The bias hand-over,
 //!   measured again"). The alignment's bias variance itself is charged with the share's
 //!   change in a manoeuvre ([`crate::transfer_alignment::share_charge`]).
 //!
@@ -571,8 +572,7 @@ fn validate_alignment<T: Real>(alignment: &AlignmentAtRelease<T>) -> Result<(), 
 }
 
 mod bias;
-pub use bias::HAND_OVER_BIAS_ESTIMATE;
-pub(crate) use bias::{alignment_bias_start, refer_to_carry, BiasStart};
+pub(crate) use bias::refer_to_carry;
 
 #[cfg(test)]
 #[path = "handover_tests.rs"]

@@ -250,7 +250,6 @@ pub use design::{alignment_config, NavigatorDesign};
 pub use flight::{ConventionalNavigator, FlightNavigator, Navigator};
 pub use handover::{
     hand_over, right_jacobian, AlignmentAtRelease, HandoverPriors, LeverArm, MasterAtRelease,
-    HAND_OVER_BIAS_ESTIMATE,
 };
 pub use types::{
     AidAvailability, AidState, AidStatus, AidTimeouts, Aids, BaroDamping, BaroErrorModel,

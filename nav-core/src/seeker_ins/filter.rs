@@ -295,37 +295,6 @@ impl<T: Real> SeekerIns<T> {
         Ok(())
     }
 
-    /// Starts the accelerometer-bias states from an estimate made at the reference specific
-    /// force `f_ref_b_m_s2` (body, m/s²): the estimate `estimate_m_s2` (m/s²) and the
-    /// reference set as [`Self::set_specific_force_reference`] does, without adding the
-    /// scale-factor and misalignment variance at it (the P0 the filter was started with
-    /// holds it: the flight navigator's hand-over of its alignment's bias). Before the first
-    /// covariance step only. Errors (filter unchanged): `NonFiniteInput` for a non-finite
-    /// input, `InputOutOfRange` when the reference is already set.
-    pub(crate) fn start_accel_bias_at(
-        &mut self,
-        estimate_m_s2: &Vector3<T>,
-        f_ref_b_m_s2: &Vector3<T>,
-    ) -> Result<(), NavError> {
-        let finite = crate::math::checks::all_finite(f_ref_b_m_s2.as_slice())
-            && crate::math::checks::all_finite(estimate_m_s2.as_slice());
-        if !finite {
-            return Err(NavError::NonFiniteInput {
-                input: "specific_force_reference",
-            });
-        }
-        if self.bias_charge.reference_f_b_m_s2.is_some() {
-            return Err(NavError::InputOutOfRange {
-                input: "specific_force_reference",
-            });
-        }
-        if !self.config.instrument_errors.is_zero() {
-            self.bias_charge.reference_f_b_m_s2 = Some(*f_ref_b_m_s2);
-        }
-        self.accel_bias_m_s2 = *estimate_m_s2;
-        Ok(())
-    }
-
     /// The specific force the accelerometer-bias states refer to (body axes, m/s²): the
     /// equivalent bias they estimate is `b + (S + M) f_ref` ([`Self::set_specific_force_reference`]);
     /// `None` before it is set or the first covariance step, and always for a configuration

@@ -5,8 +5,8 @@
 use super::super::carry::CueLimits;
 use super::super::design::slave_share;
 use super::super::handover::{
-    alignment_bias_start, hand_over_checked_master, refer_to_carry, validate_master,
-    AlignmentAtRelease, BiasStart, MasterAtRelease, NavBlocks,
+    hand_over_checked_master, refer_to_carry, validate_master, AlignmentAtRelease, MasterAtRelease,
+    NavBlocks,
 };
 use super::super::types::{
     AidAvailability, AidState, Aids, ImuTick, MasterNav, NavigatorConfig, SeparationStatus,
@@ -389,9 +389,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             return false;
         };
         let priors = self.config.priors;
-        // The alignment's bias estimate (a design switch, off); through the dense check.
-        let bias = alignment_bias_start(&self.ta, &blocks, &priors);
-        let started = if bias.is_none() && blocks.p0_passes_checks(&priors) {
+        let started = if blocks.p0_passes_checks(&priors) {
             SeekerIns::start_in(
                 &mut self.ekf,
                 &self.config.ins,
@@ -402,23 +400,20 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             .is_ok()
         } else {
             // Blocks the cheap check cannot vouch for: the EKF's own dense check decides.
-            self.hand_over_dense(&blocks, bias.as_ref())
+            self.hand_over_dense(&blocks)
         };
-        started && refer_to_carry(&mut self.ekf, &lm.f_slave_m_s2(), bias.as_ref())
+        started && refer_to_carry(&mut self.ekf, &lm.f_slave_m_s2())
     }
 
     /// [`Self::hand_over_now`] through the EKF's public constructor and its dense checks.
     #[cold]
     #[inline(never)]
-    fn hand_over_dense(&mut self, blocks: &NavBlocks<T>, bias: Option<&BiasStart<T>>) -> bool {
+    fn hand_over_dense(&mut self, blocks: &NavBlocks<T>) -> bool {
         let mut initial = SeekerInsInitial {
             state: *self.ins.state(),
             covariance: SMatrix::zeros(),
         };
         blocks.write_p0(&self.config.priors, &mut initial.covariance);
-        if let Some(b) = bias {
-            b.write_into(&mut initial.covariance);
-        }
         match SeekerIns::from_design(&self.config.ins, &self.design, &initial) {
             Ok(ekf) => {
                 self.ekf = Some(ekf);
