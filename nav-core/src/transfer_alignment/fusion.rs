@@ -105,7 +105,10 @@ fn diagonal_scan<T: Real, const N: usize>(p: &SMatrix<T, N, N>) -> (bool, T) {
 /// fused.
 ///
 /// Not inlined: one copy per N serves the six rows of a step (inlined six times, the
-/// straight-line triangle costs kilobytes of flash).
+/// straight-line triangle costs kilobytes of flash). Straight-line for the flight
+/// configuration (N = 15), whose rows are fused one by one; the loop form for the paper
+/// filters (N ≤ 12), whose rows are fused in pairs ([`downdate_two`]) and which run this only
+/// for a pair with one row not fused or an epoch rerun with per-update checks.
 #[inline(never)]
 pub(super) fn fuse_rank_one<T: Real, const N: usize>(
     x: &mut SVector<T, N>,
@@ -134,7 +137,7 @@ pub(super) fn fuse_rank_one<T: Real, const N: usize>(
         return Err(s);
     }
     let xs = &mut x.data.0[0];
-    if N <= UNROLLED_MAX_N {
+    if N <= UNROLLED_MAX_N && N > PAIRED_MAX_N {
         downdate_unrolled(&mut p.data.0, bs, inv_s, xs, innovation);
     } else {
         downdate_loop(&mut p.data.0, bs, inv_s, xs, innovation);
@@ -223,7 +226,7 @@ pub(super) fn downdate_two<T: Real, const N: usize>(
         }
         return;
     }
-    // Straight-line up to N = 12 (the proposed filter pairs its rows).
+    // Straight-line up to N = 12 (the paper filters, 9 and 12 states, pair their rows).
     row!(0: 0 1 2 3 4 5 6 7 8 9 10 11);
     row!(1: 1 2 3 4 5 6 7 8 9 10 11);
     row!(2: 2 3 4 5 6 7 8 9 10 11);
@@ -269,6 +272,11 @@ fn result_acceptable<T: Real, const N: usize>(
 
 /// Largest N for which the update pass is straight-line code.
 const UNROLLED_MAX_N: usize = 15;
+
+/// Largest N of the filters that fuse their rows in pairs ([`downdate_two`], the hot path):
+/// their single updates (a pair with one row not fused, the rerun of an epoch with per-update
+/// checks) are rare, and run the loop form (the same bits, far less flash).
+const PAIRED_MAX_N: usize = 12;
 
 /// The loop form of [`downdate_unrolled`] (any N; same expressions in the same order).
 #[inline(always)]

@@ -1,10 +1,12 @@
 //! The six scalar measurement rows of an epoch: the second-order prediction of the flight
 //! configuration's measurement, and the sparse updates of [`fuse_rows`] (rows with their
 //! sparsity pattern known at compile time, `b = P h` from the row's columns of P only, the
-//! rank-one update of [`super::fusion`]). The proposed filter fuses the rows in pairs (0-1,
-//! 2-3, 4-5) when the step defers its result checks: the second row's `b` and innovation
-//! against the first update's result, then one pass over P for both downdates — the bits of
-//! the six updates one after the other.
+//! rank-one update of [`super::fusion`]). The paper's filters (conventional and proposed) fuse
+//! the rows in pairs (0-1, 2-3, 4-5) when the step defers its result checks: the second row's
+//! `b` and innovation against the first update's result, then one pass over P for both
+//! downdates — the bits of the six updates one after the other. Their per-update path (the
+//! rare rerun of an epoch) is a compact loop out of line, so that the pairs fit the filters'
+//! image's flash.
 use super::config::MAX_ANGULAR_RATE_RAD_S;
 use super::covariance::{bounded_variance, fuse_bounded, skipped_report};
 use super::fusion::{decide, downdate_two, fuse_rank_one, Gain, Guard, UpdateChecks};
@@ -110,10 +112,15 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     inputs: &RowInputs<T>,
     updates: &mut [FusionReport<T>; 6],
 ) {
-    if K == 4 && N == 12 && inputs.checks.guard == Guard::Deferred {
-        // The proposed filter: the rows in pairs, each pair's downdate in one pass (the
-        // conventional filter's too would take the filters' image over its flash ceiling).
-        return fuse_rows_paired::<T, K, N>(x, p, z, inputs, updates);
+    if pairs_rows::<K, N>() {
+        // The paper's filters: with deferred checks the rows in pairs, each pair's downdate in
+        // one pass; the per-update checks (the rare rerun of an epoch whose deferred check
+        // failed) one row after the other, out of line and compact.
+        return if inputs.checks.guard == Guard::Deferred {
+            fuse_rows_paired::<T, K, N>(x, p, z, inputs, updates)
+        } else {
+            fuse_rows_each::<T, K, N>(x, p, z, inputs, updates)
+        };
     }
     let RowInputs {
         omega_m,
@@ -178,6 +185,68 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     fuse_row!(5);
 }
 
+/// `true` for the filters that fuse their rows in pairs with deferred checks
+/// ([`fuse_rows_paired`]): the paper's filters (chains of 3 or 4 states, N ≤ 12). The flight
+/// configuration fuses them one by one (its df rows carry up to 12 entries).
+#[inline(always)]
+pub(super) const fn pairs_rows<const K: usize, const N: usize>() -> bool {
+    K <= 4 && N <= 12
+}
+
+/// [`fuse_rows`] of a paper filter with [`Guard::PerUpdate`]: the six rows one after the
+/// other, each row's `b = P h` in a loop ([`upper_times_row_loop`], the same sums), the update
+/// [`fuse_bounded`]: the bits of the straight-line rows. The rerun of an epoch whose deferred
+/// check failed (rare): out of line, compact, one copy per filter.
+#[cold]
+#[inline(never)]
+fn fuse_rows_each<T: Real, const K: usize, const N: usize>(
+    x: &mut SVector<T, N>,
+    p: &mut SMatrix<T, N, N>,
+    z: &SVector<T, 6>,
+    inputs: &RowInputs<T>,
+    updates: &mut [FusionReport<T>; 6],
+) {
+    let RowInputs {
+        omega_m,
+        f_h,
+        lever_arm_m: lever,
+        r_rate,
+        r_accel,
+        checks,
+        ..
+    } = *inputs;
+    let model_k = model_of::<K>();
+    let mut b = SVector::<T, N>::zeros();
+    for (row, (rep, &zi)) in updates.iter_mut().zip(z.iter()).enumerate() {
+        let h = h_row_total::<T, K, 4>(model_k, row, &omega_m, &f_h, &lever);
+        let r = if row < 3 { r_rate } else { r_accel };
+        upper_times_row_loop(p, &h, &mut b);
+        let hph = h.dot(&b);
+        *rep = fuse_bounded(x, p, &b, hph, zi - h.dot(x), r, checks);
+    }
+}
+
+/// [`upper_times_row`] in loops (a row known only at run time): the same sums in the same
+/// order (each `b_i` from its first product, entries in the row's order), the same bits.
+#[inline(always)]
+fn upper_times_row_loop<T: Real, const N: usize, const M: usize>(
+    p: &SMatrix<T, N, N>,
+    h: &SparseRow<T, M>,
+    out: &mut SVector<T, N>,
+) {
+    let cols = &p.data.0;
+    for (i, bi) in out.iter_mut().enumerate() {
+        let mut acc = T::zero();
+        for (t, (j, hj)) in h.entries().enumerate() {
+            let (c, r) = if i <= j { (j, i) } else { (i, j) };
+            if let Some(&pij) = cols.get(c).and_then(|col| col.get(r)) {
+                acc = if t == 0 { hj * pij } else { acc + hj * pij };
+            }
+        }
+        *bi = acc;
+    }
+}
+
 /// What the flight configuration's df rows' Jacobian is evaluated with: θ̂ of `x` and the
 /// manoeuvre terms (zero in the paper's filters). The df rows' gain and covariance use the same
 /// second-order model's Jacobian at this θ̂, taken unbounded: on an axis beyond the small-angle
@@ -199,9 +268,9 @@ fn df_jacobian_inputs<T: Real, const K: usize, const N: usize>(
     (theta_of::<T, K, N>(x), terms)
 }
 
-/// [`fuse_rows`] of the proposed filter with [`Guard::Deferred`]: the rows in pairs (0-1,
-/// 2-3, 4-5, [`fuse_pair`]), each report written into its slot of `updates`. Not inlined: one
-/// copy per filter, not one per caller of the step (inlined, the filters' image grew by 15 KB).
+/// [`fuse_rows`] of a paper filter with [`Guard::Deferred`]: the rows in pairs (0-1, 2-3, 4-5,
+/// [`fuse_pair`]), each report written into its slot of `updates`. Not inlined: one copy per
+/// filter, not one per caller of the step (inlined, the filters' image grew by 15 KB).
 #[inline(never)]
 fn fuse_rows_paired<T: Real, const K: usize, const N: usize>(
     x: &mut SVector<T, N>,
@@ -453,5 +522,44 @@ const fn model_of<const K: usize>() -> FlexureModel {
         FlexureModel::Proposed
     } else {
         FlexureModel::Conventional
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The loop form of `b = P h` gives the bits of the straight-line one, for rows of 1 to 5
+    /// entries over the upper triangle of a 9-, 12- and 15-state covariance.
+    fn loop_matches_straight_line<const N: usize>() {
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            ((state >> 40) as f32) / ((1u64 << 24) as f32) * 2.0 - 1.0
+        };
+        for len in 1..=5usize {
+            let p = SMatrix::<f32, N, N>::from_fn(|_, _| next());
+            let mut h = SparseRow::<f32, 5>::new();
+            for t in 0..len {
+                // Ascending, in range: columns t·(N/5) + 1.
+                assert!(h.push(t * (N / 5) + 1, next()).is_ok());
+            }
+            let (mut a, mut b) = (SVector::<f32, N>::zeros(), SVector::<f32, N>::zeros());
+            upper_times_row(&p, &h, &mut a);
+            upper_times_row_loop(&p, &h, &mut b);
+            let bits =
+                |v: &SVector<f32, N>| v.iter().map(|e| e.to_bits()).collect::<std::vec::Vec<_>>();
+            assert_eq!(bits(&a), bits(&b), "N {N}, {len} entries");
+            assert!(a.iter().any(|e| *e != 0.0));
+        }
+    }
+
+    #[test]
+    fn row_product_loop_and_straight_line_agree() {
+        loop_matches_straight_line::<9>();
+        loop_matches_straight_line::<12>();
+        loop_matches_straight_line::<15>();
     }
 }

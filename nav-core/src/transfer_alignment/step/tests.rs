@@ -66,8 +66,8 @@ fn deferred_equals_per_update<T: Real, const K: usize, const N: usize>() -> (u32
             assert_eq!(deferred.predict_ahead(), reference.predict_ahead());
         }
         let (m, mut s) = samples::<T>(k);
-        // Outliers the gate rejects, in the first or the second row of a pair (the proposed
-        // filter fuses rows 0-1, 2-3, 4-5 in pairs), so that a pair also runs with one fused.
+        // Outliers the gate rejects, in the first or the second row of a pair (the paper
+        // filters fuse rows 0-1, 2-3, 4-5 in pairs), so that a pair also runs with one fused.
         match k % 7 {
             3 => s.angular_rate_rad_s.x += T::lit(0.5),
             5 => s.specific_force_m_s2.x += T::lit(5.0),
@@ -88,7 +88,7 @@ fn deferred_equals_per_update<T: Real, const K: usize, const N: usize>() -> (u32
                 .iter()
                 .filter(|u| u.outcome == FusionOutcome::Skipped)
                 .count();
-            // Pairs of rows (the proposed filter fuses them in pairs) with one rejected.
+            // Pairs of rows (the paper filters fuse them in pairs) with one rejected.
             rejected += r
                 .updates
                 .chunks(2)
