@@ -213,11 +213,10 @@ impl<T: Real> TaConfig<T> {
 /// `f` along the down axis (the mount's and the aircraft's few degrees of pitch change it
 /// by their square), its magnitude gravity at most, [`crate::earth::GRAVITY_POLE_M_S2`]; with
 /// independent errors `v_i = σ_S² f_i² + σ_M² (|f|² − f_i²)`: `σ_M² g²` on X and Y,
-/// `σ_S² g²` on Z. `scale_factor` dimensionless, `misalignment_rad` rad (1σ each).
+/// `σ_S² g²` on Z. `scale_factor` dimensionless, `misalignment_rad` rad (1σ each). The share's
+/// change from a zero force to [`super::level_carry_force`] ([`super::share_change_variance`]).
 pub fn slave_share_variance<T: Real>(scale_factor: T, misalignment_rad: T) -> Vector3<T> {
-    let g = T::lit(crate::earth::GRAVITY_POLE_M_S2);
-    let (s, m) = (scale_factor * g, misalignment_rad * g);
-    Vector3::new(m * m, m * m, s * s)
+    super::share_change_variance(scale_factor, misalignment_rad, &super::level_carry_force())
 }
 
 #[cold]
