@@ -296,6 +296,9 @@ const CEILINGS: &[Budget] = &[
     insns("ins_mech_step", 3_000),
     insns("ta12_step", 10_000),
     insns("ta9_step", 6_000),
+    // A step with a row rejected by the gate is held to its filter's step ceiling.
+    insns("ta12_step_rejected", 10_000),
+    insns("ta9_step_rejected", 6_000),
     insns("vc_classical_step", 400),
     insns("vc_aided_step", 400),
     stack_bytes("eskf17_predict", 1_792),
@@ -305,6 +308,8 @@ const CEILINGS: &[Budget] = &[
     stack_bytes("ins_mech_step", 384),
     stack_bytes("ta12_step", 1_280),
     stack_bytes("ta9_step", 1_152),
+    stack_bytes("ta12_step_rejected", 1_280),
+    stack_bytes("ta9_step_rejected", 1_152),
     stack_bytes("vc_classical_step", 384),
     stack_bytes("vc_aided_step", 384),
     text_bytes(Image::Filters, 140 * 1024),

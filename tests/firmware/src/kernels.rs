@@ -39,6 +39,24 @@ pub static KERNELS: &[Kernel] = &[
         check: ta15_check,
     },
     Kernel {
+        name: "ta9_step_rejected",
+        setup: ta9_setup,
+        run: ta9_step_rejected,
+        check: ta9_check,
+    },
+    Kernel {
+        name: "ta12_step_rejected",
+        setup: ta12_setup,
+        run: ta12_step_rejected,
+        check: ta12_check,
+    },
+    Kernel {
+        name: "ta15_step_rejected",
+        setup: ta15_setup,
+        run: ta15_step_rejected,
+        check: ta15_check,
+    },
+    Kernel {
         name: "ta9_propagate",
         setup: ta9_setup,
         run: ta9_propagate,
@@ -291,6 +309,11 @@ fn ta_samples(k: u32) -> (MasterSample<f32>, SlaveSample<f32>) {
     (core::hint::black_box(master), core::hint::black_box(slave))
 }
 
+/// The outlier added to one master specific-force component for the `…_step_rejected`
+/// kernels, m/s²: 200 σ of the paper configuration's accelerometer noise (5 mm/s²), far outside
+/// the 5σ gate.
+const OUTLIER_M_S2: f32 = 1.0;
+
 struct Ta<F> {
     filter: F,
     k: u32,
@@ -302,7 +325,7 @@ static TA12: Slot<Ta<ProposedFilter<f32>>> = Mutex::new(RefCell::new(None));
 static TA15: Slot<Ta<FlightFilter<f32>>> = Mutex::new(RefCell::new(None));
 
 macro_rules! ta_kernel {
-    ($setup:ident, $step:ident, $prop:ident, $check:ident, $cell:ident, $ty:ty, $config:expr) => {
+    ($setup:ident, $step:ident, $prop:ident, $rejected:ident, $check:ident, $cell:ident, $ty:ty, $config:expr) => {
         /// Prediction only (a master-data dropout epoch).
         fn $prop() {
             with_state(&$cell, |s| {
@@ -332,6 +355,18 @@ macro_rules! ta_kernel {
                 s.k += 1;
             });
         }
+        /// A step whose master specific force along X is an outlier ([`OUTLIER_M_S2`]): the
+        /// gate rejects that row and its pair's other row is fused alone — the dearer path a
+        /// flight loop meets whenever a channel is gated.
+        fn $rejected() {
+            with_state(&$cell, |s| {
+                let (mut m, sl) = ta_samples(s.k);
+                m.specific_force_m_s2.x += OUTLIER_M_S2;
+                s.ok &= matches!(s.filter.step(&m, &sl), Ok(r) if r.predictions == 1
+                    && r.updates.iter().filter(|u| u.outcome == FusionOutcome::Rejected).count() == 1);
+                s.k += 1;
+            });
+        }
         fn $check() -> bool {
             check_state(&$cell, |s| s.ok && s.filter.theta().iter().all(|v| v.is_finite()))
         }
@@ -342,6 +377,7 @@ ta_kernel!(
     ta9_setup,
     ta9_step,
     ta9_propagate,
+    ta9_step_rejected,
     ta9_check,
     TA9,
     ConventionalFilter<f32>,
@@ -351,6 +387,7 @@ ta_kernel!(
     ta12_setup,
     ta12_step,
     ta12_propagate,
+    ta12_step_rejected,
     ta12_check,
     TA12,
     ProposedFilter<f32>,
@@ -361,6 +398,7 @@ ta_kernel!(
     ta15_setup,
     ta15_step,
     ta15_propagate,
+    ta15_step_rejected,
     ta15_check,
     TA15,
     FlightFilter<f32>,
