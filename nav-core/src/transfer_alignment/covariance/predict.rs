@@ -51,44 +51,66 @@ fn phi_block_phi_t<T: Real, const K: usize, const N: usize, const DIAG: bool>(
     for j in 0..K {
         let mut t = [T::zero(); K];
         for (m, tm) in t.iter_mut().enumerate() {
-            *tm = if j >= kf {
-                s(m, j)
-            } else {
-                let first = s(m, 1) * at(pb, j, 1);
-                let mut acc = if j == 0 { s(m, 0) + first } else { first };
-                for n in 2..kf {
-                    acc += s(m, n) * at(pb, j, n);
-                }
-                acc
-            };
+            *tm = phi_row_dot(pb, j, kf, |n| s(m, n));
         }
         let tv = |m: usize| t.get(m).copied().unwrap_or_else(T::zero);
-        let Some(col) = dst
-            .data
-            .0
-            .get_mut(c0 + j)
-            .and_then(|col| col.get_mut(r0..r0 + K))
-        else {
-            continue;
-        };
-        let i_end = if DIAG { j + 1 } else { K };
-        for i in 0..i_end {
-            let mut acc = if i >= kf {
-                tv(i)
-            } else {
-                let first = at(pa, i, 1) * tv(1);
-                let mut acc = if i == 0 { tv(0) + first } else { first };
-                for m in 2..kf {
-                    acc += at(pa, i, m) * tv(m);
-                }
-                acc
-            };
-            if DIAG {
-                acc += at(q, i, j);
-            }
-            if let Some(e) = col.get_mut(i) {
-                *e = acc;
-            }
+        write_column::<T, K, N, DIAG>(dst, (r0, c0), j, pa, q, tv);
+    }
+}
+
+/// `Σ_m Φ_im v_m`, row `i` of an axis chain's Φ times `v`, summed from its first product
+/// (not from 0: every chain has kf ≥ 2), using Φ's first column e₁ (θ_m is a random
+/// constant: only the θ row reads `v_0`) and, past the flexure chain (`i ≥ kf`: a bias state,
+/// a random constant), Φ's unit row (`v_i` itself). Every product with Φ or Φᵀ of this
+/// module's covariance forms is this sum, so the forms give the same bits.
+#[inline(always)]
+fn phi_row_dot<T: Real, const K: usize>(
+    phi: &SMatrix<T, K, K>,
+    i: usize,
+    kf: usize,
+    v: impl Fn(usize) -> T,
+) -> T {
+    if i >= kf {
+        return v(i);
+    }
+    let first = at(phi, i, 1) * v(1);
+    let mut acc = if i == 0 { v(0) + first } else { first };
+    for m in 2..kf {
+        acc += at(phi, i, m) * v(m);
+    }
+    acc
+}
+
+/// Column `j` of `P_ab ← Φ_a t (+ Q_d,a on a diagonal block)` from column `j` of
+/// `t = P_ab Φ_bᵀ` (`tv(m)` = t_mj), written to the block's upper-triangle entries of `p`
+/// (rows `r0..r0 + K` of column `c0 + j`; all of them in an off-diagonal block, the upper half
+/// of a diagonal one, `DIAG`).
+#[inline(always)]
+fn write_column<T: Real, const K: usize, const N: usize, const DIAG: bool>(
+    p: &mut SMatrix<T, N, N>,
+    (r0, c0): (usize, usize),
+    j: usize,
+    pa: &SMatrix<T, K, K>,
+    q: &SMatrix<T, K, K>,
+    tv: impl Fn(usize) -> T,
+) {
+    let kf = flexure_chain_len::<K>();
+    let Some(col) = p
+        .data
+        .0
+        .get_mut(c0 + j)
+        .and_then(|col| col.get_mut(r0..r0 + K))
+    else {
+        return;
+    };
+    let i_end = if DIAG { j + 1 } else { K };
+    for i in 0..i_end {
+        let mut acc = phi_row_dot(pa, i, kf, &tv);
+        if DIAG {
+            acc += at(q, i, j);
+        }
+        if let Some(e) = col.get_mut(i) {
+            *e = acc;
         }
     }
 }
@@ -115,22 +137,11 @@ fn block_times_phi_t<T: Real, const K: usize, const N: usize, const DIAG: bool>(
             .copied()
             .unwrap_or_else(T::zero)
     };
-    // t_mj = Σ_n S_mn Φb_jn = S_m0 δ_j0 + Σ_{n≥1} S_mn Φb_jn (the sum starts from its first
-    // product, not from 0: every chain has kf ≥ 2).
+    // t_mj = Σ_n S_mn Φb_jn = S_m0 δ_j0 + Σ_{n≥1} S_mn Φb_jn.
     let mut t = SMatrix::<T, K, K>::zeros();
     for j in 0..K {
         for m in 0..K {
-            let acc = if j >= kf {
-                s(m, j)
-            } else {
-                let first = s(m, 1) * at(pb, j, 1);
-                let mut acc = if j == 0 { s(m, 0) + first } else { first };
-                for n in 2..kf {
-                    acc += s(m, n) * at(pb, j, n);
-                }
-                acc
-            };
-            put(&mut t, m, j, acc);
+            put(&mut t, m, j, phi_row_dot(pb, j, kf, |n| s(m, n)));
         }
     }
     t
@@ -148,36 +159,9 @@ fn write_phi_times<T: Real, const K: usize, const N: usize, const DIAG: bool>(
     t: &SMatrix<T, K, K>,
     q: &SMatrix<T, K, K>,
 ) {
-    let kf = flexure_chain_len::<K>();
-    // d_ij = Σ_m Φa_im t_mj = t_0j δ_i0 + Σ_{m≥1} Φa_im t_mj (from its first product).
+    // d_ij = Σ_m Φa_im t_mj = t_0j δ_i0 + Σ_{m≥1} Φa_im t_mj.
     for j in 0..K {
-        let Some(col) = p
-            .data
-            .0
-            .get_mut(c0 + j)
-            .and_then(|col| col.get_mut(r0..r0 + K))
-        else {
-            continue;
-        };
-        let i_end = if DIAG { j + 1 } else { K };
-        for i in 0..i_end {
-            let mut acc = if i >= kf {
-                at(t, i, j)
-            } else {
-                let first = at(pa, i, 1) * at(t, 1, j);
-                let mut acc = if i == 0 { at(t, 0, j) + first } else { first };
-                for m in 2..kf {
-                    acc += at(pa, i, m) * at(t, m, j);
-                }
-                acc
-            };
-            if DIAG {
-                acc += at(q, i, j);
-            }
-            if let Some(e) = col.get_mut(i) {
-                *e = acc;
-            }
-        }
+        write_column::<T, K, N, DIAG>(p, (r0, c0), j, pa, q, |m| at(t, m, j));
     }
 }
 
