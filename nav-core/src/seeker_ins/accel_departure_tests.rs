@@ -117,8 +117,14 @@ fn a_sustained_turn_charges_the_total_equivalent_bias_and_keeps_its_correlations
     for i in 0..3 {
         let b = ACC_BIAS + i;
         let (added, rest) = (p[(b, b)] - p0[(b, b)], ch.charged_bias_m2_s4[i]);
-        assert!((added - rest).abs() <= 1e-3 * p0[(b, b)], "axis {i}: {added} vs {rest}");
-        assert!(rest < independent[i], "axis {i}: less than the independent charge left");
+        assert!(
+            (added - rest).abs() <= 1e-3 * p0[(b, b)],
+            "axis {i}: {added} vs {rest}"
+        );
+        assert!(
+            rest < independent[i],
+            "axis {i}: less than the independent charge left"
+        );
     }
     assert_psd(&p, "after the turn");
 }
@@ -140,7 +146,10 @@ fn a_drop_is_anti_correlated_with_the_reference_share() {
     for i in 0..3 {
         let (v, b) = (VEL + i, ACC_BIAS + i);
         assert!(cov[i] < 0.0);
-        assert!((p[(v, b)] - cov[i]).abs() <= 0.02 * cov[i].abs(), "axis {i}");
+        assert!(
+            (p[(v, b)] - cov[i]).abs() <= 0.02 * cov[i].abs(),
+            "axis {i}"
+        );
         let added = p[(v, v)] - p0[(v, v)];
         assert!((added - var[i]).abs() <= 0.02 * var[i], "axis {i}");
     }
@@ -170,4 +179,3 @@ fn a_push_over_keeps_p_psd_f32_and_f64() {
     push_over_stays_psd::<f32>();
     push_over_stays_psd::<f64>();
 }
-
