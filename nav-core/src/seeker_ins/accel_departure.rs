@@ -8,12 +8,11 @@ use super::{
     charge_above, equivalent_covariance, equivalent_variance, EquivalentBiasCharge,
     InstrumentErrors, SUSTAINED_TIME_CONSTANT_S,
 };
-use crate::seeker_ins::error_model::{ACC_BIAS, STATES, VEL};
+#[cfg(test)]
+use crate::seeker_ins::error_model::VEL;
+use crate::seeker_ins::error_model::{ACC_BIAS, STATES};
 use crate::Real;
 use nalgebra::{Matrix3, SMatrix, Vector3};
-
-/// Rows of the congruence `T = I + E` (velocity, then accelerometer bias).
-const ROWS: [usize; 6] = [VEL, VEL + 1, VEL + 2, ACC_BIAS, ACC_BIAS + 1, ACC_BIAS + 2];
 
 /// Per axis `num / den`, zero where `den` is not positive (no reference variance: nothing to
 /// regress on).
@@ -30,22 +29,53 @@ fn bias_diagonal<T: Real>(p: &SMatrix<T, STATES, STATES>) -> Vector3<T> {
     })
 }
 
-/// One covariance step's accelerometer departure (reference `f0`, body specific force `f_b`,
-/// both m/s², over `dt_s`, attitude `c_b_n`): applies the transfer `P ← T P Tᵀ` (the parts of
-/// the departure's errors the reference's bias error explains) and returns the variances not
-/// explained, `(velocity per NED axis, bias per body axis)`, to add as a diagonal, with the
-/// charge's new memory in `next` (module [`super`] doc).
-#[allow(clippy::too_many_arguments)]
-pub(super) fn accel_departure<T: Real>(
-    p: &mut SMatrix<T, STATES, STATES>,
+/// One covariance step's accelerometer departure, planned before the step from the charge
+/// alone (P is not read): the transfer `T = I + E`, `E` zero but for the bias columns,
+/// `E[V, ∇] = C_b^n diag(gain_v)` and `E[∇, ∇] = diag(scale − 1)`, with what the part after
+/// the step needs. The transfer is applied as `P ← S (Φ' P Φ'ᵀ + Q_d) S`: `Φ' = Φ + E[V, ∇]`
+/// (the covariance kernel's `G[V, ∇] = C_b^n diag(Δt + gain_v)`, [`Self::dt_acc_s`]) and
+/// `S = I + E[∇, ∇]` ([`apply_scale`]). That is `T (Φ P Φᵀ + Q_d) Tᵀ` with `T = S (I + E_v +
+/// H E_v)`: Φ's and Q_d's bias rows are those of the identity and zero (random-constant
+/// biases), so `E Φ = E` and `E Q_d = 0`, and the step's second-order couplings H
+/// (position ← velocity, `½ G[P, V]`) give the transfer its position effect over the step,
+/// `½ Δt E_v` (test `the_folded_velocity_transfer_equals_the_congruence_after_the_step`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(in crate::seeker_ins) struct Departure<T> {
+    /// The transient's velocity gain per body axis, s: the velocity error gains
+    /// `C_b^n diag(gain_v) ∇`.
+    pub(super) gain_v: Vector3<T>,
+    /// The bias error's scale per body axis (1: unchanged).
+    pub(super) scale: Vector3<T>,
+    /// The bias variance not explained, per body axis, (m/s²)², added after the step.
+    add_bias: Vector3<T>,
+    /// The sustained gain `k` now.
+    gain: Vector3<T>,
+    /// `Σ (f − f_ref − f̄) Δt` so far, body axes, m/s.
+    excess: Vector3<T>,
+}
+
+impl<T: Real> Departure<T> {
+    /// The kernel's step of `G[V, ∇]`'s columns, s: `dt_s + gain_v`.
+    pub(in crate::seeker_ins) fn dt_acc_s(&self, dt_s: T) -> [T; 3] {
+        [
+            dt_s + self.gain_v.x,
+            dt_s + self.gain_v.y,
+            dt_s + self.gain_v.z,
+        ]
+    }
+}
+
+/// Plans the departure of one covariance step (reference `f0`, mean body specific force
+/// `f_b`, both m/s², over `dt_s`), the charge's new memory written to `next` (module
+/// [`super`] doc).
+pub(super) fn plan_departure<T: Real>(
     charge: &EquivalentBiasCharge<T>,
     next: &mut EquivalentBiasCharge<T>,
     errors: &InstrumentErrors<T>,
-    c_b_n: &Matrix3<T>,
     f0: &Vector3<T>,
     f_b: &Vector3<T>,
     dt_s: T,
-) -> (Vector3<T>, Vector3<T>) {
+) -> Departure<T> {
     let (sa, ma) = (errors.accel_scale_factor, errors.accel_misalignment_rad);
     let one = Vector3::repeat(T::one());
     let p_ref = charge.reference_var_m2_s4;
@@ -61,43 +91,80 @@ pub(super) fn accel_departure<T: Real>(
     // `v(f̄) − k c`, independent. The later steps' scales scale what is added now, so the
     // rest is kept divided by `(1 + k)²` (its largest so far) and added times it.
     let c_sus = equivalent_covariance(f0, &sustained, sa, ma).map(|x| x.max(T::zero()));
-    let gain_now = ratio(&c_sus, &p_ref);
-    let gain = gain_now;
+    let gain = ratio(&c_sus, &p_ref);
     next.sustained_gain = gain;
     let scale = (gain + one).component_div(&(charge.sustained_gain + one));
     let scale_sq = (gain + one).component_mul(&(gain + one));
-    let rest = (equivalent_variance(&sustained, sa, ma) - gain_now.component_mul(&c_sus))
+    let rest = (equivalent_variance(&sustained, sa, ma) - gain.component_mul(&c_sus))
         .map(|x| x.max(T::zero()))
         .component_div(&scale_sq);
     let (add_rest, charged) = charge_above(&rest, &charge.charged_bias_m2_s4);
-    let add_bias = add_rest.component_mul(&scale_sq);
     next.charged_bias_m2_s4 = charged;
     // Transient rest: `ΔD = (f − f_ref − f̄) Δt`, its velocity error `C (S + M) ΔD` regressed
     // on the (scaled) bias error, gain `c(f_ref, ΔD) / (P_ref (1 + k))` per body axis.
     let d_dv = (departure - sustained) * dt_s;
     let excess = charge.excess_dv_b_m_s + d_dv;
     next.excess_dv_b_m_s = excess;
-    let p_ref_scaled = p_ref.component_mul(&(gain + one));
-    let g_v = ratio(&equivalent_covariance(f0, &d_dv, sa, ma), &p_ref_scaled);
-    let mut e = SMatrix::<T, 6, 3>::zeros();
-    for i in 0..3 {
-        let g = g_v.get(i).copied().unwrap_or(T::zero());
-        for r in 0..3 {
-            if let (Some(x), Some(c)) = (e.get_mut((r, i)), c_b_n.get((r, i))) {
-                *x = *c * g;
+    let gain_v = ratio(
+        &equivalent_covariance(f0, &d_dv, sa, ma),
+        &p_ref.component_mul(&(gain + one)),
+    );
+    Departure {
+        gain_v,
+        scale,
+        add_bias: add_rest.component_mul(&scale_sq),
+        gain,
+        excess,
+    }
+}
+
+/// `P ← S P S`, `S` the identity but for the bias states' `scale` (the bias part of the
+/// departure's transfer, [`Departure`]): their rows and columns scaled (a variance twice),
+/// symmetric bit for bit (one product per mirrored pair) and PSD (a congruence).
+pub(super) fn apply_scale<T: Real>(p: &mut SMatrix<T, STATES, STATES>, scale: &Vector3<T>) {
+    let cols = &mut p.data.0;
+    for (i, s) in scale.iter().enumerate() {
+        let b = ACC_BIAS + i;
+        for c in 0..STATES {
+            let Some(x) = cols.get_mut(c).and_then(|col| col.get_mut(b)) else {
+                continue;
+            };
+            *x *= *s;
+            let v = *x;
+            if c == b {
+                // The variance: scaled as its row and as its column.
+                *x = v * *s;
+            } else if let Some(y) = cols.get_mut(b).and_then(|col| col.get_mut(c)) {
+                *y = v;
             }
         }
-        if let (Some(x), Some(s)) = (e.get_mut((3 + i, i)), scale.get(i)) {
-            *x = *s - T::one();
-        }
     }
-    transfer_from_bias(p, &e);
+}
+
+/// After the step (P through the transfer): the variances the transfers do not explain,
+/// `(velocity per NED axis, bias per body axis)`, to add as a diagonal; the velocity charge's
+/// memory written to `next` (attitude `c_b_n`, reference `f0`, m/s²).
+pub(super) fn finish_departure<T: Real>(
+    p: &SMatrix<T, STATES, STATES>,
+    charge: &EquivalentBiasCharge<T>,
+    next: &mut EquivalentBiasCharge<T>,
+    errors: &InstrumentErrors<T>,
+    c_b_n: &Matrix3<T>,
+    f0: &Vector3<T>,
+    dep: &Departure<T>,
+) -> (Vector3<T>, Vector3<T>) {
+    let (sa, ma) = (errors.accel_scale_factor, errors.accel_misalignment_rad);
+    let one = Vector3::repeat(T::one());
+    let p_ref_scaled = charge.reference_var_m2_s4.component_mul(&(dep.gain + one));
     // What the transfers do not explain of `v(D)`: the variance they carry,
     // `(c(f_ref, D) / (P_ref (1 + k)))² P_bias`, with `P_bias` at most `P_ref (1 + k)²` (the
     // reference's share of a bias error the LOS has narrowed is in the estimate, not the error).
-    let carried_gain = ratio(&equivalent_covariance(f0, &excess, sa, ma), &p_ref_scaled);
-    let p_bias = bias_diagonal(p).inf(&p_ref_scaled.component_mul(&(gain + one)));
-    let rest_d = (equivalent_variance(&excess, sa, ma)
+    let carried_gain = ratio(
+        &equivalent_covariance(f0, &dep.excess, sa, ma),
+        &p_ref_scaled,
+    );
+    let p_bias = bias_diagonal(p).inf(&p_ref_scaled.component_mul(&(dep.gain + one)));
+    let rest_d = (equivalent_variance(&dep.excess, sa, ma)
         - carried_gain
             .component_mul(&carried_gain)
             .component_mul(&p_bias))
@@ -105,54 +172,26 @@ pub(super) fn accel_departure<T: Real>(
     let w = c_b_n.component_mul(c_b_n) * rest_d;
     let (add_vel, charged) = charge_above(&w, &charge.charged_vel_m2_s2);
     next.charged_vel_m2_s2 = charged;
-    (add_vel, add_bias)
+    (add_vel, dep.add_bias)
 }
 
-/// `P ← T P Tᵀ`, `T = I + E` with `E` zero but for the bias columns of the velocity and bias
-/// rows (`e`: rows velocity then bias, columns the three bias states): symmetric by
-/// construction (each pair of mirrored elements gets one sum) and PSD whatever `E` (a
-/// congruence, as `Φ P Φᵀ`). Column by column outside the six rows (each needs only its own
-/// three bias elements), then the rows × rows block from its bias columns kept before: no
-/// copy of P's rows on the stack. Cost: 6 × 3 × 11 + 6 × 6 × 3 + 6 × 3 × 3 + 6 × 6 × 3
-/// multiply-adds.
-fn transfer_from_bias<T: Real>(p: &mut SMatrix<T, STATES, STATES>, e: &SMatrix<T, 6, 3>) {
-    let at = |p: &SMatrix<T, STATES, STATES>, r: usize, c: usize| {
-        p.get((r, c)).copied().unwrap_or(T::zero())
-    };
-    // The six rows' bias columns before the transfer (`P` symmetric: also the bias rows'
-    // elements in the six columns).
-    let pr = SMatrix::<T, 6, 3>::from_fn(|j, m| {
-        ROWS.get(j).map_or(T::zero(), |&r| at(p, r, ACC_BIAS + m))
-    });
-    for c in (0..STATES).filter(|c| !ROWS.contains(c)) {
-        let u = e * Vector3::from_fn(|m, _| at(p, ACC_BIAS + m, c)); // (E P)'s column c
-        for (j, &r) in ROWS.iter().enumerate() {
-            let add = u.get(j).copied().unwrap_or(T::zero());
-            if let Some(x) = p.get_mut((r, c)) {
-                *x += add;
-            }
-            if let Some(x) = p.get_mut((c, r)) {
-                *x += add;
-            }
+/// `P ← (I + E_v) P (I + E_v)ᵀ`, `E_v = C_b^n diag(gain_v)` from the bias columns into the
+/// velocity rows, written out on P (the tests' reference for the folded form, which the
+/// covariance kernel applies in Φ).
+#[cfg(test)]
+pub(super) fn transfer_to_velocity<T: Real>(
+    p: &mut SMatrix<T, STATES, STATES>,
+    c_b_n: &Matrix3<T>,
+    gain_v: &Vector3<T>,
+) {
+    let mut t = SMatrix::<T, STATES, STATES>::identity();
+    for r in 0..3 {
+        for m in 0..3 {
+            t[(VEL + r, ACC_BIAS + m)] = c_b_n[(r, m)] * gain_v[m];
         }
     }
-    let pbb = Matrix3::from_fn(|i, m| pr.get((3 + i, m)).copied().unwrap_or(T::zero()));
-    let u = e * pr.transpose(); // E P on the rows × rows block
-    let w = e * pbb * e.transpose(); // E P Eᵀ there
-    let u_at = |j: usize, l: usize| u.get((j, l)).copied().unwrap_or(T::zero());
-    for (j, &r) in ROWS.iter().enumerate() {
-        for (l, &s) in ROWS.iter().enumerate().skip(j) {
-            let add = u_at(j, l) + u_at(l, j) + w.get((j, l)).copied().unwrap_or(T::zero());
-            if let Some(x) = p.get_mut((r, s)) {
-                *x += add;
-            }
-            if l != j {
-                if let Some(x) = p.get_mut((s, r)) {
-                    *x += add;
-                }
-            }
-        }
-    }
+    let next = t * *p * t.transpose();
+    *p = (next + next.transpose()) * T::lit(0.5);
 }
 
 #[cfg(test)]

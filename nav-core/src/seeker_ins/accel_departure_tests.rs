@@ -2,7 +2,7 @@
 //! (module `accel_departure`).
 
 use super::super::{
-    add_instrument_noise, equivalent_covariance, equivalent_variance, set_reference,
+    add_instrument_noise_explicit, equivalent_covariance, equivalent_variance, set_reference,
     EquivalentBiasCharge, InstrumentErrors, SUSTAINED_TIME_CONSTANT_S,
 };
 use crate::math::kalman::is_psd;
@@ -63,7 +63,7 @@ fn fly<T: Real>(
     let (i3, e) = (Matrix3::identity(), errors());
     let mut ch = ch;
     for _ in 0..(seconds / DT_S).round() as usize {
-        ch = add_instrument_noise(p, &ch, &e, &i3, f, &Vector3::zeros(), T::lit(DT_S));
+        ch = add_instrument_noise_explicit(p, &ch, &e, &i3, f, &Vector3::zeros(), T::lit(DT_S));
     }
     ch
 }

@@ -556,3 +556,43 @@ fn f_from_the_steps_radii_stays_within_its_bound_of_f_at_the_state() {
     assert!(r64.p_shared < 2e-5, "P differs by {:e}", r64.p_shared);
     assert!(r32.t_shared < 2e-5, "f32 P differs by {:e}", r32.t_shared);
 }
+
+/// The accelerometer-bias columns of the velocity rows stepped by their own Δt
+/// (`propagate_covariance_transfer`, `G[V, ∇] = C_b^n diag(Δt + g)`) equal the plain step
+/// followed by the congruence `T P Tᵀ`, `T = I + E + H E`, `E[V, ∇] = C_b^n diag(g)`: the
+/// flight charge's velocity transfer folded into Φ (`E Φ = E`, `E Q_d = 0`: the bias rows of
+/// Φ are the identity's, those of Q_d zero; `H E` the step's second-order position term).
+#[test]
+fn the_folded_velocity_transfer_equals_the_congruence_after_the_step() {
+    let (f, dt, qa, qg) = (test_f::<f64>(), 0.1, 1e-6, 1e-10);
+    // Gains large enough that the transfer moves P far beyond the tolerance, s.
+    let g = Vector3::new(3.0, -2.0, 5.0);
+    let mut plain = physical_p();
+    propagate_covariance_sparse(&mut plain, &f, dt, qa, qg).unwrap();
+    // T = I + E + H E: the second-order couplings H of the step's Φ (position ← velocity,
+    // ½ G[P, V]) carry the transfer into the position as over the step (½ Δt E).
+    let mut t = SMatrix::<f64, 17, 17>::identity();
+    let half_g_pv = [0.5 * f.f03 * dt, 0.5 * f.f14 * dt, 0.5 * f.f25 * dt];
+    for r in 0..3 {
+        for m in 0..3 {
+            let e = f.c_b_n[(r, m)] * g[m];
+            t[(VEL + r, ACC_BIAS + m)] = e;
+            t[(r, ACC_BIAS + m)] = half_g_pv[r] * e;
+        }
+    }
+    let want = t * plain * t.transpose();
+    let mut got = physical_p();
+    let dt_acc = [dt + g.x, dt + g.y, dt + g.z];
+    propagate_covariance_transfer(&mut got, &f, dt, &dt_acc, qa, qg).unwrap();
+    assert!(got == got.transpose());
+    let rel = |a: &SMatrix<f64, 17, 17>, b: &SMatrix<f64, 17, 17>| {
+        let d = SVector::<f64, 17>::from_fn(|i, _| b[(i, i)].sqrt());
+        (a - b).component_div(&(d * d.transpose())).abs().max()
+    };
+    assert!(
+        rel(&got, &want) < 1e-12,
+        "folded vs congruence: {:e}",
+        rel(&got, &want)
+    );
+    assert!(rel(&plain, &want) > 1e-4, "the transfer must matter here");
+}

@@ -121,9 +121,11 @@
 //! it partly cancels: the attitude σ then grows more than the truth. Schmidt consider states
 //! for S and M would follow it exactly, at about 4 × the covariance work.
 //!
-//! Cost: two 3-vector rotations, five `v(·)` or `c(·)`, the running mean, the transfer
-//! `T P Tᵀ` (≈ 500 multiply-adds) and a few compares per covariance step (10 Hz);
-//! nothing when all σ are zero (the paper's filter, bit for bit).
+//! Cost: two 3-vector rotations, five `v(·)` or `c(·)`, the running mean, the transfer and a
+//! few compares per covariance step (10 Hz); nothing when all σ are zero (the paper's filter,
+//! bit for bit). The transfer costs the covariance kernel nothing: its velocity part is
+//! folded into Φ (the step of `G[V, ∇]`'s columns), its bias part is a scaling of the three
+//! bias rows and columns after the kernel ([`accel_departure::Departure`]).
 
 #[path = "accel_departure.rs"]
 mod accel_departure;
@@ -132,7 +134,8 @@ use super::error_model::{ACC_BIAS, ATT, STATES, VEL};
 use super::mechanization::Ins;
 use super::sparse_f::SparseF;
 use crate::{NavError, Real};
-use accel_departure::accel_departure;
+pub(super) use accel_departure::Departure;
+use accel_departure::{apply_scale, finish_departure, plan_departure};
 use nalgebra::{Matrix3, SMatrix, Vector3};
 
 /// Time constant of the running mean that splits a departure of the specific force from the
@@ -318,12 +321,38 @@ fn charge_above<T: Real>(w: &Vector3<T>, charged: &Vector3<T>) -> (Vector3<T>, V
     (add, charged.sup(w))
 }
 
-/// The hook of the covariance step: after `P ← Φ P Φᵀ + Q_d` over an interval `dt_s` with
-/// mean body specific force `f_b_m_s2` and body rotation `dtheta_b_rad`, attitude `c_b_n` at
-/// its end, charges the accelerometer errors (the reference's variance to the bias states at
-/// the first step without a reference, the excess's to the velocity states) and the gyro
+/// The accelerometer departure of the covariance step about to run, planned from the charge
+/// (module [`accel_departure`]): `None` when there is none (every σ zero, no reference yet, a
+/// non-finite input). The kernel steps `G[V, ∇]` by [`Departure::dt_acc_s`]; the charge's
+/// memory the plan writes is returned with it, the caller's to pass to the step's end.
+pub(super) fn plan_flight_noise<T: Real>(
+    charge: &EquivalentBiasCharge<T>,
+    errors: &InstrumentErrors<T>,
+    f: &SparseF<T>,
+    dt_total_s: T,
+) -> Option<(Departure<T>, EquivalentBiasCharge<T>)> {
+    if errors.is_zero() || dt_total_s <= T::zero() {
+        return None;
+    }
+    let f0 = charge.reference_f_b_m_s2?;
+    let f_b = f.c_b_n.transpose() * f.f_ned;
+    if !(f_b.sum() + dt_total_s).is_finite() {
+        return None;
+    }
+    let mut next = *charge;
+    let dep = plan_departure(charge, &mut next, errors, &f0, &f_b, dt_total_s);
+    Some((dep, next))
+}
+
+/// The end of a covariance step, after `P ← Φ P Φᵀ + Q_d` over an interval `dt_s` with mean
+/// body specific force `f_b_m_s2` and body rotation `dtheta_b_rad`, attitude `c_b_n` at its
+/// end: the accelerometer errors (the reference's variance to the bias states at the first
+/// step without a reference; the departure `planned` for the step, its velocity part already
+/// in Φ: the bias scale and the variances the transfer does not explain) and the gyro
 /// errors' to the attitude states (module doc). Returns the new charge; P and the charge are
-/// the caller's to commit. Non-finite inputs add nothing.
+/// the caller's to commit. Non-finite inputs add nothing; a step without a plan charges no
+/// departure.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn add_instrument_noise<T: Real>(
     p: &mut SMatrix<T, STATES, STATES>,
     charge: &EquivalentBiasCharge<T>,
@@ -332,6 +361,7 @@ pub(crate) fn add_instrument_noise<T: Real>(
     f_b_m_s2: &Vector3<T>,
     dtheta_b_rad: &Vector3<T>,
     dt_s: T,
+    planned: Option<&(Departure<T>, EquivalentBiasCharge<T>)>,
 ) -> EquivalentBiasCharge<T> {
     let finite = (f_b_m_s2.sum() + dtheta_b_rad.sum() + dt_s).is_finite();
     if errors.is_zero() || !finite {
@@ -340,18 +370,20 @@ pub(crate) fn add_instrument_noise<T: Real>(
     let mut next = *charge;
     let mut add_vel = Vector3::zeros();
     let mut add_bias = Vector3::zeros();
-    match charge.reference_f_b_m_s2 {
-        None => {
+    match (charge.reference_f_b_m_s2, planned) {
+        (None, _) => {
             if let Some(first) = set_reference(p, charge, errors, f_b_m_s2) {
                 next = first;
             }
         }
-        Some(f0) => {
-            let (vel, bias) =
-                accel_departure(p, charge, &mut next, errors, c_b_n, &f0, f_b_m_s2, dt_s);
+        (Some(f0), Some((dep, after_plan))) => {
+            next = *after_plan;
+            apply_scale(p, &dep.scale);
+            let (vel, bias) = finish_departure(p, charge, &mut next, errors, c_b_n, &f0, dep);
             add_vel = vel;
             add_bias = bias;
         }
+        (Some(_), None) => {}
     }
     // The gyro errors' attitude error `C_b^n (S + M) Σ Δθ`, charged the same way.
     next.rotation_b_rad = charge.rotation_b_rad + dtheta_b_rad;
@@ -377,12 +409,13 @@ pub(crate) fn add_instrument_noise<T: Real>(
     next
 }
 
-/// The hook the covariance steps call after `P ← Φ P Φᵀ + Q_d` over `dt_total_s`, with `ins`
-/// the INS at the end of the interval and `f` the step's F at that INS (its C_b^n and its
-/// mean NED specific force `dv / Δt`, m/s², of the interval's samples: neither formed
-/// again): the mean body specific force is `C_n^b dv / Δt` (attitude at the end of the
-/// interval), the body rotation the last IMU increment scaled to the interval. Without a
-/// reference yet, level flight's `C_n^b (−g)` becomes it (module doc). Nothing (not
+/// The hook the covariance steps call after `P ← Φ P Φᵀ + Q_d` over `dt_total_s` (Φ with the
+/// departure `planned` before the step, [`plan_flight_noise`]), with `ins` the INS at the end
+/// of the interval and `f` the step's F at that INS (its C_b^n and its mean NED specific
+/// force `dv / Δt`, m/s², of the interval's samples: neither formed again): the mean body
+/// specific force is `C_n^b dv / Δt` (attitude at the end of the interval), the body rotation
+/// the last IMU increment scaled to the interval. Without a reference yet, level flight's
+/// `C_n^b (−g)` becomes it (module doc; no departure is charged on that step). Nothing (not
 /// even a multiplication) when every σ is zero.
 #[inline(never)]
 pub(super) fn flight_noise_step<T: Real>(
@@ -392,6 +425,7 @@ pub(super) fn flight_noise_step<T: Real>(
     ins: &Ins<T>,
     f: &SparseF<T>,
     dt_total_s: T,
+    planned: Option<&(Departure<T>, EquivalentBiasCharge<T>)>,
 ) {
     if errors.is_zero() || dt_total_s <= T::zero() {
         return;
@@ -411,7 +445,39 @@ pub(super) fn flight_noise_step<T: Real>(
         Some(inc) if last_s > T::zero() => inc.delta_theta_rad * (dt_total_s / last_s),
         _ => Vector3::zeros(),
     };
-    *charge = add_instrument_noise(p, charge, errors, c_b_n, &f_b, &dtheta, dt_total_s);
+    *charge = add_instrument_noise(p, charge, errors, c_b_n, &f_b, &dtheta, dt_total_s, planned);
+}
+
+/// [`add_instrument_noise`] with the departure planned from `f_b_m_s2` and its velocity
+/// transfer written out on P (the tests' form: P as if after a step whose Φ did not carry it).
+#[cfg(test)]
+pub(crate) fn add_instrument_noise_explicit<T: Real>(
+    p: &mut SMatrix<T, STATES, STATES>,
+    charge: &EquivalentBiasCharge<T>,
+    errors: &InstrumentErrors<T>,
+    c_b_n: &Matrix3<T>,
+    f_b_m_s2: &Vector3<T>,
+    dtheta_b_rad: &Vector3<T>,
+    dt_s: T,
+) -> EquivalentBiasCharge<T> {
+    let planned = charge.reference_f_b_m_s2.map(|f0| {
+        let mut next = *charge;
+        let dep = plan_departure(charge, &mut next, errors, &f0, f_b_m_s2, dt_s);
+        (dep, next)
+    });
+    if let (Some((dep, _)), false) = (&planned, errors.is_zero()) {
+        accel_departure::transfer_to_velocity(p, c_b_n, &dep.gain_v);
+    }
+    add_instrument_noise(
+        p,
+        charge,
+        errors,
+        c_b_n,
+        f_b_m_s2,
+        dtheta_b_rad,
+        dt_s,
+        planned.as_ref(),
+    )
 }
 
 #[cfg(test)]

@@ -65,7 +65,7 @@ fn charge(
     f: &Vector3<f64>,
 ) -> EquivalentBiasCharge<f64> {
     let i3 = Matrix3::identity();
-    add_instrument_noise(p, ch, e, &i3, f, &Vector3::zeros(), DT_S)
+    add_instrument_noise_explicit(p, ch, e, &i3, f, &Vector3::zeros(), DT_S)
 }
 
 /// A transient (1 s at 0 g, then level for 2 s) is charged to the velocity as the error it
@@ -223,7 +223,7 @@ fn a_set_reference_is_the_bias_states_and_only_once() {
     // the departure `−f_carry` (its variance to the bias), the velocity the rest.
     let i3 = Matrix3::identity();
     let alpha = 1.0 / (SUSTAINED_TIME_CONSTANT_S + 1.0);
-    let c1 = add_instrument_noise(
+    let c1 = add_instrument_noise_explicit(
         &mut p,
         &c,
         &e,

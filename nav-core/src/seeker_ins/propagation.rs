@@ -3,9 +3,9 @@
 
 use super::config::VARIANCE_CEILING;
 use super::covariance_health::PsdMargin;
-use super::error_model::{propagate_covariance_sparse, transition_times, ATT, STATES, VEL};
+use super::error_model::{propagate_covariance_transfer, transition_times, ATT, STATES, VEL};
 use super::filter::SeekerIns;
-use super::flight_noise::flight_noise_step;
+use super::flight_noise::{flight_noise_step, plan_flight_noise};
 use super::mechanization::{ImuIncrement, Ins, PositionKinematics};
 use super::sparse_f::SparseF;
 use crate::contract::Health;
@@ -506,22 +506,23 @@ impl<T: Real> SeekerIns<T> {
         dt_total_s: T,
     ) -> Result<u32, NavError> {
         let ins = ins.unwrap_or(&self.ins);
-        let repairs = propagate_covariance_sparse(
+        // Flight configuration: the instrument errors the 17 states do not model; the
+        // accelerometer departure's velocity transfer is folded into Φ.
+        let errors = &self.config.instrument_errors;
+        let planned = plan_flight_noise(&self.bias_charge, errors, f, dt_total_s);
+        let dt_acc_s = planned
+            .as_ref()
+            .map_or([dt_total_s; 3], |d| d.0.dt_acc_s(dt_total_s));
+        let repairs = propagate_covariance_transfer(
             &mut self.p,
             f,
             dt_total_s,
+            &dt_acc_s,
             self.design.accel_psd_m2_s3,
             self.design.gyro_psd_rad2_s,
         )?;
-        // Flight configuration: the instrument errors the 17 states do not model.
-        flight_noise_step(
-            &mut self.p,
-            &mut self.bias_charge,
-            &self.config.instrument_errors,
-            ins,
-            f,
-            dt_total_s,
-        );
+        let (p, charge) = (&mut self.p, &mut self.bias_charge);
+        flight_noise_step(p, charge, errors, ins, f, dt_total_s, planned.as_ref());
         Ok(repairs)
     }
 
