@@ -119,23 +119,28 @@ pub(super) fn plan_departure<T: Real>(
 }
 
 /// `P ← S P S`, `S` the identity but for the bias states' `scale` (the bias part of the
-/// departure's transfer, [`Departure`]): their rows and columns scaled (a variance twice),
-/// symmetric bit for bit (one product per mirrored pair) and PSD (a congruence).
+/// departure's transfer, [`Departure`]): their rows and columns scaled, symmetric bit for bit
+/// (each entry once, by the same product in both triangles) and PSD (a congruence).
 pub(super) fn apply_scale<T: Real>(p: &mut SMatrix<T, STATES, STATES>, scale: &Vector3<T>) {
-    let cols = &mut p.data.0;
-    for (i, s) in scale.iter().enumerate() {
-        let b = ACC_BIAS + i;
-        for c in 0..STATES {
-            let Some(x) = cols.get_mut(c).and_then(|col| col.get_mut(b)) else {
-                continue;
-            };
-            *x *= *s;
-            let v = *x;
-            if c == b {
-                // The variance: scaled as its row and as its column.
-                *x = v * *s;
-            } else if let Some(y) = cols.get_mut(b).and_then(|col| col.get_mut(c)) {
-                *y = v;
+    let s = [scale.x, scale.y, scale.z];
+    for (c, col) in p.data.0.iter_mut().enumerate() {
+        match c.checked_sub(ACC_BIAS).and_then(|j| s.get(j)).copied() {
+            // Column c outside the bias states: its three bias rows.
+            None => {
+                for (x, a) in col.iter_mut().skip(ACC_BIAS).zip(s) {
+                    *x *= a;
+                }
+            }
+            // A bias column: the other rows by its scale, the bias block's entries by both
+            // (one product `s_r s_c`, the same bits in both triangles).
+            Some(s_c) => {
+                let (head, tail) = col.split_at_mut(ACC_BIAS);
+                for x in head.iter_mut().chain(tail.iter_mut().skip(3)) {
+                    *x *= s_c;
+                }
+                for (x, a) in tail.iter_mut().zip(s) {
+                    *x *= a * s_c;
+                }
             }
         }
     }

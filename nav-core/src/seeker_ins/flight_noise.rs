@@ -344,6 +344,22 @@ pub(super) fn plan_flight_noise<T: Real>(
     Some((dep, next))
 }
 
+/// Plans the accelerometer departure of the covariance step about to run over `dt_total_s`
+/// at F = `f` into `plan` ([`plan_flight_noise`]) and returns the step of the kernel's
+/// `G[V, ∇]` columns, s. Out of line: its temporaries are not in the frame under the kernel.
+#[inline(never)]
+pub(super) fn plan_departure_into<T: Real>(
+    plan: &mut Option<(Departure<T>, EquivalentBiasCharge<T>)>,
+    charge: &EquivalentBiasCharge<T>,
+    errors: &InstrumentErrors<T>,
+    f: &SparseF<T>,
+    dt_total_s: T,
+) -> [T; 3] {
+    *plan = plan_flight_noise(charge, errors, f, dt_total_s);
+    plan.as_ref()
+        .map_or([dt_total_s; 3], |d| d.0.dt_acc_s(dt_total_s))
+}
+
 /// The end of a covariance step, after `P ← Φ P Φᵀ + Q_d` over an interval `dt_s` with mean
 /// body specific force `f_b_m_s2` and body rotation `dtheta_b_rad`, attitude `c_b_n` at its
 /// end: the accelerometer errors (the reference's variance to the bias states at the first
