@@ -241,16 +241,12 @@ fn predict_source() -> String {
          /// PSDs ((m/s²)²/Hz, (rad/s)²/Hz); `qa2`, `qg2`: Δt times them (the variances added on\n\
          /// the velocity and attitude diagonals). `false` (and `p` unchanged) when a result is\n\
          /// not finite (a non-finite entry of G reaches every column of P'[0..9, 9..17]).\n\
-         /// `dt_acc`: the step of G's accelerometer-bias columns in the velocity rows, s, per\n\
-         /// column (`G[V, ∇] = C_b^n diag(dt_acc)`): `dt` each, or `dt` plus the flight\n\
-         /// configuration's scale-factor transfer (`seeker_ins::accel_departure`).\n\
          #[allow(clippy::too_many_arguments, clippy::too_many_lines, clippy::similar_names)]\n\
          #[inline(never)]\n\
          pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(\n\
          \x20   p: &mut [[T; 17]; 17],\n\
          \x20   f: &SparseF<T>,\n\
          \x20   dt: T,\n\
-         \x20   dt_acc: &[T; 3],\n\
          \x20   qa: T,\n\
          \x20   qg: T,\n\
          \x20   qa2: T,\n\
@@ -260,18 +256,7 @@ fn predict_source() -> String {
          \x20   let half = T::lit(0.5);\n",
     );
     for x in &g {
-        // The accelerometer-bias columns of the velocity rows: their own Δt per column.
-        let step = if (3..6).contains(&x.row) && (9..12).contains(&x.col) {
-            format!("dt_acc[{}]", x.col - 9)
-        } else {
-            "dt".to_string()
-        };
-        let _ = writeln!(
-            s,
-            "    let {} = f.{} * {step};",
-            gname(x.row, x.col),
-            x.field
-        );
+        let _ = writeln!(s, "    let {} = f.{} * dt;", gname(x.row, x.col), x.field);
     }
     s.push_str(
         "    let h0_3 = half * g0_3;\n    let h1_4 = half * g1_4;\n    let h2_5 = half * g2_5;\n\

@@ -171,21 +171,6 @@ pub fn propagate_covariance_sparse<T: Real>(
     q_accel: T,
     q_gyro: T,
 ) -> Result<u32, NavError> {
-    propagate_covariance_transfer(p, f, dt_s, &[dt_s; 3], q_accel, q_gyro)
-}
-
-/// [`propagate_covariance_sparse`] with the accelerometer-bias columns of G's velocity rows
-/// stepped by `dt_acc_s` per column (`G[V, ∇] = C_b^n diag(dt_acc_s)`, s): the flight
-/// configuration's scale-factor transfer folded into Φ (module `accel_departure`); `[dt_s; 3]`
-/// is the plain step. A non-finite `dt_acc_s` makes the result non-finite (`NonFiniteInput`).
-pub(crate) fn propagate_covariance_transfer<T: Real>(
-    p: &mut SMatrix<T, STATES, STATES>,
-    f: &SparseF<T>,
-    dt_s: T,
-    dt_acc_s: &[T; 3],
-    q_accel: T,
-    q_gyro: T,
-) -> Result<u32, NavError> {
     if !dt_s.is_finite() || dt_s <= T::zero() {
         return Err(NavError::InvalidTimeStep);
     }
@@ -194,7 +179,6 @@ pub(crate) fn propagate_covariance_transfer<T: Real>(
         &mut p.data.0,
         f,
         dt_s,
-        dt_acc_s,
         q_accel * half_dt,
         q_gyro * half_dt,
         q_accel * dt_s,

@@ -7,7 +7,7 @@ use super::config::{
     VARIANCE_CEILING,
 };
 use super::error_model::STATES;
-use super::flight_noise::{Departure, EquivalentBiasCharge};
+use super::flight_noise::EquivalentBiasCharge;
 use super::health::{LastUpdate, SeekerAid, SeekerCounters};
 use super::mechanization::{Ins, InsState, PositionKinematics};
 use crate::contract::{AidCounters, Estimator, Gate, Health, RecoveryPolicy};
@@ -62,10 +62,6 @@ pub struct SeekerIns<T> {
     /// The equivalent-bias variance added so far (flight configuration; module
     /// `flight_noise`). Kept across re-initialisation, as the bias block is.
     pub(super) bias_charge: EquivalentBiasCharge<T>,
-    /// The accelerometer departure planned for the covariance step under way (module
-    /// `accel_departure`): set before its kernel, taken at its end; `None` between steps
-    /// (here, not on the stack under the kernel).
-    pub(super) departure_plan: Option<(Departure<T>, EquivalentBiasCharge<T>)>,
     /// The radii the covariance step's F uses: those the last INS step evaluated at the
     /// start of its interval ([`Ins::step_keeping_radii`]); `None` after construction,
     /// re-initialisation or a reset (no step pending: the next step sets them before a
@@ -452,7 +448,6 @@ impl<T: Real> SeekerIns<T> {
             run_start: None,
             last_update: LastUpdate::None,
             bias_charge: EquivalentBiasCharge::default(),
-            departure_plan: None,
             radii: None,
         }
     }

@@ -3,9 +3,9 @@
 
 use super::config::VARIANCE_CEILING;
 use super::covariance_health::PsdMargin;
-use super::error_model::{propagate_covariance_transfer, transition_times, ATT, STATES, VEL};
+use super::error_model::{propagate_covariance_sparse, transition_times, ATT, STATES, VEL};
 use super::filter::SeekerIns;
-use super::flight_noise::{flight_noise_step, plan_departure_into};
+use super::flight_noise::flight_noise_step;
 use super::mechanization::{ImuIncrement, Ins, PositionKinematics};
 use super::sparse_f::SparseF;
 use crate::contract::Health;
@@ -506,19 +506,22 @@ impl<T: Real> SeekerIns<T> {
         dt_total_s: T,
     ) -> Result<u32, NavError> {
         let ins = ins.unwrap_or(&self.ins);
-        // Flight configuration: the instrument errors the 17 states do not model; the
-        // accelerometer departure's velocity transfer is folded into Φ.
-        let (plan, errors) = (&mut self.departure_plan, &self.config.instrument_errors);
-        let dt_acc_s = plan_departure_into(plan, &self.bias_charge, errors, f, dt_total_s);
-        let (qa, qg) = (self.design.accel_psd_m2_s3, self.design.gyro_psd_rad2_s);
-        let step = propagate_covariance_transfer(&mut self.p, f, dt_total_s, &dt_acc_s, qa, qg);
-        let Ok(repairs) = step else {
-            self.departure_plan = None;
-            return step;
-        };
-        let (plan, charge) = (self.departure_plan.as_ref(), &mut self.bias_charge);
-        flight_noise_step(&mut self.p, charge, errors, ins, f, dt_total_s, plan);
-        self.departure_plan = None;
+        let repairs = propagate_covariance_sparse(
+            &mut self.p,
+            f,
+            dt_total_s,
+            self.design.accel_psd_m2_s3,
+            self.design.gyro_psd_rad2_s,
+        )?;
+        // Flight configuration: the instrument errors the 17 states do not model.
+        flight_noise_step(
+            &mut self.p,
+            &mut self.bias_charge,
+            &self.config.instrument_errors,
+            ins,
+            f,
+            dt_total_s,
+        );
         Ok(repairs)
     }
 

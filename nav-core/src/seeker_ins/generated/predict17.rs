@@ -19,9 +19,6 @@ use crate::Real;
 /// PSDs ((m/s²)²/Hz, (rad/s)²/Hz); `qa2`, `qg2`: Δt times them (the variances added on
 /// the velocity and attitude diagonals). `false` (and `p` unchanged) when a result is
 /// not finite (a non-finite entry of G reaches every column of P'[0..9, 9..17]).
-/// `dt_acc`: the step of G's accelerometer-bias columns in the velocity rows, s, per
-/// column (`G[V, ∇] = C_b^n diag(dt_acc)`): `dt` each, or `dt` plus the flight
-/// configuration's scale-factor transfer (`seeker_ins::accel_departure`).
 #[allow(
     clippy::too_many_arguments,
     clippy::too_many_lines,
@@ -32,7 +29,6 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
     p: &mut [[T; 17]; 17],
     f: &SparseF<T>,
     dt: T,
-    dt_acc: &[T; 3],
     qa: T,
     qg: T,
     qa2: T,
@@ -50,18 +46,18 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
     let g3_5 = f.vel_vel.m13 * dt;
     let g3_7 = f.f_ned.z * dt;
     let g3_8 = f.f_ned.y * dt;
-    let g3_9 = f.c_b_n.m11 * dt_acc[0];
-    let g3_10 = f.c_b_n.m12 * dt_acc[1];
-    let g3_11 = f.c_b_n.m13 * dt_acc[2];
+    let g3_9 = f.c_b_n.m11 * dt;
+    let g3_10 = f.c_b_n.m12 * dt;
+    let g3_11 = f.c_b_n.m13 * dt;
     let g4_0 = f.vel_lat.y * dt;
     let g4_3 = f.vel_vel.m21 * dt;
     let g4_4 = f.vel_vel.m22 * dt;
     let g4_5 = f.vel_vel.m23 * dt;
     let g4_6 = f.f_ned.z * dt;
     let g4_8 = f.f_ned.x * dt;
-    let g4_9 = f.c_b_n.m21 * dt_acc[0];
-    let g4_10 = f.c_b_n.m22 * dt_acc[1];
-    let g4_11 = f.c_b_n.m23 * dt_acc[2];
+    let g4_9 = f.c_b_n.m21 * dt;
+    let g4_10 = f.c_b_n.m22 * dt;
+    let g4_11 = f.c_b_n.m23 * dt;
     let g5_0 = f.vel_lat.z * dt;
     let g5_2 = f.vel_h.z * dt;
     let g5_3 = f.vel_vel.m31 * dt;
@@ -69,9 +65,9 @@ pub(in crate::seeker_ins) fn propagate_in_place<T: Real>(
     let g5_5 = f.vel_vel.m33 * dt;
     let g5_6 = f.f_ned.y * dt;
     let g5_7 = f.f_ned.x * dt;
-    let g5_9 = f.c_b_n.m31 * dt_acc[0];
-    let g5_10 = f.c_b_n.m32 * dt_acc[1];
-    let g5_11 = f.c_b_n.m33 * dt_acc[2];
+    let g5_9 = f.c_b_n.m31 * dt;
+    let g5_10 = f.c_b_n.m32 * dt;
+    let g5_11 = f.c_b_n.m33 * dt;
     let g6_0 = f.att_lat.x * dt;
     let g6_4 = f.att_v.x * dt;
     let g6_7 = f.w_in.z * dt;
