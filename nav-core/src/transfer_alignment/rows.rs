@@ -97,6 +97,22 @@ pub(super) struct RowInputs<T: Real> {
     pub checks: UpdateChecks<T>,
 }
 
+impl<T: Real> RowInputs<T> {
+    /// A paper filter's row `row` (0-2: dω, 3-5: df) over chains of `K` states: its `H` (the
+    /// model of `K`, up to 4 entries) and its noise variance.
+    #[inline(always)]
+    fn paper_row<const K: usize>(&self, row: usize) -> (SparseRow<T, 4>, T) {
+        let h = h_row_total::<T, K, 4>(
+            model_of::<K>(),
+            row,
+            &self.omega_m,
+            &self.f_h,
+            &self.lever_arm_m,
+        );
+        (h, if row < 3 { self.r_rate } else { self.r_accel })
+    }
+}
+
 /// Fuses the six scalar measurements `z` (dω_X..Z, df_X..Z) into the predicted `x`, `P` in
 /// order; one report per row, written into `updates` (the caller's slot). The rows are
 /// written out with constant row indices (and the model follows from K at compile time), so
@@ -206,23 +222,12 @@ fn fuse_rows_each<T: Real, const K: usize, const N: usize>(
     inputs: &RowInputs<T>,
     updates: &mut [FusionReport<T>; 6],
 ) {
-    let RowInputs {
-        omega_m,
-        f_h,
-        lever_arm_m: lever,
-        r_rate,
-        r_accel,
-        checks,
-        ..
-    } = *inputs;
-    let model_k = model_of::<K>();
     let mut b = SVector::<T, N>::zeros();
     for (row, (rep, &zi)) in updates.iter_mut().zip(z.iter()).enumerate() {
-        let h = h_row_total::<T, K, 4>(model_k, row, &omega_m, &f_h, &lever);
-        let r = if row < 3 { r_rate } else { r_accel };
+        let (h, r) = inputs.paper_row::<K>(row);
         upper_times_row_loop(p, &h, &mut b);
         let hph = h.dot(&b);
-        *rep = fuse_bounded(x, p, &b, hph, zi - h.dot(x), r, checks);
+        *rep = fuse_bounded(x, p, &b, hph, zi - h.dot(x), r, inputs.checks);
     }
 }
 
@@ -279,26 +284,15 @@ fn fuse_rows_paired<T: Real, const K: usize, const N: usize>(
     inputs: &RowInputs<T>,
     updates: &mut [FusionReport<T>; 6],
 ) {
-    let RowInputs {
-        omega_m,
-        f_h,
-        lever_arm_m: lever,
-        r_rate,
-        r_accel,
-        checks,
-        ..
-    } = *inputs;
-    let model_k = model_of::<K>();
+    let checks = inputs.checks;
     // `b = P h` of the pair's two rows (one slot of the frame each, for the three pairs).
     let (mut b, mut b2) = (SVector::<T, N>::zeros(), SVector::<T, N>::zeros());
     macro_rules! pair {
-        (row $row:literal) => {
-            PairRow {
-                h: h_row_total::<T, K, 4>(model_k, $row, &omega_m, &f_h, &lever),
-                z: z.as_slice().get($row).copied().unwrap_or_else(T::zero),
-                r: if $row < 3 { r_rate } else { r_accel },
-            }
-        };
+        (row $row:literal) => {{
+            let (h, r) = inputs.paper_row::<K>($row);
+            let z = z.as_slice().get($row).copied().unwrap_or_else(T::zero);
+            PairRow { h, z, r }
+        }};
         ($first:literal, $second:literal) => {
             let rows = [pair!(row $first), pair!(row $second)];
             let (head, tail) = updates.split_at_mut($second);
