@@ -72,8 +72,13 @@ pub fn normal_gravity_surface_m_s2<T: Real>(lat_rad: T) -> T {
 /// (Somigliana on the ellipsoid with the second-order free-air correction of TR8350.2 eq. 4-3).
 #[inline]
 pub fn normal_gravity_m_s2<T: Real>(lat_rad: T, alt_m: T) -> T {
-    let s = trig::sin(lat_rad);
-    let s2 = s * s;
+    normal_gravity_from_sin_m_s2(trig::sin(lat_rad), alt_m)
+}
+
+/// [`normal_gravity_m_s2`] from `sin L` (no trig call; the INS step has `sin L` already), m/s².
+#[inline]
+pub(crate) fn normal_gravity_from_sin_m_s2<T: Real>(sin_lat: T, alt_m: T) -> T {
+    let s2 = sin_lat * sin_lat;
     let g0 = T::lit(GRAVITY_EQUATOR_M_S2) * (T::one() + T::lit(SOMIGLIANA_K) * s2)
         / (T::one() - T::lit(ECCENTRICITY_SQ) * s2).sqrt();
     let a = SEMI_MAJOR_AXIS_M;

@@ -32,7 +32,7 @@
 //! `f32` latitude resolves only ≈ 0.4 m near 37° and accumulates rounding over hours); only
 //! the per-step increments are computed in `T`, then added in `f64`.
 
-use crate::earth::{normal_gravity_m_s2, EARTH_RATE_RAD_S};
+use crate::earth::{normal_gravity_from_sin_m_s2, normal_gravity_m_s2};
 use crate::math::rotation::{quat_from_rotation_vector, quat_mul, quat_normalize};
 use crate::time::{micros_to_seconds, seconds_to_micros, Timestamp};
 use crate::{NavError, Real};
@@ -145,23 +145,6 @@ pub const MAX_DELTA_V_M_S: f64 = 100.0;
 pub const MAX_INTERVAL_S: f64 = 1.0;
 /// [`MAX_INTERVAL_S`] in µs.
 const MAX_INTERVAL_US: u64 = 1_000_000;
-
-/// Normal gravity as [`crate::earth::normal_gravity_m_s2`], from `sin L` (no trig call).
-pub(crate) fn normal_gravity_from_sin<T: Real>(sin_lat: T, alt_m: T) -> T {
-    use crate::earth::{
-        ECCENTRICITY_SQ, FLATTENING, GM_M3_S2, GRAVITY_EQUATOR_M_S2, SEMI_MAJOR_AXIS_M,
-        SEMI_MINOR_AXIS_M, SOMIGLIANA_K,
-    };
-    let s2 = sin_lat * sin_lat;
-    let g0 = T::lit(GRAVITY_EQUATOR_M_S2) * (T::one() + T::lit(SOMIGLIANA_K) * s2)
-        / (T::one() - T::lit(ECCENTRICITY_SQ) * s2).sqrt();
-    let a = SEMI_MAJOR_AXIS_M;
-    let m = EARTH_RATE_RAD_S * EARTH_RATE_RAD_S * a * a * SEMI_MINOR_AXIS_M / GM_M3_S2;
-    let c1 = T::lit(2.0 / a * (1.0 + FLATTENING + m));
-    let c1_lat = T::lit(2.0 / a * (-2.0 * FLATTENING));
-    let c2 = T::lit(3.0 / (a * a));
-    g0 * (T::one() - (c1 + c1_lat * s2) * alt_m + c2 * alt_m * alt_m)
-}
 
 /// Strapdown INS (mechanization only; the filter corrects it through [`Ins::correct`]).
 #[derive(Debug, Clone, Copy)]
@@ -327,7 +310,7 @@ impl<T: Real> Ins<T> {
         let c = unit_dcm(&s.q_b_n);
         let dv_n0 = c * dv_b;
         let dv_n = dv_n0 - zeta.cross(&dv_n0) * half;
-        let g = normal_gravity_from_sin(k.sin_lat, k.alt_m);
+        let g = normal_gravity_from_sin_m_s2(k.sin_lat, k.alt_m);
         let coriolis = (k.w_ie * T::lit(2.0) + k.w_en).cross(&v);
         let mut dv_total = dv_n - coriolis * dt;
         dv_total.z += g * dt;
