@@ -2,9 +2,12 @@
 //! `cargo xtask sim consistency`), optionally with one knob changed, and prints its rows.
 //!
 //! `cargo run --release -p nav-sim --example fly_variant -- SEED VARIANT RUNS [KEY=VALUE ...]`
-//! with keys `accel_sf_ppm`, `accel_mis_arcsec`, `gyro_sf_ppm`, `gyro_mis_arcsec`, `accel_bias_ug`,
-//! `accel_noise_ug_rt_hz`, `gyro_bias_deg_h`, `gyro_arw_deg_rt_h` (truth and design alike: the
-//! sensors' table), `weave_deg` (S-turn amplitude, 0: straight), `speed_m_s` (the speed after the boost, every
+//! with keys `accel_sf_ppm`, `accel_mis_arcsec`, `gyro_sf_ppm`, `gyro_mis_arcsec`,
+//! `accel_bias_ug`, `accel_noise_ug_rt_hz`, `gyro_bias_deg_h`, `gyro_arw_deg_rt_h` (truth and
+//! design alike: the sensors' table), `weave_deg` (S-turn amplitude, 0: straight),
+//! `master_att_scale` (the master INS's attitude error σ scaled, truth and reported σ alike),
+//! `master_hz` (the master's message rate), `carry_course_deg` (the carry manoeuvre made a
+//! course change of that size, same timing), `speed_m_s` (the speed after the boost, every
 //! other draw the same).
 
 use anyhow::{anyhow, bail, Result};
@@ -48,6 +51,18 @@ fn main() -> Result<()> {
             "gyro_bias_deg_h" => s.gyro_bias_deg_h = x,
             "gyro_arw_deg_rt_h" => s.gyro_arw_deg_rt_h = x,
             "weave_deg" => var.scenario.mission.profile.weave_amplitude_deg = x,
+            "carry_course_deg" => {
+                let p = &mut var.scenario.mission.profile;
+                p.carry_manoeuvre_axis =
+                    nav_sim::scenarios::mission::profile::CarryManoeuvreAxis::Course;
+                p.carry_turn_deg = x;
+                p.carry_speed_change_m_s = 0.0;
+            }
+            "master_hz" => var.scenario.mission.master.rate_hz = x,
+            "master_att_scale" => {
+                let a = &mut var.scenario.mission.master.attitude_sigma_rad;
+                a.iter_mut().for_each(|v| *v *= x);
+            }
             _ => bail!("unknown key {k}"),
         }
     }
