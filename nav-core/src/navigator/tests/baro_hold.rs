@@ -313,3 +313,30 @@ fn a_baro_at_the_imu_rate_beside_a_10_hz_seeker_never_stalls_f32() {
     assert_eq!((c.skipped, c.refused), (c0.skipped, c0.refused));
     assert!(c.fused - c0.fused > (ticks - los_ticks) * 9 / 10);
 }
+
+/// An IMU gap longer than the baro model's age limit after the coinciding tick: the held
+/// sample is dropped (skipped), not fused at an age the model refuses; a shorter gap fuses it
+/// with the gap in its age.
+#[test]
+fn a_held_sample_across_an_imu_gap_is_fused_within_the_age_limit_else_dropped_f32() {
+    for (gap_us, fused) in [(500_000_u64, true), (1_500_000, false)] {
+        let (mut nav, inc2, _, _) = holding::<f32>();
+        let held = *nav.held_baro().unwrap();
+        let c0 = nav.blank_report().baro.counters;
+        let mut late = tick_of::<f32>(&inc2);
+        late.increment.time = inc2.time.add_micros(gap_us);
+        let r = nav.tick(&late, &Aids::NONE).unwrap();
+        assert_eq!(nav.held_baro(), None, "gap {gap_us} µs");
+        let c = r.baro.counters;
+        if fused {
+            assert_eq!(r.baro.state, AidState::Fused, "gap {gap_us} µs");
+            assert_eq!((c.fused, c.skipped), (c0.fused + 1, c0.skipped));
+            assert!(r.baro.last.is_some());
+        } else {
+            assert_eq!((c.fused, c.skipped), (c0.fused, c0.skipped + 1));
+            // Nothing accepted for longer than the baro timeout (1 s) since the hold.
+            assert_eq!(r.baro.state, AidState::TimedOut);
+        }
+        assert!(late.increment.time.micros_since(held.time).is_some());
+    }
+}
