@@ -128,6 +128,9 @@ pub struct AidCounters {
     pub recoveries: u32,
     /// Samples refused as invalid input (an `Err` was returned, nothing changed).
     pub refused: u32,
+    /// Valid samples replaced by a newer sample of the same aid before their turn to be
+    /// fused came (the navigator's held baro sample; never counted by the estimators alone).
+    pub superseded: u32,
 }
 
 impl AidCounters {
@@ -155,6 +158,11 @@ impl AidCounters {
     /// Counts one refused (invalid) sample.
     pub fn record_refused(&mut self) {
         self.refused = self.refused.saturating_add(1);
+    }
+
+    /// Counts one valid sample replaced by a newer one before it was fused.
+    pub fn record_superseded(&mut self) {
+        self.superseded = self.superseded.saturating_add(1);
     }
 }
 

@@ -800,7 +800,7 @@ fn print_table(report: &Map<String, Value>) {
 // ------------------------------------------------------------------ the mission image
 
 /// The tick classes the mission image reports (`BENCH nav_tick_<class>`), with their labels.
-const MISSION_TICKS: [(&str, &str); 9] = [
+const MISSION_TICKS: [(&str, &str); 10] = [
     ("nav_tick_carry", "carry, IMU only"),
     ("nav_tick_carry_master", "carry, a master sample arriving"),
     (
@@ -817,7 +817,11 @@ const MISSION_TICKS: [(&str, &str); 9] = [
     ),
     (
         "nav_tick_terminal_los_baro",
-        "terminal, LOS and baro samples on the same tick",
+        "terminal, LOS and baro samples on the same tick (the LOS fused, the baro held)",
+    ),
+    (
+        "nav_tick_terminal_held_baro",
+        "terminal, the held baro sample fused on the next tick",
     ),
 ];
 

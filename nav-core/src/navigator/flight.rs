@@ -18,12 +18,13 @@ use crate::math::rotation::{
 use crate::seeker_ins::{Ins, InsState, SeekerIns, SeekerInsDesign, SeekerInsInitial, STATES};
 use crate::time::Timestamp;
 use crate::transfer_alignment::{SlaveHistory, TaInitial, TransferAlignment};
-use crate::vertical_channel::{ClassicalDesign, ClassicalLoop};
+use crate::vertical_channel::{BaroSample, ClassicalDesign, ClassicalLoop};
 use crate::{HealthState, NavError, Real};
 use heapless::Deque;
 use nalgebra::Quaternion;
 use nalgebra::{SMatrix, Vector3};
 
+mod baro_hold;
 mod carry_phase;
 mod flight_phase;
 mod psd_check;
@@ -118,6 +119,8 @@ pub struct Navigator<T: Real, const K: usize, const N: usize, const H: usize> {
     loop_design: Option<ClassicalDesign<T>>,
     vloop: Option<ClassicalLoop<T>>,
     last_baro_time: Option<Timestamp>,
+    /// A checked baro sample waiting for a tick without a LOS update (module `baro_hold`).
+    held_baro: Option<BaroSample<T>>,
     pending: Option<Transition>,
     master: AidTrack<T>,
     baro: AidTrack<T>,
@@ -337,6 +340,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             loop_design: design.baro_loop,
             vloop: None,
             last_baro_time: None,
+            held_baro: None,
             pending: None,
             master: AidTrack::default(),
             baro: AidTrack::default(),

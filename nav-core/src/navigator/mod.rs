@@ -145,6 +145,19 @@
 //! LOS component; the seeker is `TimedOut` after `timeouts.seeker_s` without one (the phase
 //! stays terminal, the baro keeps damping).
 //!
+//! **One heavy update per tick.** In midcourse and terminal with [`BaroDamping::Ekf`] a
+//! tick runs at most one EKF update, LOS or baro (each with its pending covariance step:
+//! both on one tick would not fit a flight tick's budget). When a LOS sample the EKF accepts
+//! and a baro sample arrive on the same tick, the LOS is fused and the baro sample, checked
+//! first, is held in a one-sample slot ([`Navigator::held_baro`]; its state
+//! [`AidState::Held`]), then fused on the next tick without a LOS update at its own time
+//! stamp (its age is part of the baro update's lag). A newer baro sample replaces a held one
+//! (counted [`AidCounters::superseded`](crate::contract::AidCounters::superseded)): the
+//! newest is fused, nothing stalls at a baro rate up to the IMU rate. A refused baro sample
+//! leaves the held one as it was; a held sample counts as accepted for the baro timeout,
+//! keeps across the terminal entry, and is dropped (counted skipped) only if LOS updates
+//! took every tick until it was older than [`MAX_BARO_AGE_S`].
+//!
 //! **Refusals.** A bad IMU sample returns `Err` and changes nothing. A bad aid sample is
 //! refused: its [`AidState::Refused`] names the error, its counter counts it, nothing of it is
 //! applied, the tick runs. No input stalls the navigator: the next valid tick is processed as
@@ -162,7 +175,8 @@
 //! and [`SeparationCheck`] `unsignalled_onset_s` (the release without a signal); [`BaroDamping::InertialLoop`] takes a
 //! [`ClassicalConfig`](crate::vertical_channel::ClassicalConfig); [`Transition`] is a struct
 //! (from, to, cause, time); [`AidState`] has no `Skipped` (a sample that cannot be fused
-//! numerically leaves the aid `Waiting`, its report says `Skipped`); [`Aids::NONE`];
+//! numerically leaves the aid `Waiting`, its report says `Skipped`) and has `Held` (a baro
+//! sample waiting for the next tick, above), its counters `superseded`; [`Aids::NONE`];
 //! [`MasterNav::angular_rate_rad_s`] is the inertial body rate, and the master's rate 1σ (not
 //! on the bus) is taken as the alignment's `rate_noise_sigma_rad_s`; the solution's position
 //! covariance is in NED metres ([`NavSolution::nav_covariance`]). The baro timeout counts

@@ -235,6 +235,10 @@ pub enum AidState {
     Rejected,
     /// A sample was refused as invalid input this tick: nothing changed.
     Refused(NavError),
+    /// A valid baro sample arrived on a tick whose one heavy update went to the seeker's LOS
+    /// sample: checked and held, fused at its own time stamp on the next tick without a LOS
+    /// sample (module doc, "One heavy update per tick"), or superseded by a newer one.
+    Held,
     /// No usable sample for longer than its timeout.
     TimedOut,
 }

@@ -130,13 +130,15 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                 time: self.time,
             });
         }
-        // The aid reports, written into the caller's report (nothing here fails).
+        // The aid reports, written into the caller's report (nothing here fails). The seeker
+        // first: a LOS sample it takes through the EKF is the tick's one heavy update, and the
+        // tick's baro sample is then held for the next tick (module `baro_hold`).
+        let (seeker, los_ran) = self.seeker_aid(aids.seeker, transition);
         let baro = match loop_baro {
             Some(outcome) => self.loop_baro_status(outcome),
-            None => self.baro_aid(aids.baro),
+            None => self.baro_aid(aids.baro, los_ran),
         };
         self.baro.write(baro, &mut out.baro);
-        let seeker = self.seeker_aid(aids.seeker, transition);
         self.seeker.write(seeker, &mut out.seeker);
         self.master.write(AidState::NotUsedInPhase, &mut out.master);
         Ok(())
@@ -230,32 +232,12 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         }
     }
 
-    fn baro_aid(&mut self, sample: Option<&BaroSample<T>>) -> AidState {
-        let Some(model) = self.baro_model() else {
-            return AidState::NotUsedInPhase;
-        };
-        let mut state = AidState::Waiting;
-        if let Some(b) = sample {
-            state = match self.fuse_baro(&model, b) {
-                Ok(s) => s,
-                Err(e) => {
-                    self.baro.counters.record_refused();
-                    AidState::Refused(e)
-                }
-            };
-        }
-        if state == AidState::Waiting && self.baro_availability() == AidAvailability::TimedOut {
-            state = AidState::TimedOut;
-        }
-        state
-    }
-
     /// The baro's joint update (module `baro`), in place: the sample is checked (finite, time,
     /// age) before anything changes; the pending covariance step runs (atomic), then the
     /// update ([`Self::baro_update`]). The covariance step's kernel runs under this small frame,
     /// not under the update's.
     #[inline(never)]
-    fn fuse_baro(
+    pub(super) fn fuse_baro(
         &mut self,
         model: &super::super::types::BaroErrorModel<T>,
         b: &BaroSample<T>,
@@ -321,7 +303,6 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         };
         self.last_baro_time = Some(b.time);
         self.baro.counters.record(outcome);
-        self.baro.last_ok = Some(self.time);
         match outcome {
             FusionOutcome::Fused => AidState::Fused,
             FusionOutcome::Rejected => AidState::Rejected,
@@ -329,18 +310,24 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         }
     }
 
+    /// The seeker's tick, and whether a LOS sample went through the EKF (checked, its
+    /// covariance step and update run: the tick's heavy update).
     fn seeker_aid(
         &mut self,
         sample: Option<&LosSample<T>>,
         transition: &mut Option<Transition>,
-    ) -> AidState {
+    ) -> (AidState, bool) {
         if self.phase == Phase::Released {
-            return AidState::NotUsedInPhase;
+            return (AidState::NotUsedInPhase, false);
         }
         let mut state = AidState::Waiting;
+        let mut ran = false;
         if let Some(s) = sample {
             state = match self.fuse_los(s) {
-                Ok(st) => st,
+                Ok(st) => {
+                    ran = true;
+                    st
+                }
                 Err(e) => {
                     self.seeker.counters.record_refused();
                     AidState::Refused(e)
@@ -359,7 +346,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         if state == AidState::Waiting && self.seeker_availability() == AidAvailability::TimedOut {
             state = AidState::TimedOut;
         }
-        state
+        (state, ran)
     }
 
     /// One LOS sample through the EKF, in place: a sample the EKF would refuse is refused

@@ -582,6 +582,7 @@ fn release_at_truth_with<T: Real>(
 
 mod baro_ekf;
 mod baro_floor;
+mod baro_hold;
 #[cfg(feature = "baro-inertial-loop")]
 mod baro_loop;
 mod chain;

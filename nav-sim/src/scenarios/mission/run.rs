@@ -130,12 +130,14 @@ fn count(out: &mut FlightRecord, rep: &TickReport<impl Real>, t_s: f64) {
         let tag = match st {
             AidState::NotUsedInPhase | AidState::Waiting => continue,
             AidState::Fused => "fused",
+            // Held for the next tick behind a LOS update: nominal, counted.
+            AidState::Held => "held",
             AidState::Rejected => "rejected",
             AidState::Refused(_) => "refused",
             AidState::TimedOut => "timed_out",
         };
         let key = format!("{name}.{tag}");
-        if tag != "fused" {
+        if tag != "fused" && tag != "held" {
             tags.push(key.clone());
         }
         bump(&mut out.aid_counts, key);

@@ -27,7 +27,7 @@ static OUTPUTS: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/mission.out.f3
 static DESIGN: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/mission.design.f64"));
 
 /// Tick classes: the phase at the start of the tick and what arrived.
-const CLASSES: [&str; 9] = [
+const CLASSES: [&str; 10] = [
     "nav_tick_carry",
     "nav_tick_carry_master",
     "nav_tick_separation",
@@ -37,13 +37,14 @@ const CLASSES: [&str; 9] = [
     "nav_tick_terminal",
     "nav_tick_terminal_los",
     "nav_tick_terminal_los_baro",
+    "nav_tick_terminal_held_baro",
 ];
 
 /// The class of a tick (index into [`CLASSES`]). A LOS sample in midcourse is the terminal
 /// phase's first (it fuses and switches); after release every LOS tick also runs the
-/// covariance prediction (the pending steps are flushed before the update, unless a baro
-/// sample of the same tick flushed them).
-fn class(before: Phase, t: &MissionTick, report: Option<&TickReport<f32>>) -> usize {
+/// covariance prediction (the pending steps are flushed before the update). A baro sample
+/// on a LOS tick is held and fused on the next tick (`held`: a sample held before the tick).
+fn class(before: Phase, held: bool, t: &MissionTick, report: Option<&TickReport<f32>>) -> usize {
     match before {
         Phase::Carry if report.is_some_and(|r| r.phase != Phase::Carry) => 2,
         Phase::Carry if t.master.is_some() => 1,
@@ -51,6 +52,7 @@ fn class(before: Phase, t: &MissionTick, report: Option<&TickReport<f32>>) -> us
         Phase::Released => 3,
         Phase::Midcourse | Phase::Terminal if t.los.is_some() && t.baro.is_some() => 8,
         Phase::Midcourse | Phase::Terminal if t.los.is_some() => 7,
+        Phase::Midcourse | Phase::Terminal if held => 9,
         Phase::Midcourse if t.baro.is_some() => 5,
         Phase::Midcourse => 4,
         Phase::Terminal => 6,
@@ -105,6 +107,7 @@ fn run() -> Result<bool, NavError> {
         let t = MissionTick::decode(k, &rec);
         let aids = t.aids();
         let before = nav.phase();
+        let held = nav.held_baro().is_some();
         if let Some(at) = PROFILE_TICK {
             // Profiling build: no measurement; the chosen tick between two markers.
             let chosen = at.parse::<usize>().is_ok_and(|a| a == k + 1);
@@ -131,7 +134,7 @@ fn run() -> Result<bool, NavError> {
             Some(r) => r?,
             None => return Err(NavError::InputOutOfRange { input: "tick" }),
         };
-        if let Some(w) = worst.get_mut(class(before, &t, Some(&report))) {
+        if let Some(w) = worst.get_mut(class(before, held, &t, Some(&report))) {
             w.ticks += 1;
             if insns > w.insns {
                 w.insns = insns;
