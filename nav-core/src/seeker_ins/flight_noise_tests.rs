@@ -93,8 +93,10 @@ fn check_transient(
             bias_add[i],
             drop[i]
         );
+        // The part correlated with the reference's share follows `D`, which the running
+        // mean's share of the drop lowers by ≈ 2 s / τ in the 2 s after it.
         assert!(
-            (vel_add[i] - drop[i]).abs() <= 0.1 * drop[i],
+            (vel_add[i] - drop[i]).abs() <= 0.2 * drop[i],
             "transient's velocity charge, axis {i}: {} vs {}",
             vel_add[i],
             drop[i]
@@ -174,14 +176,17 @@ fn charge_splits_sustained_from_transient_and_zero_sigma_is_the_paper_filter() {
     let bias0 = diag(&p, ACC_BIAS);
     let ch = check_transient(&mut p, c, &e);
     let mut ch = check_sustained(&mut p, ch, &e, &bias0);
-    // Back to level (the mean returns within a few τ): nothing more once it has.
+    // Back to level (the mean returns within a few τ): nothing more once it has but the
+    // correlated transfer following the mean's last decay (below 10⁻⁷ of any element).
     let steps = (10.0 * tau / DT_S) as usize;
     for _ in 0..steps {
         ch = charge(&mut p, &ch, &e, &f_level);
     }
     let before = p;
     let _ = charge(&mut p, &ch, &e, &f_level);
-    assert_eq!(p, before);
+    for (a, b) in p.iter().zip(before.iter()) {
+        assert!((a - b).abs() <= 1e-7 * b.abs(), "{a} vs {b}");
+    }
     // Zero σ: P untouched, charge unchanged.
     let mut q = p_start;
     let none = InstrumentErrors::<f64>::default();
