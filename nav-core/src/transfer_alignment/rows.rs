@@ -285,8 +285,6 @@ fn fuse_rows_paired<T: Real, const K: usize, const N: usize>(
     updates: &mut [FusionReport<T>; 6],
 ) {
     let checks = inputs.checks;
-    // `b = P h` of the pair's two rows (one slot of the frame each, for the three pairs).
-    let (mut b, mut b2) = (SVector::<T, N>::zeros(), SVector::<T, N>::zeros());
     macro_rules! pair {
         (row $row:literal) => {{
             let (h, r) = inputs.paper_row::<K>($row);
@@ -297,7 +295,7 @@ fn fuse_rows_paired<T: Real, const K: usize, const N: usize>(
             let rows = [pair!(row $first), pair!(row $second)];
             let (head, tail) = updates.split_at_mut($second);
             if let (Some(u1), Some(u2)) = (head.get_mut($first), tail.first_mut()) {
-                fuse_pair(x, p, &rows, checks, [&mut b, &mut b2], [u1, u2]);
+                fuse_pair(x, p, &rows, checks, [u1, u2]);
             }
         };
     }
@@ -397,17 +395,20 @@ fn fuse_pair<T: Real, const N: usize, const M: usize>(
     p: &mut SMatrix<T, N, N>,
     [first, second]: &[PairRow<T, M>; 2],
     checks: UpdateChecks<T>,
-    [b1, b2]: [&mut SVector<T, N>; 2],
     [u1, u2]: [&mut FusionReport<T>; 2],
 ) {
     let nu1 = first.z - first.h.dot(x);
-    upper_times_row(p, &first.h, b1);
+    // `b = P h` of the two rows: each zeroed right before the product writes every element
+    // (the zeros are dead stores the compiler drops).
+    let mut b1 = SVector::<T, N>::zeros();
+    upper_times_row(p, &first.h, &mut b1);
+    let b1 = &b1;
     let hph1 = first.h.dot(b1);
     let r1 = bounded_variance(hph1, first.r);
     let d1 = decide(hph1, nu1, r1, checks.gate);
     let inv1 = fused_inv_s(&d1);
-    *u1 = report_of(d1, nu1);
-    let nu2 = match inv1 {
+    put_report(u1, report_of(d1, nu1));
+    let (b2, nu2) = match inv1 {
         Some(inv1) => {
             // x⁺ on the row's entries, and P⁺ = P − k1 b1ᵀ element by element as the
             // downdate writes them (`k1_r = b1_r / s1`, row r ≤ column c).
@@ -417,19 +418,17 @@ fn fuse_pair<T: Real, const N: usize, const M: usize>(
                 let xj = x.get(j).copied().unwrap_or_else(T::zero);
                 acc += hj * (xj + at(j) * inv1 * nu1);
             }
-            upper_times_row_with(p, &second.h, b2, |r, c, v| v - at(r) * inv1 * at(c));
-            second.z - acc
+            let mut b2 = SVector::<T, N>::zeros();
+            upper_times_row_with(p, &second.h, &mut b2, |r, c, v| v - at(r) * inv1 * at(c));
+            (b2, second.z - acc)
         }
-        None => {
-            upper_times_row(p, &second.h, b2);
-            second.z - second.h.dot(x)
-        }
+        None => second_row_alone(x, p, second.h, second.z),
     };
-    let hph2 = second.h.dot(b2);
+    let hph2 = second.h.dot(&b2);
     let r2 = bounded_variance(hph2, second.r);
     let d2 = decide(hph2, nu2, r2, checks.gate);
     let inv2 = fused_inv_s(&d2);
-    *u2 = report_of(d2, nu2);
+    put_report(u2, report_of(d2, nu2));
     match (inv1, inv2) {
         (Some(inv1), Some(inv2)) => {
             let gains = [
@@ -454,10 +453,26 @@ fn fuse_pair<T: Real, const N: usize, const M: usize>(
             let _ = fuse_rank_one(x, p, b1, hph1, nu1, r1, checks);
         }
         (None, Some(_)) => {
-            let _ = fuse_rank_one(x, p, b2, hph2, nu2, r2, checks);
+            let _ = fuse_rank_one(x, p, &b2, hph2, nu2, r2, checks);
         }
         (None, None) => {}
     }
+}
+
+/// `b = P h` and the innovation of a pair's second row (`h`, `z`) when the first is not fused
+/// (rare: out of line, so that the common path's `b` needs no zeroing; the row by value, so
+/// that the common path does not build it in memory; `b` in the loop form, the same sums).
+#[cold]
+#[inline(never)]
+fn second_row_alone<T: Real, const N: usize, const M: usize>(
+    x: &SVector<T, N>,
+    p: &SMatrix<T, N, N>,
+    h: SparseRow<T, M>,
+    z: T,
+) -> (SVector<T, N>, T) {
+    let mut b2 = SVector::<T, N>::zeros();
+    upper_times_row_loop(p, &h, &mut b2);
+    (b2, z - h.dot(x))
 }
 
 /// `1/s` of a decision to fuse.
@@ -467,6 +482,17 @@ fn fused_inv_s<T: Real>(d: &Result<(FusionReport<T>, T), T>) -> Option<T> {
         Ok((rep, inv_s)) if rep.outcome == FusionOutcome::Fused => Some(*inv_s),
         _ => None,
     }
+}
+
+/// Writes `rep` into the slot `u` field by field (so that the report is built in registers
+/// and stored once, not built in the frame and copied).
+#[inline(always)]
+fn put_report<T: Real>(u: &mut FusionReport<T>, rep: FusionReport<T>) {
+    u.innovation = rep.innovation;
+    u.innovation_variance = rep.innovation_variance;
+    u.nis = rep.nis;
+    u.test_ratio = rep.test_ratio;
+    u.outcome = rep.outcome;
 }
 
 /// The report of a decision (a numerical refusal: `Skipped`).
