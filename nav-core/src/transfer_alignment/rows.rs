@@ -408,29 +408,28 @@ fn fuse_pair<T: Real, const N: usize, const M: usize>(
     let d1 = decide(hph1, nu1, r1, checks.gate);
     let inv1 = fused_inv_s(&d1);
     put_report(u1, report_of(d1, nu1));
-    let (b2, nu2) = match inv1 {
-        Some(inv1) => {
-            // x⁺ on the row's entries, and P⁺ = P − k1 b1ᵀ element by element as the
-            // downdate writes them (`k1_r = b1_r / s1`, row r ≤ column c).
-            let at = |i: usize| b1.get(i).copied().unwrap_or_else(T::zero);
-            let mut acc = T::zero();
-            for (j, hj) in second.h.entries() {
-                let xj = x.get(j).copied().unwrap_or_else(T::zero);
-                acc += hj * (xj + at(j) * inv1 * nu1);
-            }
-            let mut b2 = SVector::<T, N>::zeros();
-            upper_times_row_with(p, &second.h, &mut b2, |r, c, v| v - at(r) * inv1 * at(c));
-            (b2, second.z - acc)
-        }
-        None => second_row_alone(x, p, second.h, second.z),
+    let Some(inv1) = inv1 else {
+        // The first row not fused (rare): the second alone, out of line.
+        return second_row_alone(x, p, second.h, [second.z, second.r], checks, u2);
     };
+    // x⁺ on the row's entries, and P⁺ = P − k1 b1ᵀ element by element as the downdate writes
+    // them (`k1_r = b1_r / s1`, row r ≤ column c).
+    let at = |i: usize| b1.get(i).copied().unwrap_or_else(T::zero);
+    let mut acc = T::zero();
+    for (j, hj) in second.h.entries() {
+        let xj = x.get(j).copied().unwrap_or_else(T::zero);
+        acc += hj * (xj + at(j) * inv1 * nu1);
+    }
+    let mut b2 = SVector::<T, N>::zeros();
+    upper_times_row_with(p, &second.h, &mut b2, |r, c, v| v - at(r) * inv1 * at(c));
+    let nu2 = second.z - acc;
     let hph2 = second.h.dot(&b2);
     let r2 = bounded_variance(hph2, second.r);
     let d2 = decide(hph2, nu2, r2, checks.gate);
     let inv2 = fused_inv_s(&d2);
     put_report(u2, report_of(d2, nu2));
-    match (inv1, inv2) {
-        (Some(inv1), Some(inv2)) => {
+    match inv2 {
+        Some(inv2) => {
             let gains = [
                 Gain {
                     inv_s: inv1,
@@ -449,30 +448,37 @@ fn fuse_pair<T: Real, const N: usize, const M: usize>(
                 gains,
             );
         }
-        (Some(_), None) => {
+        None => {
             let _ = fuse_rank_one(x, p, b1, hph1, nu1, r1, checks);
         }
-        (None, Some(_)) => {
-            let _ = fuse_rank_one(x, p, &b2, hph2, nu2, r2, checks);
-        }
-        (None, None) => {}
     }
 }
 
-/// `b = P h` and the innovation of a pair's second row (`h`, `z`) when the first is not fused
-/// (rare: out of line, so that the common path's `b` needs no zeroing; the row by value, so
-/// that the common path does not build it in memory; `b` in the loop form, the same sums).
+/// A pair's second row (`h`, `[z, r]`) when the first is not fused (rare): `b = P h` in the
+/// loop form (the same sums), its decision and report (into `u2`), its update alone. Out of
+/// line, so that the common path's `b` needs no zeroing; the row by value, so that the common
+/// path does not build it in memory.
 #[cold]
 #[inline(never)]
 fn second_row_alone<T: Real, const N: usize, const M: usize>(
-    x: &SVector<T, N>,
-    p: &SMatrix<T, N, N>,
+    x: &mut SVector<T, N>,
+    p: &mut SMatrix<T, N, N>,
     h: SparseRow<T, M>,
-    z: T,
-) -> (SVector<T, N>, T) {
+    [z, r]: [T; 2],
+    checks: UpdateChecks<T>,
+    u2: &mut FusionReport<T>,
+) {
     let mut b2 = SVector::<T, N>::zeros();
     upper_times_row_loop(p, &h, &mut b2);
-    (b2, z - h.dot(x))
+    let nu2 = z - h.dot(x);
+    let hph2 = h.dot(&b2);
+    let r2 = bounded_variance(hph2, r);
+    let d2 = decide(hph2, nu2, r2, checks.gate);
+    let inv2 = fused_inv_s(&d2);
+    put_report(u2, report_of(d2, nu2));
+    if inv2.is_some() {
+        let _ = fuse_rank_one(x, p, &b2, hph2, nu2, r2, checks);
+    }
 }
 
 /// `1/s` of a decision to fuse.
