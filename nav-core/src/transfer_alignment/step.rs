@@ -338,14 +338,21 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             .add_micros(self.dt_us / 2)
             .micros_since(grid)
             .unwrap_or(0);
-        let dt = self.dt_us.max(1);
         // A gap below 2³² µs (71 min) divides in 32 bits (a single instruction on the target;
-        // the 64-bit division is a library call): the same quotient.
-        let steps = match (u32::try_from(ahead), u32::try_from(dt)) {
-            (Ok(a), Ok(d)) => u64::from(a / d),
-            _ => ahead / dt,
+        // the 64-bit division is a library call): the same quotient, and the grid's advance
+        // `steps · dt_us` is one 32 × 32 → 64-bit multiply, which cannot overflow: the value of
+        // the saturating 64-bit product.
+        let (steps, advance) = match (u32::try_from(ahead), u32::try_from(self.dt_us)) {
+            (Ok(a), Ok(dt_us)) => {
+                let n = a / dt_us.max(1);
+                (u64::from(n), u64::from(n) * u64::from(dt_us))
+            }
+            _ => {
+                let n = ahead / self.dt_us.max(1);
+                (n, n.saturating_mul(self.dt_us))
+            }
         };
-        let grid = grid.add_micros(steps.saturating_mul(self.dt_us));
+        let grid = grid.add_micros(advance);
         match u32::try_from(steps) {
             Ok(n) if n <= self.cfg.max_gap_steps => Ok(Plan {
                 predictions: n,
