@@ -233,7 +233,9 @@ fn fuse_rows_each<T: Real, const K: usize, const N: usize>(
 
 /// [`upper_times_row`] in loops (a row known only at run time): the same sums in the same
 /// order (each `b_i` from its first product, entries in the row's order), the same bits.
-#[inline(always)]
+/// Out of line: one copy per filter serves its two rare paths (the rerun's rows one by one,
+/// a pair's second row alone).
+#[inline(never)]
 fn upper_times_row_loop<T: Real, const N: usize, const M: usize>(
     p: &SMatrix<T, N, N>,
     h: &SparseRow<T, M>,

@@ -537,10 +537,19 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
 
     /// Conditions the scratch covariance and makes it current with `x` and the grid.
     fn finish(&mut self, x: SVector<T, N>, plan: &Plan) {
-        let ceiling = self.ceiling;
-        let (_, p) = self.buffers();
-        if condition(p, &ceiling) {
-            Health::bump(&mut self.monitor.health.limits_hit);
+        // The fields borrowed apart: the scratch buffer ([`Self::buffers`]) and the ceilings
+        // read in place (no copy of the ceilings).
+        let Self {
+            p,
+            second,
+            ceiling,
+            monitor,
+            ..
+        } = self;
+        let [a, b] = p;
+        let scratch = if *second { a } else { b };
+        if condition(scratch, ceiling) {
+            Health::bump(&mut monitor.health.limits_hit);
         }
         self.x = x;
         self.second = !self.second;

@@ -189,8 +189,7 @@ pub fn gate_scalar<T: Real>(
         Gate::Nis(threshold) => {
             let ratio = nis / threshold;
             // A NaN ratio (the compare is false) or a non-positive threshold rejects. One
-            // compare, not a three-way classification (≈ 15 instructions less a row on the
-            // target).
+            // compare, not a three-way classification (21 → 10 instructions on the target).
             let within = ratio <= T::one();
             (ratio, !within || threshold <= T::zero())
         }

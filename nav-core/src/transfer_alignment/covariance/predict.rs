@@ -240,7 +240,8 @@ pub(in super::super) fn predict_cov<T: Real, const K: usize, const N: usize>(
 /// [`predict_cov`] with the six blocks inlined (the same blocks in the same order, the same
 /// bits): one call, every block offset a constant. For the chains of 3 states (the
 /// conventional filter), where a block's work fits the registers: measured against the six
-/// calls, −N instructions a prediction for +N B of flash.
+/// calls (a `qemu -d exec` trace of the 9-state step), 602 → 433 instructions a prediction
+/// for +874 B of flash.
 #[inline(never)]
 fn predict_cov_straight<T: Real, const K: usize, const N: usize>(
     phi: &[SMatrix<T, K, K>; 3],
