@@ -12,7 +12,9 @@
 //! master specific force before matching; the flexure terms cannot be (the proposed filter models
 //! the largest one, `L_0 × θ̈_f`; the flight configuration also the terms a manoeuvre excites,
 //! `([ω̇×] + [ω×]²)[L_0×] θ_f + 2[ω×][L_0×] θ̇_f`, [`h_row_flight`]).
-use super::config::MAX_MISALIGNMENT_RAD;
+use super::config::{
+    MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_MISALIGNMENT_RAD, MAX_SPECIFIC_FORCE_M_S2,
+};
 use super::model::{has_accel_bias, FlexureModel, BIAS_STATE};
 use crate::math::kalman::SparseRow;
 use crate::time::Timestamp;
@@ -479,6 +481,64 @@ pub fn h_matrix<T: Real, const K: usize, const N: usize>(
         }
     }
     Ok(h)
+}
+
+fn in_range3<T: Real>(input: &'static str, v: &Vector3<T>, limit: f64) -> Result<(), NavError> {
+    let lim = T::lit(limit);
+    if v.as_slice().iter().all(|c| c.abs() <= lim) {
+        Ok(())
+    } else {
+        Err(NavError::InputOutOfRange { input })
+    }
+}
+
+/// `true` when every input is within its physical range ([`check_ranges`]' limits) — and so
+/// finite: `|v| ≤ limit` is false for NaN and ±∞. No branch per value.
+#[inline(always)]
+pub(super) fn all_in_range<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> bool {
+    let within = |v: &Vector3<T>, limit: f64| {
+        let lim = T::lit(limit);
+        (v.x.abs() <= lim) & (v.y.abs() <= lim) & (v.z.abs() <= lim)
+    };
+    within(&master.angular_rate_rad_s, MAX_ANGULAR_RATE_RAD_S)
+        & within(&master.angular_accel_rad_s2, MAX_ANGULAR_ACCEL_RAD_S2)
+        & within(&master.specific_force_m_s2, MAX_SPECIFIC_FORCE_M_S2)
+        & within(&slave.angular_rate_rad_s, MAX_ANGULAR_RATE_RAD_S)
+        & within(&slave.specific_force_m_s2, MAX_SPECIFIC_FORCE_M_S2)
+}
+
+/// Checks the physical range of the inputs (`InputOutOfRange`; limits
+/// [`MAX_ANGULAR_RATE_RAD_S`], [`MAX_ANGULAR_ACCEL_RAD_S2`], [`MAX_SPECIFIC_FORCE_M_S2`]).
+pub(super) fn check_ranges<T: Real>(
+    master: &MasterSample<T>,
+    slave: &SlaveSample<T>,
+) -> Result<(), NavError> {
+    let (rate, accel, force) = (
+        MAX_ANGULAR_RATE_RAD_S,
+        MAX_ANGULAR_ACCEL_RAD_S2,
+        MAX_SPECIFIC_FORCE_M_S2,
+    );
+    in_range3(
+        "master.angular_rate_rad_s",
+        &master.angular_rate_rad_s,
+        rate,
+    )?;
+    in_range3(
+        "master.angular_accel_rad_s2",
+        &master.angular_accel_rad_s2,
+        accel,
+    )?;
+    in_range3(
+        "master.specific_force_m_s2",
+        &master.specific_force_m_s2,
+        force,
+    )?;
+    in_range3("slave.angular_rate_rad_s", &slave.angular_rate_rad_s, rate)?;
+    in_range3(
+        "slave.specific_force_m_s2",
+        &slave.specific_force_m_s2,
+        force,
+    )
 }
 
 #[cfg(test)]

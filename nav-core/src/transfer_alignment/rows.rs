@@ -233,7 +233,9 @@ fn fuse_rows_each<T: Real, const K: usize, const N: usize>(
 
 /// [`upper_times_row`] in loops (a row known only at run time): the same sums in the same
 /// order (each `b_i` from its first product, entries in the row's order), the same bits.
-#[inline(always)]
+/// Out of line: one copy per filter serves its two rare paths (the rerun's rows one by one,
+/// a pair's second row alone).
+#[inline(never)]
 fn upper_times_row_loop<T: Real, const N: usize, const M: usize>(
     p: &SMatrix<T, N, N>,
     h: &SparseRow<T, M>,
@@ -285,8 +287,6 @@ fn fuse_rows_paired<T: Real, const K: usize, const N: usize>(
     updates: &mut [FusionReport<T>; 6],
 ) {
     let checks = inputs.checks;
-    // `b = P h` of the pair's two rows (one slot of the frame each, for the three pairs).
-    let (mut b, mut b2) = (SVector::<T, N>::zeros(), SVector::<T, N>::zeros());
     macro_rules! pair {
         (row $row:literal) => {{
             let (h, r) = inputs.paper_row::<K>($row);
@@ -297,7 +297,7 @@ fn fuse_rows_paired<T: Real, const K: usize, const N: usize>(
             let rows = [pair!(row $first), pair!(row $second)];
             let (head, tail) = updates.split_at_mut($second);
             if let (Some(u1), Some(u2)) = (head.get_mut($first), tail.first_mut()) {
-                fuse_pair(x, p, &rows, checks, [&mut b, &mut b2], [u1, u2]);
+                fuse_pair(x, p, &rows, checks, [u1, u2]);
             }
         };
     }
@@ -397,41 +397,41 @@ fn fuse_pair<T: Real, const N: usize, const M: usize>(
     p: &mut SMatrix<T, N, N>,
     [first, second]: &[PairRow<T, M>; 2],
     checks: UpdateChecks<T>,
-    [b1, b2]: [&mut SVector<T, N>; 2],
     [u1, u2]: [&mut FusionReport<T>; 2],
 ) {
     let nu1 = first.z - first.h.dot(x);
-    upper_times_row(p, &first.h, b1);
+    // `b = P h` of the two rows: each zeroed right before the product writes every element
+    // (the zeros are dead stores the compiler drops).
+    let mut b1 = SVector::<T, N>::zeros();
+    upper_times_row(p, &first.h, &mut b1);
+    let b1 = &b1;
     let hph1 = first.h.dot(b1);
     let r1 = bounded_variance(hph1, first.r);
     let d1 = decide(hph1, nu1, r1, checks.gate);
     let inv1 = fused_inv_s(&d1);
-    *u1 = report_of(d1, nu1);
-    let nu2 = match inv1 {
-        Some(inv1) => {
-            // x⁺ on the row's entries, and P⁺ = P − k1 b1ᵀ element by element as the
-            // downdate writes them (`k1_r = b1_r / s1`, row r ≤ column c).
-            let at = |i: usize| b1.get(i).copied().unwrap_or_else(T::zero);
-            let mut acc = T::zero();
-            for (j, hj) in second.h.entries() {
-                let xj = x.get(j).copied().unwrap_or_else(T::zero);
-                acc += hj * (xj + at(j) * inv1 * nu1);
-            }
-            upper_times_row_with(p, &second.h, b2, |r, c, v| v - at(r) * inv1 * at(c));
-            second.z - acc
-        }
-        None => {
-            upper_times_row(p, &second.h, b2);
-            second.z - second.h.dot(x)
-        }
+    put_report(u1, report_of(d1, nu1));
+    let Some(inv1) = inv1 else {
+        // The first row not fused (rare): the second alone, out of line.
+        return second_row_alone(x, p, second.h, [second.z, second.r], checks, u2);
     };
-    let hph2 = second.h.dot(b2);
+    // x⁺ on the row's entries, and P⁺ = P − k1 b1ᵀ element by element as the downdate writes
+    // them (`k1_r = b1_r / s1`, row r ≤ column c).
+    let at = |i: usize| b1.get(i).copied().unwrap_or_else(T::zero);
+    let mut acc = T::zero();
+    for (j, hj) in second.h.entries() {
+        let xj = x.get(j).copied().unwrap_or_else(T::zero);
+        acc += hj * (xj + at(j) * inv1 * nu1);
+    }
+    let mut b2 = SVector::<T, N>::zeros();
+    upper_times_row_with(p, &second.h, &mut b2, |r, c, v| v - at(r) * inv1 * at(c));
+    let nu2 = second.z - acc;
+    let hph2 = second.h.dot(&b2);
     let r2 = bounded_variance(hph2, second.r);
     let d2 = decide(hph2, nu2, r2, checks.gate);
     let inv2 = fused_inv_s(&d2);
-    *u2 = report_of(d2, nu2);
-    match (inv1, inv2) {
-        (Some(inv1), Some(inv2)) => {
+    put_report(u2, report_of(d2, nu2));
+    match inv2 {
+        Some(inv2) => {
             let gains = [
                 Gain {
                     inv_s: inv1,
@@ -450,13 +450,36 @@ fn fuse_pair<T: Real, const N: usize, const M: usize>(
                 gains,
             );
         }
-        (Some(_), None) => {
+        None => {
             let _ = fuse_rank_one(x, p, b1, hph1, nu1, r1, checks);
         }
-        (None, Some(_)) => {
-            let _ = fuse_rank_one(x, p, b2, hph2, nu2, r2, checks);
-        }
-        (None, None) => {}
+    }
+}
+
+/// A pair's second row (`h`, `[z, r]`) when the first is not fused (rare): `b = P h` in the
+/// loop form (the same sums), its decision and report (into `u2`), its update alone. Out of
+/// line, so that the common path's `b` needs no zeroing; the row by value, so that the common
+/// path does not build it in memory.
+#[cold]
+#[inline(never)]
+fn second_row_alone<T: Real, const N: usize, const M: usize>(
+    x: &mut SVector<T, N>,
+    p: &mut SMatrix<T, N, N>,
+    h: SparseRow<T, M>,
+    [z, r]: [T; 2],
+    checks: UpdateChecks<T>,
+    u2: &mut FusionReport<T>,
+) {
+    let mut b2 = SVector::<T, N>::zeros();
+    upper_times_row_loop(p, &h, &mut b2);
+    let nu2 = z - h.dot(x);
+    let hph2 = h.dot(&b2);
+    let r2 = bounded_variance(hph2, r);
+    let d2 = decide(hph2, nu2, r2, checks.gate);
+    let inv2 = fused_inv_s(&d2);
+    put_report(u2, report_of(d2, nu2));
+    if inv2.is_some() {
+        let _ = fuse_rank_one(x, p, &b2, hph2, nu2, r2, checks);
     }
 }
 
@@ -467,6 +490,17 @@ fn fused_inv_s<T: Real>(d: &Result<(FusionReport<T>, T), T>) -> Option<T> {
         Ok((rep, inv_s)) if rep.outcome == FusionOutcome::Fused => Some(*inv_s),
         _ => None,
     }
+}
+
+/// Writes `rep` into the slot `u` field by field (so that the report is built in registers
+/// and stored once, not built in the frame and copied).
+#[inline(always)]
+fn put_report<T: Real>(u: &mut FusionReport<T>, rep: FusionReport<T>) {
+    u.innovation = rep.innovation;
+    u.innovation_variance = rep.innovation_variance;
+    u.nis = rep.nis;
+    u.test_ratio = rep.test_ratio;
+    u.outcome = rep.outcome;
 }
 
 /// The report of a decision (a numerical refusal: `Skipped`).

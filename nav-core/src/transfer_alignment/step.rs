@@ -1,7 +1,6 @@
 //! The per-epoch work of the filters: the time plan, [`TransferAlignment::step`] (predict and
 //! fuse the six scalar measurements), [`TransferAlignment::propagate`] (prediction only) and
 //! [`TransferAlignment::step_delayed`] (match with the slave history).
-use super::config::{MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_SPECIFIC_FORCE_M_S2};
 use super::covariance::{
     condition, initial_covariance, predict_cov, predict_state, reinit_flexure, set_mount_only,
 };
@@ -9,7 +8,7 @@ use super::filter::{Ahead, TransferAlignment, Undo};
 use super::fusion::{DeferredCheck, Guard, UpdateChecks};
 use super::health::Channel;
 use super::history::SlaveHistory;
-use super::measurement::{measurement, MasterSample, SlaveSample};
+use super::measurement::{all_in_range, check_ranges, measurement, MasterSample, SlaveSample};
 use super::model::FlexureModel;
 use super::rows::{fuse_rows, not_fused, RowInputs};
 use crate::contract::Health;
@@ -92,61 +91,6 @@ struct Plan {
 #[inline(always)]
 fn zero_if_finite<T: Real>(v: &Vector3<T>) -> T {
     v.x * T::zero() + v.y * T::zero() + v.z * T::zero()
-}
-
-fn in_range3<T: Real>(input: &'static str, v: &Vector3<T>, limit: f64) -> Result<(), NavError> {
-    let lim = T::lit(limit);
-    if v.as_slice().iter().all(|c| c.abs() <= lim) {
-        Ok(())
-    } else {
-        Err(NavError::InputOutOfRange { input })
-    }
-}
-
-/// `true` when every input is within its physical range ([`check_ranges`]' limits) — and so
-/// finite: `|v| ≤ limit` is false for NaN and ±∞. No branch per value.
-#[inline(always)]
-fn all_in_range<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> bool {
-    let within = |v: &Vector3<T>, limit: f64| {
-        let lim = T::lit(limit);
-        (v.x.abs() <= lim) & (v.y.abs() <= lim) & (v.z.abs() <= lim)
-    };
-    within(&master.angular_rate_rad_s, MAX_ANGULAR_RATE_RAD_S)
-        & within(&master.angular_accel_rad_s2, MAX_ANGULAR_ACCEL_RAD_S2)
-        & within(&master.specific_force_m_s2, MAX_SPECIFIC_FORCE_M_S2)
-        & within(&slave.angular_rate_rad_s, MAX_ANGULAR_RATE_RAD_S)
-        & within(&slave.specific_force_m_s2, MAX_SPECIFIC_FORCE_M_S2)
-}
-
-/// Checks the physical range of the inputs (`InputOutOfRange`; limits
-/// [`MAX_ANGULAR_RATE_RAD_S`], [`MAX_ANGULAR_ACCEL_RAD_S2`], [`MAX_SPECIFIC_FORCE_M_S2`]).
-fn check_ranges<T: Real>(master: &MasterSample<T>, slave: &SlaveSample<T>) -> Result<(), NavError> {
-    let (rate, accel, force) = (
-        MAX_ANGULAR_RATE_RAD_S,
-        MAX_ANGULAR_ACCEL_RAD_S2,
-        MAX_SPECIFIC_FORCE_M_S2,
-    );
-    in_range3(
-        "master.angular_rate_rad_s",
-        &master.angular_rate_rad_s,
-        rate,
-    )?;
-    in_range3(
-        "master.angular_accel_rad_s2",
-        &master.angular_accel_rad_s2,
-        accel,
-    )?;
-    in_range3(
-        "master.specific_force_m_s2",
-        &master.specific_force_m_s2,
-        force,
-    )?;
-    in_range3("slave.angular_rate_rad_s", &slave.angular_rate_rad_s, rate)?;
-    in_range3(
-        "slave.specific_force_m_s2",
-        &slave.specific_force_m_s2,
-        force,
-    )
 }
 
 impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
@@ -338,14 +282,21 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
             .add_micros(self.dt_us / 2)
             .micros_since(grid)
             .unwrap_or(0);
-        let dt = self.dt_us.max(1);
         // A gap below 2³² µs (71 min) divides in 32 bits (a single instruction on the target;
-        // the 64-bit division is a library call): the same quotient.
-        let steps = match (u32::try_from(ahead), u32::try_from(dt)) {
-            (Ok(a), Ok(d)) => u64::from(a / d),
-            _ => ahead / dt,
+        // the 64-bit division is a library call): the same quotient, and the grid's advance
+        // `steps · dt_us` is one 32 × 32 → 64-bit multiply, which cannot overflow: the value of
+        // the saturating 64-bit product.
+        let (steps, advance) = match (u32::try_from(ahead), u32::try_from(self.dt_us)) {
+            (Ok(a), Ok(dt_us)) => {
+                let n = a / dt_us.max(1);
+                (u64::from(n), u64::from(n) * u64::from(dt_us))
+            }
+            _ => {
+                let n = ahead / self.dt_us.max(1);
+                (n, n.saturating_mul(self.dt_us))
+            }
         };
-        let grid = grid.add_micros(steps.saturating_mul(self.dt_us));
+        let grid = grid.add_micros(advance);
         match u32::try_from(steps) {
             Ok(n) if n <= self.cfg.max_gap_steps => Ok(Plan {
                 predictions: n,
@@ -530,10 +481,19 @@ impl<T: Real, const K: usize, const N: usize> TransferAlignment<T, K, N> {
 
     /// Conditions the scratch covariance and makes it current with `x` and the grid.
     fn finish(&mut self, x: SVector<T, N>, plan: &Plan) {
-        let ceiling = self.ceiling;
-        let (_, p) = self.buffers();
-        if condition(p, &ceiling) {
-            Health::bump(&mut self.monitor.health.limits_hit);
+        // The fields borrowed apart: the scratch buffer ([`Self::buffers`]) and the ceilings
+        // read in place (no copy of the ceilings).
+        let Self {
+            p,
+            second,
+            ceiling,
+            monitor,
+            ..
+        } = self;
+        let [a, b] = p;
+        let scratch = if *second { a } else { b };
+        if condition(scratch, ceiling) {
+            Health::bump(&mut monitor.health.limits_hit);
         }
         self.x = x;
         self.second = !self.second;
