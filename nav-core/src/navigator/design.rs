@@ -22,11 +22,13 @@ pub(super) fn slave_share<T: Real>(config: &NavigatorConfig<T>) -> Vector3<T> {
 }
 
 /// The slave accelerometers' scale-factor share of the alignment's θ̂ through the flexure's
-/// lever-arm acceleration per axis, rad² ([`flexure_share_variance`]; the EKF's instrument
-/// errors, the nominal lever arm).
+/// lever-arm acceleration, rad² ([`flexure_share_variance`]; the EKF's instrument errors, the
+/// nominal lever arm), about the slave's Z axis only: in carry the level axes are known from
+/// gravity (`g θ`, far above the pylon's acceleration), the heading from the lever arm.
 pub(super) fn flexure_share<T: Real>(config: &NavigatorConfig<T>) -> Vector3<T> {
     let s = config.ins.instrument_errors.accel_scale_factor;
-    flexure_share_variance(s, &config.lever_arm.nominal_m)
+    let v = flexure_share_variance(s, &config.lever_arm.nominal_m);
+    Vector3::new(T::zero(), T::zero(), v.z)
 }
 
 /// The alignment filter's configuration as the navigator runs it: `config.alignment` (whose
