@@ -8,7 +8,9 @@
 //! `master_att_scale` (the master INS's attitude error σ scaled, truth and reported σ alike),
 //! `master_hz` (the master's message rate), `carry_course_deg` (the carry manoeuvre made a
 //! course change of that size, same timing), `speed_m_s` (the speed after the boost, every
-//! other draw the same).
+//! other draw the same), `flex_scale_x`, `flex_scale_y`, `flex_scale_z` (the wing flexure's
+//! σ about that slave axis scaled) and `mount_scale` (the mounting misalignment's σ scaled),
+//! truth and the alignment's design alike.
 
 use anyhow::{anyhow, bail, Result};
 use nav_sim::scenarios::mission::load_scenario;
@@ -63,6 +65,16 @@ fn main() -> Result<()> {
                 let a = &mut var.scenario.mission.master.attitude_sigma_rad;
                 a.iter_mut().for_each(|v| *v *= x);
             }
+            "flex_scale_x" => var.scenario.mission.carry.flexure.sigma_deg[0] *= x,
+            "flex_scale_y" => var.scenario.mission.carry.flexure.sigma_deg[1] *= x,
+            "flex_scale_z" => var.scenario.mission.carry.flexure.sigma_deg[2] *= x,
+            "mount_scale" => var
+                .scenario
+                .mission
+                .carry
+                .mount_sigma_deg
+                .iter_mut()
+                .for_each(|v| *v *= x),
             _ => bail!("unknown key {k}"),
         }
     }

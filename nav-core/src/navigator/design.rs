@@ -7,7 +7,7 @@
 use super::types::{BaroDamping, NavigatorConfig, INERTIAL_LOOP};
 use crate::design::{DesignValues, ValueReader, ValueWriter, BAD_VALUES};
 use crate::seeker_ins::{design_stamp, SeekerInsDesign};
-use crate::transfer_alignment::{slave_share_variance, TaConfig, TaDesign};
+use crate::transfer_alignment::{flexure_share_variance, slave_share_variance, TaConfig, TaDesign};
 use crate::vertical_channel::{classical_stamp, ClassicalDesign};
 use crate::{NavError, Real};
 use nalgebra::Vector3;
@@ -19,6 +19,16 @@ use nalgebra::Vector3;
 pub(super) fn slave_share<T: Real>(config: &NavigatorConfig<T>) -> Vector3<T> {
     let e = &config.ins.instrument_errors;
     slave_share_variance(e.accel_scale_factor, e.accel_misalignment_rad)
+}
+
+/// The slave accelerometers' scale-factor share of the alignment's θ̂ through the flexure's
+/// lever-arm acceleration, rad² ([`flexure_share_variance`]; the EKF's instrument errors, the
+/// nominal lever arm), about the slave's Z axis only: in carry the level axes are known from
+/// gravity (`g θ`, far above the pylon's acceleration), the heading from the lever arm.
+pub(super) fn flexure_share<T: Real>(config: &NavigatorConfig<T>) -> Vector3<T> {
+    let s = config.ins.instrument_errors.accel_scale_factor;
+    let v = flexure_share_variance(s, &config.lever_arm.nominal_m);
+    Vector3::new(T::zero(), T::zero(), v.z)
 }
 
 /// The alignment filter's configuration as the navigator runs it: `config.alignment` (whose

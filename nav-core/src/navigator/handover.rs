@@ -139,6 +139,16 @@ impl<T: Real> AlignmentAtRelease<T> {
             ..self
         }
     }
+
+    /// This estimate with `v` (rad² per axis) added to θ̂'s variances: the slave's
+    /// scale-factor share of the flexure's lever-arm acceleration
+    /// ([`crate::transfer_alignment::flexure_share_variance`]).
+    pub fn with_flexure_share(self, v: &Vector3<T>) -> Self {
+        Self {
+            theta_covariance_rad2: self.theta_covariance_rad2 + Matrix3::from_diagonal(v),
+            ..self
+        }
+    }
 }
 
 /// The pylon's lever arm from the master IMU to the slave IMU, master body axes.

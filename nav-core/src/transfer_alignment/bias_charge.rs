@@ -46,6 +46,30 @@ pub fn level_carry_force<T: Real>() -> Vector3<T> {
     )
 }
 
+/// Variance per slave axis X, Y, Z of the error the slave accelerometers' scale factors put
+/// into the misalignment θ through the flexure's lever-arm acceleration, rad²: the wing's
+/// angular acceleration `θ̈_k` about axis `k` moves the pylon by `u_k θ̈_k`, `u_k = L₀ × e_k`,
+/// the rows see θ through `u_k × θ` and the scale factor `S` adds `S u_k θ̈_k`, proportional to
+/// the same signal, so it never averages out: the least-squares θ_k is off by
+/// `(u_k × S u_k)_k / |u_k|² = L_i L_j (S_i − S_j) / (L_i² + L_j²)` (i, j the other axes),
+/// variance `2 σ_S² (L_i L_j / (L_i² + L_j²))²`, at most `σ_S² / 2`. `scale_factor`: 1σ of
+/// each axis' scale-factor error, dimensionless; `lever_arm_m`: `L₀`, m. Zero about an axis
+/// the lever arm lies along (no acceleration) or across one axis only.
+pub fn flexure_share_variance<T: Real>(scale_factor: T, lever_arm_m: &Vector3<T>) -> Vector3<T> {
+    let l = lever_arm_m;
+    let two_s2 = T::lit(2.0) * scale_factor * scale_factor;
+    let axis = |a: T, b: T| {
+        let den = a * a + b * b;
+        if den > T::zero() {
+            let c = a * b / den;
+            two_s2 * c * c
+        } else {
+            T::zero()
+        }
+    };
+    Vector3::new(axis(l.y, l.z), axis(l.z, l.x), axis(l.x, l.y))
+}
+
 /// Variance per slave axis X, Y, Z of the change `(S + M) d` of the slave's equivalent
 /// accelerometer bias when the specific force changes by `d_m_s2` (m/s², slave axes):
 /// `σ_S² d_i² + σ_M² (|d|² − d_i²)`, (m/s²)² (module doc). `scale_factor`: 1σ of each axis'
@@ -193,6 +217,58 @@ mod tests {
             sum += share_charge(SF, MIS, &a, &b);
         }
         assert!((sum - out).norm() <= 1e-9 * out.norm());
+    }
+
+    /// The slave's scale factors scale the flexure's lever-arm acceleration `u θ̈` along
+    /// with the regressor `θ × (u θ̈)` through which the rows see θ: over many draws of S, the
+    /// least-squares θ of a noise-free flexure signal is off with the variance of
+    /// [`flexure_share_variance`], however many samples.
+    #[test]
+    fn flexure_share_variance_is_the_least_squares_error_of_the_scale_factor() {
+        let l = Vector3::new(4.0_f64, -2.1, 0.2);
+        let want = flexure_share_variance(SF, &l);
+        // A small deterministic generator (xorshift) and Box-Muller normals.
+        let mut state = 0x9E37_79B9_7F4A_7C15_u64;
+        let mut uniform = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let mut normal = || {
+            let (a, b) = (uniform(), uniform());
+            (-2.0 * a.ln()).sqrt() * (core::f64::consts::TAU * b).cos()
+        };
+        let draws = 4_000;
+        let mut sum_sq = Vector3::<f64>::zeros();
+        for _ in 0..draws {
+            let s = Vector3::new(normal() * SF, normal() * SF, normal() * SF);
+            for k in 0..3 {
+                let e = Vector3::ith(k, 1.0);
+                let u = l.cross(&e);
+                // 50 samples of the flexure's angular acceleration; θ about axis k only.
+                let (mut hy, mut hh) = (0.0, 0.0);
+                for n in 0..50 {
+                    let a = u * ((n as f64 * 0.37).sin() + 0.1);
+                    let h = -e.cross(&a); // ∂(−θ × a)/∂θ_k
+                    let y = s.component_mul(&a); // the scale factor's error
+                    hy += h.dot(&y);
+                    hh += h.dot(&h);
+                }
+                sum_sq[k] += (hy / hh).powi(2);
+            }
+        }
+        for k in 0..3 {
+            let got = sum_sq[k] / draws as f64;
+            assert!(
+                (got / want[k] - 1.0).abs() < 0.1,
+                "axis {k}: {got:e} vs {:e}",
+                want[k]
+            );
+        }
+        // Along the lever arm, or with it across one axis only: nothing.
+        let along = flexure_share_variance(SF, &Vector3::new(3.0, 0.0, 0.0));
+        assert_eq!(along, Vector3::zeros());
     }
 
     #[test]

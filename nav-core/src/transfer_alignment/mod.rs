@@ -150,7 +150,9 @@ mod step;
 #[cfg(test)]
 mod tests;
 
-pub use bias_charge::{level_carry_force, share_change_variance, share_charge};
+pub use bias_charge::{
+    flexure_share_variance, level_carry_force, share_change_variance, share_charge,
+};
 pub use config::{
     default_recovery, slave_share_variance, PaperCase, TaConfig, ACCEL_NOISE_SIGMA_RANGE_M_S2,
     MAX_ACCEL_BIAS_SIGMA_M_S2, MAX_ANGULAR_ACCEL_RAD_S2, MAX_ANGULAR_RATE_RAD_S, MAX_DT_S,

@@ -3,7 +3,7 @@
 //! run ahead, the IMU-confirmed separation and the EKF's start.
 
 use super::super::carry::CueLimits;
-use super::super::design::slave_share;
+use super::super::design::{flexure_share, slave_share};
 use super::super::handover::{
     hand_over_checked_master, refer_to_carry, validate_master, AlignmentAtRelease, MasterAtRelease,
     NavBlocks,
@@ -177,7 +177,9 @@ fn slave_to<T: Real, const K: usize, const N: usize>(
 ) -> Result<(), NavError> {
     let nav = hand_over_checked_master(
         master,
-        &AlignmentAtRelease::from_filter(ta).with_slave_share(&slave_share(config)),
+        &AlignmentAtRelease::from_filter(ta)
+            .with_slave_share(&slave_share(config))
+            .with_flexure_share(&flexure_share(config)),
         &config.lever_arm,
     )?;
     let corr = Correction::between(&snap.state, &nav.state);
