@@ -439,10 +439,11 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
     /// One IMU sample plus the aids that arrived since the last one (module doc). A bad IMU
     /// sample (non-finite, beyond range, not later than the last tick; in carry, an interval
     /// longer than the INS integrates, [`crate::seeker_ins::MAX_INTERVAL_S`]): `Err`, nothing
-    /// changed. After the release a long interval is a gap the EKF handles, not an error: bridged
-    /// up to its `ImuFaultPolicy::max_gap_s`, its navigation block restarted after a longer one
-    /// (the seeker INS's gap handling, `Health::gaps_bridged` / `gaps_reset`). A bad aid: refused (its state `Refused`, counted), nothing of
-    /// it applied, the tick still runs. The report is returned by value: a flight loop that
+    /// changed. After the release a long interval is a gap the EKF handles, not an error:
+    /// bridged up to its `ImuFaultPolicy::max_gap_s`, its navigation block restarted after a
+    /// longer one (the seeker INS's gap handling, `Health::gaps_bridged` / `gaps_reset`). A
+    /// bad aid: refused (its state `Refused`, counted), nothing of it applied, the tick still
+    /// runs. The report is returned by value: a flight loop that
     /// keeps one report slot of its own uses [`Self::tick_into`] (less stack, no copy).
     pub fn tick(
         &mut self,
