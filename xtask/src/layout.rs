@@ -7,7 +7,9 @@
 //!   literals blanked first; trait methods without a body are not functions here);
 //! * no import cycle between sibling modules: module `a` depends on its sibling `b` when any
 //!   file of `a` (or of a module inside it) names a path through `b` (`super::b::…`,
-//!   `crate::…::b::…`, `use` trees included); a strongly connected group of siblings is a cycle.
+//!   `crate::…::b::…`, `use` trees included); a strongly connected group of siblings is a cycle;
+//! * no broken relative link in `README.md`, `ARCHITECTURE.md` and `docs/*.md` (a missing file or
+//!   heading anchor; [`crate::links`]).
 //!
 //! Files under a `generated/` directory are exempt from the length limits: they are written by
 //! `cargo xtask gen` (straight-line kernels), not by hand. They still take part in the import
@@ -91,7 +93,16 @@ pub(crate) fn layout(strict: bool) -> Result<(), String> {
     for c in &cycles {
         println!("  {c}");
     }
-    findings += long_files.len() + long_fns.len() + cycles.len();
+    let broken = crate::links::check(&crate::links::documents(&root)?)?;
+    println!(
+        "layout: broken relative links in README.md, ARCHITECTURE.md, docs/*.md ({}):",
+        broken.len()
+    );
+    for b in &broken {
+        let file = b.file.strip_prefix(&root).unwrap_or(&b.file);
+        println!("  {}:{}  {}  ({})", file.display(), b.line, b.target, b.why);
+    }
+    findings += long_files.len() + long_fns.len() + cycles.len() + broken.len();
     if strict && findings > 0 {
         Err(format!("layout: {findings} finding(s)"))
     } else {

@@ -21,8 +21,9 @@
 //!   functions); default the flight image `nav-size` of the last `qemu`/`bench` build. `bench`
 //!   writes the same table for `nav-size` into `report.md`.
 //! * `layout [--strict]`: nav-core and nav-sim files over 600 lines, functions over 80 lines,
-//!   import cycles between sibling modules (`generated/` exempt from the lengths); reports, and
-//!   with `--strict` fails on any finding.
+//!   import cycles between sibling modules (`generated/` exempt from the lengths), broken relative
+//!   links (file or heading anchor) in `README.md`, `ARCHITECTURE.md` and `docs/*.md`; reports,
+//!   and with `--strict` fails on any finding.
 //! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
 //!   at the end.
 
@@ -30,6 +31,7 @@ mod firmware;
 mod flash;
 mod gen;
 mod layout;
+mod links;
 
 use std::env;
 use std::path::{Path, PathBuf};
@@ -84,7 +86,7 @@ fn usage() {
          \n  bench [--report-only]                               firmware on QEMU: instructions, stack, sizes; fails on a broken ceiling or missed target (--report-only: ceilings only)\
          \n  flash [ELF]                                         bytes per module and largest functions of an image (default nav-size)\
          \n  gen [--check]                                       write (or check) the generated seeker kernels\
-         \n  layout [--strict]                                   files over 600 lines, functions over 80, sibling import cycles"
+         \n  layout [--strict]                                   files over 600 lines, functions over 80, sibling import cycles, broken doc links"
     );
 }
 
