@@ -30,7 +30,8 @@ fn claim2_aided_vz_rmse_lower_than_classical_reduced_runs() {
 fn aided_settles_faster_as_design_trusts_the_accelerometer_less() {
     // The aided loop's transient speed is set by its Riccati design: a larger assumed
     // accelerometer noise gives larger gains and a faster noise-free settle (claim 1 holds only
-    // for such designs; with the faithful design it does not, see the README section).
+    // for such designs; with the faithful design it does not, see docs/vertical-channel.md,
+    // "Why claim 1 does not reproduce").
     let mut cfg = load_config("vc-response").unwrap();
     let mut settle = Vec::new();
     for q in [1e-3, 1e-2] {

@@ -177,7 +177,7 @@ fn setup_strategy() -> impl Strategy<Value = Setup> {
                 // Keep the truth above −1000 m and below 50 km.
                 let amp = amp.min((h0 + 1_000.0).max(0.0)).min(50_000.0 - h0);
                 // Aid periods ≤ 0.25 s (a stale aid is extrapolated at constant acceleration;
-                // see the README: timeouts must keep ½ jerk age² small).
+                // see docs/vertical-channel.md, "Limits": timeouts must keep ½ jerk age² small).
                 let max_every = ((0.25f64 / dt_s).floor() as usize).max(1);
                 Setup {
                     dt_s,

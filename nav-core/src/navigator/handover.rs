@@ -43,7 +43,7 @@
 //!   `diag(β) P_bb diag(β) + diag(β σ_bm²)` (plus the level axes' misalignment share) was
 //!   measured and removed: the alignment's level-axis bias stays overconfident after the
 //!   carry's turns (the misalignment share acts there as a tilt), and neither form was
-//!   consistent on both `mission` and `mission-s-turn` (README, "The bias hand-over,
+//!   consistent on both `mission` and `mission-s-turn` (docs/navigator.md, "The bias hand-over,
 //!   measured again"). The alignment's bias variance itself is charged with the share's
 //!   change in a manoeuvre ([`crate::transfer_alignment::share_charge`]).
 //!

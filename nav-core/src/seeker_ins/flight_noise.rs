@@ -92,7 +92,7 @@
 //! independent rest with a later one's (the largest-so-far bounds cover it); a Schmidt
 //! consider state for S would follow both. Measured on the flight navigator's campaign
 //! variant 4 (258 m/s, a 135° turn at 2 g, 100 runs): midcourse east position e²/σ² 1.14 with
-//! the independent charge, 0.95 with the correlated one (README).
+//! the independent charge, 0.95 with the correlated one (docs/consistency.md, "The correlated charge").
 //!
 //! (Charging the whole departure to the velocity treated a weave's load factor as transient:
 //! the velocity charge then grew with the square of the time while the LOS updates learned

@@ -82,7 +82,7 @@
 //! `t` (the filter predicts `round((t − grid) / dt)` steps, possibly 0 when jitter puts two
 //! samples in one step), so any interval is accepted — jitter, late and missing samples — and
 //! the grid never drifts from the flight computer's clock (|t − grid| ≤ dt/2 at every fused
-//! epoch). Φ and Q_d stay the precomputed ones of `dt_s` (see the README for the measurement
+//! epoch). Φ and Q_d stay the precomputed ones of `dt_s` (see docs/transfer-alignment.md for the measurement
 //! behind this choice). A gap longer than `max_gap_steps` (at most [`MAX_GAP_STEPS`]) is not
 //! predicted step by step: the flexure states are re-initialised to their stationary prior and
 //! θ_m is kept (see [`GapOutcome::FlexureReinitialised`]), so the work of one call is bounded.

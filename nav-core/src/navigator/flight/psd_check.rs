@@ -24,7 +24,7 @@
 //! In the missions (`nav-sim`: `mission`, `mission-s-turn`) the check never lifted (smallest
 //! relative pivot 1.7e-2) and no step started from an unchecked P. With almost no process
 //! noise (a seeker precise to 1e-5 rad, a hundredth of the IMUs' noise, no instrument errors)
-//! baro and LOS updates used to turn P indefinite (10 times in 20 missions, README) until the
+//! baro and LOS updates used to turn P indefinite (10 times in 20 missions, docs/stress.md) until the
 //! baro update's stabilising noise got its floor of one ε (module `baro`): never since.
 
 use super::Navigator;

@@ -1,7 +1,7 @@
 //! The hand-over's accelerometer-bias reference: the specific force the EKF's bias states
 //! refer to (the carry's). The states start from the priors (zero estimate); handing over the
 //! flight alignment's difference-bias estimate was measured and removed (module doc of
-//! [`super`], README "The bias hand-over, measured again").
+//! [`super`], docs/navigator.md, "The bias hand-over, measured again").
 use crate::Real;
 use nalgebra::Vector3;
 

@@ -5,7 +5,7 @@
 //! noise Q_d (velocity and attitude variances) and to the covariance itself (correlation
 //! units, `|ΔP_ij| / √(P_ii P_jj)`), and the σ ratio after the whole flight with each model
 //! propagated on its own. `cargo test -p nav-sim --lib model_reduction -- --ignored --nocapture`
-//! (README, "The covariance prediction against PX4 EKF2").
+//! (docs/cost.md, "The covariance prediction against PX4 EKF2"; the table is in the README).
 
 #[cfg(test)]
 mod tests {

@@ -288,7 +288,7 @@ mod tests {
         assert!(worst(&c) > NES_MAX, "{:?}", c.normalized_error_sq);
     }
 
-    /// Evidence for the README (run by hand, `--ignored --nocapture`): the campaign's variants
+    /// Evidence for docs/vertical-channel.md (run by hand, `--ignored --nocapture`): the campaign's variants
     /// re-flown with other run seeds (same parameters). A variant whose pass or fail flips with
     /// the seed fails by the sampling spread of 30 runs of slowly correlated errors, not by a
     /// σ that is wrong for it.
