@@ -15,14 +15,18 @@
     clippy::indexing_slicing
 )]
 
-use super::{ImuTick, MasterNav, NavigatorInitial};
+use super::{
+    AidTimeouts, BaroDamping, BaroErrorModel, HandoverPriors, ImuTick, LeverArm, MasterNav,
+    NavigatorConfig, NavigatorInitial, SeparationCheck,
+};
 use crate::earth::{earth_rate_ned, normal_gravity_m_s2, radii_m, transport_rate_ned};
 use crate::math::rotation::{dcm_to_quat, exp_so3, quat_to_dcm};
 use crate::seeker_ins::{
     gimbal_angles_of, landmark_vector_ned, ClipFlags, GimbalAngles, ImuIncrement, Ins, InsState,
-    Landmark, Position,
+    Landmark, Position, SeekerInsConfig,
 };
 use crate::time::Timestamp;
+use crate::transfer_alignment::{PaperCase, TaConfig};
 use crate::Real;
 use nalgebra::{Matrix3, Quaternion, SMatrix, Vector3};
 use std::vec::Vec;
@@ -52,6 +56,50 @@ pub fn gimbal_truth(truth: &InsState<f64>) -> GimbalAngles<f64> {
     let lm = Landmark::new(landmark_position()).unwrap();
     let d = landmark_vector_ned(&truth.position, &lm);
     gimbal_angles_of(&(quat_to_dcm(&truth.q_b_n).transpose() * d))
+}
+
+/// The chain's navigator configuration at 100 Hz (the flight configurations' rate): the
+/// flight alignment and EKF, the lever arm's σ 1 cm, the separation check, `baro`, the release
+/// after `coast_s` of coast, the aid timeouts (master 0.5 s, baro 1 s, seeker 2 s).
+pub fn config<T: Real>(baro: BaroDamping<T>, coast_s: f64) -> NavigatorConfig<T> {
+    let alignment = TaConfig::<T>::flight(PaperCase::Case1);
+    NavigatorConfig {
+        lever_arm: LeverArm {
+            nominal_m: alignment.lever_arm_m,
+            sigma_m: Vector3::from_element(T::lit(0.01)),
+        },
+        alignment,
+        priors: HandoverPriors {
+            accel_bias_sigma_m_s2: T::lit(1e-3),
+            gyro_bias_sigma_rad_s: T::lit(5e-8),
+            gimbal_bias_sigma_rad: T::lit(7e-4),
+        },
+        ins: SeekerInsConfig::flight(Landmark::new(landmark_position()).unwrap()),
+        imu_dt_s: T::lit(0.01),
+        max_master_latency_s: T::lit(0.1),
+        separation: SeparationCheck {
+            specific_force_jump_m_s2: T::lit(4.0),
+            confirm_window_s: T::lit(0.3),
+            unsignalled_onset_s: T::lit(0.3),
+            coast_s: T::lit(coast_s),
+        },
+        baro,
+        timeouts: AidTimeouts {
+            master_s: T::lit(0.5),
+            baro_s: T::lit(1.0),
+            seeker_s: T::lit(2.0),
+        },
+    }
+}
+
+/// The chain's baro error model in the EKF: 1 m white, 5 m Gauss-Markov over 100 s, no lag.
+pub fn baro_model<T: Real>() -> BaroErrorModel<T> {
+    BaroErrorModel {
+        white_sigma_m: T::lit(1.0),
+        markov_sigma_m: T::lit(5.0),
+        markov_tau_s: T::lit(100.0),
+        lag_s: T::lit(0.0),
+    }
 }
 
 /// A world's schedule.

@@ -4,15 +4,12 @@
 //! the case's IMU rate, the master bus and the per-tick baro and LOS draws.
 
 use nalgebra::Vector3;
-use nav_core::navigator::test_support::{gimbal_truth, landmark_position, WorldSpec};
+use nav_core::navigator::test_support::{self, baro_model, gimbal_truth, WorldSpec};
 pub use nav_core::navigator::test_support::{imu_tick, World};
-use nav_core::navigator::{
-    AidTimeouts, BaroDamping, BaroErrorModel, FlightNavigator, HandoverPriors, LeverArm, MasterNav,
-    NavigatorConfig, SeparationCheck,
-};
-use nav_core::seeker_ins::{GimbalAngles, Landmark, LosSample, SeekerInsConfig};
+use nav_core::navigator::{BaroDamping, FlightNavigator, MasterNav, NavigatorConfig};
+use nav_core::seeker_ins::{GimbalAngles, LosSample};
 use nav_core::time::Timestamp;
-use nav_core::transfer_alignment::{PaperCase, TaConfig, MAX_GAP_STEPS};
+use nav_core::transfer_alignment::MAX_GAP_STEPS;
 use nav_core::vertical_channel::BaroSample;
 use nav_core::Real;
 use proptest::prelude::*;
@@ -108,47 +105,20 @@ pub fn schedule() -> impl Strategy<Value = Schedule> {
         })
 }
 
+/// The chain's configuration (`test_support::config`, the EKF's baro damping) at the case's
+/// IMU rate: the alignment's step, tolerance and gap, the EKF's step and covariance interval,
+/// the master's latency; the release after `coast_s`.
 pub fn config<T: Real>(s: &Schedule) -> NavigatorConfig<T> {
     let dt = 1.0 / s.rate_hz as f64;
-    let mut alignment = TaConfig::<T>::flight(PaperCase::Case1);
-    alignment.dt_s = T::lit(dt);
-    alignment.time_tolerance_s = T::lit(0.1 * dt);
-    alignment.max_gap_steps = (s.rate_hz as u32).min(MAX_GAP_STEPS);
-    let mut ins = SeekerInsConfig::flight(Landmark::new(landmark_position()).unwrap());
-    ins.imu_dt_s = T::lit(dt);
-    ins.covariance_interval_steps = (s.rate_hz / 10) as u16;
-    NavigatorConfig {
-        lever_arm: LeverArm {
-            nominal_m: alignment.lever_arm_m,
-            sigma_m: Vector3::from_element(T::lit(0.01)),
-        },
-        alignment,
-        priors: HandoverPriors {
-            accel_bias_sigma_m_s2: T::lit(1e-3),
-            gyro_bias_sigma_rad_s: T::lit(5e-8),
-            gimbal_bias_sigma_rad: T::lit(7e-4),
-        },
-        ins,
-        imu_dt_s: T::lit(dt),
-        max_master_latency_s: T::lit(max_latency_ticks(s) as f64 * dt),
-        separation: SeparationCheck {
-            specific_force_jump_m_s2: T::lit(4.0),
-            confirm_window_s: T::lit(0.3),
-            unsignalled_onset_s: T::lit(0.3),
-            coast_s: T::lit(s.coast_s),
-        },
-        baro: BaroDamping::Ekf(BaroErrorModel {
-            white_sigma_m: T::lit(1.0),
-            markov_sigma_m: T::lit(5.0),
-            markov_tau_s: T::lit(100.0),
-            lag_s: T::lit(0.0),
-        }),
-        timeouts: AidTimeouts {
-            master_s: T::lit(0.5),
-            baro_s: T::lit(1.0),
-            seeker_s: T::lit(2.0),
-        },
-    }
+    let mut c = test_support::config::<T>(BaroDamping::Ekf(baro_model()), s.coast_s);
+    c.alignment.dt_s = T::lit(dt);
+    c.alignment.time_tolerance_s = T::lit(0.1 * dt);
+    c.alignment.max_gap_steps = (s.rate_hz as u32).min(MAX_GAP_STEPS);
+    c.ins.imu_dt_s = T::lit(dt);
+    c.ins.covariance_interval_steps = (s.rate_hz / 10) as u16;
+    c.imu_dt_s = T::lit(dt);
+    c.max_master_latency_s = T::lit(max_latency_ticks(s) as f64 * dt);
+    c
 }
 
 /// The largest master latency in ticks: the history's reach (`H − 2` ticks) and 0.1 s.

@@ -8,7 +8,7 @@
 
 use super::baro::{baro_update, BaroState};
 use super::test_support::{
-    gimbal_truth, imu_tick, landmark_position, World, WorldSpec, SPEED_M_S, START,
+    self, baro_model, gimbal_truth, imu_tick, World, WorldSpec, SPEED_M_S, START,
 };
 use super::*;
 use crate::contract::FusionOutcome;
@@ -17,14 +17,12 @@ use crate::earth::{earth_rate_ned, normal_gravity_m_s2, transport_rate_ned};
 use crate::math::kalman::fuse_scalar;
 use crate::math::rotation::{log_so3, quat_to_dcm};
 use crate::seeker_ins::{
-    gimbal_angles_of, landmark_vector_ned, ImuIncrement, InsState, Landmark, LosSample, Position,
-    SeekerInsConfig,
+    gimbal_angles_of, landmark_vector_ned, ImuIncrement, InsState, LosSample, Position,
 };
 use crate::seeker_ins::{
     propagate_covariance_sparse, SeekerIns, SeekerInsInitial, SparseF, ACC_BIAS, POS, STATES, VEL,
 };
 use crate::time::Timestamp;
-use crate::transfer_alignment::{PaperCase, TaConfig};
 use crate::vertical_channel::BaroSample;
 use crate::{HealthState, NavError, Real};
 use nalgebra::SVector;
@@ -43,44 +41,10 @@ const SEEKER_FROM_S: f64 = 25.0;
 /// The seeker loses lock here (terminal continues on the baro).
 const SEEKER_UNTIL_S: f64 = 26.5;
 
+/// The chain's configuration (`test_support::config`) with `baro`, the release after
+/// `COAST_S`.
 fn config<T: Real>(baro: BaroDamping<T>) -> NavigatorConfig<T> {
-    let alignment = TaConfig::<T>::flight(PaperCase::Case1);
-    NavigatorConfig {
-        lever_arm: LeverArm {
-            nominal_m: alignment.lever_arm_m,
-            sigma_m: Vector3::from_element(T::lit(0.01)),
-        },
-        alignment,
-        priors: HandoverPriors {
-            accel_bias_sigma_m_s2: T::lit(1e-3),
-            gyro_bias_sigma_rad_s: T::lit(5e-8),
-            gimbal_bias_sigma_rad: T::lit(7e-4),
-        },
-        ins: SeekerInsConfig::flight(Landmark::new(landmark_position()).unwrap()),
-        imu_dt_s: T::lit(DT),
-        max_master_latency_s: T::lit(0.1),
-        separation: SeparationCheck {
-            specific_force_jump_m_s2: T::lit(4.0),
-            confirm_window_s: T::lit(0.3),
-            unsignalled_onset_s: T::lit(0.3),
-            coast_s: T::lit(COAST_S),
-        },
-        baro,
-        timeouts: AidTimeouts {
-            master_s: T::lit(0.5),
-            baro_s: T::lit(1.0),
-            seeker_s: T::lit(2.0),
-        },
-    }
-}
-
-fn baro_model<T: Real>() -> BaroErrorModel<T> {
-    BaroErrorModel {
-        white_sigma_m: T::lit(1.0),
-        markov_sigma_m: T::lit(5.0),
-        markov_tau_s: T::lit(100.0),
-        lag_s: T::lit(0.0),
-    }
+    test_support::config(baro, COAST_S)
 }
 
 /// The chain's world (`test_support::World`, the one the property tests fly) at
