@@ -215,39 +215,35 @@ fn bad_inputs<T: Real, const K: usize, const N: usize>() {
     }
     let (m, s) = inputs::<T>(5, 3, 1.0);
     let specials = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 1e30, -1e30];
+    // Refused as non-finite or out of range (and nothing changed, `refused`).
+    let mut non_finite = |mm: &MasterSample<T>, ss: &SlaveSample<T>| {
+        let e = refused(&mut f, mm, ss);
+        assert!(
+            matches!(
+                e,
+                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
+            ),
+            "{e:?}"
+        );
+    };
     for &v in &specials {
         let x = T::lit(v);
         for c in 0..3 {
             let mut mm = m;
             mm.angular_rate_rad_s[c] = x;
-            assert!(matches!(
-                refused(&mut f, &mm, &s),
-                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
-            ));
+            non_finite(&mm, &s);
             let mut mm = m;
             mm.angular_accel_rad_s2[c] = x;
-            assert!(matches!(
-                refused(&mut f, &mm, &s),
-                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
-            ));
+            non_finite(&mm, &s);
             let mut mm = m;
             mm.specific_force_m_s2[c] = x;
-            assert!(matches!(
-                refused(&mut f, &mm, &s),
-                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
-            ));
+            non_finite(&mm, &s);
             let mut ss = s;
             ss.angular_rate_rad_s[c] = x;
-            assert!(matches!(
-                refused(&mut f, &m, &ss),
-                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
-            ));
+            non_finite(&m, &ss);
             let mut ss = s;
             ss.specific_force_m_s2[c] = x;
-            assert!(matches!(
-                refused(&mut f, &m, &ss),
-                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
-            ));
+            non_finite(&m, &ss);
         }
     }
     // Repeating, backwards, master/slave out of sync (any later stamp is valid: jitter and
