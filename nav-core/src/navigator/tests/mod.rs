@@ -13,12 +13,9 @@ use super::test_support::{
 use super::*;
 use crate::contract::FusionOutcome;
 use crate::contract::Gate;
-use crate::earth::{earth_rate_ned, normal_gravity_m_s2, transport_rate_ned};
 use crate::math::kalman::fuse_scalar;
 use crate::math::rotation::{log_so3, quat_to_dcm};
-use crate::seeker_ins::{
-    gimbal_angles_of, landmark_vector_ned, ImuIncrement, InsState, LosSample, Position,
-};
+use crate::seeker_ins::{gimbal_angles_of, landmark_vector_ned, ImuIncrement, InsState, LosSample};
 use crate::seeker_ins::{
     propagate_covariance_sparse, SeekerIns, SeekerInsInitial, SparseF, ACC_BIAS, POS, STATES, VEL,
 };
