@@ -47,6 +47,27 @@ trait Loop<T: Real>: core::fmt::Debug {
     fn refusals(&self) -> [u32; 3];
 }
 
+/// `Loop::state` and `Loop::refusals`, the same for both loops (their accessors share names,
+/// not a trait).
+macro_rules! loop_readout {
+    () => {
+        fn state(&self) -> [f64; 3] {
+            [
+                self.altitude_m().to_f64(),
+                self.vz_up_m_s().to_f64(),
+                self.accel_bias_m_s2().to_f64(),
+            ]
+        }
+        fn refusals(&self) -> [u32; 3] {
+            [
+                self.health().imu_refused,
+                self.aid_counters(Aid::Baro).refused,
+                self.aid_counters(Aid::Velocity).refused,
+            ]
+        }
+    };
+}
+
 impl<T: Real> Loop<T> for ClassicalLoop<T> {
     fn step_all(
         &mut self,
@@ -58,20 +79,7 @@ impl<T: Real> Loop<T> for ClassicalLoop<T> {
         check_report(&r.baro);
         Ok(())
     }
-    fn state(&self) -> [f64; 3] {
-        [
-            self.altitude_m().to_f64(),
-            self.vz_up_m_s().to_f64(),
-            self.accel_bias_m_s2().to_f64(),
-        ]
-    }
-    fn refusals(&self) -> [u32; 3] {
-        [
-            self.health().imu_refused,
-            self.aid_counters(Aid::Baro).refused,
-            self.aid_counters(Aid::Velocity).refused,
-        ]
-    }
+    loop_readout!();
 }
 
 impl<T: Real> Loop<T> for AidedLoop<T> {
@@ -86,20 +94,7 @@ impl<T: Real> Loop<T> for AidedLoop<T> {
         check_report(&r.velocity);
         Ok(())
     }
-    fn state(&self) -> [f64; 3] {
-        [
-            self.altitude_m().to_f64(),
-            self.vz_up_m_s().to_f64(),
-            self.accel_bias_m_s2().to_f64(),
-        ]
-    }
-    fn refusals(&self) -> [u32; 3] {
-        [
-            self.health().imu_refused,
-            self.aid_counters(Aid::Baro).refused,
-            self.aid_counters(Aid::Velocity).refused,
-        ]
-    }
+    loop_readout!();
 }
 
 // ------------------------------------------------------------------ random valid inputs
