@@ -496,22 +496,8 @@ fn precise_baro_chain<T: Real>(model: BaroErrorModel<T>, end_s: f64) -> (f64, u3
     let mut fused = 0;
     for _ in 0..(end_s / DT).round() as u64 {
         let inc = world.step();
-        let t = inc.time.as_secs_f64();
-        let master = (t <= SEPARATION_S)
-            .then(|| late_master::<T>(&world))
-            .flatten();
-        let truth = world.missile_truth();
-        let baro = (t > SEPARATION_S + COAST_S && world.k % 4 == 0).then(|| BaroSample {
-            time: inc.time,
-            altitude_m: T::lit(truth.position.alt_m),
-        });
-        let seeker = los_sample::<T>(t, world.k, inc.time, &truth);
-        let aids = Aids {
-            master: master.as_ref(),
-            baro: baro.as_ref(),
-            seeker: seeker.as_ref(),
-            separation: ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(inc.time),
-        };
+        let samples = ChainAids::<T>::at(&world, &inc);
+        let aids = samples.aids();
         let report = nav.tick(&imu_tick(&inc), &aids).unwrap();
         if matches!(report.phase, Phase::Midcourse | Phase::Terminal) {
             let e = if nav.baro_state().variance_m2 > T::zero() {

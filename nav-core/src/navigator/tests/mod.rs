@@ -133,23 +133,51 @@ impl Run {
     }
 }
 
-/// The seeker's LOS sample at `t` (truth gimbal angles every 10th tick inside the seeker window).
-fn los_sample<T: Real>(
-    t: f64,
-    k: u64,
-    time: Timestamp,
-    truth: &InsState<f64>,
-) -> Option<LosSample<T>> {
-    ((SEEKER_FROM_S..SEEKER_UNTIL_S).contains(&t) && k % 10 == 0).then(|| LosSample {
-        time,
-        gimbal: {
-            let g = gimbal_truth(truth);
-            crate::seeker_ins::GimbalAngles {
-                pitch_rad: T::lit(g.pitch_rad),
-                yaw_rad: T::lit(g.yaw_rad),
-            }
-        },
-    })
+/// The chain's aid samples at the world's tick `inc`: the master `LATENCY_TICKS` late until
+/// the release, a baro sample (the truth's altitude) every 4th tick after the coast, the
+/// seeker's LOS (the truth's gimbal angles) every 10th tick inside the seeker's window, the
+/// release signal.
+struct ChainAids<T: Real> {
+    master: Option<MasterNav<T>>,
+    baro: Option<BaroSample<T>>,
+    seeker: Option<LosSample<T>>,
+    separation: Option<Timestamp>,
+}
+
+impl<T: Real> ChainAids<T> {
+    fn at(world: &World, inc: &ImuIncrement<f64>) -> Self {
+        let (t, k, time) = (inc.time.as_secs_f64(), world.k, inc.time);
+        let truth = world.missile_truth();
+        Self {
+            master: (t <= SEPARATION_S)
+                .then(|| late_master::<T>(world))
+                .flatten(),
+            baro: (t > SEPARATION_S + COAST_S && k % 4 == 0).then(|| BaroSample {
+                time,
+                altitude_m: T::lit(truth.position.alt_m),
+            }),
+            seeker: ((SEEKER_FROM_S..SEEKER_UNTIL_S).contains(&t) && k % 10 == 0).then(|| {
+                let g = gimbal_truth(&truth);
+                LosSample {
+                    time,
+                    gimbal: crate::seeker_ins::GimbalAngles {
+                        pitch_rad: T::lit(g.pitch_rad),
+                        yaw_rad: T::lit(g.yaw_rad),
+                    },
+                }
+            }),
+            separation: ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(time),
+        }
+    }
+
+    fn aids(&self) -> Aids<'_, T> {
+        Aids {
+            master: self.master.as_ref(),
+            baro: self.baro.as_ref(),
+            seeker: self.seeker.as_ref(),
+            separation: self.separation,
+        }
+    }
 }
 
 /// Largest |cross-covariance| of δD or δV_D with the other navigation states.
@@ -216,24 +244,9 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
     for _ in 0..steps {
         let inc = world.step();
         let t = inc.time.as_secs_f64();
-        let master = if t <= SEPARATION_S {
-            late_master::<T>(&world)
-        } else {
-            None
-        };
         let truth = world.missile_truth();
-        let baro = (t > SEPARATION_S + COAST_S && world.k % 4 == 0).then(|| BaroSample {
-            time: inc.time,
-            altitude_m: T::lit(truth.position.alt_m),
-        });
-        let seeker = los_sample::<T>(t, world.k, inc.time, &truth);
-        let separation = ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(inc.time);
-        let aids = Aids {
-            master: master.as_ref(),
-            baro: baro.as_ref(),
-            seeker: seeker.as_ref(),
-            separation,
-        };
+        let samples = ChainAids::<T>::at(&world, &inc);
+        let aids = samples.aids();
         let report = nav.tick(&imu_tick(&inc), &aids).unwrap();
         twin.tick_into(&imu_tick(&inc), &aids, &mut slot).unwrap();
         assert_eq!(slot, report, "tick_into writes the report tick returns");

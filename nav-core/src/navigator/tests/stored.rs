@@ -261,17 +261,9 @@ fn handover_refers_the_bias_to_the_carry<T: Real>() {
     let prior = cfg.priors.accel_bias_sigma_m_s2.to_f64().powi(2);
     for _ in 0..((SEPARATION_S + 1.0) / DT).round() as u64 {
         let inc = world.step();
-        let t = inc.time.as_secs_f64();
-        let master = if t <= SEPARATION_S {
-            late_master::<T>(&world)
-        } else {
-            None
-        };
-        let aids = Aids {
-            master: master.as_ref(),
-            separation: ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(inc.time),
-            ..Aids::NONE
-        };
+        // Before the coast ends: the master and the release signal only.
+        let samples = ChainAids::<T>::at(&world, &inc);
+        let aids = samples.aids();
         let r = nav.tick(&imu_tick(&inc), &aids).unwrap();
         if r.phase == Phase::Released {
             let p = nav.ekf().unwrap().covariance();
