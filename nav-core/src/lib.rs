@@ -49,7 +49,7 @@
 )]
 #![warn(missing_docs)]
 
-#[cfg(test)]
+#[cfg(any(test, feature = "test-support"))]
 extern crate std;
 
 pub mod contract;

@@ -19,7 +19,9 @@
 #[path = "navigator_props/chain.rs"]
 mod chain;
 
-use chain::{config, draw_aids, imu_tick, schedule, Bus, Draws, Nav, Schedule, World, FLY_S};
+use chain::{
+    config, draw_aids, imu_tick, schedule, world, Bus, Draws, Nav, Schedule, World, FLY_S,
+};
 use nav_core::contract::AidCounters;
 use nav_core::navigator::{
     AidAvailability, AidState, AidStatus, Aids, ImuTick, MasterNav, Phase, TickReport,
@@ -421,12 +423,12 @@ fn bad_aid<T: Real>(
 ) -> BadAids<T> {
     let now = w.time();
     let nan = T::lit(f64::NAN);
-    let mut master = w.master_sample::<T>(w.k);
+    let mut master = w.master_sample::<T>(w.k).unwrap();
     let mut baro = BaroSample {
         time: now,
         altitude_m: T::lit(3000.0),
     };
-    let mut los = w.los::<T>(rng);
+    let mut los = chain::los::<T>(w, rng);
     let which = match kind % 3 {
         0 => Which::Master,
         1 => Which::Baro,
@@ -534,7 +536,7 @@ fn burst_at(s: &Schedule, burst: &std::ops::Range<u64>, k: u64) -> (bool, bool, 
 /// One case: the chain flown tick by tick, every tick checked; what it exercised.
 fn run<T: Real>(s: &Schedule) -> Result<Stats, String> {
     let cfg = config::<T>(s);
-    let mut w = World::new(s, cfg.lever_arm.nominal_m.map(|x| x.to_f64()));
+    let mut w = world(s, cfg.lever_arm.nominal_m.map(|x| x.to_f64()));
     let mut nav = Nav::<T>::new(&cfg, &w.initial()).map_err(|e| format!("new: {e:?}"))?;
     let mut rng = Draws(s.seed);
     let rate = s.rate_hz as f64;

@@ -9,24 +9,17 @@ use nav_core::contract::{Estimator, Gate, RecoveryAction, RecoveryPolicy};
 use nav_core::error::ConfigIssue;
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
-    gimbal_angles_of, landmark_vector_ned, paper_initial_covariance, ClipFlags, GimbalAngles,
-    ImuFaultPolicy, ImuIncrement, InsState, Landmark, LosSample, LosSkipReason, Position,
-    SeekerAid, SeekerIns, SeekerInsConfig, SeekerInsInitial, VARIANCE_CEILING,
+    gimbal_angles_of, landmark_vector_ned, ClipFlags, GimbalAngles, ImuFaultPolicy, ImuIncrement,
+    InsState, Landmark, LosSample, LosSkipReason, Position, SeekerAid, SeekerIns, SeekerInsConfig,
+    SeekerInsInitial, VARIANCE_CEILING,
 };
 use nav_core::time::Timestamp;
 use nav_core::FusionOutcome;
 use nav_core::{HealthState, NavError, Real};
 use nav_sim::stress::psd_defect;
 
-/// `inc` stamped one nominal IMU interval after the filter's last sample (the first sample at
-/// one interval after the epoch): a regular-rate IMU clock.
-fn stamped<T: Real>(f: &SeekerIns<T>, mut inc: ImuIncrement<T>) -> ImuIncrement<T> {
-    let dt_us = f.ins().dt_us();
-    inc.time = f
-        .time()
-        .map_or(Timestamp::from_micros(dt_us), |t| t.add_micros(dt_us));
-    inc
-}
+mod seeker_ins_fixture;
+use seeker_ins_fixture::{at_ins_time, p0, stamped, start, LAT0, LON0};
 
 /// `inc` stamped `n` nominal IMU intervals after the filter's last sample (`n − 1` samples
 /// lost: an IMU gap).
@@ -34,17 +27,6 @@ fn after_gap<T: Real>(f: &SeekerIns<T>, n: u64, mut inc: ImuIncrement<T>) -> Imu
     let dt_us = f.ins().dt_us();
     inc.time = f.time().unwrap_or_default().add_micros(n * dt_us);
     inc
-}
-
-const LAT0: f64 = 0.645_771_823_237_901_2; // 37°
-const LON0: f64 = 2.216_568_150_032_737; // 127°
-
-fn start() -> Position {
-    Position {
-        lat_rad: LAT0,
-        lon_rad: LON0,
-        alt_m: 1000.0,
-    }
 }
 
 /// A point `north_m`, `east_m` from the start at altitude `alt_m`.
@@ -58,11 +40,6 @@ fn offset(north_m: f64, east_m: f64, alt_m: f64) -> Position {
 
 fn config<T: Real>(landmark: Position) -> SeekerInsConfig<T> {
     SeekerInsConfig::paper(Landmark::new(landmark).unwrap())
-}
-
-/// The paper's initial covariance (Table 4, diagonal).
-fn p0<T: Real>() -> SMatrix<T, 17, 17> {
-    paper_initial_covariance()
 }
 
 /// The start with P0 (the navigation block replaced by `p_nav`).
@@ -107,14 +84,6 @@ fn increment<T: Real>(up_m_s2: f64) -> ImuIncrement<T> {
             T::lit(-3.5e-5 * dt),
         ),
         delta_v_m_s: Vector3::new(T::zero(), T::zero(), T::lit((-9.80 - up_m_s2) * dt)),
-    }
-}
-
-/// A LOS sample of `gimbal` at the filter's time (its last IMU sample).
-fn at_ins_time<T: Real>(f: &SeekerIns<T>, gimbal: GimbalAngles<T>) -> LosSample<T> {
-    LosSample {
-        time: f.time().unwrap_or_default(),
-        gimbal,
     }
 }
 

@@ -5,35 +5,16 @@ use nalgebra::{SMatrix, Vector3};
 use nav_core::contract::{Estimator, Gate, RecoveryAction, RecoveryPolicy};
 use nav_core::math::rotation::{dcm_to_quat, euler_to_dcm, quat_to_dcm};
 use nav_core::seeker_ins::{
-    gimbal_angles_of, landmark_vector_ned, paper_initial_covariance, GimbalAngles, ImuIncrement,
-    InsState, Landmark, LosSample, LosSkipReason, Position, SeekerAid, SeekerIns, SeekerInsConfig,
-    SeekerInsInitial,
+    gimbal_angles_of, landmark_vector_ned, GimbalAngles, ImuIncrement, InsState, Landmark,
+    LosSample, LosSkipReason, Position, SeekerAid, SeekerIns, SeekerInsConfig, SeekerInsInitial,
 };
 use nav_core::time::Timestamp;
 use nav_core::FusionOutcome;
 use nav_core::{NavError, Real};
 use proptest::prelude::*;
 
-/// `inc` stamped one nominal IMU interval after the filter's last sample (the first sample at
-/// one interval after the epoch): a regular-rate IMU clock.
-fn stamped<T: Real>(f: &SeekerIns<T>, mut inc: ImuIncrement<T>) -> ImuIncrement<T> {
-    let dt_us = f.ins().dt_us();
-    inc.time = f
-        .time()
-        .map_or(Timestamp::from_micros(dt_us), |t| t.add_micros(dt_us));
-    inc
-}
-
-const LAT0: f64 = 0.645_771_823_237_901_2; // 37°
-const LON0: f64 = 2.216_568_150_032_737; // 127°
-
-fn start_position() -> Position {
-    Position {
-        lat_rad: LAT0,
-        lon_rad: LON0,
-        alt_m: 1000.0,
-    }
-}
+mod seeker_ins_fixture;
+use seeker_ins_fixture::{at_ins_time, p0, stamped, start, LAT0, LON0};
 
 fn config<T: Real>(lm_north_m: f64, lm_east_m: f64) -> SeekerInsConfig<T> {
     let lm = Landmark::new(Position {
@@ -45,16 +26,11 @@ fn config<T: Real>(lm_north_m: f64, lm_east_m: f64) -> SeekerInsConfig<T> {
     SeekerInsConfig::paper(lm)
 }
 
-/// The paper's initial covariance (Table 4, diagonal).
-fn p0<T: Real>() -> SMatrix<T, 17, 17> {
-    paper_initial_covariance()
-}
-
 fn initial<T: Real>() -> SeekerInsInitial<T> {
     let c = euler_to_dcm(T::zero(), T::zero(), T::lit(std::f64::consts::FRAC_PI_2));
     SeekerInsInitial {
         state: InsState {
-            position: start_position(),
+            position: start(),
             vel_ned_m_s: Vector3::new(T::zero(), T::lit(200.0), T::zero()),
             q_b_n: dcm_to_quat(&c),
         },
@@ -64,14 +40,6 @@ fn initial<T: Real>() -> SeekerInsInitial<T> {
 
 fn filter<T: Real>(cfg: SeekerInsConfig<T>) -> SeekerIns<T> {
     SeekerIns::new(&cfg, &initial()).unwrap()
-}
-
-/// A LOS sample of `gimbal` at the filter's time (its last IMU sample).
-fn at_ins_time<T: Real>(f: &SeekerIns<T>, gimbal: GimbalAngles<T>) -> LosSample<T> {
-    LosSample {
-        time: f.time().unwrap_or_default(),
-        gimbal,
-    }
 }
 
 /// Level flight east at 200 m/s: the increments a perfect IMU would give (gravity, earth rate),
@@ -370,7 +338,7 @@ fn bad_input_is_refused_without_damage<T: Real>() {
     // A landmark at the vehicle position: valid input, geometrically meaningless: skipped
     // with its reason, P and the state unchanged.
     let mut cfg = config::<T>(0.0, 0.0);
-    cfg.landmark = Landmark::new(start_position()).unwrap();
+    cfg.landmark = Landmark::new(start()).unwrap();
     let mut g = filter::<T>(cfg);
     g.propagate(&ImuIncrement {
         time: Timestamp::from_micros(10_000),

@@ -5,7 +5,10 @@ use nalgebra::{SMatrix, Vector3};
 use nav_core::math::kalman::{asymmetry, FusionOutcome};
 use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::*;
-use nav_core::{Estimator, Health, HealthState, NavError, Real};
+use nav_core::{Estimator, HealthState, NavError, Real};
+
+mod transfer_alignment_fixture;
+use transfer_alignment_fixture::{filter, snapshot};
 
 /// The paper's case 2 with one flexure model on every axis and the given rate and tolerances.
 fn cfg<T: Real>(sigma_deg: f64, tau_s: f64, dt_s: f64, tol_s: f64, gap: u32) -> TaConfig<T> {
@@ -21,30 +24,6 @@ fn cfg<T: Real>(sigma_deg: f64, tau_s: f64, dt_s: f64, tol_s: f64, gap: u32) -> 
         max_gap_steps: gap,
         ..TaConfig::paper(PaperCase::Case2)
     }
-}
-
-/// A filter for `c`, starting from no prior knowledge of θ_m.
-fn filter<T: Real, const K: usize, const N: usize>(
-    c: TaConfig<T>,
-) -> Result<TransferAlignment<T, K, N>, NavError> {
-    TransferAlignment::new(&c, &TaInitial::default())
-}
-
-/// Everything a refused call must leave as it was: state, covariance, clock, channel counters
-/// and health except the count of refusals.
-fn snapshot<const K: usize, const N: usize>(f: &TransferAlignment<f32, K, N>) -> String {
-    let health = Health {
-        imu_refused: 0,
-        ..f.health()
-    };
-    let counters = Channel::ALL.map(|c| f.aid_counters(c));
-    format!(
-        "{:?} {:?} {:?} {:?} {health:?} {counters:?}",
-        f.state(),
-        f.covariance(),
-        f.time(),
-        f.grid_time()
-    )
 }
 
 /// Constant, noise-free master and slave samples at `time` (level, at rest: ω = 0, f = −g).

@@ -5,8 +5,11 @@ use nalgebra::{SMatrix, Vector3};
 use nav_core::math::kalman::{asymmetry, is_psd, FusionOutcome};
 use nav_core::time::Timestamp;
 use nav_core::transfer_alignment::*;
-use nav_core::{Estimator, Gate, Health, NavError, Real, RecoveryAction, RecoveryPolicy};
+use nav_core::{Estimator, Gate, NavError, Real, RecoveryAction, RecoveryPolicy};
 use proptest::prelude::*;
+
+mod transfer_alignment_fixture;
+use transfer_alignment_fixture::{filter, snapshot};
 
 /// The paper's case 2 with the given flexure, lever arm and gate.
 fn cfg<T: Real>(sig: [f64; 3], tau: [f64; 3], lever: [f64; 3], gate: Option<f64>) -> TaConfig<T> {
@@ -23,30 +26,6 @@ fn cfg<T: Real>(sig: [f64; 3], tau: [f64; 3], lever: [f64; 3], gate: Option<f64>
         gate: gate.map_or(Gate::Off, |g| Gate::Nis(T::lit(g))),
         ..TaConfig::paper(PaperCase::Case2)
     }
-}
-
-/// A filter for `c`, starting from no prior knowledge of θ_m.
-fn filter<T: Real, const K: usize, const N: usize>(
-    c: TaConfig<T>,
-) -> Result<TransferAlignment<T, K, N>, NavError> {
-    TransferAlignment::new(&c, &TaInitial::default())
-}
-
-/// Everything a refused call must leave as it was: state, covariance, clock, channel counters
-/// and health except the count of refusals.
-fn snapshot<T: Real, const K: usize, const N: usize>(f: &TransferAlignment<T, K, N>) -> String {
-    let health = Health {
-        imu_refused: 0,
-        ..f.health()
-    };
-    let counters = Channel::ALL.map(|c| f.aid_counters(c));
-    format!(
-        "{:?} {:?} {:?} {:?} {health:?} {counters:?}",
-        f.state(),
-        f.covariance(),
-        f.time(),
-        f.grid_time()
-    )
 }
 
 /// Deterministic pseudo-random inputs: step k of a sequence with a manoeuvre amplitude.
@@ -215,39 +194,35 @@ fn bad_inputs<T: Real, const K: usize, const N: usize>() {
     }
     let (m, s) = inputs::<T>(5, 3, 1.0);
     let specials = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 1e30, -1e30];
+    // Refused as non-finite or out of range (and nothing changed, `refused`).
+    let mut non_finite = |mm: &MasterSample<T>, ss: &SlaveSample<T>| {
+        let e = refused(&mut f, mm, ss);
+        assert!(
+            matches!(
+                e,
+                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
+            ),
+            "{e:?}"
+        );
+    };
     for &v in &specials {
         let x = T::lit(v);
         for c in 0..3 {
             let mut mm = m;
             mm.angular_rate_rad_s[c] = x;
-            assert!(matches!(
-                refused(&mut f, &mm, &s),
-                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
-            ));
+            non_finite(&mm, &s);
             let mut mm = m;
             mm.angular_accel_rad_s2[c] = x;
-            assert!(matches!(
-                refused(&mut f, &mm, &s),
-                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
-            ));
+            non_finite(&mm, &s);
             let mut mm = m;
             mm.specific_force_m_s2[c] = x;
-            assert!(matches!(
-                refused(&mut f, &mm, &s),
-                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
-            ));
+            non_finite(&mm, &s);
             let mut ss = s;
             ss.angular_rate_rad_s[c] = x;
-            assert!(matches!(
-                refused(&mut f, &m, &ss),
-                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
-            ));
+            non_finite(&m, &ss);
             let mut ss = s;
             ss.specific_force_m_s2[c] = x;
-            assert!(matches!(
-                refused(&mut f, &m, &ss),
-                NavError::NonFiniteInput { .. } | NavError::InputOutOfRange { .. }
-            ));
+            non_finite(&m, &ss);
         }
     }
     // Repeating, backwards, master/slave out of sync (any later stamp is valid: jitter and

@@ -47,6 +47,27 @@ trait Loop<T: Real>: core::fmt::Debug {
     fn refusals(&self) -> [u32; 3];
 }
 
+/// `Loop::state` and `Loop::refusals`, the same for both loops (their accessors share names,
+/// not a trait).
+macro_rules! loop_readout {
+    () => {
+        fn state(&self) -> [f64; 3] {
+            [
+                self.altitude_m().to_f64(),
+                self.vz_up_m_s().to_f64(),
+                self.accel_bias_m_s2().to_f64(),
+            ]
+        }
+        fn refusals(&self) -> [u32; 3] {
+            [
+                self.health().imu_refused,
+                self.aid_counters(Aid::Baro).refused,
+                self.aid_counters(Aid::Velocity).refused,
+            ]
+        }
+    };
+}
+
 impl<T: Real> Loop<T> for ClassicalLoop<T> {
     fn step_all(
         &mut self,
@@ -58,20 +79,7 @@ impl<T: Real> Loop<T> for ClassicalLoop<T> {
         check_report(&r.baro);
         Ok(())
     }
-    fn state(&self) -> [f64; 3] {
-        [
-            self.altitude_m().to_f64(),
-            self.vz_up_m_s().to_f64(),
-            self.accel_bias_m_s2().to_f64(),
-        ]
-    }
-    fn refusals(&self) -> [u32; 3] {
-        [
-            self.health().imu_refused,
-            self.aid_counters(Aid::Baro).refused,
-            self.aid_counters(Aid::Velocity).refused,
-        ]
-    }
+    loop_readout!();
 }
 
 impl<T: Real> Loop<T> for AidedLoop<T> {
@@ -86,20 +94,7 @@ impl<T: Real> Loop<T> for AidedLoop<T> {
         check_report(&r.velocity);
         Ok(())
     }
-    fn state(&self) -> [f64; 3] {
-        [
-            self.altitude_m().to_f64(),
-            self.vz_up_m_s().to_f64(),
-            self.accel_bias_m_s2().to_f64(),
-        ]
-    }
-    fn refusals(&self) -> [u32; 3] {
-        [
-            self.health().imu_refused,
-            self.aid_counters(Aid::Baro).refused,
-            self.aid_counters(Aid::Velocity).refused,
-        ]
-    }
+    loop_readout!();
 }
 
 // ------------------------------------------------------------------ random valid inputs
@@ -716,6 +711,31 @@ fn expect_field<X: core::fmt::Debug>(r: Result<X, NavError>, field: &str, v: f64
     }
 }
 
+/// A configuration field: its name, its setter, bad values of its own beside `BAD`.
+type FieldCase<'a, C, T> = (&'a str, fn(&mut C, T), &'a [f64]);
+
+/// Each field of `base` set to each of `BAD` and its own extra values: `new` refuses it,
+/// naming the field (zero is legal for the latitude and the lag compensation; −1 rad is a
+/// latitude).
+fn every_field_refused<C: Copy, T: Real, X: core::fmt::Debug>(
+    fields: &[FieldCase<'_, C, T>],
+    base: C,
+    new: impl Fn(&C) -> Result<X, NavError>,
+) {
+    for &(field, set, extra) in fields {
+        for &v in BAD.iter().chain(extra) {
+            if (field == "latitude_rad" && (v == 0.0 || v == -1.0))
+                || (field == "baro_lag_s" && v == 0.0)
+            {
+                continue;
+            }
+            let mut c = base;
+            set(&mut c, T::lit(v));
+            expect_field(new(&c), field, v);
+        }
+    }
+}
+
 fn bad_configs<T: Real>() {
     let s = nominal_setup();
     let init = s.init::<T>();
@@ -738,19 +758,9 @@ fn bad_configs<T: Real>() {
             &[0.01],
         ),
     ];
-    for (field, set, extra) in fields {
-        for &v in BAD.iter().chain(extra) {
-            // Zero is legal for the latitude and the lag compensation; −1 rad is a latitude.
-            if (field == "latitude_rad" && (v == 0.0 || v == -1.0))
-                || (field == "baro_lag_s" && v == 0.0)
-            {
-                continue;
-            }
-            let mut c = s.classical();
-            set(&mut c, T::lit(v));
-            expect_field(ClassicalLoop::<T>::new(&c, &init), field, v);
-        }
-    }
+    every_field_refused(&fields, s.classical(), |c| {
+        ClassicalLoop::<T>::new(c, &init)
+    });
     // Aided: every field.
     type ASet<T> = fn(&mut AidedConfig<T>, T);
     let fields: [(&str, ASet<T>, &[f64]); 13] = [
@@ -796,18 +806,7 @@ fn bad_configs<T: Real>() {
             &[0.01],
         ),
     ];
-    for (field, set, extra) in fields {
-        for &v in BAD.iter().chain(extra) {
-            if (field == "latitude_rad" && (v == 0.0 || v == -1.0))
-                || (field == "baro_lag_s" && v == 0.0)
-            {
-                continue;
-            }
-            let mut c = s.aided();
-            set(&mut c, T::lit(v));
-            expect_field(AidedLoop::<T>::new(&c, &init), field, v);
-        }
-    }
+    every_field_refused(&fields, s.aided(), |c| AidedLoop::<T>::new(c, &init));
     // Initial state: non-finite or out-of-range values.
     for (i, v) in [
         (0usize, f64::NAN),

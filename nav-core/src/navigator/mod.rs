@@ -255,6 +255,9 @@ mod carry;
 mod design;
 mod flight;
 mod handover;
+#[cfg(any(test, feature = "test-support"))]
+#[doc(hidden)]
+pub mod test_support;
 #[cfg(test)]
 mod tests;
 mod types;

@@ -25,8 +25,35 @@ use super::super::baro::baro_age_s;
 use super::super::types::{AidAvailability, AidState};
 use super::Navigator;
 use crate::contract::FusionOutcome;
+use crate::time::Timestamp;
 use crate::vertical_channel::BaroSample;
 use crate::{NavError, Real};
+
+/// A baro sample that passed [`Navigator::check_baro`] at this tick's time, with its age then
+/// (the update's lag, module `baro`). Only the check builds one: the fusion
+/// ([`Navigator::fuse_baro`]) takes it and checks nothing again.
+#[derive(Clone, Copy)]
+pub(super) struct CheckedBaro<T> {
+    // The sample's fields beside its age: 16 B without padding (f32).
+    time: Timestamp,
+    altitude_m: T,
+    age_s: T,
+}
+
+impl<T: Real> CheckedBaro<T> {
+    /// The sample.
+    pub(super) fn sample(&self) -> BaroSample<T> {
+        BaroSample {
+            time: self.time,
+            altitude_m: self.altitude_m,
+        }
+    }
+
+    /// Its age at the tick it was checked on, s.
+    pub(super) fn age_s(&self) -> T {
+        self.age_s
+    }
+}
 
 impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N, H> {
     /// The baro sample held for the next tick without a LOS update, if any (module doc of
@@ -35,41 +62,51 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         self.held_baro.as_ref()
     }
 
-    /// The baro's tick with the EKF's baro damping: this tick's `sample` is checked first (a
-    /// refused one is counted and changes nothing); then the tick's candidate is the newest
-    /// valid sample (the held one it replaces counted superseded) or the held one. When the
-    /// seeker's LOS update took the tick (`los_ran`) the candidate is held (`Held`), else it
-    /// is fused ([`Self::fuse_baro`]). A refusal is the tick's reported state.
+    /// The baro's tick with the EKF's baro damping: the held sample is checked again at this
+    /// tick's time (one grown older than the baro model accepts is dropped, counted skipped),
+    /// then this tick's `sample` (a refused one is counted and changes nothing); the tick's
+    /// candidate is the newest valid sample (the held one it replaces counted superseded) or
+    /// the held one. When the seeker's LOS update took the tick (`los_ran`) the candidate is
+    /// held (`Held`), else it is fused ([`Self::fuse_baro`]). A refusal is the tick's reported
+    /// state.
     pub(super) fn baro_aid(&mut self, sample: Option<&BaroSample<T>>, los_ran: bool) -> AidState {
         let Some(model) = self.baro_model() else {
             // No baro in the EKF in this phase: nothing to hold.
             self.held_baro = None;
             return AidState::NotUsedInPhase;
         };
-        self.expire_held();
+        let mut candidate = match self.held_baro.take() {
+            Some(h) => match self.check_baro(&h, self.last_baro_time) {
+                Ok(c) => Some(c),
+                Err(_) => {
+                    self.baro.counters.record(FusionOutcome::Skipped);
+                    None
+                }
+            },
+            None => None,
+        };
         let mut refused = None;
-        let mut fresh = None;
+        let mut fresh = false;
         if let Some(b) = sample {
-            match self.check_baro(b) {
-                Ok(()) => fresh = Some(*b),
+            // A held sample is later than the last fused one.
+            let after = candidate.map(|h| h.time).or(self.last_baro_time);
+            match self.check_baro(b, after) {
+                Ok(c) => {
+                    if candidate.replace(c).is_some() {
+                        self.baro.counters.record_superseded();
+                    }
+                    fresh = true;
+                }
                 Err(e) => {
                     self.baro.counters.record_refused();
                     refused = Some(e);
                 }
             }
         }
-        let candidate = match (fresh, self.held_baro.take()) {
-            (Some(b), Some(_)) => {
-                self.baro.counters.record_superseded();
-                Some(b)
-            }
-            (Some(b), None) => Some(b),
-            (None, held) => held,
-        };
         let mut state = AidState::Waiting;
         if let Some(b) = candidate {
             state = if los_ran {
-                self.held_baro = Some(b);
+                self.held_baro = Some(b.sample());
                 AidState::Held
             } else {
                 self.fuse_baro(&model, &b).unwrap_or_else(|e| {
@@ -77,7 +114,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                     AidState::Refused(e)
                 })
             };
-            if fresh.is_some() && !matches!(state, AidState::Refused(_)) {
+            if fresh && !matches!(state, AidState::Refused(_)) {
                 // Accepted now (fused, rejected, skipped or held): the timeout's clock.
                 self.baro.last_ok = Some(self.time);
             }
@@ -91,26 +128,23 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         state
     }
 
-    /// A baro sample's checks before it is held or fused: finite, within its time window
-    /// (`baro_age_s`), later than the held sample or the last fused one.
-    fn check_baro(&self, b: &BaroSample<T>) -> Result<(), NavError> {
-        baro_age_s::<T>(b, self.time)?;
-        // A held sample is later than the last fused one.
-        let last = self.held_baro.map(|h| h.time).or(self.last_baro_time);
-        if last.is_some_and(|t| b.time <= t) {
+    /// The one check of a baro sample, before it is held or fused and again on each tick it
+    /// is held: finite, within its time window at this tick's time (`baro_age_s`, which the
+    /// held sample's growing age can leave), later than `after` (the held sample or the last
+    /// fused one).
+    fn check_baro(
+        &self,
+        b: &BaroSample<T>,
+        after: Option<Timestamp>,
+    ) -> Result<CheckedBaro<T>, NavError> {
+        let age_s = baro_age_s::<T>(b, self.time)?;
+        if after.is_some_and(|t| b.time <= t) {
             return Err(NavError::TimeNotIncreasing);
         }
-        Ok(())
-    }
-
-    /// The held sample dropped (counted skipped) when it has grown older than the baro model
-    /// accepts ([`MAX_BARO_AGE_S`](crate::navigator::MAX_BARO_AGE_S), 1 s).
-    fn expire_held(&mut self) {
-        if let Some(h) = &self.held_baro {
-            if baro_age_s::<T>(h, self.time).is_err() {
-                self.held_baro = None;
-                self.baro.counters.record(FusionOutcome::Skipped);
-            }
-        }
+        Ok(CheckedBaro {
+            time: b.time,
+            altitude_m: b.altitude_m,
+            age_s,
+        })
     }
 }

@@ -2,11 +2,12 @@
 //! terminal in place — the EKF's IMU part with the baro column, the baro and LOS updates each
 //! beside its covariance step, the baro-inertial loop.
 
-use super::super::baro::{baro_age_s, baro_gain, BaroState};
+use super::super::baro::{baro_gain, BaroState};
 use super::super::types::{
     AidAvailability, AidState, Aids, BaroDamping, ImuTick, Phase, TickReport, Transition,
     TransitionCause, INERTIAL_LOOP,
 };
+use super::baro_hold::CheckedBaro;
 use super::{elapsed, LoopBaro, Navigator};
 use crate::contract::{Estimator, FusionOutcome};
 use crate::seeker_ins::{
@@ -232,20 +233,26 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         }
     }
 
-    /// The baro's joint update (module `baro`), in place: the sample is checked (finite, time,
-    /// age) before anything changes; the pending covariance step runs (atomic), then the
-    /// update ([`Self::baro_update`]). The covariance step's kernel runs under this small frame,
-    /// not under the update's.
-    #[inline(never)]
+    /// The baro's joint update (module `baro`), in place, of a sample checked at this tick's
+    /// time ([`CheckedBaro`]: nothing is checked again): the pending covariance step
+    /// ([`Self::flush_baro_column`]), then the update ([`Self::baro_update`]).
+    #[inline(always)]
     pub(super) fn fuse_baro(
         &mut self,
         model: &super::super::types::BaroErrorModel<T>,
-        b: &BaroSample<T>,
+        b: &CheckedBaro<T>,
     ) -> Result<AidState, NavError> {
-        let age = baro_age_s::<T>(b, self.time)?;
-        if self.last_baro_time.is_some_and(|t| b.time <= t) {
-            return Err(NavError::TimeNotIncreasing);
-        }
+        self.flush_baro_column(model)?;
+        Ok(self.baro_update(model, &b.sample(), b.age_s()))
+    }
+
+    /// The EKF's pending covariance step (atomic) with the baro column in step with it. Its
+    /// kernel runs under this small frame, not under the update's.
+    #[inline(never)]
+    fn flush_baro_column(
+        &mut self,
+        model: &super::super::types::BaroErrorModel<T>,
+    ) -> Result<(), NavError> {
         let Some(ekf) = self.ekf.as_mut() else {
             return Err(NavError::InputOutOfRange {
                 input: "navigator state",
@@ -256,10 +263,10 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             bs.decay(model, dt);
         }
         self.psd_after_flush();
-        Ok(self.baro_update(model, b, age))
+        Ok(())
     }
 
-    /// The baro update after [`Self::fuse_baro`]'s checks and covariance step: checked on the
+    /// The baro update after [`Self::fuse_baro`]'s covariance step: checked on the
     /// gain and on P's result before it is applied (`SeekerIns::update_rank_one`). A result
     /// that is not a covariance, or a correction the INS refuses, is not applied (`Skipped`):
     /// the covariance step stays, as for every outcome.

@@ -183,10 +183,10 @@ fn chain_with_inertial_loop_f32() {
 fn flight_aids_refused<T: Real>() {
     let cfg = config::<T>(BaroDamping::Ekf(baro_model()));
     let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
-    let mut world = World::new();
-    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
-    let truth = world.missile_truth(&lever);
-    release_at_truth(&mut nav, &world, &lever);
+    let mut world = chain_world(&lever);
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &world.initial()).unwrap();
+    let truth = world.missile_truth();
+    release_at_truth(&mut nav, &world);
     // A second release is refused.
     assert!(nav
         .release_with(&crate::seeker_ins::SeekerInsInitial {
@@ -200,21 +200,21 @@ fn flight_aids_refused<T: Real>() {
         .is_err());
     // Coast to midcourse.
     for _ in 0..((COAST_S / DT) as u64 + 2) {
-        let inc = world.step(&lever);
-        nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        let inc = world.step();
+        nav.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
     }
     assert_eq!(nav.phase(), Phase::Midcourse);
     // Good baro samples for a while.
     for _ in 0..20 {
-        let inc = world.step(&lever);
-        let truth = world.missile_truth(&lever);
+        let inc = world.step();
+        let truth = world.missile_truth();
         let b = BaroSample {
             time: inc.time,
             altitude_m: T::lit(truth.position.alt_m + 0.5),
         };
         let r = nav
             .tick(
-                &tick_of(&inc),
+                &imu_tick(&inc),
                 &Aids {
                     baro: Some(&b),
                     ..Aids::NONE
@@ -224,10 +224,10 @@ fn flight_aids_refused<T: Real>() {
         assert_eq!(r.baro.state, AidState::Fused);
     }
     // Bad baro and bad LOS: refused; the solution is the one without them.
-    let inc = world.step(&lever);
+    let inc = world.step();
     bad_aids_refused(&nav, &inc);
     // The next valid tick works.
-    assert!(nav.tick(&tick_of(&inc), &Aids::NONE).is_ok());
+    assert!(nav.tick(&imu_tick(&inc), &Aids::NONE).is_ok());
 }
 
 /// Bad baro, future baro and bad LOS in midcourse: each refused, the solution and the baro
@@ -257,7 +257,7 @@ fn bad_aids_refused<T: Real>(nav: &FlightNavigator<T, 32>, inc: &ImuIncrement<f6
         let mut b = nav.clone();
         let ra = a
             .tick(
-                &tick_of(inc),
+                &imu_tick(inc),
                 &Aids {
                     baro,
                     seeker,
@@ -265,7 +265,7 @@ fn bad_aids_refused<T: Real>(nav: &FlightNavigator<T, 32>, inc: &ImuIncrement<f6
                 },
             )
             .unwrap();
-        let rb = b.tick(&tick_of(inc), &Aids::NONE).unwrap();
+        let rb = b.tick(&imu_tick(inc), &Aids::NONE).unwrap();
         let refused = |s: AidState| matches!(s, AidState::Refused(_));
         assert!(refused(ra.baro.state) || refused(ra.seeker.state));
         assert_eq!(ra.solution, rb.solution);
@@ -287,14 +287,13 @@ fn flight_aids_refused_change_nothing_f32() {
 fn unsignalled<T: Real>() {
     // Master for 3 s, then lost; the missile drops without a signal at 4 s.
     let (mut nav, mut world) = carry_for::<T>(3.0, 3.0);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     let mut seen = None;
     for _ in 0..200 {
-        let mut inc = world.step(&lever);
+        let mut inc = world.step();
         if inc.time.as_secs_f64() > 3.9 {
             inc.delta_v_m_s = Vector3::zeros();
         }
-        let r = nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        let r = nav.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
         if let Some(t) = r.transition {
             seen = Some((t, r.degradation, r.health));
             break;
@@ -320,14 +319,13 @@ fn unsignalled<T: Real>() {
 /// the missile is still on the wing (its IMU never reads free fall): no release.
 fn stale_master_is_no_release<T: Real>() {
     let (mut nav, mut world) = carry_for::<T>(3.0, 3.0);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     let mut lost = 0;
     for _ in 0..200 {
-        let mut inc = world.step(&lever);
+        let mut inc = world.step();
         if inc.time.as_secs_f64() > 3.9 {
             inc.delta_v_m_s *= 2.0;
         }
-        let r = nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        let r = nav.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
         assert_eq!(r.transition, None);
         assert_eq!(r.degradation.separation, SeparationStatus::NotSignalled);
         lost += usize::from(r.master.state == AidState::TimedOut);
@@ -492,29 +490,15 @@ fn baro_column_through_los_update_matches_dense_18_state_reference() {
 fn precise_baro_chain<T: Real>(model: BaroErrorModel<T>, end_s: f64) -> (f64, u32) {
     let cfg = config::<T>(BaroDamping::Ekf(model));
     let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
-    let mut world = World::new();
-    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    let mut world = chain_world(&lever);
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &world.initial()).unwrap();
     let mut worst = f64::INFINITY;
     let mut fused = 0;
     for _ in 0..(end_s / DT).round() as u64 {
-        let inc = world.step(&lever);
-        let t = inc.time.as_secs_f64();
-        let master = (t <= SEPARATION_S)
-            .then(|| world.master_sample::<T>())
-            .flatten();
-        let truth = world.missile_truth(&lever);
-        let baro = (t > SEPARATION_S + COAST_S && world.k % 4 == 0).then(|| BaroSample {
-            time: inc.time,
-            altitude_m: T::lit(truth.position.alt_m),
-        });
-        let seeker = los_sample::<T>(t, world.k, inc.time, &truth);
-        let aids = Aids {
-            master: master.as_ref(),
-            baro: baro.as_ref(),
-            seeker: seeker.as_ref(),
-            separation: ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(inc.time),
-        };
-        let report = nav.tick(&tick_of(&inc), &aids).unwrap();
+        let inc = world.step();
+        let samples = ChainAids::<T>::at(&world, &inc);
+        let aids = samples.aids();
+        let report = nav.tick(&imu_tick(&inc), &aids).unwrap();
         if matches!(report.phase, Phase::Midcourse | Phase::Terminal) {
             let e = if nav.baro_state().variance_m2 > T::zero() {
                 joint_min_correlation_eigenvalue(&nav)

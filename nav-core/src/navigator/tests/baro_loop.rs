@@ -4,6 +4,8 @@
 use super::super::baro::{loop_vertical_input_m_s2, start_inertial_loop};
 use super::*;
 use crate::contract::Estimator;
+use crate::earth::{earth_rate_ned, normal_gravity_m_s2, transport_rate_ned};
+use crate::seeker_ins::Position;
 use crate::vertical_channel::{ClassicalConfig, ClassicalLoop, ImuSample, InitialState};
 
 /// The input is `−f_D + [(2ω_ie + ω_en) × v]_D`, computed here from the earth module's rate

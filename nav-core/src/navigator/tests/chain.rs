@@ -87,18 +87,17 @@ fn chain_runs_carry_to_terminal_f32() {
 
 fn refused_inputs_change_nothing<T: Real>() {
     let (mut nav, mut world) = carry_for::<T>(2.0, 10.0);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
-    let inc = world.step(&lever);
+    let inc = world.step();
     refused_imu_changes_nothing(&mut nav, &inc);
-    refused_master_is_counted(&mut nav, &mut world, &lever, &inc);
-    refused_in_flight_changes_nothing(&mut nav, &mut world, &lever);
+    refused_master_is_counted(&mut nav, &mut world, &inc);
+    refused_in_flight_changes_nothing(&mut nav, &mut world);
 }
 
 /// A bad or late IMU sample in carry: `Err`, the navigator (and a `tick_into` slot) unchanged.
 fn refused_imu_changes_nothing<T: Real>(nav: &mut FlightNavigator<T, 32>, inc: &ImuIncrement<f64>) {
     // A bad IMU sample: Err, the navigator unchanged bit for bit.
     let before = dump(nav);
-    let mut bad = tick_of::<T>(inc);
+    let mut bad = imu_tick::<T>(inc);
     bad.increment.delta_v_m_s.x = T::lit(f64::NAN);
     assert!(matches!(
         nav.tick(&bad, &Aids::NONE),
@@ -115,7 +114,7 @@ fn refused_imu_changes_nothing<T: Real>(nav: &mut FlightNavigator<T, 32>, inc: &
     ));
     assert_eq!(dump(nav), before);
     assert_eq!(format!("{slot:?}"), slot_before);
-    let mut late = tick_of::<T>(inc);
+    let mut late = imu_tick::<T>(inc);
     late.increment.time = Timestamp::from_micros(inc.time.as_micros() - DT_US);
     assert_eq!(
         nav.tick(&late, &Aids::NONE),
@@ -128,14 +127,13 @@ fn refused_imu_changes_nothing<T: Real>(nav: &mut FlightNavigator<T, 32>, inc: &
 fn refused_master_is_counted<T: Real>(
     nav: &mut FlightNavigator<T, 32>,
     world: &mut World,
-    lever: &Vector3<f64>,
     inc: &ImuIncrement<f64>,
 ) {
     // A bad master: refused, counted, nothing of it applied (same solution as without it).
     let mut twin = nav.clone();
-    let mut m = world.master_sample::<T>().or_else(|| {
+    let mut m = late_master::<T>(world).or_else(|| {
         world.k -= 1;
-        let s = world.master_sample::<T>();
+        let s = late_master::<T>(world);
         world.k += 1;
         s
     });
@@ -145,17 +143,17 @@ fn refused_master_is_counted<T: Real>(
         master: Some(m),
         ..Aids::NONE
     };
-    let r = nav.tick(&tick_of(inc), &aids).unwrap();
+    let r = nav.tick(&imu_tick(inc), &aids).unwrap();
     assert!(matches!(r.master.state, AidState::Refused(_)));
     assert_eq!(r.master.counters.refused, 1);
-    let r2 = twin.tick(&tick_of(inc), &Aids::NONE).unwrap();
+    let r2 = twin.tick(&imu_tick(inc), &Aids::NONE).unwrap();
     assert_eq!(r.solution, r2.solution);
     // The next valid tick works.
-    let inc = world.step(lever);
-    let m = world.master_sample::<T>();
+    let inc = world.step();
+    let m = late_master::<T>(world);
     let r = nav
         .tick(
-            &tick_of(&inc),
+            &imu_tick(&inc),
             &Aids {
                 master: m.as_ref(),
                 ..Aids::NONE
@@ -166,27 +164,23 @@ fn refused_master_is_counted<T: Real>(
 }
 
 /// In flight: a bad IMU sample is refused with nothing changed, the next tick works.
-fn refused_in_flight_changes_nothing<T: Real>(
-    nav: &mut FlightNavigator<T, 32>,
-    world: &mut World,
-    lever: &Vector3<f64>,
-) {
+fn refused_in_flight_changes_nothing<T: Real>(nav: &mut FlightNavigator<T, 32>, world: &mut World) {
     // In flight: a bad LOS sample is refused with nothing changed, the next tick works.
-    release_at_truth(nav, world, lever);
+    release_at_truth(nav, world);
     assert_eq!(nav.phase(), Phase::Released);
-    let inc = world.step(lever);
-    let r = nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+    let inc = world.step();
+    let r = nav.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
     assert_eq!(
         r.transition.map(|t| t.cause),
         Some(TransitionCause::ReleaseCommanded)
     );
     let before = dump(nav);
-    let inc = world.step(lever);
-    let mut bad = tick_of::<T>(&inc);
+    let inc = world.step();
+    let mut bad = imu_tick::<T>(&inc);
     bad.increment.delta_theta_rad.y = T::lit(f64::INFINITY);
     assert!(nav.tick(&bad, &Aids::NONE).is_err());
     assert_eq!(dump(nav), before);
-    assert!(nav.tick(&tick_of(&inc), &Aids::NONE).is_ok());
+    assert!(nav.tick(&imu_tick(&inc), &Aids::NONE).is_ok());
 }
 
 /// A master sample whose hand-over fails only after the alignment has stepped (the slave's
@@ -194,14 +188,13 @@ fn refused_in_flight_changes_nothing<T: Real>(
 /// it): refused, and the alignment undone — the navigator continues exactly as without it.
 fn master_refused_after_the_alignment_step<T: Real>() {
     let (mut nav, mut world) = carry_for::<T>(1.0, 10.0);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     // Advance to a tick with a master sample.
-    let mut inc = world.step(&lever);
-    while world.master_sample::<T>().is_none() {
-        nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
-        inc = world.step(&lever);
+    let mut inc = world.step();
+    while late_master::<T>(&world).is_none() {
+        nav.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
+        inc = world.step();
     }
-    let mut m = world.master_sample::<T>().unwrap();
+    let mut m = late_master::<T>(&world).unwrap();
     // A banked master whose lever arm points up, at the top of the altitude range.
     let l0 = nav.config().lever_arm.nominal_m;
     let c = [T::lit(0.5), T::lit(-0.5)]
@@ -215,7 +208,7 @@ fn master_refused_after_the_alignment_step<T: Real>() {
     let before = format!("{:?}", nav.alignment());
     let r = nav
         .tick(
-            &tick_of(&inc),
+            &imu_tick(&inc),
             &Aids {
                 master: Some(&m),
                 ..Aids::NONE
@@ -229,7 +222,7 @@ fn master_refused_after_the_alignment_step<T: Real>() {
         })
     );
     assert_eq!(format!("{:?}", nav.alignment()), before);
-    let r2 = twin.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+    let r2 = twin.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
     assert_eq!(r.solution, r2.solution);
     assert_eq!(
         format!("{:?}", nav.alignment()),
@@ -237,14 +230,14 @@ fn master_refused_after_the_alignment_step<T: Real>() {
     );
     // The next ticks (with master samples) as the twin's, bit for bit.
     for _ in 0..6 {
-        let inc = world.step(&lever);
-        let m = world.master_sample::<T>();
+        let inc = world.step();
+        let m = late_master::<T>(&world);
         let aids = Aids {
             master: m.as_ref(),
             ..Aids::NONE
         };
-        let a = nav.tick(&tick_of(&inc), &aids).unwrap();
-        let b = twin.tick(&tick_of(&inc), &aids).unwrap();
+        let a = nav.tick(&imu_tick(&inc), &aids).unwrap();
+        let b = twin.tick(&imu_tick(&inc), &aids).unwrap();
         assert_eq!(a.solution, b.solution);
         assert_eq!(a.master.last, b.master.last);
         // The refusal is the only count that differs.
@@ -280,18 +273,17 @@ fn refused_inputs_change_nothing_f32() {
 fn unconfirmed_and_timeout<T: Real>() {
     // Master for 3 s, then lost.
     let (mut nav, mut world) = carry_for::<T>(3.0, 100.0);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     // A release signal the IMU does not confirm (the missile stays on the wing).
     let mut last = None;
     for k in 0..60 {
-        let inc = world.step(&lever);
-        let m = world.master_sample::<T>();
+        let inc = world.step();
+        let m = late_master::<T>(&world);
         let aids = Aids {
             master: m.as_ref(),
             separation: (k == 0).then_some(inc.time),
             ..Aids::NONE
         };
-        last = Some(nav.tick(&tick_of(&inc), &aids).unwrap());
+        last = Some(nav.tick(&imu_tick(&inc), &aids).unwrap());
     }
     let r = last.unwrap();
     assert_eq!(r.phase, Phase::Carry);
@@ -304,8 +296,8 @@ fn unconfirmed_and_timeout<T: Real>() {
     // Master lost: TimedOut after master_s (0.5 s).
     let mut states = Vec::new();
     for _ in 0..80 {
-        let inc = world.step(&lever);
-        let r = nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        let inc = world.step();
+        let r = nav.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
         states.push((r.master.state, r.degradation.master));
     }
     assert_eq!(states[10], (AidState::Waiting, AidAvailability::Available));
@@ -321,13 +313,12 @@ fn unconfirmed_and_timeout<T: Real>() {
 /// alignment untouched); earlier ones are; after the window closes unconfirmed, all are again.
 fn master_after_signal<T: Real>() {
     let (mut nav, mut world) = carry_for::<T>(3.0, 100.0);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     let mut signal = None;
     let mut prev: Option<(SeparationStatus, u32)> = None;
     let (mut early, mut withheld, mut resumed) = (0, 0, 0);
     for k in 0..60 {
-        let inc = world.step(&lever);
-        let m = world.master_sample::<T>();
+        let inc = world.step();
+        let m = late_master::<T>(&world);
         let sig = *signal.get_or_insert(inc.time);
         let aids = Aids {
             master: m.as_ref(),
@@ -335,7 +326,7 @@ fn master_after_signal<T: Real>() {
             ..Aids::NONE
         };
         let ta = format!("{:?}", nav.alignment());
-        let r = nav.tick(&tick_of(&inc), &aids).unwrap();
+        let r = nav.tick(&imu_tick(&inc), &aids).unwrap();
         let awaiting = prev.is_some_and(|p| p.0 == SeparationStatus::AwaitingConfirmation);
         let fused_before = prev.map(|p| p.1);
         prev = Some((r.degradation.separation, r.master.counters.fused));
@@ -397,9 +388,7 @@ fn size_of_flight_navigator() {
 fn bad_configuration_is_named() {
     let mut c = config::<f64>(BaroDamping::Off);
     c.imu_dt_s = 0.02;
-    let w = World::new();
-    let lever = c.lever_arm.nominal_m;
-    let init = initial::<f64>(&w, &lever);
+    let init = chain_world(&c.lever_arm.nominal_m).initial::<f64>();
     assert_eq!(
         FlightNavigator::<f64, 32>::new(&c, &init).unwrap_err(),
         NavError::InvalidConfig {

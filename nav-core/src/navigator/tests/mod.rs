@@ -7,39 +7,29 @@
 //! in-place baro update, refused LOS, bias hand-over).
 
 use super::baro::{baro_update, BaroState};
+use super::test_support::{
+    self, baro_model, gimbal_truth, imu_tick, World, WorldSpec, SPEED_M_S, START,
+};
 use super::*;
 use crate::contract::FusionOutcome;
 use crate::contract::Gate;
-use crate::earth::{earth_rate_ned, normal_gravity_m_s2, transport_rate_ned};
 use crate::math::kalman::fuse_scalar;
-use crate::math::rotation::{exp_so3, log_so3, quat_to_dcm};
-use crate::seeker_ins::{
-    gimbal_angles_of, landmark_vector_ned, ClipFlags, ImuIncrement, Ins, InsState, Landmark,
-    LosSample, Position, SeekerInsConfig,
-};
+use crate::math::rotation::{log_so3, quat_to_dcm};
+use crate::seeker_ins::{gimbal_angles_of, landmark_vector_ned, ImuIncrement, InsState, LosSample};
 use crate::seeker_ins::{
     propagate_covariance_sparse, SeekerIns, SeekerInsInitial, SparseF, ACC_BIAS, POS, STATES, VEL,
 };
 use crate::time::Timestamp;
-use crate::transfer_alignment::{PaperCase, TaConfig};
 use crate::vertical_channel::BaroSample;
 use crate::{HealthState, NavError, Real};
 use nalgebra::SVector;
-use nalgebra::{Matrix3, Quaternion, SMatrix, Vector3};
+use nalgebra::{Quaternion, SMatrix, Vector3};
 use std::format;
 use std::string::String;
 use std::vec::Vec;
 
 const DT_US: u64 = 10_000;
 const DT: f64 = 0.01;
-const START: Position = Position {
-    lat_rad: 0.6458,
-    lon_rad: 2.2166,
-    alt_m: 3000.0,
-};
-const SPEED_M_S: f64 = 200.0;
-/// The slave's true mount misalignment θ (`C_m^s = exp(−[θ×])`), rad.
-const THETA: [f64; 3] = [0.006, -0.004, 0.008];
 const LATENCY_TICKS: u64 = 3;
 const SEPARATION_S: f64 = 20.0;
 const DROP_S: f64 = 0.5;
@@ -48,229 +38,31 @@ const SEEKER_FROM_S: f64 = 25.0;
 /// The seeker loses lock here (terminal continues on the baro).
 const SEEKER_UNTIL_S: f64 = 26.5;
 
-fn landmark_position() -> Position {
-    // 30 km north of the start, on the ground.
-    Position {
-        lat_rad: START.lat_rad + 30_000.0 / 6_360_000.0,
-        lon_rad: START.lon_rad,
-        alt_m: 0.0,
-    }
-}
-
-fn theta() -> Vector3<f64> {
-    Vector3::new(THETA[0], THETA[1], THETA[2])
-}
-
+/// The chain's configuration (`test_support::config`) with `baro`, the release after
+/// `COAST_S`.
 fn config<T: Real>(baro: BaroDamping<T>) -> NavigatorConfig<T> {
-    let alignment = TaConfig::<T>::flight(PaperCase::Case1);
-    NavigatorConfig {
-        lever_arm: LeverArm {
-            nominal_m: alignment.lever_arm_m,
-            sigma_m: Vector3::from_element(T::lit(0.01)),
-        },
-        alignment,
-        priors: HandoverPriors {
-            accel_bias_sigma_m_s2: T::lit(1e-3),
-            gyro_bias_sigma_rad_s: T::lit(5e-8),
-            gimbal_bias_sigma_rad: T::lit(7e-4),
-        },
-        ins: SeekerInsConfig::flight(Landmark::new(landmark_position()).unwrap()),
-        imu_dt_s: T::lit(DT),
-        max_master_latency_s: T::lit(0.1),
-        separation: SeparationCheck {
-            specific_force_jump_m_s2: T::lit(4.0),
-            confirm_window_s: T::lit(0.3),
-            unsignalled_onset_s: T::lit(0.3),
-            coast_s: T::lit(COAST_S),
-        },
-        baro,
-        timeouts: AidTimeouts {
-            master_s: T::lit(0.5),
-            baro_s: T::lit(1.0),
-            seeker_s: T::lit(2.0),
-        },
-    }
+    test_support::config(baro, COAST_S)
 }
 
-fn baro_model<T: Real>() -> BaroErrorModel<T> {
-    BaroErrorModel {
-        white_sigma_m: T::lit(1.0),
-        markov_sigma_m: T::lit(5.0),
-        markov_tau_s: T::lit(100.0),
-        lag_s: T::lit(0.0),
-    }
+/// The chain's world (`test_support::World`, the one the property tests fly) at
+/// 100 Hz: the release at `SEPARATION_S`, the drop for `DROP_S`.
+fn chain_world(lever: &Vector3<f64>) -> World {
+    World::new(&WorldSpec {
+        rate_hz: 100,
+        start_us: 0,
+        sep_tick: (SEPARATION_S / DT).round() as u64,
+        drop_ticks: (DROP_S / DT).round() as u64,
+        lever_m: *lever,
+    })
 }
 
-/// Time, state, body rate, specific force of the master at one tick.
-type MasterLog = (Timestamp, InsState<f64>, Vector3<f64>, Vector3<f64>);
-
-/// The world of the test, in f64: a master INS mechanization (nav-core's `Ins`, used here as a
-/// generator: whatever it integrates *is* the truth) fed with the increments of level flight,
-/// and after separation the missile's own.
-struct World {
-    master: Ins<f64>,
-    missile: Option<Ins<f64>>,
-    /// Master truth per tick (for the late master samples).
-    master_log: Vec<MasterLog>,
-    level_dth: Vector3<f64>,
-    level_dv: Vector3<f64>,
-    k: u64,
-}
-
-impl World {
-    fn new() -> Self {
-        let v = Vector3::new(SPEED_M_S, 0.0, 0.0);
-        let lat = START.lat_rad;
-        let w_in = earth_rate_ned(lat) + transport_rate_ned(lat, START.alt_m, &v);
-        let coriolis =
-            (earth_rate_ned(lat) * 2.0 + transport_rate_ned(lat, START.alt_m, &v)).cross(&v);
-        let g = normal_gravity_m_s2(lat, START.alt_m);
-        let f = coriolis - Vector3::new(0.0, 0.0, g);
-        let state = InsState {
-            position: START,
-            vel_ned_m_s: v,
-            q_b_n: Quaternion::new(1.0, 0.0, 0.0, 0.0),
-        };
-        Self {
-            master: Ins::new(state, DT).unwrap(),
-            missile: None,
-            master_log: Vec::new(),
-            level_dth: w_in * DT,
-            level_dv: f * DT,
-            k: 0,
-        }
+/// The master sample arriving at the world's tick: the one of `LATENCY_TICKS` ago, every
+/// second tick.
+fn late_master<T: Real>(world: &World) -> Option<MasterNav<T>> {
+    if world.k % 2 != 0 || world.k <= LATENCY_TICKS {
+        return None;
     }
-
-    fn time(&self) -> Timestamp {
-        Timestamp::from_micros(self.k * DT_US)
-    }
-
-    fn c_m_s() -> Matrix3<f64> {
-        exp_so3(&(-theta()))
-    }
-
-    /// The missile's truth at the current tick (under the wing: the master's moved by the lever
-    /// arm, its attitude composed with θ).
-    fn missile_truth(&self, lever: &Vector3<f64>) -> InsState<f64> {
-        if let Some(m) = &self.missile {
-            return *m.state();
-        }
-        let s = self.master.state();
-        let c_m_n = quat_to_dcm(&s.q_b_n);
-        let l_n = c_m_n * lever;
-        let (rm, rn) = crate::earth::radii_m(s.position.lat_rad);
-        let position = Position {
-            lat_rad: s.position.lat_rad + l_n.x / (rm + s.position.alt_m),
-            lon_rad: s.position.lon_rad
-                + l_n.y / ((rn + s.position.alt_m) * s.position.lat_rad.cos()),
-            alt_m: s.position.alt_m - l_n.z,
-        };
-        InsState {
-            position,
-            vel_ned_m_s: s.vel_ned_m_s,
-            q_b_n: crate::math::rotation::dcm_to_quat(&(c_m_n * exp_so3(&theta()))),
-        }
-    }
-
-    /// Advances one tick; returns the slave increment.
-    fn step(&mut self, lever: &Vector3<f64>) -> ImuIncrement<f64> {
-        self.k += 1;
-        let t = self.time();
-        let ts = t.as_secs_f64();
-        if ts > SEPARATION_S && self.missile.is_none() {
-            // Separation: the missile leaves with its state at the previous tick.
-            let truth = self.missile_truth(lever);
-            let mut ins = Ins::new(truth, DT).unwrap();
-            // Its clock: the previous tick.
-            let _ = &mut ins;
-            self.missile = Some(ins);
-        }
-        let c = Self::c_m_s();
-        let dth_s = c * self.level_dth;
-        let in_drop = ts > SEPARATION_S && ts <= SEPARATION_S + DROP_S;
-        let dv_s = if in_drop {
-            Vector3::zeros()
-        } else {
-            c * self.level_dv
-        };
-        let inc_m = ImuIncrement {
-            time: t,
-            delta_theta_rad: self.level_dth,
-            delta_v_m_s: self.level_dv,
-        };
-        self.master.step(&inc_m).unwrap();
-        self.master_log.push((
-            t,
-            *self.master.state(),
-            self.level_dth / DT,
-            self.level_dv / DT,
-        ));
-        let inc_s = ImuIncrement {
-            time: t,
-            delta_theta_rad: dth_s,
-            delta_v_m_s: dv_s,
-        };
-        if let Some(m) = &mut self.missile {
-            m.step(&inc_s).unwrap();
-        }
-        inc_s
-    }
-
-    /// The master sample of `LATENCY_TICKS` ago (every second tick, before separation).
-    fn master_sample<T: Real>(&self) -> Option<MasterNav<T>> {
-        if self.k % 2 != 0 || self.k <= LATENCY_TICKS {
-            return None;
-        }
-        let idx = usize::try_from(self.k - LATENCY_TICKS - 1).ok()?;
-        let (t, s, w, f) = self.master_log.get(idx)?;
-        Some(MasterNav {
-            time: *t,
-            c_m_n: quat_to_dcm(&s.q_b_n).cast(),
-            vel_ned_m_s: s.vel_ned_m_s.cast(),
-            position: s.position,
-            angular_rate_rad_s: w.cast(),
-            angular_accel_rad_s2: Vector3::zeros(),
-            specific_force_m_s2: f.cast(),
-            attitude_sigma_rad: Vector3::new(T::lit(2e-4), T::lit(2e-4), T::lit(8e-4)),
-            velocity_sigma_m_s: Vector3::new(T::lit(0.05), T::lit(0.05), T::lit(0.08)),
-            position_sigma_m: Vector3::new(T::lit(3.0), T::lit(3.0), T::lit(5.0)),
-        })
-    }
-}
-
-fn cast_inc<T: Real>(i: &ImuIncrement<f64>) -> ImuIncrement<T> {
-    ImuIncrement {
-        time: i.time,
-        delta_theta_rad: i.delta_theta_rad.cast(),
-        delta_v_m_s: i.delta_v_m_s.cast(),
-    }
-}
-
-fn tick_of<T: Real>(i: &ImuIncrement<f64>) -> ImuTick<T> {
-    ImuTick {
-        increment: cast_inc(i),
-        clipped: ClipFlags::default(),
-    }
-}
-
-fn initial<T: Real>(world: &World, lever: &Vector3<f64>) -> NavigatorInitial<T> {
-    let mut truth = world.missile_truth(lever);
-    // Start with the master's attitude (θ unknown) and 5 m off in north.
-    truth.q_b_n = world.master.state().q_b_n;
-    truth.position.lat_rad += 5.0 / 6_360_000.0;
-    let mut p = SMatrix::<T, 9, 9>::zeros();
-    for i in 0..9 {
-        p[(i, i)] = T::lit([100.0, 100.0, 100.0, 1.0, 1.0, 1.0, 1e-4, 1e-4, 1e-4][i]);
-    }
-    NavigatorInitial {
-        time: world.time(),
-        state: InsState {
-            position: truth.position,
-            vel_ned_m_s: truth.vel_ned_m_s.cast(),
-            q_b_n: truth.q_b_n.cast(),
-        },
-        nav_covariance: p,
-    }
+    world.master_sample(world.k - LATENCY_TICKS)
 }
 
 /// Attitude error φ (`Ĉ = exp(−[φ×]) C`) of a solution against the truth.
@@ -341,30 +133,51 @@ impl Run {
     }
 }
 
-fn gimbal_truth(truth: &InsState<f64>) -> crate::seeker_ins::GimbalAngles<f64> {
-    let lm = Landmark::new(landmark_position()).unwrap();
-    let d = landmark_vector_ned(&truth.position, &lm);
-    let c_b_n = quat_to_dcm(&truth.q_b_n);
-    gimbal_angles_of(&(c_b_n.transpose() * d))
+/// The chain's aid samples at the world's tick `inc`: the master `LATENCY_TICKS` late until
+/// the release, a baro sample (the truth's altitude) every 4th tick after the coast, the
+/// seeker's LOS (the truth's gimbal angles) every 10th tick inside the seeker's window, the
+/// release signal.
+struct ChainAids<T: Real> {
+    master: Option<MasterNav<T>>,
+    baro: Option<BaroSample<T>>,
+    seeker: Option<LosSample<T>>,
+    separation: Option<Timestamp>,
 }
 
-/// The seeker's LOS sample at `t` (truth gimbal angles every 10th tick inside the seeker window).
-fn los_sample<T: Real>(
-    t: f64,
-    k: u64,
-    time: Timestamp,
-    truth: &InsState<f64>,
-) -> Option<LosSample<T>> {
-    ((SEEKER_FROM_S..SEEKER_UNTIL_S).contains(&t) && k % 10 == 0).then(|| LosSample {
-        time,
-        gimbal: {
-            let g = gimbal_truth(truth);
-            crate::seeker_ins::GimbalAngles {
-                pitch_rad: T::lit(g.pitch_rad),
-                yaw_rad: T::lit(g.yaw_rad),
-            }
-        },
-    })
+impl<T: Real> ChainAids<T> {
+    fn at(world: &World, inc: &ImuIncrement<f64>) -> Self {
+        let (t, k, time) = (inc.time.as_secs_f64(), world.k, inc.time);
+        let truth = world.missile_truth();
+        Self {
+            master: (t <= SEPARATION_S)
+                .then(|| late_master::<T>(world))
+                .flatten(),
+            baro: (t > SEPARATION_S + COAST_S && k % 4 == 0).then(|| BaroSample {
+                time,
+                altitude_m: T::lit(truth.position.alt_m),
+            }),
+            seeker: ((SEEKER_FROM_S..SEEKER_UNTIL_S).contains(&t) && k % 10 == 0).then(|| {
+                let g = gimbal_truth(&truth);
+                LosSample {
+                    time,
+                    gimbal: crate::seeker_ins::GimbalAngles {
+                        pitch_rad: T::lit(g.pitch_rad),
+                        yaw_rad: T::lit(g.yaw_rad),
+                    },
+                }
+            }),
+            separation: ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(time),
+        }
+    }
+
+    fn aids(&self) -> Aids<'_, T> {
+        Aids {
+            master: self.master.as_ref(),
+            baro: self.baro.as_ref(),
+            seeker: self.seeker.as_ref(),
+            separation: self.separation,
+        }
+    }
 }
 
 /// Largest |cross-covariance| of δD or δV_D with the other navigation states.
@@ -420,8 +233,8 @@ fn north_vertical_error_m<T: Real>(s: &InsState<T>, truth: &InsState<f64>) -> f6
 fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
     let cfg = config::<T>(baro);
     let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
-    let mut world = World::new();
-    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    let mut world = chain_world(&lever);
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &world.initial()).unwrap();
     // A twin flown through `tick_into` with one report slot reused for the whole run.
     let mut twin = nav.clone();
     let mut slot = twin.blank_report();
@@ -429,28 +242,13 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
     let mut last_phase = Phase::Carry;
     let steps = (end_s / DT).round() as u64;
     for _ in 0..steps {
-        let inc = world.step(&lever);
+        let inc = world.step();
         let t = inc.time.as_secs_f64();
-        let master = if t <= SEPARATION_S {
-            world.master_sample::<T>()
-        } else {
-            None
-        };
-        let truth = world.missile_truth(&lever);
-        let baro = (t > SEPARATION_S + COAST_S && world.k % 4 == 0).then(|| BaroSample {
-            time: inc.time,
-            altitude_m: T::lit(truth.position.alt_m),
-        });
-        let seeker = los_sample::<T>(t, world.k, inc.time, &truth);
-        let separation = ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(inc.time);
-        let aids = Aids {
-            master: master.as_ref(),
-            baro: baro.as_ref(),
-            seeker: seeker.as_ref(),
-            separation,
-        };
-        let report = nav.tick(&tick_of(&inc), &aids).unwrap();
-        twin.tick_into(&tick_of(&inc), &aids, &mut slot).unwrap();
+        let truth = world.missile_truth();
+        let samples = ChainAids::<T>::at(&world, &inc);
+        let aids = samples.aids();
+        let report = nav.tick(&imu_tick(&inc), &aids).unwrap();
+        twin.tick_into(&imu_tick(&inc), &aids, &mut slot).unwrap();
         assert_eq!(slot, report, "tick_into writes the report tick returns");
         if let Some(tr) = report.transition {
             run.transitions.push(tr);
@@ -500,18 +298,18 @@ fn run_chain<T: Real>(baro: BaroDamping<T>, end_s: f64) -> Run {
 fn carry_for<T: Real>(secs: f64, master_until_s: f64) -> (FlightNavigator<T, 32>, World) {
     let cfg = config::<T>(BaroDamping::Off);
     let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
-    let mut world = World::new();
-    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    let mut world = chain_world(&lever);
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &world.initial()).unwrap();
     for _ in 0..(secs / DT).round() as u64 {
-        let inc = world.step(&lever);
+        let inc = world.step();
         let master = (inc.time.as_secs_f64() <= master_until_s)
-            .then(|| world.master_sample::<T>())
+            .then(|| late_master::<T>(&world))
             .flatten();
         let aids = Aids {
             master: master.as_ref(),
             ..Aids::NONE
         };
-        nav.tick(&tick_of(&inc), &aids).unwrap();
+        nav.tick(&imu_tick(&inc), &aids).unwrap();
     }
     (nav, world)
 }
@@ -551,24 +349,19 @@ fn joint_column(p: &SMatrix<f64, STATES, STATES>) -> (SVector<f64, STATES>, f64)
 }
 
 /// Releases `nav` at the world's missile truth with a tenth of the paper's initial σ.
-fn release_at_truth<T: Real>(
-    nav: &mut FlightNavigator<T, 32>,
-    world: &World,
-    lever: &Vector3<f64>,
-) {
+fn release_at_truth<T: Real>(nav: &mut FlightNavigator<T, 32>, world: &World) {
     let mut p0 = crate::seeker_ins::paper_initial_covariance::<T>();
     p0 *= T::lit(0.01);
-    release_at_truth_with(nav, world, lever, p0);
+    release_at_truth_with(nav, world, p0);
 }
 
 /// Releases `nav` at the world's missile truth with the EKF's initial covariance `p0`.
 fn release_at_truth_with<T: Real>(
     nav: &mut FlightNavigator<T, 32>,
     world: &World,
-    lever: &Vector3<f64>,
     p0: SMatrix<T, STATES, STATES>,
 ) {
-    let truth = world.missile_truth(lever);
+    let truth = world.missile_truth();
     nav.release_with(&crate::seeker_ins::SeekerInsInitial {
         state: InsState {
             position: truth.position,

@@ -46,8 +46,7 @@ fn near_singular_p0<T: Real>() -> SMatrix<T, STATES, STATES> {
 /// Carry for a second, then the EKF released with `p0`; the navigator and the world.
 fn released_with<T: Real>(p0: SMatrix<T, STATES, STATES>) -> (FlightNavigator<T, 32>, World) {
     let (mut nav, world) = carry_for::<T>(1.0, 10.0);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
-    release_at_truth_with(&mut nav, &world, &lever, p0);
+    release_at_truth_with(&mut nav, &world, p0);
     (nav, world)
 }
 
@@ -60,16 +59,13 @@ fn the_deferred_check_lifts_a_small_margin_on_a_quiet_tick_f32() {
     let p0 = near_singular_p0::<f32>();
     assert!(min_relative_pivot(&p0) < PSD_MARGIN_EPS * f64::from(f32::EPSILON));
     let (mut nav, mut world) = released_with(p0);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     let interval = usize::from(nav.config().ins.covariance_interval_steps);
     // P0 is new at release: the first tick leaves it alone, the second (no covariance step
     // on either) checks and lifts it, every variance by the same relative δ, the
     // correlations' numerators kept.
-    nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
-        .unwrap();
+    nav.tick(&imu_tick(&world.step()), &Aids::NONE).unwrap();
     assert_eq!(covariance(&nav), p0);
-    nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
-        .unwrap();
+    nav.tick(&imu_tick(&world.step()), &Aids::NONE).unwrap();
     let p1 = covariance(&nav);
     let delta = p1[(VEL, VEL)] / p0[(VEL, VEL)] - 1.0;
     assert!(delta > 0.0);
@@ -95,27 +91,25 @@ fn the_deferred_check_lifts_a_small_margin_on_a_quiet_tick_f32() {
     );
     // Quiet ticks after the check leave P alone, bit for bit.
     for _ in 3..interval {
-        nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
-            .unwrap();
+        nav.tick(&imu_tick(&world.step()), &Aids::NONE).unwrap();
         assert_eq!(covariance(&nav), p1);
     }
     // The covariance step from the checked P adds no stabilising noise: the filter's own step
     // with nothing added, not the one with the constant 4 ε.
-    let inc = world.step(&lever);
+    let inc = world.step();
     let mut deferred = *nav.ekf().unwrap();
     let mut constant = deferred;
-    let imu = cast_inc::<f32>(&inc);
+    let imu = imu_tick::<f32>(&inc).increment;
     deferred.propagate_uncounted(&imu, None).unwrap();
     assert_eq!(deferred.steps_pending(), 0);
     constant.propagate_uncounted(&imu, None).unwrap();
     constant.add_stabilising_noise();
-    nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+    nav.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
     let stepped = covariance(&nav);
     assert_eq!(stepped, *deferred.covariance());
     assert_ne!(stepped, *constant.covariance());
     // The next (quiet) tick checks the stepped P: a margin at least half the check's after it.
-    nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
-        .unwrap();
+    nav.tick(&imu_tick(&world.step()), &Aids::NONE).unwrap();
     let checked = covariance(&nav);
     assert_eq!(nav.ekf().unwrap().steps_pending(), 1);
     assert!(min_relative_pivot(&checked) > 0.5 * margin);
@@ -129,17 +123,15 @@ fn the_deferred_check_keeps_a_healthy_p_bit_for_bit_f64() {
     // The same P0 in f64: its relative pivot (4e-7) is far above 16 ε of f64.
     let p0 = near_singular_p0::<f64>();
     let (mut nav, mut world) = released_with(p0);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     for _ in 0..2 {
-        nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
-            .unwrap();
+        nav.tick(&imu_tick(&world.step()), &Aids::NONE).unwrap();
     }
     assert_eq!(covariance(&nav), p0);
 }
 
 /// The LOS sample of the world's missile truth at `time`.
-fn los_at(world: &World, lever: &Vector3<f64>, time: Timestamp) -> LosSample<f32> {
-    let g = gimbal_truth(&world.missile_truth(lever));
+fn los_at(world: &World, time: Timestamp) -> LosSample<f32> {
+    let g = gimbal_truth(&world.missile_truth());
     LosSample {
         time,
         gimbal: crate::seeker_ins::GimbalAngles {
@@ -158,7 +150,8 @@ fn los_tick_reference(
     noise: bool,
 ) -> SMatrix<f32, STATES, STATES> {
     let mut e = *ekf;
-    e.propagate_uncounted(&cast_inc::<f32>(inc), None).unwrap();
+    e.propagate_uncounted(&imu_tick::<f32>(inc).increment, None)
+        .unwrap();
     e.predict_covariance_with(crate::seeker_ins::PsdMargin::Deferred)
         .unwrap();
     if noise {
@@ -173,16 +166,15 @@ fn los_tick_reference(
 fn tick_with_los(
     nav: &mut FlightNavigator<f32, 32>,
     world: &mut World,
-    lever: &Vector3<f64>,
 ) -> (SeekerIns<f32>, ImuIncrement<f64>, LosSample<f32>) {
-    let inc = world.step(lever);
-    let los = los_at(world, lever, inc.time);
+    let inc = world.step();
+    let los = los_at(world, inc.time);
     let ekf = *nav.ekf().unwrap();
     let aids = Aids {
         seeker: Some(&los),
         ..Aids::NONE
     };
-    nav.tick(&tick_of(&inc), &aids).unwrap();
+    nav.tick(&imu_tick(&inc), &aids).unwrap();
     (ekf, inc, los)
 }
 
@@ -191,29 +183,25 @@ fn a_step_from_an_unchecked_p_gets_the_constant_noise_before_the_update_f32() {
     let mut p0 = crate::seeker_ins::paper_initial_covariance::<f32>();
     p0 *= 0.01;
     let (mut nav, mut world) = released_with(p0);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     while nav.phase() != Phase::Midcourse {
-        nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
-            .unwrap();
+        nav.tick(&imu_tick(&world.step()), &Aids::NONE).unwrap();
     }
     // Up to a tick whose IMU part runs a covariance step.
     loop {
-        nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
-            .unwrap();
+        nav.tick(&imu_tick(&world.step()), &Aids::NONE).unwrap();
         if nav.ekf().unwrap().steps_pending() == 0 {
             break;
         }
     }
     // A LOS sample on the next tick: its flushed step starts from the P of that step, not
     // checked yet (no quiet tick between), so the constant noise comes before the update.
-    let (ekf, inc, los) = tick_with_los(&mut nav, &mut world, &lever);
+    let (ekf, inc, los) = tick_with_los(&mut nav, &mut world);
     let with_noise = los_tick_reference(&ekf, &inc, &los, true);
     assert_eq!(covariance(&nav), with_noise);
     assert_ne!(with_noise, los_tick_reference(&ekf, &inc, &los, false));
     // A quiet tick checks P; a LOS sample after it flushes a step from a checked P: no noise.
-    nav.tick(&tick_of(&world.step(&lever)), &Aids::NONE)
-        .unwrap();
-    let (ekf, inc, los) = tick_with_los(&mut nav, &mut world, &lever);
+    nav.tick(&imu_tick(&world.step()), &Aids::NONE).unwrap();
+    let (ekf, inc, los) = tick_with_los(&mut nav, &mut world);
     assert_eq!(
         covariance(&nav),
         los_tick_reference(&ekf, &inc, &los, false)

@@ -38,14 +38,13 @@ fn fly_without_master<T: Real>(
     extra: &dyn Fn(f64) -> Vector3<f64>,
 ) -> (Option<Transition>, FlightNavigator<T, 32>, World) {
     let (mut nav, mut world) = carry_for::<T>(RELEASE_S, RELEASE_S);
-    let lever: Vector3<f64> = nav.config().lever_arm.nominal_m.map(|x| x.to_f64());
     let c_m_s = World::c_m_s();
     for _ in 0..(secs / DT).round() as u64 {
-        let mut inc = world.step(&lever);
+        let mut inc = world.step();
         // The interval's mid-point.
         let t = inc.time.as_secs_f64() - RELEASE_S - 0.5 * DT;
         inc.delta_v_m_s += c_m_s * extra(t) * DT;
-        let r = nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        let r = nav.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
         if let Some(tr) = r.transition {
             assert_eq!(
                 r.degradation.separation,
@@ -110,9 +109,8 @@ fn a_bus_dropout_in_a_manoeuvre_on_the_wing_is_no_release_f32() {
 
 #[test]
 fn the_cue_and_the_history_depth_are_checked_at_construction() {
-    let w = World::new();
     let base = config::<f64>(BaroDamping::Off);
-    let init = initial::<f64>(&w, &base.lever_arm.nominal_m);
+    let init = chain_world(&base.lever_arm.nominal_m).initial::<f64>();
     let err = |c: &NavigatorConfig<f64>| FlightNavigator::<f64, 32>::new(c, &init).err();
     let invalid = |field, issue| Some(NavError::InvalidConfig { field, issue });
     let mut c = base;

@@ -9,8 +9,8 @@ fn stored_design_is_new<T: Real>() {
     use crate::design::DesignValues;
     let cfg = config::<T>(BaroDamping::Off);
     let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
-    let world = World::new();
-    let init = initial::<T>(&world, &lever);
+    let world = chain_world(&lever);
+    let init = world.initial::<T>();
     let design = FlightNavigator::<T, 32>::design(&cfg).unwrap();
     let mut values = std::vec![0.0; NavigatorDesign::<T, 5>::COUNT];
     design.write_values(&mut values).unwrap();
@@ -18,16 +18,16 @@ fn stored_design_is_new<T: Real>() {
     assert_eq!(loaded, design);
     let mut a = FlightNavigator::<T, 32>::new(&cfg, &init).unwrap();
     let mut b = FlightNavigator::<T, 32>::from_design(&cfg, &loaded, &init).unwrap();
-    let mut wa = World::new();
+    let mut wa = chain_world(&lever);
     for _ in 0..200 {
-        let inc = wa.step(&lever);
-        let master = wa.master_sample::<T>();
+        let inc = wa.step();
+        let master = late_master::<T>(&wa);
         let aids = Aids {
             master: master.as_ref(),
             ..Aids::NONE
         };
-        let ra = a.tick(&tick_of(&inc), &aids).unwrap();
-        let rb = b.tick(&tick_of(&inc), &aids).unwrap();
+        let ra = a.tick(&imu_tick(&inc), &aids).unwrap();
+        let rb = b.tick(&imu_tick(&inc), &aids).unwrap();
         assert_eq!(format!("{ra:?}"), format!("{rb:?}"));
     }
     assert!(a.alignment().theta().iter().any(|x| *x != T::zero()));
@@ -169,17 +169,17 @@ fn baro_update_in_place_is_the_reference_f32() {
 fn refused_los_keeps_the_pending_step<T: Real>() {
     let cfg = config::<T>(BaroDamping::Ekf(baro_model()));
     let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
-    let mut world = World::new();
-    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
-    release_at_truth(&mut nav, &world, &lever);
+    let mut world = chain_world(&lever);
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &world.initial()).unwrap();
+    release_at_truth(&mut nav, &world);
     for _ in 0..((COAST_S / DT) as u64 + 2) {
-        let inc = world.step(&lever);
-        nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        let inc = world.step();
+        nav.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
     }
     assert_eq!(nav.phase(), Phase::Midcourse);
     // A baro sample (the column becomes non-zero), then IMU ticks: steps pending.
-    let inc = world.step(&lever);
-    let truth = world.missile_truth(&lever);
+    let inc = world.step();
+    let truth = world.missile_truth();
     let b = BaroSample {
         time: inc.time,
         altitude_m: T::lit(truth.position.alt_m + 0.5),
@@ -189,16 +189,16 @@ fn refused_los_keeps_the_pending_step<T: Real>() {
         ..Aids::NONE
     };
     assert_eq!(
-        nav.tick(&tick_of(&inc), &aids).unwrap().baro.state,
+        nav.tick(&imu_tick(&inc), &aids).unwrap().baro.state,
         AidState::Fused
     );
     for _ in 0..3 {
-        let inc = world.step(&lever);
-        nav.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        let inc = world.step();
+        nav.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
     }
     assert!(nav.ekf().unwrap().steps_pending() > 0);
     assert!(nav.baro_state().cross.norm() > T::zero());
-    let inc = world.step(&lever);
+    let inc = world.step();
     let gimbal = |pitch: f64| crate::seeker_ins::GimbalAngles {
         pitch_rad: T::lit(pitch),
         yaw_rad: T::zero(),
@@ -220,8 +220,8 @@ fn refused_los_keeps_the_pending_step<T: Real>() {
             seeker: Some(s),
             ..Aids::NONE
         };
-        let ra = a.tick(&tick_of(&inc), &aids).unwrap();
-        let rb = b.tick(&tick_of(&inc), &Aids::NONE).unwrap();
+        let ra = a.tick(&imu_tick(&inc), &aids).unwrap();
+        let rb = b.tick(&imu_tick(&inc), &Aids::NONE).unwrap();
         assert!(matches!(ra.seeker.state, AidState::Refused(_)));
         assert!(
             a.ekf().unwrap().steps_pending() > 1,
@@ -250,8 +250,8 @@ fn refused_los_keeps_the_pending_step_f32() {
 fn handover_refers_the_bias_to_the_carry<T: Real>() {
     let cfg = config::<T>(BaroDamping::Off);
     let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
-    let mut world = World::new();
-    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    let mut world = chain_world(&lever);
+    let mut nav = FlightNavigator::<T, 32>::new(&cfg, &world.initial()).unwrap();
     let e = cfg.ins.instrument_errors;
     let (sf, mis) = (
         e.accel_scale_factor.to_f64(),
@@ -260,19 +260,11 @@ fn handover_refers_the_bias_to_the_carry<T: Real>() {
     assert!(sf > 0.0 && mis > 0.0);
     let prior = cfg.priors.accel_bias_sigma_m_s2.to_f64().powi(2);
     for _ in 0..((SEPARATION_S + 1.0) / DT).round() as u64 {
-        let inc = world.step(&lever);
-        let t = inc.time.as_secs_f64();
-        let master = if t <= SEPARATION_S {
-            world.master_sample::<T>()
-        } else {
-            None
-        };
-        let aids = Aids {
-            master: master.as_ref(),
-            separation: ((t - SEPARATION_S).abs() < 0.5 * DT).then_some(inc.time),
-            ..Aids::NONE
-        };
-        let r = nav.tick(&tick_of(&inc), &aids).unwrap();
+        let inc = world.step();
+        // Before the coast ends: the master and the release signal only.
+        let samples = ChainAids::<T>::at(&world, &inc);
+        let aids = samples.aids();
+        let r = nav.tick(&imu_tick(&inc), &aids).unwrap();
         if r.phase == Phase::Released {
             let p = nav.ekf().unwrap().covariance();
             let g = 9.8;
@@ -330,9 +322,9 @@ fn alignment_bias_prior_holds_the_slave_share<T: Real>() {
     for (i, ch) in design.alignment.chains.iter().enumerate() {
         assert_eq!(ch.p0[(b, b)], run[i] * run[i], "axis {i}");
     }
-    let world = World::new();
     let lever: Vector3<f64> = cfg.lever_arm.nominal_m.map(|x| x.to_f64());
-    let nav = FlightNavigator::<T, 32>::new(&cfg, &initial(&world, &lever)).unwrap();
+    let world = chain_world(&lever);
+    let nav = FlightNavigator::<T, 32>::new(&cfg, &world.initial()).unwrap();
     assert_eq!(
         nav.alignment().accel_bias_prior_variance(),
         run.component_mul(&run)

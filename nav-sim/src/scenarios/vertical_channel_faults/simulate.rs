@@ -154,35 +154,40 @@ impl<T: Real> Variants<T> {
     ) -> Result<([f64; 6], [bool; 6])> {
         let mut est = [0.0; 6];
         let mut lost = [false; 6];
-        for (i, lp) in self.classical.iter_mut().enumerate() {
+        let Self {
+            classical,
+            aided,
+            est_v,
+            cov,
+        } = self;
+        // One loop's outputs into its slot: the two loop types share these accessors (not a
+        // trait), so one macro records both.
+        macro_rules! record {
+            ($lp:expr, $r:expr, $slot:expr) => {{
+                let slot = $slot;
+                est[slot] = $lp.altitude_m().to_f64();
+                est_v[slot] = $lp.vz_up_m_s().to_f64();
+                cov[slot] = $lp.covariance_h_vz().map(|x| x.to_f64());
+                lost[slot] = matches!($r.baro.status, AidStatus::Lost { .. });
+                out.counters[slot] = BaroCounts {
+                    counters: $lp.aid_counters(Aid::Baro),
+                    reacquisition: $lp.reacquisition_counters(Aid::Baro),
+                };
+            }};
+        }
+        for (i, lp) in classical.iter_mut().enumerate() {
             let b = if i == 2 { bc } else { bf };
             let r = lp
                 .step(imu, b)
                 .map_err(|e| anyhow!("classical {i} at t = {t}: {e}"))?;
-            let slot = [0, 1, 4][i];
-            est[slot] = lp.altitude_m().to_f64();
-            self.est_v[slot] = lp.vz_up_m_s().to_f64();
-            self.cov[slot] = lp.covariance_h_vz().map(|x| x.to_f64());
-            lost[slot] = matches!(r.baro.status, AidStatus::Lost { .. });
-            out.counters[slot] = BaroCounts {
-                counters: lp.aid_counters(Aid::Baro),
-                reacquisition: lp.reacquisition_counters(Aid::Baro),
-            };
+            record!(lp, r, [0, 1, 4][i]);
         }
-        for (i, lp) in self.aided.iter_mut().enumerate() {
+        for (i, lp) in aided.iter_mut().enumerate() {
             let b = if i == 2 { bc } else { bf };
             let r = lp
                 .step(imu, b, vel)
                 .map_err(|e| anyhow!("aided {i} at t = {t}: {e}"))?;
-            let slot = [2, 3, 5][i];
-            est[slot] = lp.altitude_m().to_f64();
-            self.est_v[slot] = lp.vz_up_m_s().to_f64();
-            self.cov[slot] = lp.covariance_h_vz().map(|x| x.to_f64());
-            lost[slot] = matches!(r.baro.status, AidStatus::Lost { .. });
-            out.counters[slot] = BaroCounts {
-                counters: lp.aid_counters(Aid::Baro),
-                reacquisition: lp.reacquisition_counters(Aid::Baro),
-            };
+            record!(lp, r, [2, 3, 5][i]);
         }
         Ok((est, lost))
     }
