@@ -8,7 +8,7 @@
 //! * no import cycle between sibling modules: module `a` depends on its sibling `b` when any
 //!   file of `a` (or of a module inside it) names a path through `b` (`super::b::…`,
 //!   `crate::…::b::…`, `use` trees included); a strongly connected group of siblings is a cycle;
-//! * no broken relative link in `README.md`, `ARCHITECTURE.md` and `docs/*.md` (a missing file or
+//! * no broken relative link in `README.md`, `ARCHITECTURE.md` and `docs/**/*.md` (a missing file or
 //!   heading anchor; [`crate::links`]).
 //!
 //! Files under a `generated/` directory are exempt from the length limits: they are written by
@@ -95,7 +95,7 @@ pub(crate) fn layout(strict: bool) -> Result<(), String> {
     }
     let broken = crate::links::check(&crate::links::documents(&root)?)?;
     println!(
-        "layout: broken relative links in README.md, ARCHITECTURE.md, docs/*.md ({}):",
+        "layout: broken relative links in README.md, ARCHITECTURE.md, docs/**/*.md ({}):",
         broken.len()
     );
     for b in &broken {

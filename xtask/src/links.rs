@@ -1,5 +1,5 @@
 //! The documentation's relative links, checked by `cargo xtask layout`: every relative link in
-//! `README.md`, `ARCHITECTURE.md` and `docs/*.md` must point to a file or directory that exists
+//! `README.md`, `ARCHITECTURE.md` and `docs/**/*.md` must point to a file or directory that exists
 //! and, when it names an anchor (`file.md#anchor`, or `#anchor` in the same file), to a heading
 //! of that Markdown file.
 //!
@@ -23,24 +23,31 @@ pub(crate) struct Broken {
     pub(crate) why: &'static str,
 }
 
-/// The Markdown files whose links are checked, relative to the repository root.
+/// The Markdown files whose links are checked, relative to the repository root: the README,
+/// the architecture document and every `.md` file under `docs/` (its subdirectories included).
 pub(crate) fn documents(root: &Path) -> Result<Vec<PathBuf>, String> {
     let mut files = vec![root.join("README.md"), root.join("ARCHITECTURE.md")];
-    let docs = root.join("docs");
-    if docs.is_dir() {
-        let mut more = Vec::new();
-        for entry in fs::read_dir(&docs).map_err(|e| format!("{}: {e}", docs.display()))? {
-            let path = entry
-                .map_err(|e| format!("{}: {e}", docs.display()))?
-                .path();
-            if path.extension().is_some_and(|e| e == "md") {
-                more.push(path);
-            }
-        }
-        more.sort();
-        files.extend(more);
-    }
+    let mut more = Vec::new();
+    markdown_under(&root.join("docs"), &mut more)?;
+    more.sort();
+    files.extend(more);
     Ok(files.into_iter().filter(|f| f.is_file()).collect())
+}
+
+/// Every `.md` file under `dir` (recursively) into `out`; nothing when `dir` is not a directory.
+fn markdown_under(dir: &Path, out: &mut Vec<PathBuf>) -> Result<(), String> {
+    if !dir.is_dir() {
+        return Ok(());
+    }
+    for entry in fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))? {
+        let path = entry.map_err(|e| format!("{}: {e}", dir.display()))?.path();
+        if path.is_dir() {
+            markdown_under(&path, out)?;
+        } else if path.extension().is_some_and(|e| e == "md") {
+            out.push(path);
+        }
+    }
+    Ok(())
 }
 
 /// Every broken relative link of `files`.

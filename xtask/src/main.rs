@@ -22,7 +22,7 @@
 //!   writes the same table for `nav-size` into `report.md`.
 //! * `layout [--strict]`: nav-core and nav-sim files over 600 lines, functions over 80 lines,
 //!   import cycles between sibling modules (`generated/` exempt from the lengths), broken relative
-//!   links (file or heading anchor) in `README.md`, `ARCHITECTURE.md` and `docs/*.md`; reports,
+//!   links (file or heading anchor) in `README.md`, `ARCHITECTURE.md` and `docs/**/*.md`; reports,
 //!   and with `--strict` fails on any finding.
 //! * `ci`: everything CI checks; passes here ⇒ CI green. Collects all failures and reports them
 //!   at the end.
