@@ -145,6 +145,7 @@ mod history;
 mod measurement;
 mod model;
 mod observability;
+mod rate_row;
 mod rows;
 mod step;
 #[cfg(test)]

@@ -15,6 +15,7 @@ use super::measurement::{
     ManoeuvreTerms,
 };
 use super::model::{has_accel_bias, FlexureModel};
+use super::rate_row::{h_row_flight_rate_with, RateJacobianAt};
 use crate::math::kalman::{FusionOutcome, FusionReport, SparseRow};
 use crate::Real;
 use nalgebra::{SMatrix, SVector, Vector3};
@@ -117,9 +118,11 @@ impl<T: Real> RowInputs<T> {
 /// order; one report per row, written into `updates` (the caller's slot). The rows are
 /// written out with constant row indices (and the model follows from K at compile time), so
 /// each row's sparsity pattern is known to the compiler. Row capacity: the flight
-/// configuration's df rows 12 entries (the bias and the flexure terms of a manoeuvre;
-/// innovation from the linear row, gain from the Jacobian at θ̂), its rate rows 5, the paper
-/// filters' rows 4.
+/// configuration's df rows 12 entries (the bias and the flexure terms of a manoeuvre), its rate
+/// rows 6, the paper filters' rows 4. The flight configuration's rows take the innovation
+/// `z − h(x̂)` as the ½ terms out of z and the linear row (the Jacobian at θ̂ = 0, θ̇̂_f = 0) for
+/// the rest, and the gain and covariance from the Jacobian at the predicted state (θ̂ for the
+/// df rows, θ̂ and θ̇̂_f for the rate rows: `super::rate_row`).
 #[inline(always)]
 pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     x: &mut SVector<T, N>,
@@ -154,7 +157,7 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
     } else {
         *z
     };
-    let (theta_hat, terms) = df_jacobian_inputs::<T, K, N>(x, &omega_m, &omega_dot_m, &lever);
+    let (theta_hat, terms, rate_at) = jacobian_inputs::<T, K, N>(x, &omega_m, &omega_dot_m, &lever);
     *updates = [not_fused(); 6];
     // `b = P h` of each row, in one buffer (one slot of the frame for the six rows).
     let mut b = SVector::<T, N>::zeros();
@@ -164,10 +167,7 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
             if has_accel_bias::<K>() && $row >= 3 {
                 fuse_row!($row, flight_df);
             } else if has_accel_bias::<K>() {
-                fuse_row!(
-                    $row,
-                    h_row_total::<T, K, 5>(model_k, $row, &omega_m, &f_h, &lever)
-                );
+                fuse_row!($row, flight_rate);
             } else {
                 fuse_row!(
                     $row,
@@ -177,12 +177,16 @@ pub(super) fn fuse_rows<T: Real, const K: usize, const N: usize>(
         };
         ($row:literal, flight_df) => {
             if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
-                // Innovation z − h(x̂): the ½ term is already out of z, the linear row (the
-                // Jacobian at θ̂ = 0) predicts the rest; gain and covariance from the Jacobian
-                // at θ̂.
                 let innovation = zi - linear_df_dot::<T, K, N>($row - 3, &f_h, &lever, &terms, x);
                 let h = h_row_flight_df_with::<T, K>($row - 3, &theta_hat, &f_h, &lever, &terms);
                 *rep = fuse_sparse(x, p, &h, innovation, r_accel, checks, &mut b);
+            }
+        };
+        ($row:literal, flight_rate) => {
+            if let (Some(rep), Some(&zi)) = (updates.get_mut($row), z.as_slice().get($row)) {
+                let lin = h_row_total::<T, K, 3>(model_k, $row, &omega_m, &f_h, &lever);
+                let h = h_row_flight_rate_with::<T, K>($row, &rate_at, &omega_m);
+                *rep = fuse_sparse(x, p, &h, zi - lin.dot(x), r_rate, checks, &mut b);
             }
         };
         ($row:literal, $h:expr) => {
@@ -259,20 +263,21 @@ fn upper_times_row_loop<T: Real, const N: usize, const M: usize>(
 /// second-order model's Jacobian at this θ̂, taken unbounded: on an axis beyond the small-angle
 /// bound the predicted ½ term no longer depends on θ, and neither may the gain (a gain from the
 /// slope at the bound let a filter thrown out of its model run away to non-finite values). The
-/// manoeuvre terms are the same for the three df rows: computed once.
+/// manoeuvre terms are the same for the three df rows: computed once. With them, what the rate
+/// rows' Jacobian is evaluated at.
 #[inline(always)]
-fn df_jacobian_inputs<T: Real, const K: usize, const N: usize>(
+fn jacobian_inputs<T: Real, const K: usize, const N: usize>(
     x: &SVector<T, N>,
     omega_m: &Vector3<T>,
     omega_dot_m: &Vector3<T>,
     lever: &Vector3<T>,
-) -> (Vector3<T>, ManoeuvreTerms<T>) {
+) -> (Vector3<T>, ManoeuvreTerms<T>, RateJacobianAt<T>) {
     let terms = if has_accel_bias::<K>() {
         ManoeuvreTerms::new(omega_m, omega_dot_m, lever)
     } else {
         ManoeuvreTerms::zero()
     };
-    (theta_of::<T, K, N>(x), terms)
+    (theta_of::<T, K, N>(x), terms, RateJacobianAt::of::<K, N>(x))
 }
 
 /// [`fuse_rows`] of a paper filter with [`Guard::Deferred`]: the rows in pairs (0-1, 2-3, 4-5,

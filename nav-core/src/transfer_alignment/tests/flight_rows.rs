@@ -240,3 +240,77 @@ fn second_order_prediction_matches_exact_kinematics() {
     assert!((corr1 / corr2 - 8.0).abs() < 1.0, "{corr1} {corr2}");
     assert!(corr1 < 0.05 * lin1, "{corr1} {lin1}");
 }
+
+/// The flight rate rows' Jacobian (`rate_row`) against finite differences, at a predicted state
+/// away from zero and in level flight (ω_m small, the flexure rate not): of the filter's own
+/// second-order prediction (to rounding), and of the exact kinematics
+/// `dω = ω_m − exp(−[θ×]) ω_m − J_r(θ) θ̇_f` (to the model's order), where the linear row's θ
+/// columns miss `−½ [θ̇_f×]` by all of their size.
+#[test]
+fn flight_rate_rows_match_finite_differences() {
+    use super::measurement::h_row_total;
+    use super::rate_row::{h_row_flight_rate_with, RateJacobianAt};
+    use super::rows::second_order_measurement;
+    use crate::math::rotation::{exp_so3, skew};
+    use nalgebra::Matrix3;
+    const K: usize = FLIGHT_CHAIN;
+    const N: usize = 3 * K;
+    let f_s = Vector3::new(0.5_f64, -0.3, -9.8);
+    let lever = Vector3::new(0.4_f64, 5.0, -0.3);
+    let w_m = Vector3::new(0.002_f64, -0.001, 0.0015);
+    let mut x0 = SVector::<f64, N>::zeros();
+    let (th, rate) = ([3e-3, -2e-3, 4e-3], [0.02, -0.03, 0.025]);
+    for a in 0..3 {
+        x0[K * a] = th[a];
+        x0[K * a + 2] = rate[a];
+    }
+    let lin = |i: usize| {
+        h_row_total::<f64, K, 3>(FlexureModel::Proposed, i, &w_m, &f_s, &lever).to_dense::<N>()
+    };
+    // The filter's prediction of dω: the linear row plus the ½ terms `second_order_measurement`
+    // takes out of z.
+    let model = |x: &SVector<f64, N>| -> Vector3<f64> {
+        let zc = second_order_measurement::<f64, K, N>(&SVector::zeros(), x, &f_s, &w_m);
+        Vector3::from_fn(|i, _| lin(i).dot(x) - zc[i])
+    };
+    let j_r = |t: &Vector3<f64>| {
+        let a = t.norm();
+        let k = skew(t);
+        Matrix3::identity() - k * ((1.0 - a.cos()) / (a * a))
+            + k * k * ((a - a.sin()) / (a * a * a))
+    };
+    let exact = |x: &SVector<f64, N>| -> Vector3<f64> {
+        let t = Vector3::new(x[0], x[K], x[2 * K]);
+        let r = Vector3::new(x[2], x[K + 2], x[2 * K + 2]);
+        w_m - exp_so3(&(-t)) * w_m - j_r(&t) * r
+    };
+    let at = RateJacobianAt::of::<K, N>(&x0);
+    let step = 1e-7;
+    let (mut worst_model, mut worst_exact, mut worst_linear) = (0.0_f64, 0.0_f64, 0.0_f64);
+    for i in 0..3 {
+        let h = h_row_flight_rate_with::<f64, K>(i, &at, &w_m).to_dense::<N>();
+        for j in 0..N {
+            let mut xp = x0;
+            let mut xm = x0;
+            xp[j] += step;
+            xm[j] -= step;
+            let fd_model = (model(&xp)[i] - model(&xm)[i]) / (2.0 * step);
+            let fd_exact = (exact(&xp)[i] - exact(&xm)[i]) / (2.0 * step);
+            worst_model = worst_model.max((fd_model - h[j]).abs());
+            worst_exact = worst_exact.max((fd_exact - h[j]).abs());
+            worst_linear = worst_linear.max((fd_exact - lin(i)[j]).abs());
+        }
+    }
+    // The model's Jacobian exactly (finite-difference rounding only); the exact kinematics to
+    // the slope of the model's third-order terms (|θ| |θ̇_f| / 6 ≈ 3e-5 here); the linear row
+    // off by ½ |θ̇_f| (1.5e-2), five hundred times more.
+    assert!(worst_model < 1e-7, "against the model: {worst_model}");
+    assert!(
+        worst_exact < 5e-5,
+        "against the exact kinematics: {worst_exact}"
+    );
+    assert!(
+        worst_linear > 100.0 * worst_exact,
+        "the linear row: {worst_linear}"
+    );
+}
