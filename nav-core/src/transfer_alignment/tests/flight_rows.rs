@@ -178,6 +178,15 @@ fn flight_covers_bias_f32_f64() {
     flight_covers_bias::<f32>();
 }
 
+/// The right Jacobian of SO(3) at `t` (the slave gyro sees `J_r(θ) θ̇_f`), closed form.
+fn j_r(t: &Vector3<f64>) -> nalgebra::Matrix3<f64> {
+    use crate::math::rotation::skew;
+    let a = t.norm();
+    let k = skew(t);
+    nalgebra::Matrix3::identity() - k * ((1.0 - a.cos()) / (a * a))
+        + k * k * ((a - a.sin()) / (a * a * a))
+}
+
 /// The flight configuration's second-order measurement prediction against the exact
 /// kinematics: `f_s = exp(−[θ×]) (f̃ − L_0 × θ̈_f)`, `ω_s = exp(−[θ×]) ω_m + J_r(θ) θ̇_f`. The
 /// linear rows leave a residual of second order in θ; with the correction it is of third
@@ -186,8 +195,7 @@ fn flight_covers_bias_f32_f64() {
 fn second_order_prediction_matches_exact_kinematics() {
     use super::measurement::h_row_total;
     use super::rows::second_order_measurement;
-    use crate::math::rotation::{exp_so3, skew};
-    use nalgebra::Matrix3;
+    use crate::math::rotation::exp_so3;
     const K: usize = FLIGHT_CHAIN;
     const N: usize = 3 * K;
     let f_m = Vector3::new(4.0_f64, -1.0, -9.8);
@@ -196,12 +204,6 @@ fn second_order_prediction_matches_exact_kinematics() {
     let dir = Vector3::new(0.8_f64, -0.5, 0.6);
     let rate = Vector3::new(0.5_f64, -0.3, 0.2); // θ̇_f per unit of the scale, rad/s
     let accel = Vector3::new(0.4_f64, 0.1, -0.2); // θ̈_f, rad/s²
-    let j_r = |t: &Vector3<f64>| {
-        let a = t.norm();
-        let k = skew(t);
-        Matrix3::identity() - k * ((1.0 - a.cos()) / (a * a))
-            + k * k * ((a - a.sin()) / (a * a * a))
-    };
     let residuals = |scale: f64| -> (f64, f64) {
         let th = dir * scale;
         let th_dot = rate * scale;
@@ -251,8 +253,7 @@ fn flight_rate_rows_match_finite_differences() {
     use super::measurement::h_row_total;
     use super::rate_row::{h_row_flight_rate_with, RateJacobianAt};
     use super::rows::second_order_measurement;
-    use crate::math::rotation::{exp_so3, skew};
-    use nalgebra::Matrix3;
+    use crate::math::rotation::exp_so3;
     const K: usize = FLIGHT_CHAIN;
     const N: usize = 3 * K;
     let f_s = Vector3::new(0.5_f64, -0.3, -9.8);
@@ -272,12 +273,6 @@ fn flight_rate_rows_match_finite_differences() {
     let model = |x: &SVector<f64, N>| -> Vector3<f64> {
         let zc = second_order_measurement::<f64, K, N>(&SVector::zeros(), x, &f_s, &w_m);
         Vector3::from_fn(|i, _| lin(i).dot(x) - zc[i])
-    };
-    let j_r = |t: &Vector3<f64>| {
-        let a = t.norm();
-        let k = skew(t);
-        Matrix3::identity() - k * ((1.0 - a.cos()) / (a * a))
-            + k * k * ((a - a.sin()) / (a * a * a))
     };
     let exact = |x: &SVector<f64, N>| -> Vector3<f64> {
         let t = Vector3::new(x[0], x[K], x[2 * K]);
