@@ -203,7 +203,7 @@ fn run_campaign(plan: &CampaignPlan) -> Result<Vec<VariantResult>> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scenarios::campaign_plan::{MAX_ACCURACY_LOSS, MIN_FRAC_IN_BAND, NES_MAX, NES_MIN};
+    use crate::scenarios::campaign_plan::{MAX_ACCURACY_LOSS, NES_MAX, NES_MIN};
 
     fn plan(variants: usize, runs: usize) -> CampaignPlan {
         CampaignPlan {
