@@ -43,7 +43,7 @@ pub(crate) fn layout(strict: bool) -> Result<(), String> {
     for (krate, roots) in CRATES {
         let src = root.join(krate).join("src");
         let mut files = Vec::new();
-        rust_files(&src, &mut files)?;
+        files_with_extension(&src, "rs", &mut files)?;
         files.sort();
         for file in &files {
             let rel = file.strip_prefix(&root).unwrap_or(file).to_path_buf();
@@ -118,13 +118,18 @@ fn is_generated(rel: &Path) -> bool {
     rel.components().any(|c| c.as_os_str() == "generated")
 }
 
-fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) -> Result<(), String> {
+/// Every file under `dir` (recursively) whose extension is `ext`, into `out`.
+pub(crate) fn files_with_extension(
+    dir: &Path,
+    ext: &str,
+    out: &mut Vec<PathBuf>,
+) -> Result<(), String> {
     let entries = fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     for entry in entries {
         let path = entry.map_err(|e| format!("{}: {e}", dir.display()))?.path();
         if path.is_dir() {
-            rust_files(&path, out)?;
-        } else if path.extension().is_some_and(|e| e == "rs") {
+            files_with_extension(&path, ext, out)?;
+        } else if path.extension().is_some_and(|e| e == ext) {
             out.push(path);
         }
     }

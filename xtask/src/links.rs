@@ -28,26 +28,13 @@ pub(crate) struct Broken {
 pub(crate) fn documents(root: &Path) -> Result<Vec<PathBuf>, String> {
     let mut files = vec![root.join("README.md"), root.join("ARCHITECTURE.md")];
     let mut more = Vec::new();
-    markdown_under(&root.join("docs"), &mut more)?;
+    let docs = root.join("docs");
+    if docs.is_dir() {
+        crate::layout::files_with_extension(&docs, "md", &mut more)?;
+    }
     more.sort();
     files.extend(more);
     Ok(files.into_iter().filter(|f| f.is_file()).collect())
-}
-
-/// Every `.md` file under `dir` (recursively) into `out`; nothing when `dir` is not a directory.
-fn markdown_under(dir: &Path, out: &mut Vec<PathBuf>) -> Result<(), String> {
-    if !dir.is_dir() {
-        return Ok(());
-    }
-    for entry in fs::read_dir(dir).map_err(|e| format!("{}: {e}", dir.display()))? {
-        let path = entry.map_err(|e| format!("{}: {e}", dir.display()))?.path();
-        if path.is_dir() {
-            markdown_under(&path, out)?;
-        } else if path.extension().is_some_and(|e| e == "md") {
-            out.push(path);
-        }
-    }
-    Ok(())
 }
 
 /// Every broken relative link of `files`.
