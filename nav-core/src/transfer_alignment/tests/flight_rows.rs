@@ -29,11 +29,7 @@ fn flight_h_rows_match_finite_differences() {
         let h = h_row_total::<f64, K, 5>(FlexureModel::Proposed, 3 + i, &omega, &f_m, &lever)
             .to_dense::<N>();
         for j in 0..N {
-            let mut xp = x0;
-            let mut xm = x0;
-            xp[j] += step;
-            xm[j] -= step;
-            let fd = (df(&xp)[i] - df(&xm)[i]) / (2.0 * step);
+            let fd = central_difference(&df, &x0, i, j, step);
             assert!(
                 (fd - h[j]).abs() < 1e-6 * (1.0 + fd.abs()),
                 "row df_{i}, column {j}: finite difference {fd}, H {}",
@@ -88,11 +84,7 @@ fn flight_h_rows_in_a_manoeuvre_match_finite_differences() {
             h_row_flight::<f64, K, 12>(3 + i, &omega, &omega_dot, &f_comp, &lever).to_dense::<N>();
         let mut coupled = 0;
         for j in 0..N {
-            let mut xp = x0;
-            let mut xm = x0;
-            xp[j] += step;
-            xm[j] -= step;
-            let fd = (df(&xp)[i] - df(&xm)[i]) / (2.0 * step);
+            let fd = central_difference(&df, &x0, i, j, step);
             assert!(
                 (fd - h[j]).abs() < 1e-6 * (1.0 + fd.abs()),
                 "row df_{i}, column {j}: finite difference {fd}, H {}",
@@ -176,6 +168,20 @@ fn flight_covers_bias<T: Real>() {
 fn flight_covers_bias_f32_f64() {
     flight_covers_bias::<f64>();
     flight_covers_bias::<f32>();
+}
+
+/// `∂f_i/∂x_j` at `x0` by a central difference of `step`.
+fn central_difference<const N: usize>(
+    f: &impl Fn(&SVector<f64, N>) -> Vector3<f64>,
+    x0: &SVector<f64, N>,
+    i: usize,
+    j: usize,
+    step: f64,
+) -> f64 {
+    let (mut xp, mut xm) = (*x0, *x0);
+    xp[j] += step;
+    xm[j] -= step;
+    (f(&xp)[i] - f(&xm)[i]) / (2.0 * step)
 }
 
 /// The right Jacobian of SO(3) at `t` (the slave gyro sees `J_r(θ) θ̇_f`), closed form.
@@ -285,12 +291,8 @@ fn flight_rate_rows_match_finite_differences() {
     for i in 0..3 {
         let h = h_row_flight_rate_with::<f64, K>(i, &at, &w_m).to_dense::<N>();
         for j in 0..N {
-            let mut xp = x0;
-            let mut xm = x0;
-            xp[j] += step;
-            xm[j] -= step;
-            let fd_model = (model(&xp)[i] - model(&xm)[i]) / (2.0 * step);
-            let fd_exact = (exact(&xp)[i] - exact(&xm)[i]) / (2.0 * step);
+            let fd_model = central_difference(&model, &x0, i, j, step);
+            let fd_exact = central_difference(&exact, &x0, i, j, step);
             worst_model = worst_model.max((fd_model - h[j]).abs());
             worst_exact = worst_exact.max((fd_exact - h[j]).abs());
             worst_linear = worst_linear.max((fd_exact - lin(i)[j]).abs());
