@@ -62,6 +62,8 @@ pub struct SeekerIns<T> {
     /// The equivalent-bias variance added so far (flight configuration; module
     /// `flight_noise`). Kept across re-initialisation, as the bias block is.
     pub(super) bias_charge: EquivalentBiasCharge<T>,
+    /// The accelerometers' S and M as consider parameters (module `consider`).
+    pub(super) consider: super::consider::ConsiderCross<T>,
     /// The radii the covariance step's F uses: those the last INS step evaluated at the
     /// start of its interval ([`Ins::step_keeping_radii`]); `None` after construction,
     /// re-initialisation or a reset (no step pending: the next step sets them before a
@@ -99,6 +101,7 @@ impl<T: Real> PartialEq for SeekerIns<T> {
             && self.run_start == o.run_start
             && self.last_update == o.last_update
             && self.bias_charge == o.bias_charge
+            && self.consider == o.consider
             && self.radii == o.radii
     }
 }
@@ -184,6 +187,7 @@ impl<T: Real> Estimator for SeekerIns<T> {
                 }
             }
         }
+        self.consider.forget_navigation();
         self.radii = None;
         self.ins = ins;
         self.steps_pending = 0;
@@ -292,6 +296,10 @@ impl<T: Real> SeekerIns<T> {
             input: "specific_force_reference",
         })?;
         self.bias_charge = next;
+        if super::consider::enabled() {
+            self.consider
+                .start(&self.config.instrument_errors, f_ref_b_m_s2);
+        }
         Ok(())
     }
 
@@ -377,6 +385,20 @@ impl<T: Real> SeekerIns<T> {
         Ok(true)
     }
 
+    /// The consider cross-covariance after a baro update of gain `k` applied by
+    /// [`Self::update_rank_one`] (row `h + τ V_D`; the baro error's covariance with the consider
+    /// parameters taken as zero: prototype).
+    pub(crate) fn consider_after_baro(&mut self, tau_s: T, k: &nalgebra::SVector<T, STATES>) {
+        let mut h = nalgebra::SVector::<T, STATES>::zeros();
+        if let Some(v) = h.get_mut(super::POS + 2) {
+            *v = T::one();
+        }
+        if let Some(v) = h.get_mut(super::VEL + 2) {
+            *v = tau_s;
+        }
+        self.consider.after_rank_one(&h, k);
+    }
+
     /// The flight navigator's baro-inertial loop owns the vertical channel: the error
     /// estimate `x` is fed back (as a LOS update's), then the (δh, δV_D) rows and columns of
     /// P are replaced by the loop's block `[[var_h, cov_h_vd], [cov_h_vd, var_vd]]` (m², m²/s,
@@ -396,6 +418,8 @@ impl<T: Real> SeekerIns<T> {
         }
         self.feed_back_parts(x)?;
         let (ih, iv) = (super::POS + 2, super::VEL + 2);
+        self.consider.scale_row(ih, T::zero());
+        self.consider.scale_row(iv, T::zero());
         for k in 0..STATES {
             for (i, j) in [(ih, k), (k, ih), (iv, k), (k, iv)] {
                 if let Some(v) = self.p.get_mut((i, j)) {
@@ -448,6 +472,7 @@ impl<T: Real> SeekerIns<T> {
             run_start: None,
             last_update: LastUpdate::None,
             bias_charge: EquivalentBiasCharge::default(),
+            consider: super::consider::ConsiderCross::default(),
             radii: None,
         }
     }

@@ -349,6 +349,7 @@ pub(crate) fn add_instrument_noise<T: Real>(
                 next = first;
             }
         }
+        Some(_) if super::consider::enabled() => {}
         Some(f0) => {
             let (vel, bias) =
                 accel_departure(p, charge, &mut next, errors, c_b_n, &f0, f_b_m_s2, dt_s);

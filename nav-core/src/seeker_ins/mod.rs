@@ -150,6 +150,7 @@
 //! and the setters: O(17²) at most. No call loops on data.
 
 mod config;
+mod consider;
 mod covariance_health;
 mod error_model;
 mod filter;
@@ -175,6 +176,7 @@ pub use config::{
     MAX_GAP_ATTITUDE_SIGMA_RAD, MAX_GAP_S, MAX_GAP_SAMPLES, MAX_GAP_VELOCITY_SIGMA_M_S,
     MAX_INFLATION_FACTOR, MAX_STARVED_AFTER_S, VARIANCE_CEILING,
 };
+pub use consider::{ACCEL_CONSIDER, CONSIDER};
 pub(crate) use covariance_health::PsdMargin;
 pub use covariance_health::{PROPAGATION_STABILISING_EPS, PSD_MARGIN_EPS};
 #[cfg(test)]

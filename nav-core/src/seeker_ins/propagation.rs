@@ -355,6 +355,7 @@ impl<T: Real> SeekerIns<T> {
                 }
             }
         }
+        self.consider.forget_navigation();
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
@@ -410,6 +411,7 @@ impl<T: Real> SeekerIns<T> {
                 for v in self.p.row_mut(i).iter_mut() {
                     *v *= f;
                 }
+                self.consider.scale_row(i, f);
                 Health::bump(&mut self.health.limits_hit);
             }
         }
@@ -513,6 +515,22 @@ impl<T: Real> SeekerIns<T> {
             self.design.accel_psd_m2_s3,
             self.design.gyro_psd_rad2_s,
         )?;
+        // Consider parameters for the accelerometers' S and M (prototype switch).
+        let consider = super::consider::enabled() && !self.config.instrument_errors.is_zero();
+        if consider {
+            if let Some(f_ref) = self.bias_charge.reference_f_b_m_s2 {
+                let f_b = f.c_b_n.transpose() * f.f_ned;
+                self.consider.step(
+                    &mut self.p,
+                    &self.config.instrument_errors,
+                    f,
+                    &f_b,
+                    &f_ref,
+                    dt_total_s,
+                );
+            }
+        }
+        let had_reference = self.bias_charge.reference_f_b_m_s2.is_some();
         // Flight configuration: the instrument errors the 17 states do not model.
         flight_noise_step(
             &mut self.p,
@@ -522,6 +540,11 @@ impl<T: Real> SeekerIns<T> {
             f,
             dt_total_s,
         );
+        if consider && !had_reference {
+            if let Some(f_ref) = self.bias_charge.reference_f_b_m_s2 {
+                self.consider.start(&self.config.instrument_errors, &f_ref);
+            }
+        }
         Ok(repairs)
     }
 

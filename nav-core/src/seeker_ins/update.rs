@@ -240,6 +240,7 @@ impl<T: Real> SeekerIns<T> {
             &c.kk2,
             stabilising_delta(c.info_ratio),
         );
+        self.consider.after_los(&report, model, &c.kk1, &c.kk2);
         let conditioned = u32::from(fused1 && c.cond1) + u32::from(fused2 && c.cond2);
         self.note_fusion(sample, &[c.rep1.outcome, c.rep2.outcome], conditioned);
         report
@@ -351,6 +352,9 @@ impl<T: Real> SeekerIns<T> {
                     _ => *v *= sf,
                 }
             }
+        }
+        for i in 0..9 {
+            self.consider.scale_row(i, sf);
         }
         self.limit_variances();
     }

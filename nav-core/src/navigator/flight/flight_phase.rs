@@ -296,6 +296,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                             .update_rank_one(&g.dx, &g.u, &g.k, g.delta)
                             .unwrap_or(false)
                         {
+                            ekf.consider_after_baro(tau, &g.k);
                             bs.cross = g.cross;
                             bs.variance_m2 = g.variance_m2;
                             bs.bias_m -= g.db_m;
