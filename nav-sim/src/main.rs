@@ -88,10 +88,6 @@ enum Cmd {
 
 fn main() -> Result<()> {
     let cli = Cli::parse();
-    if std::env::var_os("NAV_ACCEL_CONSIDER").is_some() {
-        nav_core::seeker_ins::ACCEL_CONSIDER.store(true, std::sync::atomic::Ordering::Relaxed);
-        eprintln!("accelerometer S and M as consider parameters");
-    }
     match cli.cmd {
         Cmd::List { scenario_dir } => list(scenario_dir),
         Cmd::Golden { out, seed } => golden(&out, seed),

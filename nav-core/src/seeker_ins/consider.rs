@@ -1,50 +1,57 @@
-//! Schmidt consider parameters for the accelerometers' scale factor and misalignment
-//! (prototype, switched on by [`ACCEL_CONSIDER`]).
+//! The accelerometers' scale factor S and misalignment M as **Schmidt consider parameters**
+//! (flight configuration, [`super::InstrumentErrors`]).
 //!
 //! The accelerometer-bias states are the equivalent bias at the reference specific force,
-//! `∇ = b + (S + M) f_ref`, so the velocity error grows as
+//! `∇ = b + (S + M) f_ref` (module `flight_noise`), so the velocity error grows as
 //! `δV̇ = … + C_b^n ∇ + C_b^n (S + M)(f − f_ref)`. With the nine elements of S and M as
 //! consider parameters `c = (S_x, S_y, S_z, M_xy, M_xz, M_yx, M_yz, M_zx, M_zy)`,
-//! `(S + M) u = J(u) c` (`J(u)` 3 × 9: row i has `u_i` in the column of `S_i` and `u_j` in
+//! `(S + M) u = J(u) c` (`J(u)` 3 × 9: row i holds `u_i` in the column of `S_i` and `u_j` in
 //! that of `M_ij`), and over a covariance step of Δt the error gains `Γ c`,
-//! `Γ = C_b^n J(f − f_ref) Δt` (the velocity rows only). The filter keeps the cross-covariance
-//! `P_xc = E[δx cᵀ]` (17 × 9) beside its 17 × 17 P, with `P_cc = diag(σ_S² I₃, σ_M² I₆)`
-//! constant (never updated: consider, not estimated):
+//! `Γ = C_b^n J(f − f_ref) Δt` (velocity rows only; `f` the step's mean body specific force).
+//! The filter keeps the cross-covariance `P_xc = E[δx cᵀ]` (17 × 9) beside its 17 × 17 P;
+//! `P_cc = diag(σ_S² I₃, σ_M² I₆)` stays constant (the parameters are considered, never
+//! estimated: no feedback, no update of their variance):
 //!
 //! ```text
-//! P   ← Φ P Φᵀ + Q + Φ P_xc Γᵀ + Γ P_xcᵀ Φᵀ + Γ P_cc Γᵀ
+//! P    ← Φ P Φᵀ + Q + Φ P_xc Γᵀ + Γ P_xcᵀ Φᵀ + Γ P_cc Γᵀ      (Φ P Φᵀ + Q: the kernel's)
 //! P_xc ← Φ P_xc + Γ P_cc
 //! ```
 //!
-//! and each fused scalar LOS component (gain `K = P h / s`, `h_c = 0`) takes
-//! `P_xc ← P_xc − K (hᵀ P_xc)`. At the reference `P_xc[∇, ·] = J(f_ref) P_cc` (the reference's
-//! share of the bias states' error is `(S + M) f_ref`); every other row starts at zero.
+//! — the 26-state covariance step with `Φ_a = [[Φ, Γ], [0, I]]`, of which the filter keeps the
+//! blocks it uses. A scalar update of row h (`h_c = 0`: no measurement sees S or M directly)
+//! has the 17-state gain `K = P h / s` and takes `P_xc ← P_xc − K (hᵀ P_xc)`. At the reference
+//! `P_xc[∇, ·] = J(f_ref) P_cc` (the reference's share of the bias states' error is
+//! `(S + M) f_ref`, `v(f_ref)` of their variance); every other row starts at zero.
+//!
+//! What this carries that a diagonal charge cannot: the error `(S + M)(f − f_ref)` of one turn
+//! is correlated with that of the next (the same S and M), with the reference's share in the
+//! bias states and, through the updates, with everything the LOS has learnt of them. Measured
+//! (docs/seeker-ins.md): the S-turn's NEES no longer rises over the flight.
+//!
+//! A state kept beside the 17 (the flight navigator's baro error `e`, its column
+//! `E[δx e]` in [`super::CrossColumn`]) has its own row `P_ec = E[e cᵀ]` (9 values, kept here):
+//! the covariance step adds `Γ P_ecᵀ` to its column, its updates and decay are the owner's.
+//!
+//! Cost per covariance step: `Φ P_xc` (nine columns through the kernel's Φ), `W = P_xc' Jᵀ`
+//! (J has one non-zero per column: 9 products a row), `W C_n^b`, the velocity rows and
+//! columns of P; per fused LOS component `hᵀ P_xc` over h's non-zero entries and the rank-one
+//! correction of P_xc.
 
-use super::error_model::{transition_times, ACC_BIAS, STATES, VEL};
+use super::error_model::{transition_times, STATES, VEL};
 use super::flight_noise::InstrumentErrors;
-use super::measurement::LosModel;
 use super::sparse_f::SparseF;
-use super::update::LosReport;
-use crate::contract::FusionOutcome;
 use crate::Real;
-use core::sync::atomic::{AtomicBool, Ordering};
 use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 
-/// Number of consider parameters.
+/// Number of consider parameters (the accelerometers' S and M).
 pub const CONSIDER: usize = 9;
 
-/// Prototype switch: the accelerometer part of the flight configuration's charge replaced by
-/// the consider parameters (read at each covariance step).
-#[doc(hidden)]
-pub static ACCEL_CONSIDER: AtomicBool = AtomicBool::new(false);
+/// Index of the first accelerometer-bias state (the rows of the reference's share).
+const ACC_BIAS: usize = super::error_model::ACC_BIAS;
 
-/// Whether the consider form is switched on.
-pub(crate) fn enabled() -> bool {
-    ACCEL_CONSIDER.load(Ordering::Relaxed)
-}
-
-/// Row of `(S + M) u` and component of `u` each consider parameter multiplies.
-const ROW_COMP: [(usize, usize); CONSIDER] = [
+/// Row of `(S + M) u` and component of `u` each consider parameter multiplies:
+/// `S_x, S_y, S_z, M_xy, M_xz, M_yx, M_yz, M_zx, M_zy`.
+pub(crate) const ROW_COMP: [(usize, usize); CONSIDER] = [
     (0, 0),
     (1, 1),
     (2, 2),
@@ -56,10 +63,14 @@ const ROW_COMP: [(usize, usize); CONSIDER] = [
     (2, 1),
 ];
 
-/// The cross-covariance `P_xc` and whether it is in use (set with the reference).
+/// The cross-covariances of the consider parameters.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct ConsiderCross<T> {
+    /// `P_xc = E[δx cᵀ]`, 17 × 9.
     pub(crate) p_xc: SMatrix<T, STATES, CONSIDER>,
+    /// `P_ec = E[e cᵀ]` of the state kept beside the 17 (the navigator's baro error), m.
+    pub(crate) p_ec: SVector<T, CONSIDER>,
+    /// In use: set with the reference when the accelerometers' σ are not zero.
     pub(crate) active: bool,
 }
 
@@ -67,130 +78,165 @@ impl<T: Real> Default for ConsiderCross<T> {
     fn default() -> Self {
         Self {
             p_xc: SMatrix::zeros(),
+            p_ec: SVector::zeros(),
             active: false,
         }
     }
 }
 
-/// `P_cc`'s diagonal.
-fn p_cc<T: Real>(e: &InstrumentErrors<T>) -> [T; CONSIDER] {
-    let (s2, m2) = (
+/// `P_cc`'s diagonal: `(σ_S², σ_M²)`.
+pub(crate) fn p_cc<T: Real>(e: &InstrumentErrors<T>) -> (T, T) {
+    (
         e.accel_scale_factor * e.accel_scale_factor,
         e.accel_misalignment_rad * e.accel_misalignment_rad,
-    );
-    [s2, s2, s2, m2, m2, m2, m2, m2, m2]
+    )
 }
 
-/// `J(u)`'s non-zero entry of each column: `(row, value)`.
-fn jacobian<T: Real>(u: &Vector3<T>) -> [(usize, T); CONSIDER] {
-    ROW_COMP.map(|(r, k)| (r, u.get(k).copied().unwrap_or(T::zero())))
+/// `P_cc`'s diagonal element of parameter `j`.
+fn pcc_at<T: Real>(pcc: (T, T), j: usize) -> T {
+    if j < 3 {
+        pcc.0
+    } else {
+        pcc.1
+    }
+}
+
+/// `J(u)`'s one non-zero entry of column `j`: `(row, value)`.
+pub(crate) fn jacobian_entry<T: Real>(u: &Vector3<T>, j: usize) -> (usize, T) {
+    let (r, k) = ROW_COMP.get(j).copied().unwrap_or((0, 0));
+    (r, u.get(k).copied().unwrap_or_else(T::zero))
+}
+
+/// `Γ = C_b^n J(u) Δt` (3 × 9; `u = f − f_ref`).
+pub(crate) fn gamma<T: Real>(
+    c_b_n: &Matrix3<T>,
+    u: &Vector3<T>,
+    dt_s: T,
+) -> SMatrix<T, 3, CONSIDER> {
+    SMatrix::from_fn(|r, j| {
+        let (row, v) = jacobian_entry(u, j);
+        c_b_n.get((r, row)).copied().unwrap_or_else(T::zero) * (v * dt_s)
+    })
 }
 
 impl<T: Real> ConsiderCross<T> {
-    /// Starts `P_xc` at the reference `f_ref`: bias rows `J(f_ref) P_cc`, the rest zero.
+    /// Starts `P_xc` at the reference `f_ref` (body, m/s²): bias rows `J(f_ref) P_cc`, the
+    /// rest (and `P_ec`) zero; inactive when both accelerometer σ are zero.
     pub(crate) fn start(&mut self, errors: &InstrumentErrors<T>, f_ref: &Vector3<T>) {
-        self.p_xc = SMatrix::zeros();
+        *self = Self::default();
         let pcc = p_cc(errors);
-        for (j, ((r, v), s)) in jacobian(f_ref).iter().zip(pcc.iter()).enumerate() {
+        if pcc.0 <= T::zero() && pcc.1 <= T::zero() {
+            return;
+        }
+        for j in 0..CONSIDER {
+            let (r, v) = jacobian_entry(f_ref, j);
             if let Some(x) = self.p_xc.get_mut((ACC_BIAS + r, j)) {
-                *x = *v * *s;
+                *x = v * pcc_at(pcc, j);
             }
         }
         self.active = true;
     }
 
-    /// The consider part of a covariance step (module doc), after the kernel's
-    /// `Φ P Φᵀ + Q` in `p`: `f` the step's F (its Φ), `f_b` the mean body specific force and
-    /// `f_ref` the reference (m/s²), `dt_s` the interval.
+    /// The consider part of a covariance step (module doc), `p` holding the kernel's
+    /// `Φ P Φᵀ + Q` of F = `f` over `dt_s`; `u = f − f_ref` the departure of the step's mean
+    /// body specific force (m/s²); `cross` the column of a state kept beside the 17, already
+    /// `Φ c` (gains `Γ P_ecᵀ`). Nothing when inactive. Rows of zero variance (repaired) are
+    /// zeroed after.
+    #[inline(never)]
     pub(crate) fn step(
         &mut self,
         p: &mut SMatrix<T, STATES, STATES>,
         errors: &InstrumentErrors<T>,
         f: &SparseF<T>,
-        f_b: &Vector3<T>,
-        f_ref: &Vector3<T>,
+        u: &Vector3<T>,
         dt_s: T,
+        cross: Option<&mut SVector<T, STATES>>,
     ) {
         if !self.active {
             return;
         }
         let z = T::zero();
-        let u = f_b - f_ref;
         let pcc = p_cc(errors);
-        let jac = jacobian(&u);
-        let c_b_n: Matrix3<T> = f.c_b_n;
-        // Γ (3 × 9, the velocity rows): column j is `C_b^n[:, row_j] u_j Δt`.
-        let gamma = SMatrix::<T, 3, CONSIDER>::from_fn(|r, j| {
-            let (row, v) = jac.get(j).copied().unwrap_or((0, z));
-            c_b_n.get((r, row)).copied().unwrap_or(z) * v * dt_s
-        });
-        // A = Φ P_xc, column by column.
-        let mut a = SMatrix::<T, STATES, CONSIDER>::zeros();
+        // A = Φ P_xc, column by column through the kernel's Φ.
+        for mut col in self.p_xc.column_iter_mut() {
+            let c: SVector<T, STATES> = col.clone_owned();
+            col.copy_from(&transition_times(f, dt_s, &c));
+        }
+        // W = A Jᵀ (17 × 3, J one entry a column), then B = A Γᵀ = W C_n^b Δt... as
+        // `B[i, k] = Δt Σ_r C[k, r] W[i, r]`.
+        let mut w = SMatrix::<T, STATES, 3>::zeros();
         for j in 0..CONSIDER {
-            let col: SVector<T, STATES> = self.p_xc.column(j).into_owned();
-            a.set_column(j, &transition_times(f, dt_s, &col));
-        }
-        // M = A Γᵀ (17 × 3): P[:, V] += M, P[V, :] += Mᵀ; the velocity block
-        // M[V, ·] + M[V, ·]ᵀ + Γ P_cc Γᵀ, written symmetric.
-        let m = a * gamma.transpose();
-        let gpg = SMatrix::<T, 3, 3>::from_fn(|r, s| {
-            (0..CONSIDER).fold(z, |acc, j| {
-                acc + gamma.get((r, j)).copied().unwrap_or(z)
-                    * pcc.get(j).copied().unwrap_or(z)
-                    * gamma.get((s, j)).copied().unwrap_or(z)
-            })
-        });
-        for i in 0..STATES {
-            if (VEL..VEL + 3).contains(&i) {
-                continue;
-            }
-            for k in 0..3 {
-                let v = m.get((i, k)).copied().unwrap_or(z);
-                if let Some(x) = p.get_mut((i, VEL + k)) {
-                    *x += v;
-                }
-                if let Some(x) = p.get_mut((VEL + k, i)) {
-                    *x += v;
-                }
+            let (r, v) = jacobian_entry(u, j);
+            for (wi, ai) in w.column_mut(r).iter_mut().zip(self.p_xc.column(j).iter()) {
+                *wi += *ai * v;
             }
         }
-        for r in 0..3 {
-            for s in r..3 {
-                let add = m.get((VEL + r, s)).copied().unwrap_or(z)
-                    + m.get((VEL + s, r)).copied().unwrap_or(z)
-                    + gpg.get((r, s)).copied().unwrap_or(z);
-                let v = p.get((VEL + r, VEL + s)).copied().unwrap_or(z) + add;
-                if let Some(x) = p.get_mut((VEL + r, VEL + s)) {
-                    *x = v;
-                }
-                if let Some(x) = p.get_mut((VEL + s, VEL + r)) {
-                    *x = v;
-                }
-            }
-        }
-        // P_xc ← A + Γ P_cc.
+        let cdt = f.c_b_n * dt_s;
+        let b = w * cdt.transpose();
+        // Γ P_cc Γᵀ = C diag(v(u)) Cᵀ Δt², `v_r(u) = Σ_{j in row r} σ_j² u_{k_j}²`.
+        let mut v = Vector3::zeros();
         for j in 0..CONSIDER {
-            let s = pcc.get(j).copied().unwrap_or(z);
+            let (r, x) = jacobian_entry(u, j);
+            if let Some(vr) = v.get_mut(r) {
+                *vr += pcc_at(pcc, j) * x * x;
+            }
+        }
+        let gpg = cdt * Matrix3::from_diagonal(&v) * cdt.transpose();
+        add_velocity_cross(p, &b, &gpg);
+        // P_xc ← A + Γ P_cc (velocity rows), and the external column's `Γ P_ecᵀ`.
+        let g = gamma(&f.c_b_n, u, dt_s);
+        for j in 0..CONSIDER {
+            let s = pcc_at(pcc, j);
             for r in 0..3 {
-                if let Some(x) = a.get_mut((VEL + r, j)) {
-                    *x += gamma.get((r, j)).copied().unwrap_or(z) * s;
+                let gj = g.get((r, j)).copied().unwrap_or(z);
+                if let Some(x) = self.p_xc.get_mut((VEL + r, j)) {
+                    *x += gj * s;
                 }
             }
         }
-        self.p_xc = a;
+        if let Some(c) = cross {
+            let add = g * self.p_ec;
+            for r in 0..3 {
+                if let (Some(x), Some(a)) = (c.get_mut(VEL + r), add.get(r)) {
+                    *x += *a;
+                }
+            }
+        }
         self.zero_known_rows(p);
+    }
+
+    /// The consider part of a covariance step over `dt_s` with F = `f` for the reference
+    /// `f_ref` (`None`: not set yet, nothing to do), after the kernel and before the
+    /// instrument-error charge. Returns whether a reference was set before the step (the
+    /// caller starts `P_xc` when the charge sets it).
+    pub(crate) fn step_at(
+        &mut self,
+        p: &mut SMatrix<T, STATES, STATES>,
+        errors: &InstrumentErrors<T>,
+        f_ref: Option<Vector3<T>>,
+        f: &SparseF<T>,
+        dt_s: T,
+    ) -> bool {
+        let Some(f_ref) = f_ref else {
+            return false;
+        };
+        let u = f.c_b_n.tr_mul(&f.f_ned) - f_ref;
+        if crate::math::checks::all_finite(u.as_slice()) {
+            self.step(p, errors, f, &u, dt_s, None);
+        }
+        true
     }
 
     /// Rows of states whose variance is zero (repaired, or known exactly) set to zero.
     pub(crate) fn zero_known_rows(&mut self, p: &SMatrix<T, STATES, STATES>) {
-        for i in 0..STATES {
-            if p.get((i, i)).is_some_and(|d| *d <= T::zero()) {
+        for (i, d) in p.diagonal().iter().enumerate() {
+            if *d <= T::zero() {
                 self.p_xc.row_mut(i).fill(T::zero());
             }
         }
     }
 
-    /// Rows `0..9` (the navigation states) scaled by `f` (a congruence on P's rows).
+    /// Row `i` scaled by `f` (P's row and column scaled: a congruence).
     pub(crate) fn scale_row(&mut self, i: usize, f: T) {
         if i < STATES {
             for v in self.p_xc.row_mut(i).iter_mut() {
@@ -199,45 +245,144 @@ impl<T: Real> ConsiderCross<T> {
         }
     }
 
-    /// The navigation rows forgotten (P's navigation block restarted independent).
+    /// The navigation rows (0..9) forgotten: P's navigation block restarted independent.
     pub(crate) fn forget_navigation(&mut self) {
         for i in 0..9 {
             self.p_xc.row_mut(i).fill(T::zero());
         }
     }
 
-    /// After the fused components of a committed 2-D LOS update: `P_xc ← P_xc − K (hᵀ P_xc)`
-    /// per fused component, `kk` its gain `P h / s` (the second against the first's result).
-    pub(crate) fn after_los(
+    /// A scalar update of row `h` with the 17-state gain `k = P h / s` (`h_c = 0`):
+    /// `P_xc ← P_xc − k (hᵀ P_xc)`; with `k_e` the gain of the state kept beside the 17 (and
+    /// `h_e` its entry in the row), `g = hᵀ P_xc + h_e P_ec`, `P_ec ← P_ec − k_e g`.
+    pub(crate) fn after_scalar(
         &mut self,
-        report: &LosReport<T>,
-        model: &LosModel<T>,
-        kk1: &[T; STATES],
-        kk2: &[T; STATES],
+        h: &SVector<T, STATES>,
+        h_e: T,
+        k: &SVector<T, STATES>,
+        k_e: T,
     ) {
         if !self.active {
             return;
         }
-        let steps = [
-            (&report.pitch, &model.h_pitch, kk1),
-            (&report.yaw, &model.h_yaw, kk2),
-        ];
-        for (rep, h, kk) in steps {
-            if rep.outcome != FusionOutcome::Fused {
-                continue;
+        let g = self.p_xc.tr_mul(h) + self.p_ec * h_e; // 9
+        self.p_xc -= k * g.transpose();
+        self.p_ec -= g * k_e;
+    }
+}
+
+/// `P[:, V] += B`, `P[V, :] += Bᵀ` outside the velocity block, and the velocity block
+/// `P[V, V] += B[V, ·] + B[V, ·]ᵀ + G` (G symmetric), each mirrored pair written from one value.
+fn add_velocity_cross<T: Real>(
+    p: &mut SMatrix<T, STATES, STATES>,
+    b: &SMatrix<T, STATES, 3>,
+    g: &Matrix3<T>,
+) {
+    let z = T::zero();
+    for i in (0..STATES).filter(|i| !(VEL..VEL + 3).contains(i)) {
+        for k in 0..3 {
+            let v = p.get((i, VEL + k)).copied().unwrap_or(z) + b.get((i, k)).copied().unwrap_or(z);
+            if let Some(x) = p.get_mut((i, VEL + k)) {
+                *x = v;
             }
-            let k = SVector::<T, STATES>::from(*kk);
-            let g = h.transpose() * self.p_xc; // 1 × 9
-            self.p_xc -= k * g;
+            if let Some(x) = p.get_mut((VEL + k, i)) {
+                *x = v;
+            }
+        }
+    }
+    for r in 0..3 {
+        for s in r..3 {
+            let add = b.get((VEL + r, s)).copied().unwrap_or(z)
+                + b.get((VEL + s, r)).copied().unwrap_or(z)
+                + g.get((r, s)).copied().unwrap_or(z);
+            let v = p.get((VEL + r, VEL + s)).copied().unwrap_or(z) + add;
+            if let Some(x) = p.get_mut((VEL + r, VEL + s)) {
+                *x = v;
+            }
+            if let Some(x) = p.get_mut((VEL + s, VEL + r)) {
+                *x = v;
+            }
+        }
+    }
+}
+
+impl<T: Real> super::SeekerIns<T> {
+    /// The consider part of a covariance step over `dt_s` with F = `f`, after the kernel and
+    /// before the instrument-error charge ([`ConsiderCross::step_at`]); whether a reference
+    /// was set before the step.
+    pub(super) fn consider_step(&mut self, f: &SparseF<T>, dt_s: T) -> bool {
+        let f_ref = self.bias_charge.reference_f_b_m_s2;
+        let errors = self.config.instrument_errors;
+        self.consider.step_at(&mut self.p, &errors, f_ref, f, dt_s)
+    }
+
+    /// [`Self::consider_start`] when `due` (the charge may just have set the reference).
+    pub(super) fn consider_start_if(&mut self, due: bool) {
+        if due {
+            self.consider_start();
         }
     }
 
-    /// A rank-one update `P ← P − u kᵀ` with `u = P h`, `k = u / s`: `P_xc ← P_xc − k (hᵀ P_xc)`.
-    pub(crate) fn after_rank_one(&mut self, h: &SVector<T, STATES>, k: &SVector<T, STATES>) {
-        if !self.active {
+    /// `P_xc` started at the reference just set (nothing without one).
+    pub(super) fn consider_start(&mut self) {
+        if let Some(f_ref) = self.bias_charge.reference_f_b_m_s2 {
+            self.consider.start(&self.config.instrument_errors, &f_ref);
+        }
+    }
+
+    /// The column of a state kept beside the 17, already `Φ c`, gains `Γ P_ecᵀ` of the same
+    /// step (F = `f` over `dt_s`).
+    pub(super) fn consider_external_step(
+        &mut self,
+        f: &SparseF<T>,
+        dt_s: T,
+        cross: &mut SVector<T, STATES>,
+    ) {
+        let Some(f_ref) = self.bias_charge.reference_f_b_m_s2 else {
+            return;
+        };
+        if !self.consider.active {
             return;
         }
-        let g = h.transpose() * self.p_xc;
-        self.p_xc -= k * g;
+        let u = f.c_b_n.tr_mul(&f.f_ned) - f_ref;
+        let add = gamma(&f.c_b_n, &u, dt_s) * self.consider.p_ec;
+        for (r, a) in add.iter().enumerate() {
+            if let Some(x) = cross.get_mut(VEL + r) {
+                *x += *a;
+            }
+        }
+    }
+
+    /// After a baro update applied by [`Self::update_rank_one`] (row `h + τ V_D` and `1` on the
+    /// baro error; 17-state gain `k`, the baro error's `k_e`).
+    pub(crate) fn consider_after_baro(&mut self, tau_s: T, k: &SVector<T, STATES>, k_e: T) {
+        let mut h = SVector::<T, STATES>::zeros();
+        if let Some(v) = h.get_mut(super::POS + 2) {
+            *v = T::one();
+        }
+        if let Some(v) = h.get_mut(VEL + 2) {
+            *v = tau_s;
+        }
+        self.consider.after_scalar(&h, T::one(), k, k_e);
+    }
+
+    /// The state kept beside the 17 decayed by `e` (its column and `P_ec` scale alike).
+    pub(crate) fn consider_external_decay(&mut self, e: T) {
+        self.consider.p_ec *= e;
+    }
+
+    /// The state kept beside the 17 restarted or its correlations forgotten: `P_ec ← 0`.
+    pub(crate) fn consider_external_forget(&mut self) {
+        self.consider.p_ec = SVector::zeros();
+    }
+
+    /// `P_xc` (tests).
+    #[cfg(test)]
+    pub(crate) fn consider_cross(&self) -> &SMatrix<T, STATES, CONSIDER> {
+        &self.consider.p_xc
     }
 }
+
+#[cfg(test)]
+#[path = "consider_tests.rs"]
+mod tests;

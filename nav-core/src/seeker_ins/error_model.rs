@@ -288,6 +288,23 @@ pub fn propagate_covariance<T: Real>(
     Ok(())
 }
 
+/// `cross ← Φ cross` for the transition of F = `f` over `dt_s` ([`transition_times`]); zero
+/// (the correlation forgotten) when the result is not finite. Not inlined: its temporaries
+/// are not in the covariance step's frame, under which the kernel runs.
+#[inline(never)]
+pub(crate) fn transition_column<T: Real>(
+    f: &SparseF<T>,
+    dt_s: T,
+    cross: &mut nalgebra::SVector<T, STATES>,
+) {
+    let next = transition_times(f, dt_s, cross);
+    *cross = if next.iter().all(|v| v.is_finite()) {
+        next
+    } else {
+        nalgebra::SVector::zeros()
+    };
+}
+
 #[cfg(test)]
 #[path = "error_model_tests.rs"]
 mod tests;

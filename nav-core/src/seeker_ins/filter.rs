@@ -268,8 +268,8 @@ impl<T: Real> SeekerIns<T> {
 
     /// Sets the specific force the accelerometer-bias states refer to (body axes, m/s²;
     /// flight configuration, module `flight_noise`): their variance gains that of the scale
-    /// factor and misalignment at it, and later departures from it are charged to the
-    /// velocity as the errors they make. For a filter started from an estimate made at that
+    /// factor and misalignment at it, and the errors of later departures from it are carried
+    /// by the accelerometers' S and M as consider parameters (module `consider`). For a filter started from an estimate made at that
     /// specific force (the flight navigator's hand-over: the carry's); without it the
     /// reference is unaccelerated level flight at the first covariance step's attitude. Before the first covariance
     /// step only. Errors (filter unchanged): `NonFiniteInput` for a non-finite force,
@@ -296,10 +296,7 @@ impl<T: Real> SeekerIns<T> {
             input: "specific_force_reference",
         })?;
         self.bias_charge = next;
-        if super::consider::enabled() {
-            self.consider
-                .start(&self.config.instrument_errors, f_ref_b_m_s2);
-        }
+        self.consider_start();
         Ok(())
     }
 
@@ -383,20 +380,6 @@ impl<T: Real> SeekerIns<T> {
             }
         }
         Ok(true)
-    }
-
-    /// The consider cross-covariance after a baro update of gain `k` applied by
-    /// [`Self::update_rank_one`] (row `h + τ V_D`; the baro error's covariance with the consider
-    /// parameters taken as zero: prototype).
-    pub(crate) fn consider_after_baro(&mut self, tau_s: T, k: &nalgebra::SVector<T, STATES>) {
-        let mut h = nalgebra::SVector::<T, STATES>::zeros();
-        if let Some(v) = h.get_mut(super::POS + 2) {
-            *v = T::one();
-        }
-        if let Some(v) = h.get_mut(super::VEL + 2) {
-            *v = tau_s;
-        }
-        self.consider.after_rank_one(&h, k);
     }
 
     /// The flight navigator's baro-inertial loop owns the vertical channel: the error

@@ -225,30 +225,6 @@ fn fly_variant<T: nav_core::Real>(
         ),
         rms: rms(rs, &t_s),
     };
-    if std::env::var_os("NAV_FIFTHS").is_some() {
-        let c = Consistency::from_runs(
-            STATES,
-            &flight
-                .iter()
-                .map(|r| r.consistency.clone())
-                .collect::<Vec<_>>(),
-        );
-        let n = c.nees_mean.len();
-        let mean = |a: usize, b: usize| {
-            let s = &c.nees_mean[a * n / 5..b * n / 5];
-            s.iter().sum::<f64>() / s.len().max(1) as f64
-        };
-        let axis = var.params["manoeuvre"]["axis"].as_str().unwrap_or("?");
-        eprintln!(
-            "FIFTHS v{v} {axis} first {:.3} middle {:.3} last {:.3} ratio {:.4} mean {:.3} in_band {:.3}",
-            mean(0, 1),
-            mean(2, 3),
-            mean(4, 5),
-            mean(4, 5) / mean(2, 3),
-            c.mean_nees(),
-            c.frac_in_band()
-        );
-    }
     Ok([
         result(FilterKind::Flight, &flight),
         result(FilterKind::Paper, &paper),

@@ -57,26 +57,16 @@ impl Sensors {
 
     /// Draws the errors of a run from the Table 3 σ of `s` for an IMU at interval `dt` (s).
     pub(crate) fn draw_table3(s: &SensorConfig, dt: f64, rng: &mut SimRng) -> Self {
-        let za = if std::env::var_os("NAV_TRUTH_ZERO_ACCEL_SM").is_some() {
-            0.0
-        } else {
-            1.0
-        };
-        let zg = if std::env::var_os("NAV_TRUTH_ZERO_GYRO_SM").is_some() {
-            0.0
-        } else {
-            1.0
-        };
         let (acc_m, acc_b) = draw_imu(
             rng,
-            za * s.accel_scale_factor_ppm * 1e-6,
-            za * s.accel_misalignment_arcsec * ARCSEC,
+            s.accel_scale_factor_ppm * 1e-6,
+            s.accel_misalignment_arcsec * ARCSEC,
             s.accel_bias_ug * 1e-6 * G0,
         );
         let (gyr_m, gyr_b) = draw_imu(
             rng,
-            zg * s.gyro_scale_factor_ppm * 1e-6,
-            zg * s.gyro_misalignment_arcsec * ARCSEC,
+            s.gyro_scale_factor_ppm * 1e-6,
+            s.gyro_misalignment_arcsec * ARCSEC,
             s.gyro_bias_deg_h.to_radians() / 3600.0,
         );
         let seeker_bias = Vector2::new(
