@@ -46,6 +46,13 @@ use nalgebra::{Matrix3, SMatrix, SVector, Vector3};
 /// Number of consider parameters (the accelerometers' S and M).
 pub const CONSIDER: usize = 9;
 
+/// Every state's index (a dense row).
+#[cfg(test)]
+const ALL_STATES: [usize; STATES] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16];
+
+/// The non-zero columns of the LOS rows of H: position, attitude, gimbal angle errors.
+pub(crate) const LOS_COLS: [usize; 8] = [0, 1, 2, 6, 7, 8, 15, 16];
+
 /// Index of the first accelerometer-bias state (the rows of the reference's share).
 const ACC_BIAS: usize = super::error_model::ACC_BIAS;
 
@@ -139,9 +146,9 @@ impl<T: Real> ConsiderCross<T> {
 
     /// The consider part of a covariance step (module doc), `p` holding the kernel's
     /// `Φ P Φᵀ + Q` of F = `f` over `dt_s`; `u = f − f_ref` the departure of the step's mean
-    /// body specific force (m/s²); `cross` the column of a state kept beside the 17, already
-    /// `Φ c` (gains `Γ P_ecᵀ`). Nothing when inactive. Rows of zero variance (repaired) are
-    /// zeroed after.
+    /// body specific force (m/s²). Nothing when inactive. Rows of zero variance (repaired)
+    /// are zeroed after. Column by column on the arrays (no 17 × 3 temporaries: the frame
+    /// stays small beside the kernel's).
     #[inline(never)]
     pub(crate) fn step(
         &mut self,
@@ -150,56 +157,72 @@ impl<T: Real> ConsiderCross<T> {
         f: &SparseF<T>,
         u: &Vector3<T>,
         dt_s: T,
-        cross: Option<&mut SVector<T, STATES>>,
     ) {
         if !self.active {
             return;
         }
         let z = T::zero();
-        let pcc = p_cc(errors);
-        // A = Φ P_xc, column by column through the kernel's Φ.
-        for mut col in self.p_xc.column_iter_mut() {
-            let c: SVector<T, STATES> = col.clone_owned();
-            col.copy_from(&transition_times(f, dt_s, &c));
-        }
-        // W = A Jᵀ (17 × 3, J one entry a column), then B = A Γᵀ = W C_n^b Δt... as
-        // `B[i, k] = Δt Σ_r C[k, r] W[i, r]`.
-        let mut w = SMatrix::<T, STATES, 3>::zeros();
-        for j in 0..CONSIDER {
-            let (r, v) = jacobian_entry(u, j);
-            for (wi, ai) in w.column_mut(r).iter_mut().zip(self.p_xc.column(j).iter()) {
-                *wi += *ai * v;
-            }
+        // A = Φ P_xc, in place, column by column through the kernel's Φ (`G = F Δt` formed
+        // once: the same products `transition_times` forms per column).
+        let fs = f.scaled(dt_s);
+        for col in self.p_xc.data.0.iter_mut() {
+            let [a] = transition_times(&fs, T::one(), &SVector::from(*col)).data.0;
+            *col = a;
         }
         let cdt = f.c_b_n * dt_s;
-        let b = w * cdt.transpose();
-        // Γ P_cc Γᵀ = C diag(v(u)) Cᵀ Δt², `v_r(u) = Σ_{j in row r} σ_j² u_{k_j}²`.
-        let mut v = Vector3::zeros();
-        for j in 0..CONSIDER {
-            let (r, x) = jacobian_entry(u, j);
-            if let Some(vr) = v.get_mut(r) {
-                *vr += pcc_at(pcc, j) * x * x;
+        let pd = &mut p.data.0;
+        // B = A Γᵀ row by row: `w = J A[i, ·]ᵀ` (J one entry a column), `B[i, ·] = Δt C w`;
+        // outside the velocity rows into P's velocity columns and rows at once.
+        let [s0, s1, s2, m01, m02, m10, m12, m20, m21] = &self.p_xc.data.0;
+        let at = |c: &[T; STATES], i: usize| c.get(i).copied().unwrap_or(z);
+        let mut bv = [[z; 3]; 3];
+        for i in 0..STATES {
+            let w = Vector3::new(
+                at(s0, i) * u.x + at(m01, i) * u.y + at(m02, i) * u.z,
+                at(s1, i) * u.y + at(m10, i) * u.x + at(m12, i) * u.z,
+                at(s2, i) * u.z + at(m20, i) * u.x + at(m21, i) * u.y,
+            );
+            let b = cdt * w;
+            if let Some(row) = i.checked_sub(VEL).and_then(|r| bv.get_mut(r)) {
+                *row = [b.x, b.y, b.z];
+                continue;
+            }
+            for (k, bk) in b.iter().enumerate() {
+                let v = pd.get(VEL + k).and_then(|c| c.get(i)).copied().unwrap_or(z) + *bk;
+                set_sym(pd, i, VEL + k, v);
             }
         }
+        // The velocity block: `B[V, ·] + B[V, ·]ᵀ + Γ P_cc Γᵀ`, `Γ P_cc Γᵀ = Δt² C diag(v(u)) Cᵀ`.
+        let (s2v, m2v) = p_cc(errors);
+        let sq = u.component_mul(u);
+        let tot = sq.x + sq.y + sq.z;
+        let v = sq.map(|x| s2v * x + m2v * (tot - x));
         let gpg = cdt * Matrix3::from_diagonal(&v) * cdt.transpose();
-        add_velocity_cross(p, &b, &gpg);
-        // P_xc ← A + Γ P_cc (velocity rows), and the external column's `Γ P_ecᵀ`.
-        let g = gamma(&f.c_b_n, u, dt_s);
-        for j in 0..CONSIDER {
-            let s = pcc_at(pcc, j);
-            for r in 0..3 {
-                let gj = g.get((r, j)).copied().unwrap_or(z);
-                if let Some(x) = self.p_xc.get_mut((VEL + r, j)) {
-                    *x += gj * s;
-                }
+        for r in 0..3 {
+            for c in r..3 {
+                let b_rc = bv.get(r).and_then(|x| x.get(c)).copied().unwrap_or(z);
+                let b_cr = bv.get(c).and_then(|x| x.get(r)).copied().unwrap_or(z);
+                let old = pd
+                    .get(VEL + c)
+                    .and_then(|x| x.get(VEL + r))
+                    .copied()
+                    .unwrap_or(z);
+                let g = gpg.get((r, c)).copied().unwrap_or(z);
+                set_sym(pd, VEL + r, VEL + c, old + (b_rc + b_cr + g));
             }
         }
-        if let Some(c) = cross {
-            let add = g * self.p_ec;
-            for r in 0..3 {
-                if let (Some(x), Some(a)) = (c.get_mut(VEL + r), add.get(r)) {
-                    *x += *a;
-                }
+        // P_xc ← A + Γ P_cc: column j gains `σ_j² u_kj Δt C[·, row_j]` in the velocity rows.
+        let [cd0, cd1, cd2] = &cdt.data.0;
+        for (j, col) in self.p_xc.data.0.iter_mut().enumerate() {
+            let (row, x) = jacobian_entry(u, j);
+            let s = pcc_at((s2v, m2v), j) * x;
+            let cc = match row {
+                0 => cd0,
+                1 => cd1,
+                _ => cd2,
+            };
+            for (dst, c) in col.iter_mut().skip(VEL).zip(cc.iter()) {
+                *dst += s * *c;
             }
         }
         self.zero_known_rows(p);
@@ -222,24 +245,24 @@ impl<T: Real> ConsiderCross<T> {
         };
         let u = f.c_b_n.tr_mul(&f.f_ned) - f_ref;
         if crate::math::checks::all_finite(u.as_slice()) {
-            self.step(p, errors, f, &u, dt_s, None);
+            self.step(p, errors, f, &u, dt_s);
         }
         true
     }
 
     /// Rows of states whose variance is zero (repaired, or known exactly) set to zero.
     pub(crate) fn zero_known_rows(&mut self, p: &SMatrix<T, STATES, STATES>) {
-        for (i, d) in p.diagonal().iter().enumerate() {
-            if *d <= T::zero() {
-                self.p_xc.row_mut(i).fill(T::zero());
+        for i in 0..STATES {
+            if p.get((i, i)).is_some_and(|d| *d <= T::zero()) {
+                self.scale_row(i, T::zero());
             }
         }
     }
 
     /// Row `i` scaled by `f` (P's row and column scaled: a congruence).
     pub(crate) fn scale_row(&mut self, i: usize, f: T) {
-        if i < STATES {
-            for v in self.p_xc.row_mut(i).iter_mut() {
+        for j in 0..CONSIDER {
+            if let Some(v) = self.p_xc.get_mut((i, j)) {
                 *v *= f;
             }
         }
@@ -248,13 +271,14 @@ impl<T: Real> ConsiderCross<T> {
     /// The navigation rows (0..9) forgotten: P's navigation block restarted independent.
     pub(crate) fn forget_navigation(&mut self) {
         for i in 0..9 {
-            self.p_xc.row_mut(i).fill(T::zero());
+            self.scale_row(i, T::zero());
         }
     }
 
     /// A scalar update of row `h` with the 17-state gain `k = P h / s` (`h_c = 0`):
     /// `P_xc ← P_xc − k (hᵀ P_xc)`; with `k_e` the gain of the state kept beside the 17 (and
     /// `h_e` its entry in the row), `g = hᵀ P_xc + h_e P_ec`, `P_ec ← P_ec − k_e g`.
+    #[cfg(test)]
     pub(crate) fn after_scalar(
         &mut self,
         h: &SVector<T, STATES>,
@@ -265,44 +289,44 @@ impl<T: Real> ConsiderCross<T> {
         if !self.active {
             return;
         }
-        let g = self.p_xc.tr_mul(h) + self.p_ec * h_e; // 9
-        self.p_xc -= k * g.transpose();
-        self.p_ec -= g * k_e;
+        self.after_scalar_at(h, &ALL_STATES, h_e, k, k_e);
+    }
+
+    /// The scalar update of `P_xc` and `P_ec` (`P_xc ← P_xc − k (hᵀ P_xc)`, `g = hᵀ P_xc + h_e P_ec`,
+    /// `P_ec ← P_ec − k_e g`) for a row `h` whose only non-zero entries are at `cols`.
+    pub(crate) fn after_scalar_at<const M: usize>(
+        &mut self,
+        h: &SVector<T, STATES>,
+        cols: &[usize; M],
+        h_e: T,
+        k: &SVector<T, STATES>,
+        k_e: T,
+    ) {
+        if !self.active {
+            return;
+        }
+        let [ha] = &h.data.0;
+        let [ka] = &k.data.0;
+        let z = T::zero();
+        for (col, pe) in self.p_xc.data.0.iter_mut().zip(self.p_ec.iter_mut()) {
+            let g = cols.iter().fold(*pe * h_e, |acc, i| {
+                acc + col.get(*i).copied().unwrap_or(z) * ha.get(*i).copied().unwrap_or(z)
+            });
+            for (c, kk) in col.iter_mut().zip(ka.iter()) {
+                *c -= *kk * g;
+            }
+            *pe -= k_e * g;
+        }
     }
 }
 
-/// `P[:, V] += B`, `P[V, :] += Bᵀ` outside the velocity block, and the velocity block
-/// `P[V, V] += B[V, ·] + B[V, ·]ᵀ + G` (G symmetric), each mirrored pair written from one value.
-fn add_velocity_cross<T: Real>(
-    p: &mut SMatrix<T, STATES, STATES>,
-    b: &SMatrix<T, STATES, 3>,
-    g: &Matrix3<T>,
-) {
-    let z = T::zero();
-    for i in (0..STATES).filter(|i| !(VEL..VEL + 3).contains(i)) {
-        for k in 0..3 {
-            let v = p.get((i, VEL + k)).copied().unwrap_or(z) + b.get((i, k)).copied().unwrap_or(z);
-            if let Some(x) = p.get_mut((i, VEL + k)) {
-                *x = v;
-            }
-            if let Some(x) = p.get_mut((VEL + k, i)) {
-                *x = v;
-            }
-        }
+/// `P[r, c] = P[c, r] = v` (column-major arrays, `p[col][row]`): a mirrored pair from one value.
+fn set_sym<T: Real>(p: &mut [[T; STATES]; STATES], r: usize, c: usize, v: T) {
+    if let Some(x) = p.get_mut(c).and_then(|col| col.get_mut(r)) {
+        *x = v;
     }
-    for r in 0..3 {
-        for s in r..3 {
-            let add = b.get((VEL + r, s)).copied().unwrap_or(z)
-                + b.get((VEL + s, r)).copied().unwrap_or(z)
-                + g.get((r, s)).copied().unwrap_or(z);
-            let v = p.get((VEL + r, VEL + s)).copied().unwrap_or(z) + add;
-            if let Some(x) = p.get_mut((VEL + r, VEL + s)) {
-                *x = v;
-            }
-            if let Some(x) = p.get_mut((VEL + s, VEL + r)) {
-                *x = v;
-            }
-        }
+    if let Some(x) = p.get_mut(r).and_then(|col| col.get_mut(c)) {
+        *x = v;
     }
 }
 
@@ -363,7 +387,8 @@ impl<T: Real> super::SeekerIns<T> {
         if let Some(v) = h.get_mut(VEL + 2) {
             *v = tau_s;
         }
-        self.consider.after_scalar(&h, T::one(), k, k_e);
+        let cols = [super::POS + 2, VEL + 2];
+        self.consider.after_scalar_at(&h, &cols, T::one(), k, k_e);
     }
 
     /// The state kept beside the 17 decayed by `e` (its column and `P_ec` scale alike).

@@ -412,7 +412,8 @@ impl<T: Real> SeekerIns<T> {
                 }
                 None => T::zero(),
             };
-            self.consider.after_scalar(h, T::zero(), &k, k_e);
+            self.consider
+                .after_scalar_at(h, &super::consider::LOS_COLS, T::zero(), &k, k_e);
         }
     }
 }
