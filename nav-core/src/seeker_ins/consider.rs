@@ -83,9 +83,11 @@ pub(crate) struct ConsiderCross<T> {
 
 impl<T: Real> Default for ConsiderCross<T> {
     fn default() -> Self {
+        // Array-repeat storage: a plain zero fill, constructed in place.
+        let z = T::zero();
         Self {
-            p_xc: SMatrix::zeros(),
-            p_ec: SVector::zeros(),
+            p_xc: SMatrix::from_array_storage(nalgebra::ArrayStorage([[z; STATES]; CONSIDER])),
+            p_ec: SVector::from_array_storage(nalgebra::ArrayStorage([[z; CONSIDER]; 1])),
             active: false,
         }
     }
@@ -115,6 +117,7 @@ pub(crate) fn jacobian_entry<T: Real>(u: &Vector3<T>, j: usize) -> (usize, T) {
 }
 
 /// `Γ = C_b^n J(u) Δt` (3 × 9; `u = f − f_ref`).
+#[cfg(test)]
 pub(crate) fn gamma<T: Real>(
     c_b_n: &Matrix3<T>,
     u: &Vector3<T>,
@@ -147,7 +150,7 @@ impl<T: Real> ConsiderCross<T> {
     /// The consider part of a covariance step (module doc), `p` holding the kernel's
     /// `Φ P Φᵀ + Q` of F = `f` over `dt_s`; `u = f − f_ref` the departure of the step's mean
     /// body specific force (m/s²). Nothing when inactive. Rows of zero variance (repaired)
-    /// are zeroed after. Column by column on the arrays (no 17 × 3 temporaries: the frame
+    /// are zeroed after (`repaired`: the kernel repaired a variance). Column by column on the arrays (no 17 × 3 temporaries: the frame
     /// stays small beside the kernel's).
     #[inline(never)]
     pub(crate) fn step(
@@ -157,6 +160,7 @@ impl<T: Real> ConsiderCross<T> {
         f: &SparseF<T>,
         u: &Vector3<T>,
         dt_s: T,
+        repaired: bool,
     ) {
         if !self.active {
             return;
@@ -225,7 +229,9 @@ impl<T: Real> ConsiderCross<T> {
                 *dst += s * *c;
             }
         }
-        self.zero_known_rows(p);
+        if repaired {
+            self.zero_known_rows(p);
+        }
     }
 
     /// The consider part of a covariance step over `dt_s` with F = `f` for the reference
@@ -239,13 +245,14 @@ impl<T: Real> ConsiderCross<T> {
         f_ref: Option<Vector3<T>>,
         f: &SparseF<T>,
         dt_s: T,
+        repaired: bool,
     ) -> bool {
         let Some(f_ref) = f_ref else {
             return false;
         };
         let u = f.c_b_n.tr_mul(&f.f_ned) - f_ref;
         if crate::math::checks::all_finite(u.as_slice()) {
-            self.step(p, errors, f, &u, dt_s);
+            self.step(p, errors, f, &u, dt_s, repaired);
         }
         true
     }
@@ -334,10 +341,11 @@ impl<T: Real> super::SeekerIns<T> {
     /// The consider part of a covariance step over `dt_s` with F = `f`, after the kernel and
     /// before the instrument-error charge ([`ConsiderCross::step_at`]); whether a reference
     /// was set before the step.
-    pub(super) fn consider_step(&mut self, f: &SparseF<T>, dt_s: T) -> bool {
+    pub(super) fn consider_step(&mut self, f: &SparseF<T>, dt_s: T, repaired: bool) -> bool {
         let f_ref = self.bias_charge.reference_f_b_m_s2;
         let errors = self.config.instrument_errors;
-        self.consider.step_at(&mut self.p, &errors, f_ref, f, dt_s)
+        self.consider
+            .step_at(&mut self.p, &errors, f_ref, f, dt_s, repaired)
     }
 
     /// [`Self::consider_start`] when `due` (the charge may just have set the reference).
@@ -369,7 +377,14 @@ impl<T: Real> super::SeekerIns<T> {
             return;
         }
         let u = f.c_b_n.tr_mul(&f.f_ned) - f_ref;
-        let add = gamma(&f.c_b_n, &u, dt_s) * self.consider.p_ec;
+        // `Γ P_ecᵀ = Δt C J P_ecᵀ`: J's rows as in the step.
+        let [[s0, s1, s2, m01, m02, m10, m12, m20, m21]] = self.consider.p_ec.data.0;
+        let w = Vector3::new(
+            s0 * u.x + m01 * u.y + m02 * u.z,
+            s1 * u.y + m10 * u.x + m12 * u.z,
+            s2 * u.z + m20 * u.x + m21 * u.y,
+        );
+        let add = f.c_b_n * (w * dt_s);
         for (r, a) in add.iter().enumerate() {
             if let Some(x) = cross.get_mut(VEL + r) {
                 *x += *a;

@@ -159,7 +159,7 @@ fn schmidt<T: Real>(
     let ft = f_of::<T>(k);
     let dt = T::lit(0.1);
     propagate_covariance_sparse(&mut p, &ft, dt, T::lit(1e-8), T::lit(1e-12)).unwrap();
-    cons.step(&mut p, &errors::<T>(), &ft, &u.map(cast), dt);
+    cons.step(&mut p, &errors::<T>(), &ft, &u.map(cast), dt, false);
     let ht: SVector<T, STATES> = h.map(cast);
     let ph = p * ht;
     let s = ht.dot(&ph) + T::lit(r);

@@ -426,6 +426,8 @@ impl<T: Real> SeekerIns<T> {
 
 impl<T: Real> SeekerIns<T> {
     /// The EKF at the start of its life (every estimate zero, no counts) from checked parts.
+    /// Inlined: built where its caller puts it (the hand-over's slot), not on the stack.
+    #[inline(always)]
     fn assemble(
         config: &SeekerInsConfig<T>,
         design: &SeekerInsDesign<T>,

@@ -515,7 +515,7 @@ impl<T: Real> SeekerIns<T> {
             self.design.gyro_psd_rad2_s,
         )?;
         // The accelerometers' S and M (consider parameters), then the instrument-error charge.
-        let had_reference = self.consider_step(f, dt_total_s);
+        let had_reference = self.consider_step(f, dt_total_s, repairs > 0);
         flight_noise_step(
             &mut self.p,
             &mut self.bias_charge,
