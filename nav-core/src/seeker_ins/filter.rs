@@ -27,10 +27,15 @@ pub struct SeekerInsInitial<T> {
 }
 
 /// The seeker-aided INS: INS + error covariance + bias and gimbal-error compensations.
+///
+/// Laid out as declared, P first (`repr(C)`): the hand-over's [`Self::start_in`] then clears P
+/// in place in its slot instead of building the zero matrix with its neighbour's bytes on
+/// the stack and copying it (2568 → 1392 B of stack at the hand-over tick).
 #[derive(Debug, Clone, Copy)]
+#[repr(C)]
 pub struct SeekerIns<T> {
-    pub(super) ins: Ins<T>,
     pub(super) p: SMatrix<T, STATES, STATES>,
+    pub(super) ins: Ins<T>,
     pub(super) accel_bias_m_s2: Vector3<T>,
     pub(super) gyro_bias_rad_s: Vector3<T>,
     pub(super) gimbal_bias_rad: Vector2<T>,
@@ -154,7 +159,9 @@ impl<T: Real> Estimator for SeekerIns<T> {
         check_design(config, design)?;
         validate_covariance(&initial.covariance)?;
         let ins = Ins::new(initial.state, config.imu_dt_s)?;
-        Ok(Self::assemble(config, design, ins, &initial.covariance))
+        let mut ekf = Self::assemble(config, design, ins);
+        ekf.p = initial.covariance;
+        Ok(ekf)
     }
 
     /// Restarts the navigation solution: position, velocity and attitude from
@@ -425,18 +432,14 @@ impl<T: Real> SeekerIns<T> {
 }
 
 impl<T: Real> SeekerIns<T> {
-    /// The EKF at the start of its life (every estimate zero, no counts) from checked parts.
-    /// Inlined: built where its caller puts it (the hand-over's slot), not on the stack.
+    /// The EKF at the start of its life (every estimate zero, no counts, P zero) from checked
+    /// parts. Inlined: built where its caller puts it (the hand-over's slot), not on the
+    /// stack; P is a literal zero, cleared in place.
     #[inline(always)]
-    fn assemble(
-        config: &SeekerInsConfig<T>,
-        design: &SeekerInsDesign<T>,
-        ins: Ins<T>,
-        p0: &SMatrix<T, STATES, STATES>,
-    ) -> Self {
+    fn assemble(config: &SeekerInsConfig<T>, design: &SeekerInsDesign<T>, ins: Ins<T>) -> Self {
         Self {
             ins,
-            p: *p0,
+            p: SMatrix::zeros(),
             accel_bias_m_s2: Vector3::zeros(),
             gyro_bias_rad_s: Vector3::zeros(),
             gimbal_bias_rad: Vector2::zeros(),
@@ -479,7 +482,7 @@ impl<T: Real> SeekerIns<T> {
         validate_config(config)?;
         check_design(config, design)?;
         let ins = Ins::new(*state, config.imu_dt_s)?;
-        let ekf = slot.insert(Self::assemble(config, design, ins, &SMatrix::zeros()));
+        let ekf = slot.insert(Self::assemble(config, design, ins));
         write_p0(&mut ekf.p);
         Ok(())
     }
