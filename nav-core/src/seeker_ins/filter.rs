@@ -28,7 +28,7 @@ pub struct SeekerInsInitial<T> {
 
 /// The seeker-aided INS: INS + error covariance + bias and gimbal-error compensations.
 ///
-/// Laid out as declared, P first (`repr(C)`): the hand-over's [`Self::start_in`] then clears P
+/// Laid out as declared, P first (`repr(C)`): the hand-over (`start_in`) then clears P
 /// in place in its slot instead of building the zero matrix with its neighbour's bytes on
 /// the stack and copying it (2568 → 1392 B of stack at the hand-over tick).
 #[derive(Debug, Clone, Copy)]
