@@ -187,9 +187,10 @@ impl<T: Real> SeekerIns<T> {
         let model = los_model_at(&s.position, &d, &c_b_n, &corrected, sigma)?;
         let c = two_components(&self.p, &model, gate);
         let report = self.commit_two(sample, &model, &c);
-        if let Some(col) = col {
-            let fused = |r: &FusionReport<T>| r.outcome == FusionOutcome::Fused;
-            if fused(&report.pitch) || fused(&report.yaw) {
+        let fused = |r: &FusionReport<T>| r.outcome == FusionOutcome::Fused;
+        if fused(&report.pitch) || fused(&report.yaw) {
+            self.consider_after_los(&report, &model, &c, col.as_deref().map(|k| &k.cross));
+            if let Some(col) = col {
                 cross_after_los(&report, &model, &c, col);
             }
         }
@@ -352,6 +353,9 @@ impl<T: Real> SeekerIns<T> {
                 }
             }
         }
+        for i in 0..9 {
+            self.consider.scale_row(i, sf);
+        }
         self.limit_variances();
     }
 
@@ -372,6 +376,45 @@ impl<T: Real> SeekerIns<T> {
         self.gyro_bias_rad_s += v3(GYRO_BIAS);
         self.gimbal_bias_rad += x.fixed_rows::<2>(GIMBAL);
         Ok(())
+    }
+}
+
+impl<T: Real> SeekerIns<T> {
+    /// After a committed 2-D LOS update whose components `c` (gains `kk1`, `kk2`, rows of
+    /// `model`, the fused ones per `report`) were computed against P before it: `P_xc` (and,
+    /// with `cross` the column of a state kept beside the 17 as it was before the update,
+    /// `P_ec`) corrected per fused component, the second against the first's result.
+    fn consider_after_los(
+        &mut self,
+        report: &LosReport<T>,
+        model: &LosModel<T>,
+        c: &TwoComponents<T>,
+        cross: Option<&SVector<T, STATES>>,
+    ) {
+        if !self.consider.active {
+            return;
+        }
+        let mut col = cross.copied();
+        let steps = [
+            (&report.pitch, &c.rep1, &model.h_pitch, &c.kk1),
+            (&report.yaw, &c.rep2, &model.h_yaw, &c.kk2),
+        ];
+        for (committed, rep, h, kk) in steps {
+            if committed.outcome != FusionOutcome::Fused {
+                continue;
+            }
+            let k = SVector::<T, STATES>::from(*kk);
+            let k_e = match col.as_mut() {
+                Some(cr) => {
+                    let g = h.dot(cr);
+                    *cr -= k * g;
+                    g / rep.innovation_variance
+                }
+                None => T::zero(),
+            };
+            self.consider
+                .after_scalar_at(h, &super::consider::LOS_COLS, T::zero(), &k, k_e);
+        }
     }
 }
 
