@@ -327,6 +327,59 @@ impl<T: Real> ConsiderCross<T> {
     }
 }
 
+impl<T: Real> ConsiderCross<T> {
+    /// The LOS update's two scalar components in one pass: rows `h[0]`, `h[1]` (their values
+    /// at [`LOS_COLS`], the rows' only non-zero columns), their gains `k` as fused (the second against the first's result;
+    /// zero for a component not fused) and `k_e` those of the state kept beside the 17 (zero
+    /// for a component not fused). The sequential corrections `P_xc ← P_xc − k₁ g₁ᵀ`,
+    /// `P_xc ← P_xc − k₂ g₂ᵀ` with `g₁ = h₁ᵀ P_xc` and `g₂ = h₂ᵀ (P_xc − k₁ g₁ᵀ) = h₂ᵀ P_xc −
+    /// (h₂ᵀ k₁) g₁`, applied together (`P_ec ← P_ec − k_e₁ g₁ − k_e₂ g₂`): `P_xc` read twice
+    /// over h's eight columns and written once.
+    pub(crate) fn after_los_pair(
+        &mut self,
+        h: &[[T; LOS_COLS.len()]; 2],
+        k: [&[T; STATES]; 2],
+        k_e: [T; 2],
+    ) {
+        let z = T::zero();
+        let [h1, h2] = h;
+        let [k1, k2] = k;
+        let a = LOS_COLS.iter().zip(h2.iter()).fold(z, |acc, (i, hv)| {
+            acc + k1.get(*i).copied().unwrap_or(z) * *hv
+        });
+        let mut g1 = [z; CONSIDER];
+        let mut g2 = [z; CONSIDER];
+        for ((col, g1j), g2j) in self
+            .p_xc
+            .data
+            .0
+            .iter()
+            .zip(g1.iter_mut())
+            .zip(g2.iter_mut())
+        {
+            let (mut s1, mut s2) = (z, z);
+            for ((i, a1), a2) in LOS_COLS.iter().zip(h1.iter()).zip(h2.iter()) {
+                let v = col.get(*i).copied().unwrap_or(z);
+                s1 += *a1 * v;
+                s2 += *a2 * v;
+            }
+            *g1j = s1;
+            *g2j = s2 - a * s1;
+        }
+        for (i, (a1, a2)) in k1.iter().zip(k2.iter()).enumerate() {
+            for ((col, g1j), g2j) in self.p_xc.data.0.iter_mut().zip(g1.iter()).zip(g2.iter()) {
+                if let Some(x) = col.get_mut(i) {
+                    *x -= *a1 * *g1j + *a2 * *g2j;
+                }
+            }
+        }
+        let [e1, e2] = k_e;
+        for ((pe, g1j), g2j) in self.p_ec.iter_mut().zip(g1.iter()).zip(g2.iter()) {
+            *pe -= e1 * *g1j + e2 * *g2j;
+        }
+    }
+}
+
 /// `P[r, c] = P[c, r] = v` (column-major arrays, `p[col][row]`): a mirrored pair from one value.
 fn set_sym<T: Real>(p: &mut [[T; STATES]; STATES], r: usize, c: usize, v: T) {
     if let Some(x) = p.get_mut(c).and_then(|col| col.get_mut(r)) {

@@ -5,6 +5,7 @@
 use super::config::starved_after_us;
 #[cfg(feature = "los-residual-3d")]
 use super::config::LosResidual;
+use super::consider::LOS_COLS;
 use super::error_model::{ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL};
 use super::filter::SeekerIns;
 use super::generated::los17::{rank_two_update, rank_two_variances_ok};
@@ -189,7 +190,15 @@ impl<T: Real> SeekerIns<T> {
         let report = self.commit_two(sample, &model, &c);
         let fused = |r: &FusionReport<T>| r.outcome == FusionOutcome::Fused;
         if fused(&report.pitch) || fused(&report.yaw) {
-            self.consider_after_los(&report, &model, &c, col.as_deref().map(|k| &k.cross));
+            if self.consider.active {
+                let committed = [fused(&report.pitch), fused(&report.yaw)];
+                let cross = col.as_deref().map(|k| &k.cross);
+                let at = |h: &SVector<T, STATES>| {
+                    LOS_COLS.map(|i| h.get(i).copied().unwrap_or_default())
+                };
+                let h = [at(&model.h_pitch), at(&model.h_yaw)];
+                self.consider_after_los(committed, &h, &c, cross);
+            }
             if let Some(col) = col {
                 cross_after_los(&report, &model, &c, col);
             }
@@ -380,41 +389,47 @@ impl<T: Real> SeekerIns<T> {
 }
 
 impl<T: Real> SeekerIns<T> {
-    /// After a committed 2-D LOS update whose components `c` (gains `kk1`, `kk2`, rows of
-    /// `model`, the fused ones per `report`) were computed against P before it: `P_xc` (and,
-    /// with `cross` the column of a state kept beside the 17 as it was before the update,
-    /// `P_ec`) corrected per fused component, the second against the first's result.
+    /// After a committed 2-D LOS update whose components `c` (gains `kk1`, `kk2`, of the rows
+    /// `h`, their values at [`LOS_COLS`]; `committed` the fused ones) were computed against P before it: `P_xc` (and, with
+    /// `cross` the column of a state kept beside the 17 as it was before the update, `P_ec`)
+    /// corrected per fused component, the second against the first's result, in one pass
+    /// ([`super::consider::ConsiderCross::after_los_pair`]). Not inlined: the update's frame
+    /// does not carry it (the stand-alone filter without consider parameters never calls it).
+    #[inline(never)]
     fn consider_after_los(
         &mut self,
-        report: &LosReport<T>,
-        model: &LosModel<T>,
+        committed: [bool; 2],
+        h: &[[T; LOS_COLS.len()]; 2],
         c: &TwoComponents<T>,
         cross: Option<&SVector<T, STATES>>,
     ) {
-        if !self.consider.active {
-            return;
-        }
-        let mut col = cross.copied();
-        let steps = [
-            (&report.pitch, &c.rep1, &model.h_pitch, &c.kk1),
-            (&report.yaw, &c.rep2, &model.h_yaw, &c.kk2),
-        ];
-        for (committed, rep, h, kk) in steps {
-            if committed.outcome != FusionOutcome::Fused {
-                continue;
-            }
-            let k = SVector::<T, STATES>::from(*kk);
-            let k_e = match col.as_mut() {
-                Some(cr) => {
-                    let g = h.dot(cr);
-                    *cr -= k * g;
-                    g / rep.innovation_variance
+        let mut k_e = [T::zero(); 2];
+        if let Some(cr) = cross {
+            // The column's sequential correction (as `cross_after_los`): the gains of the state
+            // kept beside the 17, `g / s` per fused component.
+            let mut cr = *cr;
+            let steps = [
+                (committed[0], &c.rep1, &c.kk1),
+                (committed[1], &c.rep2, &c.kk2),
+            ];
+            for ((fused, rep, kk), (ke, row)) in steps.into_iter().zip(k_e.iter_mut().zip(h)) {
+                if !fused {
+                    continue;
                 }
-                None => T::zero(),
-            };
-            self.consider
-                .after_scalar_at(h, &super::consider::LOS_COLS, T::zero(), &k, k_e);
+                let g = LOS_COLS
+                    .iter()
+                    .zip(row.iter())
+                    .fold(T::zero(), |a, (i, v)| {
+                        a + cr.get(*i).copied().unwrap_or_default() * *v
+                    });
+                cr -= SVector::<T, STATES>::from(*kk) * g;
+                *ke = g / rep.innovation_variance;
+            }
         }
+        let zero = [T::zero(); STATES];
+        let k1 = if committed[0] { &c.kk1 } else { &zero };
+        let k2 = if committed[1] { &c.kk2 } else { &zero };
+        self.consider.after_los_pair(h, [k1, k2], k_e);
     }
 }
 
