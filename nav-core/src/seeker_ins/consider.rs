@@ -329,24 +329,38 @@ impl<T: Real> ConsiderCross<T> {
 
 impl<T: Real> ConsiderCross<T> {
     /// The LOS update's two scalar components in one pass: rows `h[0]`, `h[1]` (their values
-    /// at [`LOS_COLS`], the rows' only non-zero columns), their gains `k` as fused (the second against the first's result;
-    /// zero for a component not fused) and `k_e` those of the state kept beside the 17 (zero
-    /// for a component not fused). The sequential corrections `P_xc ← P_xc − k₁ g₁ᵀ`,
-    /// `P_xc ← P_xc − k₂ g₂ᵀ` with `g₁ = h₁ᵀ P_xc` and `g₂ = h₂ᵀ (P_xc − k₁ g₁ᵀ) = h₂ᵀ P_xc −
-    /// (h₂ᵀ k₁) g₁`, applied together (`P_ec ← P_ec − k_e₁ g₁ − k_e₂ g₂`): `P_xc` read twice
-    /// over h's eight columns and written once.
+    /// at [`LOS_COLS`], the rows' only non-zero columns), their gains `k` as fused (the second
+    /// against the first's result; zero for a component not fused). The sequential
+    /// corrections `P_xc ← P_xc − k₁ g₁ᵀ`, `P_xc ← P_xc − k₂ g₂ᵀ` with `g₁ = h₁ᵀ P_xc` and
+    /// `g₂ = h₂ᵀ (P_xc − k₁ g₁ᵀ) = h₂ᵀ P_xc − (h₂ᵀ k₁) g₁`, applied together: `P_xc` read over
+    /// h's eight rows and written once. With `cross` the column `c` of a state kept beside
+    /// the 17 as it was before the update and `1 / s` of each component (zero for one not
+    /// fused), `P_ec ← P_ec − k_e₁ g₁ − k_e₂ g₂` with that state's gains `k_e₁ = h₁ᵀ c / s₁`,
+    /// `k_e₂ = (h₂ᵀ c − (h₂ᵀ k₁) h₁ᵀ c) / s₂` (the column after the first component, not
+    /// formed).
     pub(crate) fn after_los_pair(
         &mut self,
         h: &[[T; LOS_COLS.len()]; 2],
         k: [&[T; STATES]; 2],
-        k_e: [T; 2],
+        cross: Option<(&SVector<T, STATES>, [T; 2])>,
     ) {
         let z = T::zero();
         let [h1, h2] = h;
         let [k1, k2] = k;
-        let a = LOS_COLS.iter().zip(h2.iter()).fold(z, |acc, (i, hv)| {
-            acc + k1.get(*i).copied().unwrap_or(z) * *hv
-        });
+        let dot = |row: &[T; LOS_COLS.len()], v: &[T; STATES]| {
+            LOS_COLS.iter().zip(row.iter()).fold(z, |acc, (i, hv)| {
+                acc + v.get(*i).copied().unwrap_or(z) * *hv
+            })
+        };
+        let a = dot(h2, k1);
+        let [e1, e2] = match cross {
+            Some((c, [inv_s1, inv_s2])) => {
+                let [c] = &c.data.0;
+                let g1 = dot(h1, c);
+                [g1 * inv_s1, (dot(h2, c) - a * g1) * inv_s2]
+            }
+            None => [z, z],
+        };
         let mut g1 = [z; CONSIDER];
         let mut g2 = [z; CONSIDER];
         for ((col, g1j), g2j) in self
@@ -373,7 +387,6 @@ impl<T: Real> ConsiderCross<T> {
                 }
             }
         }
-        let [e1, e2] = k_e;
         for ((pe, g1j), g2j) in self.p_ec.iter_mut().zip(g1.iter()).zip(g2.iter()) {
             *pe -= e1 * *g1j + e2 * *g2j;
         }

@@ -452,3 +452,57 @@ fn los_update_corrects_p_xc_as_the_dense_26_state_update() {
     }
     assert_eq!(checked, 6);
 }
+
+#[test]
+fn los_pair_is_the_two_sequential_scalar_corrections() {
+    // Random P_xc, P_ec, external column c, LOS rows non-zero at LOS_COLS only, gains; the
+    // second component's gain zero in one case (not fused).
+    for (case, fused2) in [(0u64, true), (1, false)] {
+        let mut seed = 77 + case;
+        let p_xc = SMatrix::from_fn(|_, _| rnd(&mut seed));
+        let p_ec = SVector::from_fn(|_, _| rnd(&mut seed));
+        let cc = ConsiderCross::<f64> {
+            p_xc,
+            p_ec,
+            active: true,
+        };
+        let col = SVector::<f64, STATES>::from_fn(|_, _| rnd(&mut seed));
+        let mut rows = [SVector::<f64, STATES>::zeros(); 2];
+        for row in rows.iter_mut() {
+            for i in LOS_COLS {
+                row[i] = rnd(&mut seed);
+            }
+        }
+        let k1 = SVector::<f64, STATES>::from_fn(|_, _| rnd(&mut seed));
+        let k2 = if fused2 {
+            SVector::<f64, STATES>::from_fn(|_, _| rnd(&mut seed))
+        } else {
+            SVector::zeros()
+        };
+        let s = [1.7, 0.6];
+        // Sequential: the column corrected after each component, its gain g / s.
+        let mut seq = cc;
+        let mut c = col;
+        for (n, (h, k)) in rows.iter().zip([&k1, &k2]).enumerate() {
+            if n == 1 && !fused2 {
+                continue;
+            }
+            let g = h.dot(&c);
+            c -= k * g;
+            seq.after_scalar(h, 0.0, k, g / s[n]);
+        }
+        let h = rows.map(|r| LOS_COLS.map(|i| r[i]));
+        let inv_s = [1.0 / s[0], if fused2 { 1.0 / s[1] } else { 0.0 }];
+        let mut pair = cc;
+        pair.after_los_pair(&h, [&k1.data.0[0], &k2.data.0[0]], Some((&col, inv_s)));
+        let d_xc = (pair.p_xc - seq.p_xc).abs().max();
+        let d_ec = (pair.p_ec - seq.p_ec).abs().max();
+        assert!(
+            d_xc < 1e-12 && d_ec < 1e-12,
+            "case {case}: {d_xc:e}, {d_ec:e}"
+        );
+        // And it did change them (a test that can fail).
+        assert!((pair.p_xc - cc.p_xc).abs().max() > 1e-3);
+        assert!((pair.p_ec - cc.p_ec).abs().max() > 1e-3);
+    }
+}

@@ -389,10 +389,11 @@ impl<T: Real> SeekerIns<T> {
 }
 
 impl<T: Real> SeekerIns<T> {
-    /// After a committed 2-D LOS update whose components `c` (gains `kk1`, `kk2`, of the rows
-    /// `h`, their values at [`LOS_COLS`]; `committed` the fused ones) were computed against P before it: `P_xc` (and, with
-    /// `cross` the column of a state kept beside the 17 as it was before the update, `P_ec`)
-    /// corrected per fused component, the second against the first's result, in one pass
+    /// After a committed 2-D LOS update whose components `c` (gains `kk1`, `kk2`, zero for a
+    /// component not fused, of the rows `h`, their values at [`LOS_COLS`]; `committed` the
+    /// fused ones) were computed against P before it: `P_xc` (and, with `cross` the column of
+    /// a state kept beside the 17 as it was before the update, `P_ec`) corrected per fused
+    /// component, the second against the first's result, in one pass
     /// ([`super::consider::ConsiderCross::after_los_pair`]). Not inlined: the update's frame
     /// does not carry it (the stand-alone filter without consider parameters never calls it).
     #[inline(never)]
@@ -403,33 +404,16 @@ impl<T: Real> SeekerIns<T> {
         c: &TwoComponents<T>,
         cross: Option<&SVector<T, STATES>>,
     ) {
-        let mut k_e = [T::zero(); 2];
-        if let Some(cr) = cross {
-            // The column's sequential correction (as `cross_after_los`): the gains of the state
-            // kept beside the 17, `g / s` per fused component.
-            let mut cr = *cr;
-            let steps = [
-                (committed[0], &c.rep1, &c.kk1),
-                (committed[1], &c.rep2, &c.kk2),
-            ];
-            for ((fused, rep, kk), (ke, row)) in steps.into_iter().zip(k_e.iter_mut().zip(h)) {
-                if !fused {
-                    continue;
-                }
-                let g = LOS_COLS
-                    .iter()
-                    .zip(row.iter())
-                    .fold(T::zero(), |a, (i, v)| {
-                        a + cr.get(*i).copied().unwrap_or_default() * *v
-                    });
-                cr -= SVector::<T, STATES>::from(*kk) * g;
-                *ke = g / rep.innovation_variance;
+        let inv = |fused: bool, rep: &FusionReport<T>| {
+            if fused {
+                T::one() / rep.innovation_variance
+            } else {
+                T::zero()
             }
-        }
-        let zero = [T::zero(); STATES];
-        let k1 = if committed[0] { &c.kk1 } else { &zero };
-        let k2 = if committed[1] { &c.kk2 } else { &zero };
-        self.consider.after_los_pair(h, [k1, k2], k_e);
+        };
+        let inv_s = [inv(committed[0], &c.rep1), inv(committed[1], &c.rep2)];
+        self.consider
+            .after_los_pair(h, [&c.kk1, &c.kk2], cross.map(|cr| (cr, inv_s)));
     }
 }
 
