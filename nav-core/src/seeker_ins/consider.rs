@@ -34,8 +34,9 @@
 //!
 //! Cost per covariance step: `Φ P_xc` (nine columns through the kernel's Φ), `W = P_xc' Jᵀ`
 //! (J has one non-zero per column: 9 products a row), `W C_n^b`, the velocity rows and
-//! columns of P; per fused LOS component `hᵀ P_xc` over h's non-zero entries and the rank-one
-//! correction of P_xc.
+//! columns of P; per LOS update both components' `hᵀ P_xc` over h's eight non-zero entries and
+//! one pass of the rank-two correction of P_xc (`ConsiderCross::after_los_pair`); per baro
+//! update `hᵀ P_xc` over its two entries and the rank-one correction.
 
 use super::error_model::{transition_times, STATES, VEL};
 use super::flight_noise::InstrumentErrors;
@@ -329,7 +330,7 @@ impl<T: Real> ConsiderCross<T> {
 
 impl<T: Real> ConsiderCross<T> {
     /// The LOS update's two scalar components in one pass: rows `h[0]`, `h[1]` (their values
-    /// at [`LOS_COLS`], the rows' only non-zero columns), their gains `k` as fused (the second
+    /// at `LOS_COLS`, the rows' only non-zero columns), their gains `k` as fused (the second
     /// against the first's result; zero for a component not fused). The sequential
     /// corrections `P_xc ← P_xc − k₁ g₁ᵀ`, `P_xc ← P_xc − k₂ g₂ᵀ` with `g₁ = h₁ᵀ P_xc` and
     /// `g₂ = h₂ᵀ (P_xc − k₁ g₁ᵀ) = h₂ᵀ P_xc − (h₂ᵀ k₁) g₁`, applied together: `P_xc` read over

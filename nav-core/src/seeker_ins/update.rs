@@ -390,11 +390,11 @@ impl<T: Real> SeekerIns<T> {
 
 impl<T: Real> SeekerIns<T> {
     /// After a committed 2-D LOS update whose components `c` (gains `kk1`, `kk2`, zero for a
-    /// component not fused, of the rows `h`, their values at [`LOS_COLS`]; `committed` the
+    /// component not fused, of the rows `h`, their values at `LOS_COLS`; `committed` the
     /// fused ones) were computed against P before it: `P_xc` (and, with `cross` the column of
     /// a state kept beside the 17 as it was before the update, `P_ec`) corrected per fused
     /// component, the second against the first's result, in one pass
-    /// ([`super::consider::ConsiderCross::after_los_pair`]). Not inlined: the update's frame
+    /// (`ConsiderCross::after_los_pair`, module `consider`). Not inlined: the update's frame
     /// does not carry it (the stand-alone filter without consider parameters never calls it).
     #[inline(never)]
     fn consider_after_los(
