@@ -147,13 +147,14 @@ impl<T: Real> BaroState<T> {
     }
 
     /// The Markov part of a prediction over `dt_s` (the column has been multiplied by Φ).
-    pub fn decay(&mut self, model: &BaroErrorModel<T>, dt_s: T) {
+    pub fn decay(&mut self, model: &BaroErrorModel<T>, dt_s: T) -> T {
         let e = (-dt_s / model.markov_tau_s).exp();
         let e2 = e * e;
         let var = model.markov_sigma_m * model.markov_sigma_m;
         self.cross *= e;
         self.variance_m2 = e2 * self.variance_m2 + var * (T::one() - e2);
         self.bias_m *= e;
+        e
     }
 
     /// The measurement row's 17-part `e_h + τ e_VD` for the effective lag `tau_s`.
@@ -268,6 +269,8 @@ pub(crate) struct BaroGain<T> {
     pub(crate) variance_m2: T,
     /// Relative stabilising noise of every variance (dimensionless).
     pub(crate) delta: T,
+    /// The baro error's gain `u_b / S` (dimensionless), for the consider parameters' row.
+    pub(crate) k_b: T,
 }
 
 /// The joint scalar update's gate and small blocks (module doc) for the measurement row of
@@ -349,6 +352,7 @@ fn gain_from<T: Real>(
         cross,
         variance_m2,
         delta,
+        k_b,
     }))
 }
 

@@ -76,6 +76,7 @@ pub fn f_block<T: Real>(
 /// generated kernel (velocity → position `G03`, `G14`, `G25`; attitude → velocity
 /// `½[Δt fⁿ×]`). Rows 9..17 of Φ are the identity. Used for a covariance column kept beside
 /// the 17 states (the flight navigator's baro error).
+#[inline(always)]
 pub(crate) fn transition_times<T: Real>(
     f: &SparseF<T>,
     dt_s: T,
@@ -108,6 +109,7 @@ pub(crate) fn transition_times<T: Real>(
 /// forms it and each row summed over its columns in ascending order: the numbers of the
 /// dense product (whose other terms are zero), without the 9 × 15 block or a scaled copy of
 /// F on the stack.
+#[inline(always)]
 fn sparse_times<T: Real>(f: &SparseF<T>, dt: T, c: &nalgebra::SVector<T, STATES>) -> [T; 9] {
     let x = |i: usize| c.get(i).copied().unwrap_or_else(T::zero);
     let (vv, cb, fv, wv) = (&f.vel_vel, &f.c_b_n, &f.f_ned, &f.w_in);
@@ -286,6 +288,23 @@ pub fn propagate_covariance<T: Real>(
     p.fixed_view_mut::<8, 9>(9, 0).copy_from(&off.transpose());
     p.fixed_view_mut::<9, 9>(0, 0).copy_from(&corner);
     Ok(())
+}
+
+/// `cross ← Φ cross` for the transition of F = `f` over `dt_s` ([`transition_times`]); zero
+/// (the correlation forgotten) when the result is not finite. Not inlined: its temporaries
+/// are not in the covariance step's frame, under which the kernel runs.
+#[inline(never)]
+pub(crate) fn transition_column<T: Real>(
+    f: &SparseF<T>,
+    dt_s: T,
+    cross: &mut nalgebra::SVector<T, STATES>,
+) {
+    let next = transition_times(f, dt_s, cross);
+    *cross = if next.iter().all(|v| v.is_finite()) {
+        next
+    } else {
+        nalgebra::SVector::zeros()
+    };
 }
 
 #[cfg(test)]

@@ -25,9 +25,11 @@
 //! * the flight configuration ([`SeekerInsConfig::flight`], [`InstrumentErrors`]): the same
 //!   17 states, with the IMU's scale-factor and misalignment σ accounted for after each
 //!   covariance step (module `flight_noise`): the accelerometer-bias states are the
-//!   equivalent bias `b + (S + M) f_ref` at a reference specific force, a departure from it
-//!   charged to the velocity as the error `(S + M) ∫(f − f_ref) dt` it makes; the
-//!   gyro errors' bounded attitude error `(S + M) ∫ω dt` is charged to the attitude states.
+//!   equivalent bias `b + (S + M) f_ref` at a reference specific force, the accelerometers'
+//!   S and M Schmidt consider parameters (module `consider`: the 17 × 9 cross-covariance
+//!   beside P, so the error `(S + M) ∫(f − f_ref) dt` a departure makes stays correlated with
+//!   every other the same S and M make); the gyro errors' bounded attitude error
+//!   `(S + M) ∫ω dt` is charged to the attitude states.
 //!   With every σ zero ([`SeekerInsConfig::paper`]) nothing is added.
 //!
 //! Error state (estimate minus truth), seed eq. 3:
@@ -150,6 +152,7 @@
 //! and the setters: O(17²) at most. No call loops on data.
 
 mod config;
+mod consider;
 mod covariance_health;
 mod error_model;
 mod filter;
@@ -175,6 +178,7 @@ pub use config::{
     MAX_GAP_ATTITUDE_SIGMA_RAD, MAX_GAP_S, MAX_GAP_SAMPLES, MAX_GAP_VELOCITY_SIGMA_M_S,
     MAX_INFLATION_FACTOR, MAX_STARVED_AFTER_S, VARIANCE_CEILING,
 };
+pub use consider::CONSIDER;
 pub(crate) use covariance_health::PsdMargin;
 pub use covariance_health::{PROPAGATION_STABILISING_EPS, PSD_MARGIN_EPS};
 #[cfg(test)]

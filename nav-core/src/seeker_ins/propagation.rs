@@ -3,7 +3,7 @@
 
 use super::config::VARIANCE_CEILING;
 use super::covariance_health::PsdMargin;
-use super::error_model::{propagate_covariance_sparse, transition_times, ATT, STATES, VEL};
+use super::error_model::{propagate_covariance_sparse, transition_column, ATT, STATES, VEL};
 use super::filter::SeekerIns;
 use super::flight_noise::flight_noise_step;
 use super::mechanization::{ImuIncrement, Ins, PositionKinematics};
@@ -169,7 +169,7 @@ impl<T: Real> SeekerIns<T> {
     }
 
     /// [`SeekerIns::predict_covariance`] that also applies the step's transition matrix Φ
-    /// (the very Φ of the generated kernel, [`transition_times`]) to `cross`, a covariance
+    /// (the very Φ of the generated kernel, [`super::error_model::transition_times`]) to `cross`, a covariance
     /// column `E[δx δb]` of an external state b kept beside the 17. Returns the interval
     /// covered, s (`None`: nothing was pending). When the step changed P other than by
     /// `Φ P Φᵀ + Q` (a variance repaired or held at its ceiling: a congruence the column
@@ -355,6 +355,7 @@ impl<T: Real> SeekerIns<T> {
                 }
             }
         }
+        self.consider.forget_navigation();
         self.steps_pending = 0;
         self.pending_us = 0;
         self.dv_ned_pending_m_s = Vector3::zeros();
@@ -410,6 +411,7 @@ impl<T: Real> SeekerIns<T> {
                 for v in self.p.row_mut(i).iter_mut() {
                     *v *= f;
                 }
+                self.consider.scale_row(i, f);
                 Health::bump(&mut self.health.limits_hit);
             }
         }
@@ -505,7 +507,6 @@ impl<T: Real> SeekerIns<T> {
         ins: Option<&Ins<T>>,
         dt_total_s: T,
     ) -> Result<u32, NavError> {
-        let ins = ins.unwrap_or(&self.ins);
         let repairs = propagate_covariance_sparse(
             &mut self.p,
             f,
@@ -513,15 +514,17 @@ impl<T: Real> SeekerIns<T> {
             self.design.accel_psd_m2_s3,
             self.design.gyro_psd_rad2_s,
         )?;
-        // Flight configuration: the instrument errors the 17 states do not model.
+        // The accelerometers' S and M (consider parameters), then the instrument-error charge.
+        let had_reference = self.consider_step(f, dt_total_s, repairs > 0);
         flight_noise_step(
             &mut self.p,
             &mut self.bias_charge,
             &self.config.instrument_errors,
-            ins,
+            ins.unwrap_or(&self.ins),
             f,
             dt_total_s,
         );
+        self.consider_start_if(!had_reference);
         Ok(repairs)
     }
 
@@ -547,8 +550,10 @@ impl<T: Real> SeekerIns<T> {
         // the kernel's; a column that overflows is forgotten as after a repair.
         if self.health.limits_hit == limits_before {
             transition_column(&f, dt_total_s, cross);
+            self.consider_external_step(&f, dt_total_s, cross);
         } else {
             *cross = nalgebra::SVector::zeros();
+            self.consider.p_ec = nalgebra::SVector::zeros();
         }
         Ok(())
     }
@@ -583,17 +588,4 @@ impl<T: Real> SeekerIns<T> {
         self.dv_ned_pending_m_s = Vector3::zeros();
         Ok(())
     }
-}
-
-/// `cross ← Φ cross` for the transition of F = `f` over `dt_s` ([`transition_times`]); zero
-/// (the correlation forgotten) when the result is not finite. Not inlined: its temporaries
-/// are not in the covariance step's frame, under which the kernel runs.
-#[inline(never)]
-fn transition_column<T: Real>(f: &SparseF<T>, dt_s: T, cross: &mut nalgebra::SVector<T, STATES>) {
-    let next = transition_times(f, dt_s, cross);
-    *cross = if next.iter().all(|v| v.is_finite()) {
-        next
-    } else {
-        nalgebra::SVector::zeros()
-    };
 }

@@ -5,6 +5,7 @@
 use super::config::starved_after_us;
 #[cfg(feature = "los-residual-3d")]
 use super::config::LosResidual;
+use super::consider::LOS_COLS;
 use super::error_model::{ACC_BIAS, ATT, GIMBAL, GYRO_BIAS, POS, STATES, VEL};
 use super::filter::SeekerIns;
 use super::generated::los17::{rank_two_update, rank_two_variances_ok};
@@ -187,9 +188,18 @@ impl<T: Real> SeekerIns<T> {
         let model = los_model_at(&s.position, &d, &c_b_n, &corrected, sigma)?;
         let c = two_components(&self.p, &model, gate);
         let report = self.commit_two(sample, &model, &c);
-        if let Some(col) = col {
-            let fused = |r: &FusionReport<T>| r.outcome == FusionOutcome::Fused;
-            if fused(&report.pitch) || fused(&report.yaw) {
+        let fused = |r: &FusionReport<T>| r.outcome == FusionOutcome::Fused;
+        if fused(&report.pitch) || fused(&report.yaw) {
+            if self.consider.active {
+                let committed = [fused(&report.pitch), fused(&report.yaw)];
+                let cross = col.as_deref().map(|k| &k.cross);
+                let at = |h: &SVector<T, STATES>| {
+                    LOS_COLS.map(|i| h.get(i).copied().unwrap_or_default())
+                };
+                let h = [at(&model.h_pitch), at(&model.h_yaw)];
+                self.consider_after_los(committed, &h, &c, cross);
+            }
+            if let Some(col) = col {
                 cross_after_los(&report, &model, &c, col);
             }
         }
@@ -352,6 +362,9 @@ impl<T: Real> SeekerIns<T> {
                 }
             }
         }
+        for i in 0..9 {
+            self.consider.scale_row(i, sf);
+        }
         self.limit_variances();
     }
 
@@ -372,6 +385,35 @@ impl<T: Real> SeekerIns<T> {
         self.gyro_bias_rad_s += v3(GYRO_BIAS);
         self.gimbal_bias_rad += x.fixed_rows::<2>(GIMBAL);
         Ok(())
+    }
+}
+
+impl<T: Real> SeekerIns<T> {
+    /// After a committed 2-D LOS update whose components `c` (gains `kk1`, `kk2`, zero for a
+    /// component not fused, of the rows `h`, their values at `LOS_COLS`; `committed` the
+    /// fused ones) were computed against P before it: `P_xc` (and, with `cross` the column of
+    /// a state kept beside the 17 as it was before the update, `P_ec`) corrected per fused
+    /// component, the second against the first's result, in one pass
+    /// (`ConsiderCross::after_los_pair`, module `consider`). Not inlined: the update's frame
+    /// does not carry it (the stand-alone filter without consider parameters never calls it).
+    #[inline(never)]
+    fn consider_after_los(
+        &mut self,
+        committed: [bool; 2],
+        h: &[[T; LOS_COLS.len()]; 2],
+        c: &TwoComponents<T>,
+        cross: Option<&SVector<T, STATES>>,
+    ) {
+        let inv = |fused: bool, rep: &FusionReport<T>| {
+            if fused {
+                T::one() / rep.innovation_variance
+            } else {
+                T::zero()
+            }
+        };
+        let inv_s = [inv(committed[0], &c.rep1), inv(committed[1], &c.rep2)];
+        self.consider
+            .after_los_pair(h, [&c.kk1, &c.kk2], cross.map(|cr| (cr, inv_s)));
     }
 }
 

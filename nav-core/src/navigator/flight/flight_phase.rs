@@ -66,10 +66,11 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             let bs = &mut self.baro_state;
             let before = (ekf.health().limits_hit, ekf.health().gaps_reset);
             if let Some(dt) = ekf.propagate_cross(inc, clip, &mut bs.cross)? {
-                bs.decay(&model, dt);
+                ekf.consider_external_decay(bs.decay(&model, dt));
             }
             if (ekf.health().limits_hit, ekf.health().gaps_reset) != before {
                 bs.cross = nalgebra::SVector::zeros();
+                ekf.consider_external_forget();
             }
         } else {
             ekf.propagate_uncounted(inc, clip)?;
@@ -122,6 +123,9 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             self.midcourse_at = Some(self.time);
             if let BaroDamping::Ekf(m) = &self.config.baro {
                 self.baro_state = BaroState::start(m);
+                if let Some(ekf) = self.ekf.as_mut() {
+                    ekf.consider_external_forget();
+                }
             }
             self.start_loop();
             transition.get_or_insert(Transition {
@@ -260,7 +264,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         };
         let bs = &mut self.baro_state;
         if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
-            bs.decay(model, dt);
+            ekf.consider_external_decay(bs.decay(model, dt));
         }
         self.psd_after_flush();
         Ok(())
@@ -296,6 +300,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                             .update_rank_one(&g.dx, &g.u, &g.k, g.delta)
                             .unwrap_or(false)
                         {
+                            ekf.consider_after_baro(tau, &g.k, g.k_b);
                             bs.cross = g.cross;
                             bs.variance_m2 = g.variance_m2;
                             bs.bias_m -= g.db_m;
@@ -375,7 +380,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
         if let Some(model) = model {
             let bs = &mut self.baro_state;
             if let Some(dt) = ekf.predict_covariance_cross(&mut bs.cross)? {
-                bs.decay(&model, dt);
+                ekf.consider_external_decay(bs.decay(&model, dt));
             }
         } else if ekf.los_at_ins_time(s) {
             // As `update_los` would on a copy of the filter.

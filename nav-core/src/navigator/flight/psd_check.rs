@@ -96,6 +96,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
                     ekf.check_psd_margin();
                     if ekf.health().limits_hit != limits {
                         self.baro_state.cross = nalgebra::SVector::zeros();
+                        ekf.consider_external_forget();
                     }
                 }
                 self.psd = PsdCheck::Checked;
@@ -112,6 +113,7 @@ impl<T: Real, const K: usize, const N: usize, const H: usize> Navigator<T, K, N,
             ekf.add_stabilising_noise();
             if ekf.health().limits_hit != limits {
                 self.baro_state.cross = nalgebra::SVector::zeros();
+                ekf.consider_external_forget();
             }
         }
     }
