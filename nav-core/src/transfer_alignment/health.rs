@@ -99,13 +99,6 @@ impl Monitor {
         let mut all_skipped = true;
         for (rep, c) in updates.iter().zip(self.channels.iter_mut()) {
             let outcome = rep.outcome;
-            // A fused channel as above, in line; the others out of line.
-            if outcome == FusionOutcome::Fused {
-                c.fused = c.fused.saturating_add(1);
-                c.consecutive_rejected = 0;
-                all_skipped = false;
-                continue;
-            }
             count.starved |= record_channel(c, outcome, starved_epochs);
             count.skipped |= outcome == FusionOutcome::Skipped;
             all_skipped &= outcome == FusionOutcome::Skipped;
