@@ -350,6 +350,9 @@ const TARGETS: &[Budget] = &[
     insns("ins_mech_step", 3_000),
     insns("ta12_step", 5_000),
     insns("ta9_step", 3_000),
+    // A step with a gated row: a flight loop's worst case holds the nominal step's target.
+    insns("ta12_step_rejected", 5_000),
+    insns("ta9_step_rejected", 3_000),
     insns("vc_classical_step", 400),
     insns("vc_aided_step", 400),
     text_bytes(Image::Filters, TARGET_TEXT_BYTES),

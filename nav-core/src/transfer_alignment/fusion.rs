@@ -107,8 +107,8 @@ fn diagonal_scan<T: Real, const N: usize>(p: &SMatrix<T, N, N>) -> (bool, T) {
 /// Not inlined: one copy per N serves the six rows of a step (inlined six times, the
 /// straight-line triangle costs kilobytes of flash). Straight-line for the flight
 /// configuration (N = 15), whose rows are fused one by one; the loop form for the paper
-/// filters (N ≤ 12), whose rows are fused in pairs ([`downdate_two`]) and which run this only
-/// for a pair with one row not fused or an epoch rerun with per-update checks.
+/// filters (N ≤ 12), whose rows are fused in pairs ([`downdate_two`], [`downdate_one`]) and
+/// which run this only for an epoch rerun with per-update checks.
 #[inline(never)]
 pub(super) fn fuse_rank_one<T: Real, const N: usize>(
     x: &mut SVector<T, N>,
@@ -137,7 +137,10 @@ pub(super) fn fuse_rank_one<T: Real, const N: usize>(
         return Err(s);
     }
     let xs = &mut x.data.0[0];
-    if N <= UNROLLED_MAX_N && N > PAIRED_MAX_N {
+    if N <= PAIRED_MAX_N {
+        let g = Gain { inv_s, innovation };
+        downdate_one(xs, &mut p.data.0, bs, g);
+    } else if N <= UNROLLED_MAX_N {
         downdate_unrolled(&mut p.data.0, bs, inv_s, xs, innovation);
     } else {
         downdate_loop(&mut p.data.0, bs, inv_s, xs, innovation);
@@ -241,6 +244,19 @@ pub(super) fn downdate_two<T: Real, const N: usize>(
     row!(11: 11);
 }
 
+/// The update of a pair ([`downdate_two`]) whose other row is not fused: [`downdate_unrolled`],
+/// straight-line, the bits of [`fuse_rank_one`] (the same expressions). Not inlined: one copy
+/// per N.
+#[inline(never)]
+pub(super) fn downdate_one<T: Real, const N: usize>(
+    x: &mut [T; N],
+    p: &mut [[T; N]; N],
+    b: &[T; N],
+    g: Gain<T>,
+) {
+    downdate_unrolled(p, b, g.inv_s, x, g.innovation);
+}
+
 /// The checks of an update's result, before anything is written: `P⁺`'s diagonal
 /// `P_ii − k_i b_i` (`k_i = b_i / s`, given `1/s`) non-negative with a finite sum, and the
 /// state correction `k·innovation` finite. (The gains are formed again where they are used,
@@ -274,8 +290,8 @@ fn result_acceptable<T: Real, const N: usize>(
 const UNROLLED_MAX_N: usize = 15;
 
 /// Largest N of the filters that fuse their rows in pairs ([`downdate_two`], the hot path):
-/// their single updates (a pair with one row not fused, the rerun of an epoch with per-update
-/// checks) are rare, and run the loop form (the same bits, far less flash).
+/// their single updates (the rerun of an epoch with per-update checks) are rare, and run the
+/// loop form (the same bits, far less flash). A pair with one row fused runs [`downdate_one`].
 const PAIRED_MAX_N: usize = 12;
 
 /// The loop form of [`downdate_unrolled`] (any N; same expressions in the same order).

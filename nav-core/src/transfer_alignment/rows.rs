@@ -4,12 +4,14 @@
 //! rank-one update of [`super::fusion`]). The paper's filters (conventional and proposed) fuse
 //! the rows in pairs (0-1, 2-3, 4-5) when the step defers its result checks: the second row's
 //! `b` and innovation against the first update's result, then one pass over P for both
-//! downdates — the bits of the six updates one after the other. Their per-update path (the
+//! downdates — the bits of the six updates one after the other (a row the gate rejects takes
+//! part as a null update: a pair with one row fused is that row's update alone, through the
+//! same straight-line code). Their per-update path (the
 //! rare rerun of an epoch) is a compact loop out of line, so that the pairs fit the filters'
 //! image's flash.
 use super::config::MAX_ANGULAR_RATE_RAD_S;
 use super::covariance::{bounded_variance, fuse_bounded, skipped_report};
-use super::fusion::{decide, downdate_two, fuse_rank_one, Gain, Guard, UpdateChecks};
+use super::fusion::{decide, downdate_one, downdate_two, Gain, Guard, UpdateChecks};
 use super::measurement::{
     bounded_misalignment, clamp_symmetric, h_row_flight_df_with, h_row_total, linear_df_dot,
     ManoeuvreTerms,
@@ -236,9 +238,11 @@ fn fuse_rows_each<T: Real, const K: usize, const N: usize>(
 }
 
 /// [`upper_times_row`] in loops (a row known only at run time): the same sums in the same
-/// order (each `b_i` from its first product, entries in the row's order), the same bits.
-/// Out of line: one copy per filter serves its two rare paths (the rerun's rows one by one,
-/// a pair's second row alone).
+/// order (each `b_i` from its first product, entries in the row's order), the same bits —
+/// entry by entry over P's column `j` (rows `0..=j` stored in column `j`, the rest in row `j`
+/// of the later columns), so that each loop is one load, one multiply-add and one store.
+/// Out of line: one copy per filter serves its rare paths (the rerun's rows one by one, a
+/// pair's second row when the first is not fused).
 #[inline(never)]
 fn upper_times_row_loop<T: Real, const N: usize, const M: usize>(
     p: &SMatrix<T, N, N>,
@@ -246,15 +250,23 @@ fn upper_times_row_loop<T: Real, const N: usize, const M: usize>(
     out: &mut SVector<T, N>,
 ) {
     let cols = &p.data.0;
-    for (i, bi) in out.iter_mut().enumerate() {
-        let mut acc = T::zero();
-        for (t, (j, hj)) in h.entries().enumerate() {
-            let (c, r) = if i <= j { (j, i) } else { (i, j) };
-            if let Some(&pij) = cols.get(c).and_then(|col| col.get(r)) {
-                acc = if t == 0 { hj * pij } else { acc + hj * pij };
-            }
+    let [b] = &mut out.data.0;
+    if h.len == 0 {
+        b.fill(T::zero());
+    }
+    for (t, (j, hj)) in h.entries().enumerate() {
+        let Some(col) = cols.get(j) else {
+            continue;
+        };
+        // P_ij for i ≤ j from column j, for i > j from column i, row j.
+        let upper = col.iter().take(j + 1).copied();
+        let lower = cols
+            .iter()
+            .skip(j + 1)
+            .map(|c| c.get(j).copied().unwrap_or_else(T::zero));
+        for (bi, pij) in b.iter_mut().zip(upper.chain(lower)) {
+            *bi = if t == 0 { hj * pij } else { *bi + hj * pij };
         }
-        *bi = acc;
     }
 }
 
@@ -393,9 +405,13 @@ struct PairRow<T, const M: usize> {
 /// Two consecutive scalar updates ([`Guard::Deferred`]), the same bits as [`fuse_sparse`]
 /// twice: the second row's innovation and `b = P h` are formed against the first update's
 /// result (the state entries and covariance elements they read, with the first update's own
-/// expressions), then both downdates run in one pass ([`downdate_two`]); when only one of the
-/// two is fused, it runs alone ([`fuse_rank_one`], deciding again the same way). The two
-/// reports are written into `u1`, `u2` (the caller's slots).
+/// expressions), then both downdates run in one pass ([`downdate_two`]). When one row is not
+/// fused (rejected by the gate or refused), the other's update runs alone, straight-line
+/// ([`downdate_one`]); a first row not fused enters the second row's innovation and `b` as a
+/// null update — its `b` zeroed, `1/s = 0`, its innovation `−0`: each of its terms is `+0` in
+/// P (`P_ij − (+0) = P_ij`) and `−0` in x (`x_i + (−0) = x_i`), bit for bit whatever the
+/// element —, so that both cases run the common path's straight-line code. The two reports
+/// are written into `u1`, `u2` (the caller's slots).
 #[inline(always)]
 fn fuse_pair<T: Real, const N: usize, const M: usize>(
     x: &mut SVector<T, N>,
@@ -435,36 +451,29 @@ fn fuse_pair<T: Real, const N: usize, const M: usize>(
     let d2 = decide(hph2, nu2, r2, checks.gate);
     let inv2 = fused_inv_s(&d2);
     put_report(u2, report_of(d2, nu2));
+    // The second row not fused (rare): the first's update alone, straight-line.
+    let g1 = Gain {
+        inv_s: inv1,
+        innovation: nu1,
+    };
+    let (x, p) = (&mut x.data.0[0], &mut p.data.0);
     match inv2 {
-        Some(inv2) => {
-            let gains = [
-                Gain {
-                    inv_s: inv1,
-                    innovation: nu1,
-                },
-                Gain {
-                    inv_s: inv2,
-                    innovation: nu2,
-                },
-            ];
-            downdate_two(
-                &mut x.data.0[0],
-                &mut p.data.0,
-                &b1.data.0[0],
-                &b2.data.0[0],
-                gains,
-            );
+        Some(inv_s) => {
+            let g2 = Gain {
+                inv_s,
+                innovation: nu2,
+            };
+            downdate_two(x, p, &b1.data.0[0], &b2.data.0[0], [g1, g2]);
         }
-        None => {
-            let _ = fuse_rank_one(x, p, b1, hph1, nu1, r1, checks);
-        }
+        None => downdate_one(x, p, &b1.data.0[0], g1),
     }
 }
 
 /// A pair's second row (`h`, `[z, r]`) when the first is not fused (rare): `b = P h` in the
-/// loop form (the same sums), its decision and report (into `u2`), its update alone. Out of
-/// line, so that the common path's `b` needs no zeroing; the row by value, so that the common
-/// path does not build it in memory.
+/// loop form ([`upper_times_row_loop`], the same sums), then the row's update alone
+/// ([`fuse_bounded`]: the same decision, the straight-line [`super::fusion::downdate_one`]),
+/// its report into `u2`. Out of line, so that the common path's `b` needs no zeroing; the row
+/// by value, so that the common path does not build it in memory.
 #[cold]
 #[inline(never)]
 fn second_row_alone<T: Real, const N: usize, const M: usize>(
@@ -478,14 +487,7 @@ fn second_row_alone<T: Real, const N: usize, const M: usize>(
     let mut b2 = SVector::<T, N>::zeros();
     upper_times_row_loop(p, &h, &mut b2);
     let nu2 = z - h.dot(x);
-    let hph2 = h.dot(&b2);
-    let r2 = bounded_variance(hph2, r);
-    let d2 = decide(hph2, nu2, r2, checks.gate);
-    let inv2 = fused_inv_s(&d2);
-    put_report(u2, report_of(d2, nu2));
-    if inv2.is_some() {
-        let _ = fuse_rank_one(x, p, &b2, hph2, nu2, r2, checks);
-    }
+    *u2 = fuse_bounded(x, p, &b2, h.dot(&b2), nu2, r, checks);
 }
 
 /// `1/s` of a decision to fuse.
