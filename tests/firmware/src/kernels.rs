@@ -45,15 +45,33 @@ pub static KERNELS: &[Kernel] = &[
         check: ta9_check,
     },
     Kernel {
+        name: "ta9_step_rejected_first",
+        setup: ta9_setup,
+        run: ta9_step_rejected_first,
+        check: ta9_check,
+    },
+    Kernel {
         name: "ta12_step_rejected",
         setup: ta12_setup,
         run: ta12_step_rejected,
         check: ta12_check,
     },
     Kernel {
+        name: "ta12_step_rejected_first",
+        setup: ta12_setup,
+        run: ta12_step_rejected_first,
+        check: ta12_check,
+    },
+    Kernel {
         name: "ta15_step_rejected",
         setup: ta15_setup,
         run: ta15_step_rejected,
+        check: ta15_check,
+    },
+    Kernel {
+        name: "ta15_step_rejected_first",
+        setup: ta15_setup,
+        run: ta15_step_rejected_first,
         check: ta15_check,
     },
     Kernel {
@@ -325,7 +343,7 @@ static TA12: Slot<Ta<ProposedFilter<f32>>> = Mutex::new(RefCell::new(None));
 static TA15: Slot<Ta<FlightFilter<f32>>> = Mutex::new(RefCell::new(None));
 
 macro_rules! ta_kernel {
-    ($setup:ident, $step:ident, $prop:ident, $rejected:ident, $check:ident, $cell:ident, $ty:ty, $config:expr) => {
+    ($setup:ident, $step:ident, $prop:ident, $rejected:ident, $rejected_first:ident, $check:ident, $cell:ident, $ty:ty, $config:expr) => {
         /// Prediction only (a master-data dropout epoch).
         fn $prop() {
             with_state(&$cell, |s| {
@@ -356,12 +374,23 @@ macro_rules! ta_kernel {
             });
         }
         /// A step whose master specific force along X is an outlier ([`OUTLIER_M_S2`]): the
-        /// gate rejects that row and its pair's other row is fused alone — the dearer path a
-        /// flight loop meets whenever a channel is gated.
+        /// gate rejects that row (the second of its pair, dω_Z–df_X) and the pair's first row
+        /// is fused alone — the dearer path a flight loop meets whenever a channel is gated.
         fn $rejected() {
             with_state(&$cell, |s| {
                 let (mut m, sl) = ta_samples(s.k);
                 m.specific_force_m_s2.x += OUTLIER_M_S2;
+                s.ok &= matches!(s.filter.step(&m, &sl), Ok(r) if r.predictions == 1
+                    && r.updates.iter().filter(|u| u.outcome == FusionOutcome::Rejected).count() == 1);
+                s.k += 1;
+            });
+        }
+        /// The same with the outlier along Y: the gated row is the FIRST of its pair (df_Y–df_Z),
+        /// so the pair's second row is fused alone.
+        fn $rejected_first() {
+            with_state(&$cell, |s| {
+                let (mut m, sl) = ta_samples(s.k);
+                m.specific_force_m_s2.y += OUTLIER_M_S2;
                 s.ok &= matches!(s.filter.step(&m, &sl), Ok(r) if r.predictions == 1
                     && r.updates.iter().filter(|u| u.outcome == FusionOutcome::Rejected).count() == 1);
                 s.k += 1;
@@ -378,6 +407,7 @@ ta_kernel!(
     ta9_step,
     ta9_propagate,
     ta9_step_rejected,
+    ta9_step_rejected_first,
     ta9_check,
     TA9,
     ConventionalFilter<f32>,
@@ -388,6 +418,7 @@ ta_kernel!(
     ta12_step,
     ta12_propagate,
     ta12_step_rejected,
+    ta12_step_rejected_first,
     ta12_check,
     TA12,
     ProposedFilter<f32>,
@@ -399,6 +430,7 @@ ta_kernel!(
     ta15_step,
     ta15_propagate,
     ta15_step_rejected,
+    ta15_step_rejected_first,
     ta15_check,
     TA15,
     FlightFilter<f32>,
