@@ -406,12 +406,10 @@ struct PairRow<T, const M: usize> {
 /// twice: the second row's innovation and `b = P h` are formed against the first update's
 /// result (the state entries and covariance elements they read, with the first update's own
 /// expressions), then both downdates run in one pass ([`downdate_two`]). When one row is not
-/// fused (rejected by the gate or refused), the other's update runs alone, straight-line
-/// ([`downdate_one`]); a first row not fused enters the second row's innovation and `b` as a
-/// null update — its `b` zeroed, `1/s = 0`, its innovation `−0`: each of its terms is `+0` in
-/// P (`P_ij − (+0) = P_ij`) and `−0` in x (`x_i + (−0) = x_i`), bit for bit whatever the
-/// element —, so that both cases run the common path's straight-line code. The two reports
-/// are written into `u1`, `u2` (the caller's slots).
+/// fused (rejected by the gate or refused), the other's update runs alone: the first's
+/// straight-line ([`downdate_one`]) when the second is not fused; the second's out of line
+/// ([`second_row_alone`]: its `b = P h` in the loop form) when the first is not fused. The two
+/// reports are written into `u1`, `u2` (the caller's slots).
 #[inline(always)]
 fn fuse_pair<T: Real, const N: usize, const M: usize>(
     x: &mut SVector<T, N>,
