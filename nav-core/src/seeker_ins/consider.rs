@@ -38,7 +38,7 @@
 //! one pass of the rank-two correction of P_xc (`ConsiderCross::after_los_pair`); per baro
 //! update `hᵀ P_xc` over its two entries and the rank-one correction.
 
-use super::error_model::{transition_times, STATES, VEL};
+use super::error_model::{transition_times, ACC_BIAS, STATES, VEL};
 use super::flight_noise::InstrumentErrors;
 use super::sparse_f::SparseF;
 use crate::Real;
@@ -53,9 +53,6 @@ const ALL_STATES: [usize; STATES] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 1
 
 /// The non-zero columns of the LOS rows of H: position, attitude, gimbal angle errors.
 pub(crate) const LOS_COLS: [usize; 8] = [0, 1, 2, 6, 7, 8, 15, 16];
-
-/// Index of the first accelerometer-bias state (the rows of the reference's share).
-const ACC_BIAS: usize = super::error_model::ACC_BIAS;
 
 /// Row of `(S + M) u` and component of `u` each consider parameter multiplies:
 /// `S_x, S_y, S_z, M_xy, M_xz, M_yx, M_yz, M_zx, M_zy`.
@@ -109,6 +106,17 @@ fn pcc_at<T: Real>(pcc: (T, T), j: usize) -> T {
     } else {
         pcc.1
     }
+}
+
+/// `J(u) c` (3-vector) for the nine parameters' values `c` (a row of `P_xc`, or `P_ec`):
+/// row i sums `u_k c_j` over the parameters `j` of that row (`ROW_COMP`), scale factor first.
+fn j_times<T: Real>(c: [T; CONSIDER], u: &Vector3<T>) -> Vector3<T> {
+    let [s0, s1, s2, m01, m02, m10, m12, m20, m21] = c;
+    Vector3::new(
+        s0 * u.x + m01 * u.y + m02 * u.z,
+        s1 * u.y + m10 * u.x + m12 * u.z,
+        s2 * u.z + m20 * u.x + m21 * u.y,
+    )
 }
 
 /// `J(u)`'s one non-zero entry of column `j`: `(row, value)`.
@@ -178,16 +186,12 @@ impl<T: Real> ConsiderCross<T> {
         let pd = &mut p.data.0;
         // B = A Γᵀ row by row: `w = J A[i, ·]ᵀ` (J one entry a column), `B[i, ·] = Δt C w`;
         // outside the velocity rows into P's velocity columns and rows at once.
-        let [s0, s1, s2, m01, m02, m10, m12, m20, m21] = &self.p_xc.data.0;
-        let at = |c: &[T; STATES], i: usize| c.get(i).copied().unwrap_or(z);
+        let cols = &self.p_xc.data.0;
         let mut bv = [[z; 3]; 3];
         for i in 0..STATES {
-            let w = Vector3::new(
-                at(s0, i) * u.x + at(m01, i) * u.y + at(m02, i) * u.z,
-                at(s1, i) * u.y + at(m10, i) * u.x + at(m12, i) * u.z,
-                at(s2, i) * u.z + at(m20, i) * u.x + at(m21, i) * u.y,
-            );
-            let b = cdt * w;
+            let row: [T; CONSIDER] =
+                core::array::from_fn(|j| cols.get(j).and_then(|c| c.get(i)).copied().unwrap_or(z));
+            let b = cdt * j_times(row, u);
             if let Some(row) = i.checked_sub(VEL).and_then(|r| bv.get_mut(r)) {
                 *row = [b.x, b.y, b.z];
                 continue;
@@ -276,11 +280,17 @@ impl<T: Real> ConsiderCross<T> {
         }
     }
 
-    /// The navigation rows (0..9) forgotten: P's navigation block restarted independent.
-    pub(crate) fn forget_navigation(&mut self) {
-        for i in 0..9 {
-            self.scale_row(i, T::zero());
+    /// The navigation rows (position, velocity, attitude: the states before the biases)
+    /// scaled by `f` (P's navigation rows and columns scaled alike).
+    pub(crate) fn scale_navigation_rows(&mut self, f: T) {
+        for i in 0..ACC_BIAS {
+            self.scale_row(i, f);
         }
+    }
+
+    /// The navigation rows forgotten: P's navigation block restarted independent.
+    pub(crate) fn forget_navigation(&mut self) {
+        self.scale_navigation_rows(T::zero());
     }
 
     /// A scalar update of row `h` with the 17-state gain `k = P h / s` (`h_c = 0`):
@@ -445,13 +455,8 @@ impl<T: Real> super::SeekerIns<T> {
         }
         let u = f.c_b_n.tr_mul(&f.f_ned) - f_ref;
         // `Γ P_ecᵀ = Δt C J P_ecᵀ`: J's rows as in the step.
-        let [[s0, s1, s2, m01, m02, m10, m12, m20, m21]] = self.consider.p_ec.data.0;
-        let w = Vector3::new(
-            s0 * u.x + m01 * u.y + m02 * u.z,
-            s1 * u.y + m10 * u.x + m12 * u.z,
-            s2 * u.z + m20 * u.x + m21 * u.y,
-        );
-        let add = f.c_b_n * (w * dt_s);
+        let [p_ec] = self.consider.p_ec.data.0;
+        let add = f.c_b_n * (j_times(p_ec, &u) * dt_s);
         for (r, a) in add.iter().enumerate() {
             if let Some(x) = cross.get_mut(VEL + r) {
                 *x += *a;

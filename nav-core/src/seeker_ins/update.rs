@@ -362,9 +362,7 @@ impl<T: Real> SeekerIns<T> {
                 }
             }
         }
-        for i in 0..9 {
-            self.consider.scale_row(i, sf);
-        }
+        self.consider.scale_navigation_rows(sf);
         self.limit_variances();
     }
 
