@@ -105,12 +105,9 @@ fn diagonal_scan<T: Real, const N: usize>(p: &SMatrix<T, N, N>) -> (bool, T) {
 /// fused.
 ///
 /// Not inlined: one copy per N serves the six rows of a step (inlined six times, the
-/// straight-line triangle costs kilobytes of flash). Straight-line: for the flight
-/// configuration (N = 15), whose rows are fused one by one, inlined; for the paper filters
-/// (N ≤ 12), whose rows are fused in pairs ([`downdate_two`]), through the one out-of-line
-/// copy per N that a pair with one row fused also runs ([`downdate_one`]) — they run this only
-/// for a pair's second row alone and an epoch rerun with per-update checks. The loop form
-/// only beyond N = 15.
+/// straight-line triangle costs kilobytes of flash). Straight-line: inlined for N = 15 (rows
+/// fused one by one); for the paired filters (N ≤ 12) their out-of-line [`downdate_one`].
+/// The loop form only beyond N = 15.
 #[inline(never)]
 pub(super) fn fuse_rank_one<T: Real, const N: usize>(
     x: &mut SVector<T, N>,
@@ -292,8 +289,7 @@ fn result_acceptable<T: Real, const N: usize>(
 const UNROLLED_MAX_N: usize = 15;
 
 /// Largest N of the filters that fuse their rows in pairs ([`downdate_two`], the hot path):
-/// their single updates (a pair with one row fused, the rerun of an epoch with per-update
-/// checks) run the straight-line [`downdate_one`], one out-of-line copy per N.
+/// their single updates run the straight-line [`downdate_one`], one copy per N.
 const PAIRED_MAX_N: usize = 12;
 
 /// The loop form of [`downdate_unrolled`] (any N; same expressions in the same order).
